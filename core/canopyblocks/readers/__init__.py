@@ -1,0 +1,1 @@
+"""canopyblocks.readers (filled in by its issue)."""

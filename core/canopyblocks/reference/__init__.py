@@ -1,0 +1,1 @@
+"""canopyblocks.reference (filled in by its issue)."""

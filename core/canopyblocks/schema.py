@@ -1,0 +1,88 @@
+"""Column names, flags and layer names of the output contract (DESIGN.md section 5).
+
+Scripts and the QGIS layers rely on these names; change them only with a major version.
+"""
+
+from __future__ import annotations
+
+__all__ = [
+    "BLOCK_COLUMNS",
+    "REFERENCE_COLUMNS",
+    "RESIDUAL_COLUMNS",
+    "TERRAIN_COLUMNS",
+    "STATS_COLUMNS",
+    "METRICS",
+    "FLAG_OK",
+    "FLAG_SPARSE",
+    "FLAG_INVERTED",
+    "FLAGS",
+    "LAYER_BLOCKS",
+    "LAYER_RESIDUALS",
+    "LAYER_STATS",
+    "LAYER_PHOTONS",
+    "LAYER_CORRIDOR",
+    "LABEL_NOISE",
+    "LABEL_GROUND",
+    "LABEL_CANOPY",
+    "LABEL_BETWEEN",
+    "LABEL_NAMES",
+]
+
+#: Block table columns, in order (plus the point ``geometry`` at the block centre).
+BLOCK_COLUMNS: tuple[str, ...] = (
+    "track",      # beam or channel id
+    "length",     # block length, m
+    "block",      # integer index counted from s0
+    "s_start",    # along-track start of the block, m
+    "s_end",      # along-track end, m
+    "x",          # block centre, track CRS, m
+    "y",
+    "lon",        # block centre, degrees WGS84
+    "lat",
+    "n_photons",  # photons in the block
+    "n_kept",     # after the noise filter
+    "n_between",  # kept photons with ground <= z <= top
+    "top",        # canopy top, m (input vertical datum)
+    "ground",     # mean ground, m
+    "hmax",       # top - ground, m
+    "z90",        # 90th percentile height of the photons between ground and top, m
+    "h90",        # z90 - ground, m
+    "flag",       # ok / sparse / inverted
+)
+
+FLAG_OK = "ok"
+FLAG_SPARSE = "sparse"
+FLAG_INVERTED = "inverted"
+FLAGS: tuple[str, ...] = (FLAG_OK, FLAG_SPARSE, FLAG_INVERTED)
+
+#: The four validated metrics, photon-side column -> reference-side column.
+METRICS: tuple[str, ...] = ("ground", "top", "hmax", "h90")
+
+REFERENCE_COLUMNS: tuple[str, ...] = ("ref_ground", "ref_top", "ref_top90", "ref_hmax", "ref_h90")
+TERRAIN_COLUMNS: tuple[str, ...] = ("slope", "aspect", "aspect_class")
+RESIDUAL_COLUMNS: tuple[str, ...] = (
+    *REFERENCE_COLUMNS,
+    "res_ground",
+    "res_top",
+    "res_hmax",
+    "res_h90",
+    *TERRAIN_COLUMNS,
+    "coverage",
+)
+STATS_COLUMNS: tuple[str, ...] = (
+    "length", "metric", "group", "n", "bias", "rmse", "mae", "slope", "intercept", "r2",
+)
+
+LAYER_BLOCKS = "blocks"
+LAYER_RESIDUALS = "residuals"
+LAYER_STATS = "stats"
+LAYER_PHOTONS = "photons"
+LAYER_CORRIDOR = "corridor"
+
+#: Per-photon labels (``compute_blocks(..., labels=True)``).
+LABEL_NOISE = 0      # removed by the noise filter (or by the signal-confidence threshold)
+LABEL_GROUND = 1     # kept, in the final ground window
+LABEL_CANOPY = 2     # kept, in the final canopy-top window
+LABEL_BETWEEN = 3    # kept, in neither window
+LABEL_NAMES = {LABEL_NOISE: "noise", LABEL_GROUND: "ground", LABEL_CANOPY: "canopy",
+               LABEL_BETWEEN: "between"}

@@ -1,0 +1,1 @@
+"""canopyblocks.simulate (filled in by its issue)."""

@@ -1,0 +1,1 @@
+"""PDAL JSON pipelines shipped with canopyblocks (see README.md in this folder)."""

@@ -1,0 +1,23 @@
+#!/usr/bin/env bash
+# Create ./.venv on Debian's Python (the one QGIS's bindings are built for) and install
+# canopyblocks into it, editable, with its optional parts. Idempotent.
+# Usage: bash scripts/setup_env.sh [extras]   (default extras: all; the tests use "test")
+set -euo pipefail
+cd "$(dirname "$0")/.."
+extras="${1:-all}"
+PY=/usr/bin/python3
+if [ ! -x "$PY" ] || ! "$PY" -c 'import venv, ensurepip' 2>/dev/null; then
+    echo "canopyblocks: installing Debian's python3 with venv support" >&2
+    export DEBIAN_FRONTEND=noninteractive
+    apt-get update -qq
+    apt-get install -y -qq --no-install-recommends python3 python3-venv python3-pip >/dev/null
+fi
+if [ ! -x .venv/bin/python ]; then
+    # --system-site-packages: the venv sees Debian's QGIS bindings when they are installed.
+    "$PY" -m venv --system-site-packages .venv
+fi
+.venv/bin/python -m pip install -q --upgrade pip >/dev/null
+# numpy<2: Debian's GDAL/scipy/matplotlib (seen by QGIS) are built on numpy 1.x;
+# attrs>=23.2: Debian's attrs 22.2 breaks rasterio's affine.
+.venv/bin/python -m pip install -q -c scripts/constraints.txt -e ".[${extras}]"
+echo "canopyblocks: environment ready in $(pwd)/.venv" >&2

@@ -1,0 +1,68 @@
+"""Shared fixtures: real sample data, and dependency gates that fail under CI=true."""
+
+from __future__ import annotations
+
+import os
+import shutil
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+TEST_DATA = ROOT / "tests" / "data"
+SHARED_DATA = ROOT.parent / "shared" / "data"
+IN_CI = os.environ.get("CI", "").lower() in ("1", "true", "yes")
+
+
+def require(available: bool, what: str, how: str) -> None:
+    """Skip when ``what`` is missing on a user's machine; fail under ``CI=true``."""
+    if available:
+        return
+    msg = f"{what} is not available ({how})"
+    if IN_CI:
+        pytest.fail(f"CI=true: {msg}; a missing dependency is a failure in CI", pytrace=False)
+    pytest.skip(msg)
+
+
+def data_file(relpath: str) -> Path:
+    """A sample file: ``tests/data/<relpath>`` if bundled, else ``../shared/data/<relpath>``.
+
+    Bundled copies keep their provenance in ``tests/data/PROVENANCE.md``.
+    """
+    for base in (TEST_DATA, SHARED_DATA):
+        p = base / relpath
+        if p.exists():
+            return p
+    require(False, f"sample file {relpath}", "not in tests/data nor ../shared/data")
+    raise AssertionError("unreachable")
+
+
+@pytest.fixture(scope="session")
+def sample() -> object:
+    """``sample("icesat2/vegr_atl03_clip.h5") -> Path``."""
+    return data_file
+
+
+def pdal_executable() -> str | None:
+    """The pdal wrapper the project installs, or one on PATH."""
+    env = os.environ.get("CANOPYBLOCKS_PDAL")
+    if env and Path(env).exists():
+        return env
+    try:
+        from canopyblocks.reference.pdal import find_pdal  # type: ignore[attr-defined]
+    except ImportError:
+        find_pdal = None
+    if find_pdal is not None:
+        try:
+            return str(find_pdal())
+        except Exception:  # noqa: BLE001 - any failure means "not available"
+            return None
+    return shutil.which("pdal")
+
+
+@pytest.fixture(scope="session")
+def pdal_bin() -> str:
+    """Path of a working ``pdal``; skips (fails under CI) when missing."""
+    exe = pdal_executable()
+    require(exe is not None, "the pdal command line", "run: bash scripts/install_pdal.sh")
+    return str(exe)
