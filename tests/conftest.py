@@ -13,6 +13,23 @@ TEST_DATA = ROOT / "tests" / "data"
 SHARED_DATA = ROOT.parent / "shared" / "data"
 IN_CI = os.environ.get("CI", "").lower() in ("1", "true", "yes")
 
+os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
+
+
+def _qgis_importable() -> bool:
+    try:
+        import qgis.core  # noqa: F401
+        import qgis.gui  # noqa: F401
+    except Exception:  # noqa: BLE001 - any failure (missing, broken libs) means "no QGIS"
+        return False
+    return True
+
+
+HAVE_QGIS = _qgis_importable()
+# pytest-qgis imports QGIS at load time, so it is disabled in pyproject (-p no:pytest_qgis)
+# and loaded here only where QGIS works; tests/qgis/ gates on HAVE_QGIS (fails under CI=true).
+pytest_plugins = ["pytest_qgis.plugin"] if HAVE_QGIS else []
+
 
 def require(available: bool, what: str, how: str) -> None:
     """Skip when ``what`` is missing on a user's machine; fail under ``CI=true``."""

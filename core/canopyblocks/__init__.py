@@ -22,11 +22,31 @@ from .errors import (
     PdalError,
     SparseBlockWarning,
 )
+from .blocks import (
+    BlockParams,
+    CalibrationResult,
+    calibrate_cutoffs,
+    compute_blocks,
+    default_cutoffs,
+)
 from .geo import utm_crs_for
+from .outputs.h5_layouts import Atl03BeamData, MabelChannelData, write_atl03, write_mabel
 from .outputs.atomic import atomic_output
 from .outputs.tables import read_blocks, read_layer, write_layers, write_table
 from .photons import PhotonTrack, along_track_distance
+from .pipeline import BlocksResult, blocks_from_file, read_tracks
 from .progress import Progress
+from .readers import (
+    BeamInfo,
+    atl03_beams,
+    file_info,
+    mabel_channels,
+    open_track,
+    read_atl03,
+    read_las,
+    read_mabel,
+    read_table,
+)
 
 __version__ = "0.1.0"
 
@@ -55,4 +75,29 @@ __all__ = [
     "write_layers",
     "write_table",
     "utm_crs_for",
+    # readers
+    "BeamInfo",
+    "atl03_beams",
+    "file_info",
+    "mabel_channels",
+    "open_track",
+    "read_atl03",
+    "read_las",
+    "read_mabel",
+    "read_table",
+    # layouts (writers of ATL03 / MABEL-shaped files)
+    "Atl03BeamData",
+    "MabelChannelData",
+    "write_atl03",
+    "write_mabel",
+    # blocks
+    "BlockParams",
+    "CalibrationResult",
+    "calibrate_cutoffs",
+    "compute_blocks",
+    "default_cutoffs",
+    # file -> layers
+    "BlocksResult",
+    "blocks_from_file",
+    "read_tracks",
 ]

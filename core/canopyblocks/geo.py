@@ -47,9 +47,11 @@ def as_crs(crs: object, what: str = "CRS") -> pyproj.CRS:
 
 
 def utm_crs_for(lon: float | np.ndarray, lat: float | np.ndarray) -> pyproj.CRS:
-    """The WGS84 UTM zone CRS containing the centre of ``lon``/``lat`` (degrees).
+    """The default metric CRS of a track: the WGS84 UTM zone of its centre.
 
-    Uses the median of finite values, so a few wild photons do not move the zone.
+    Uses the median of finite ``lon``/``lat`` (degrees), so a few wild photons do not
+    move the zone.  Beyond UTM's limits (north of 84 N, south of 80 S) the polar
+    stereographic CRS of that pole is used (EPSG:3413, EPSG:3031).
     """
     lon_a = np.asarray(lon, dtype=float)
     lat_a = np.asarray(lat, dtype=float)
@@ -58,6 +60,10 @@ def utm_crs_for(lon: float | np.ndarray, lat: float | np.ndarray) -> pyproj.CRS:
         raise CRSError("cannot choose a UTM zone: no finite longitude/latitude")
     lon_c = float(np.median(lon_a[ok]))
     lat_c = float(np.median(lat_a[ok]))
+    if lat_c > 84.0:
+        return pyproj.CRS.from_epsg(3413)  # NSIDC Sea Ice Polar Stereographic North
+    if lat_c < -80.0:
+        return pyproj.CRS.from_epsg(3031)  # Antarctic Polar Stereographic
     lon_c = ((lon_c + 180.0) % 360.0) - 180.0
     zone = int(np.floor((lon_c + 180.0) / 6.0)) % 60 + 1
     epsg = (32600 if lat_c >= 0 else 32700) + zone
@@ -92,6 +98,20 @@ def _transformer(src: pyproj.CRS, dst: pyproj.CRS) -> pyproj.Transformer:
     return pyproj.Transformer.from_crs(src, dst, always_xy=True)
 
 
+def _transform(tr: pyproj.Transformer, a: np.ndarray, b: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """Vectorised transform of float64 arrays of any size (pyproj treats size-1 arrays as
+    scalars and numpy >= 1.25 deprecates that conversion, so those go through 2 copies)."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    if a.size == 1:
+        oa, ob = tr.transform(np.repeat(a.ravel(), 2), np.repeat(b.ravel(), 2))
+        return np.asarray(oa[:1], np.float64).reshape(a.shape), \
+            np.asarray(ob[:1], np.float64).reshape(b.shape)
+    oa, ob = tr.transform(a, b)
+    return np.asarray(oa, dtype=np.float64), np.asarray(ob, dtype=np.float64)
+
+
 def to_metric(
     lon: np.ndarray, lat: np.ndarray, crs: pyproj.CRS | None = None
 ) -> tuple[np.ndarray, np.ndarray, pyproj.CRS]:
@@ -103,17 +123,12 @@ def to_metric(
     crs : pyproj.CRS actually used
     """
     crs = utm_crs_for(lon, lat) if crs is None else require_metric_crs(crs)
-    x, y = _transformer(WGS84, crs).transform(
-        np.asarray(lon, dtype=np.float64), np.asarray(lat, dtype=np.float64)
-    )
-    return np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64), crs
+    x, y = _transform(_transformer(WGS84, crs), lon, lat)
+    return x, y, crs
 
 
 def from_metric(
     x: np.ndarray, y: np.ndarray, crs: pyproj.CRS
 ) -> tuple[np.ndarray, np.ndarray]:
     """Inverse of :func:`to_metric`: ``x``/``y`` in ``crs`` to WGS84 lon, lat (degrees)."""
-    lon, lat = _transformer(as_crs(crs), WGS84).transform(
-        np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64)
-    )
-    return np.asarray(lon, dtype=np.float64), np.asarray(lat, dtype=np.float64)
+    return _transform(_transformer(as_crs(crs), WGS84), x, y)

@@ -1,9 +1,81 @@
-"""CLI commands: chain (placeholder until its issue lands)."""
+"""CLI command ``run``: the whole chain from photons (or a simulation) and tiles to the
+validation layers, plots and an HTML report."""
 
 from __future__ import annotations
 
 import click
 
+from .common import progress_bar
+
+
+@click.command("run")
+@click.argument("tiles", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False),
+              help="Output folder.")
+@click.option("--photons", type=click.Path(dir_okay=False), default=None,
+              help="ATL03 / MABEL / table photon file. Without it (or with --simulate), "
+                   "ICESat-2 photons are simulated over the tiles.")
+@click.option("--simulate", is_flag=True, help="Simulate the photons (the default without "
+              "--photons).")
+@click.option("--beam", "beams", multiple=True, help="ATL03 beam(s) to use.")
+@click.option("--channel", default=None, help="MABEL channel number or 'most'.")
+@click.option("--atl08", type=click.Path(dir_okay=False), default=None,
+              help="Matching ATL08 file: also validate against its land segments.")
+@click.option("--azimuth", type=float, default=0.0, show_default=True,
+              help="Simulated track direction, degrees clockwise from north.")
+@click.option("--diameter", type=float, default=13.0, show_default=True,
+              help="Simulated footprint diameter, m.")
+@click.option("--preset", type=click.Choice(["boreal", "temperate", "tropical"]),
+              default="temperate", show_default=True, help="Simulated photon rate.")
+@click.option("--seed", type=int, default=1, show_default=True, help="Simulation seed.")
+@click.option("--length", "lengths", multiple=True, type=float,
+              help="Block length, m; repeat (default 10, 25, 50).")
+@click.option("--min-signal-conf", type=click.IntRange(-2, 4), default=None,
+              help="ATL03: keep photons with land signal_conf_ph >= this first.")
+@click.option("--width", type=float, default=None,
+              help="Corridor width, m (default 2; the footprint diameter when simulated).")
+@click.option("--resolution", type=float, default=2.0, show_default=True,
+              help="Reference raster cell size, m.")
+@click.option("--smrf", is_flag=True, help="Classify ground with PDAL's SMRF (unclassified tiles).")
+@click.option("--geoid", type=click.Path(dir_okay=False), default=None,
+              help="Geoid height raster (m above the ellipsoid) for real photons.")
+@click.option("--offset", type=float, default=None,
+              help="Constant h_photon - H_reference, m, for real photons.")
+@click.pass_context
+def run_cmd(ctx: click.Context, tiles: tuple[str, ...], out_dir: str, photons: str | None,
+            simulate: bool, beams: tuple[str, ...], channel: str | None, atl08: str | None,
+            azimuth: float, diameter: float, preset: str, seed: int,
+            lengths: tuple[float, ...], min_signal_conf: int | None, width: float | None,
+            resolution: float, smrf: bool, geoid: str | None, offset: float | None) -> None:
+    """Photons + airborne TILES -> blocks, reference rasters, validation, plots, report."""
+    from ..blocks import BlockParams
+    from ..chain import run_chain
+
+    if simulate and photons:
+        raise click.UsageError("give either --photons or --simulate, not both")
+    params = BlockParams(lengths=tuple(lengths) or (10.0, 25.0, 50.0),
+                         min_signal_conf=min_signal_conf)
+    quiet = bool(ctx.obj and ctx.obj.get("quiet"))
+    chan: int | str | None = channel
+    if channel is not None and channel != "most":
+        try:
+            chan = int(channel)
+        except ValueError:
+            raise click.BadParameter(f"expected a channel number or 'most'; got {channel!r}")
+    with progress_bar("run", quiet=quiet) as progress:
+        result = run_chain(tiles, out_dir, photons=photons, beams=beams, channel=chan,
+                           atl08=atl08, azimuth=azimuth, diameter=diameter, preset=preset,
+                           seed=seed, params=params, width=width, resolution=resolution,
+                           ground="smrf" if smrf else "class2", geoid=geoid, offset=offset,
+                           progress=progress)
+    if result.stats is not None and len(result.stats):
+        s = result.stats[result.stats["group"] == "all"]
+        for row in s.itertuples():
+            click.echo(f"  {row.length:>5g} m  {row.metric:<6}  n={row.n:<4} "
+                       f"bias={row.bias:+.2f}  rmse={row.rmse:.2f}  r2={row.r2:.2f}", err=True)
+    click.echo(f"canopyblocks: wrote {result.report}", err=True)
+
 
 def register(group: click.Group) -> None:
-    """Add this module's commands to ``group``."""
+    """Add ``run`` to ``group``."""
+    group.add_command(run_cmd)

@@ -1,9 +1,60 @@
-"""CLI commands: reference (placeholder until its issue lands)."""
+"""CLI command ``rasters``: airborne lidar tiles to DTM / DSM-max / DSM-p90 GeoTIFFs."""
 
 from __future__ import annotations
 
+import logging
+from pathlib import Path
+
 import click
+
+from .common import progress_bar
+
+log = logging.getLogger(__name__)
+
+
+@click.command("rasters")
+@click.argument("las", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False),
+              help="Output folder: dtm.tif, dsm_max.tif, dsm_p90.tif.")
+@click.option("--resolution", type=float, default=2.0, show_default=True,
+              help="Cell size in metres.")
+@click.option("--crs", default=None,
+              help="Output CRS (metric, e.g. EPSG:32612, the track's UTM zone); tiles in "
+                   "another CRS are reprojected, tiles without a CRS are read as this one. "
+                   "Default: the tiles' CRS.")
+@click.option("--bounds", nargs=4, type=float, default=None,
+              metavar="MINX MINY MAXX MAXY",
+              help="Area to rasterise, metres in the output CRS (default: all tiles).")
+@click.option("--smrf", is_flag=True,
+              help="Classify ground with PDAL's SMRF instead of using the files' class 2.")
+@click.option("--pdal", "pdal_exe", default=None, type=click.Path(dir_okay=False),
+              help="The pdal executable (default: $CANOPYBLOCKS_PDAL, PATH, "
+                   "/opt/canopyblocks-pdal/bin/pdal).")
+@click.pass_context
+def rasters_cmd(ctx: click.Context, las: tuple[str, ...], out_dir: str, resolution: float,
+                crs: str | None, bounds: tuple[float, float, float, float] | None, smrf: bool,
+                pdal_exe: str | None) -> None:
+    """Make the reference rasters (DTM, DSM max, DSM 90th percentile) on one grid
+    from LAS/LAZ tiles, with PDAL.
+
+    A cell's value uses the points within resolution*sqrt(2)/2 of its centre: mean of
+    ground points (DTM), max and 90th percentile of all non-noise points (DSMs).
+    """
+    from ..reference.rasters import make_reference_rasters
+
+    quiet = bool((ctx.obj or {}).get("quiet", False))
+    with progress_bar("rasters", quiet=quiet) as progress:
+        result = make_reference_rasters(
+            [Path(p) for p in las], Path(out_dir), resolution=resolution, crs=crs,
+            bounds=bounds or None, ground="smrf" if smrf else "class2", pdal=pdal_exe,
+            progress=progress)
+    g = result.grid
+    click.echo(f"grid: {g.width} x {g.height} cells of {g.resolution:g} m, "
+               f"bounds {g.bounds}, CRS {result.crs_label}")
+    for path in (result.dtm, result.dsm_max, result.dsm_p90):
+        click.echo(str(path))
 
 
 def register(group: click.Group) -> None:
     """Add this module's commands to ``group``."""
+    group.add_command(rasters_cmd)

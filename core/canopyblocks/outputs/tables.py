@@ -33,10 +33,10 @@ def _write_one(df: pd.DataFrame, tmp: Path, suf: str, layer: str) -> None:
     if suf == ".gpkg":
         if isinstance(df, gpd.GeoDataFrame):
             df.to_file(tmp, layer=layer, driver="GPKG")
-        else:  # attribute-only table (e.g. stats)
-            gpd.GeoDataFrame(df, geometry=[None] * len(df)).to_file(
-                tmp, layer=layer, driver="GPKG", geometry_type="Unknown"
-            ) if len(df) else _empty_table(df, tmp, layer)
+        else:  # attribute-only table (e.g. stats): a GeoPackage table without geometry
+            import pyogrio
+
+            pyogrio.write_dataframe(pd.DataFrame(df), tmp, layer=layer, driver="GPKG")
     elif suf in (".parquet", ".geoparquet"):
         try:
             import pyarrow  # noqa: F401
@@ -51,12 +51,6 @@ def _write_one(df: pd.DataFrame, tmp: Path, suf: str, layer: str) -> None:
     else:
         out = pd.DataFrame(df.drop(columns="geometry", errors="ignore"))
         out.to_csv(tmp, index=False, float_format="%.4f")
-
-
-def _empty_table(df: pd.DataFrame, tmp: Path, layer: str) -> None:
-    gpd.GeoDataFrame(df, geometry=gpd.GeoSeries([], dtype="geometry")).to_file(
-        tmp, layer=layer, driver="GPKG", geometry_type="Unknown"
-    )
 
 
 def write_table(df: pd.DataFrame, path: str | os.PathLike[str], *, layer: str = LAYER_BLOCKS,

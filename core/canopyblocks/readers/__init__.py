@@ -1,1 +1,36 @@
-"""canopyblocks.readers (filled in by its issue)."""
+"""Readers of photon files: ICESat-2 ATL03 (+ ATL08 classes), MABEL L2A, tables
+(and airborne LAS/LAZ point clouds, :mod:`.las`).
+
+Each reader returns one :class:`~canopyblocks.photons.PhotonTrack` (one beam or
+channel), optionally subset by a WGS84 ``bbox`` or an along-track ``s_range``
+before the photon columns are read.  :func:`open_track` picks the reader from the
+file's content; :func:`file_info` summarises a file for ``canopyblocks info``.
+"""
+
+from __future__ import annotations
+
+from .atl03 import BEAMS, BeamInfo, atl03_beams, read_atl03
+from .atl08 import read_atl08_photons
+from .las import LasPoints, las_crs, read_las
+from .mabel import mabel_channels, read_mabel
+from .sniff import default_beam, detect_product, file_info, format_info, open_track
+from .table import read_table
+
+__all__ = [
+    "BEAMS",
+    "BeamInfo",
+    "atl03_beams",
+    "read_atl03",
+    "read_atl08_photons",
+    "LasPoints",
+    "las_crs",
+    "read_las",
+    "mabel_channels",
+    "read_mabel",
+    "read_table",
+    "open_track",
+    "file_info",
+    "format_info",
+    "detect_product",
+    "default_beam",
+]

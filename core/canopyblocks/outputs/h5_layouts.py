@@ -1,0 +1,442 @@
+"""Write photons in the real ATL03 and MABEL L2A HDF5 layouts (for the simulator and tests).
+
+The files are read by :func:`canopyblocks.readers.read_atl03` /
+:func:`canopyblocks.readers.read_mabel` exactly like real granules, so every
+reader and the whole chain downstream are exercised on simulated photons.
+
+ATL03 layout written (names, dtypes and attributes as in v006 granules)::
+
+    /orbit_info/{sc_orient (1,) i1, rgt (1,) i2, cycle_number (1,) i1}
+    /ancillary_data/atlas_sdp_gps_epoch (1,) f8          (ancillary=True)
+    /gtXX            attrs atlas_beam_type, atlas_spot_number, groundtrack_id, sc_orientation
+    /gtXX/heights/{delta_time f8, lat_ph f8, lon_ph f8, h_ph f4, dist_ph_along f4,
+                   dist_ph_across f4, signal_conf_ph (n, 5) i1, quality_ph i1}
+    /gtXX/geolocation/{segment_id i4, segment_dist_x f8, segment_length f8,
+                       ph_index_beg i8, segment_ph_cnt i4, reference_photon_index i4,
+                       reference_photon_lat f8, reference_photon_lon f8, delta_time f8}
+    /gtXX/<extra_group>/<name>   per-photon extra columns (not in real granules)
+
+Segments are 20 m long; photon ``k`` with along-track distance ``s_k`` belongs to
+segment ``floor(s_k / 20)`` and ``dist_ph_along = s_k - 20 * segment``; so the
+reader's ``segment_dist_x + dist_ph_along`` returns ``segment_dist_x0 + s_k``.
+
+MABEL L2A layout written (from the real granule's structure)::
+
+    /photon/channelNNN/{delta_time f8, elev f4, flag u1, latitude f8, longitude f8,
+                        photon_id u2, shot_num i4}
+    /canopyblocks_truth/channelNNN/<name>   per-photon extra columns (not in real granules)
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import InputError
+from .atomic import atomic_output
+
+__all__ = [
+    "Atl03BeamData",
+    "MabelChannelData",
+    "write_atl03",
+    "write_mabel",
+    "SEGMENT_LENGTH",
+    "ATLAS_SDP_GPS_EPOCH",
+]
+
+log = logging.getLogger(__name__)
+
+SEGMENT_LENGTH = 20.0
+"""Length of an ATL03 geolocation segment written here, metres."""
+
+ATLAS_SDP_GPS_EPOCH = 1198800018.0
+"""GPS seconds of the ATLAS SDP epoch (2018-01-01); ATL03 ``delta_time`` counts from it."""
+
+_BEAMS = ("gt1l", "gt1r", "gt2l", "gt2r", "gt3l", "gt3r")
+
+
+def _column(name: str, values: object, n: int | None, dtype: object = np.float64) -> np.ndarray:
+    arr = np.asarray(values, dtype=dtype)
+    if arr.ndim != 1:
+        raise InputError(f"{name} must be one-dimensional, got shape {arr.shape}")
+    if n is not None and arr.size != n:
+        raise InputError(f"{name} has {arr.size} values, expected {n} (one per photon)")
+    return arr
+
+
+def _extras(extra: Mapping[str, object], n: int) -> dict[str, np.ndarray]:
+    out: dict[str, np.ndarray] = {}
+    for k, v in extra.items():
+        if not k or "/" in k:
+            raise InputError(f"extra column name {k!r} must be non-empty without '/'")
+        arr = np.asarray(v)
+        if arr.ndim != 1 or arr.size != n:
+            raise InputError(f"extra column {k!r} has shape {arr.shape}, expected ({n},)")
+        out[k] = arr
+    return out
+
+
+@dataclass(frozen=True, eq=False)
+class Atl03BeamData:
+    """Photons of one beam to write in the ATL03 layout.
+
+    Parameters
+    ----------
+    delta_time : array (n,)
+        Seconds since the ATLAS SDP epoch (ATL03 ``delta_time``).
+    lat, lon : array (n,)
+        WGS84 degrees.
+    h : array (n,)
+        Height above the WGS84 ellipsoid, metres (stored as float32, like ``h_ph``).
+    s : array (n,)
+        Along-track distance from the start of the track, metres, >= 0.
+    signal_conf : array (n,) or (n, 5), optional
+        Land ``signal_conf_ph`` (-2..4) or all five surface columns (land, ocean,
+        sea ice, land ice, inland water).  A 1-D array fills the land column and
+        sets the others to -1.  None: 4 (high confidence) for every photon.
+    extra : mapping name -> array (n,), optional
+        Further per-photon columns (e.g. the simulator's truth) written to
+        ``gtXX/<extra_group>/<name>`` and loaded by ``read_atl03`` into ``track.extra``.
+    strength : "strong", "weak" or None
+        ``atlas_beam_type``; None derives it from ``sc_orient`` of :func:`write_atl03`.
+    """
+
+    delta_time: np.ndarray
+    lat: np.ndarray
+    lon: np.ndarray
+    h: np.ndarray
+    s: np.ndarray
+    signal_conf: np.ndarray | None = None
+    extra: Mapping[str, np.ndarray] = field(default_factory=dict)
+    strength: str | None = None
+
+    def __post_init__(self) -> None:
+        t = _column("delta_time", self.delta_time, None)
+        n = t.size
+        cols = {"delta_time": t, "lat": _column("lat", self.lat, n),
+                "lon": _column("lon", self.lon, n), "h": _column("h", self.h, n),
+                "s": _column("s", self.s, n)}
+        for k, v in cols.items():
+            if not np.all(np.isfinite(v)):
+                raise InputError(f"Atl03BeamData.{k} holds NaN/inf; drop those photons first")
+            object.__setattr__(self, k, v)
+        if n and cols["s"].min() < 0:
+            raise InputError(f"Atl03BeamData.s must be >= 0 (metres from the track start), "
+                             f"got minimum {cols['s'].min():.3f}")
+        if np.any(np.abs(cols["lat"]) > 90) or np.any(np.abs(cols["lon"]) > 360):
+            raise InputError("Atl03BeamData.lat/lon must be WGS84 degrees")
+        conf = self.signal_conf
+        if conf is None:
+            full = np.full((n, 5), -1, dtype=np.int8)
+            full[:, 0] = 4
+        else:
+            c = np.asarray(conf)
+            if c.ndim == 1 and c.size == n:
+                full = np.full((n, 5), -1, dtype=np.int8)
+                full[:, 0] = c
+            elif c.shape == (n, 5):
+                full = c.astype(np.int8)
+            else:
+                raise InputError(f"signal_conf has shape {c.shape}, expected ({n},) or ({n}, 5)")
+            if np.any((full < -2) | (full > 4)):
+                raise InputError("signal_conf values must be in -2..4 (ATL03 signal_conf_ph)")
+        object.__setattr__(self, "signal_conf", full)
+        object.__setattr__(self, "extra", _extras(self.extra, n))
+        if self.strength not in (None, "strong", "weak"):
+            raise InputError(f"strength {self.strength!r} must be 'strong', 'weak' or None")
+
+    def __len__(self) -> int:
+        return int(self.delta_time.size)
+
+
+@dataclass(frozen=True, eq=False)
+class MabelChannelData:
+    """Photons of one MABEL channel to write in the MABEL L2A layout.
+
+    Parameters
+    ----------
+    delta_time : array (n,)
+        Seconds since the first data point of the granule.
+    lat, lon : array (n,)
+        WGS84 degrees.
+    elev : array (n,)
+        Height above the WGS84 ellipsoid, metres (stored as float32, like ``elev``).
+    shot_num, photon_id : array (n,), optional
+        Shot number and photon-per-shot counter; None numbers shots by distinct
+        ``delta_time`` (1, 2, ...) and counts photons within each shot (1, 2, ...).
+    flag : array (n,), optional
+        The product's 1-byte flag; None writes 0.
+    extra : mapping name -> array (n,), optional
+        Written to ``canopyblocks_truth/channelNNN/<name>``; ``read_mabel`` loads them.
+    """
+
+    delta_time: np.ndarray
+    lat: np.ndarray
+    lon: np.ndarray
+    elev: np.ndarray
+    shot_num: np.ndarray | None = None
+    photon_id: np.ndarray | None = None
+    flag: np.ndarray | None = None
+    extra: Mapping[str, np.ndarray] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        t = _column("delta_time", self.delta_time, None)
+        n = t.size
+        for k, v in (("delta_time", t), ("lat", _column("lat", self.lat, n)),
+                     ("lon", _column("lon", self.lon, n)), ("elev", _column("elev", self.elev, n))):
+            if not np.all(np.isfinite(v)):
+                raise InputError(f"MabelChannelData.{k} holds NaN/inf; drop those photons first")
+            object.__setattr__(self, k, v)
+        if self.shot_num is None or self.photon_id is None:
+            _, inv = np.unique(t, return_inverse=True)
+            order = np.argsort(inv, kind="stable")
+            counts = np.bincount(inv)
+            rank = np.empty(n, dtype=np.int64)
+            rank[order] = np.arange(n) - np.repeat(np.cumsum(counts) - counts, counts)
+            shot, pid = inv + 1, rank + 1
+        else:
+            shot, pid = self.shot_num, self.photon_id
+        object.__setattr__(self, "shot_num", _column("shot_num", shot, n, np.int32))
+        object.__setattr__(self, "photon_id", _column("photon_id", pid, n, np.uint16))
+        flag = np.zeros(n, np.uint8) if self.flag is None else self.flag
+        object.__setattr__(self, "flag", _column("flag", flag, n, np.uint8))
+        object.__setattr__(self, "extra", _extras(self.extra, n))
+
+    def __len__(self) -> int:
+        return int(self.delta_time.size)
+
+
+def _ds(group: object, name: str, data: np.ndarray, units: str, long_name: str,
+        **attrs: str) -> None:
+    d = group.create_dataset(name, data=data)  # type: ignore[attr-defined]
+    d.attrs["units"] = units
+    d.attrs["long_name"] = long_name
+    for k, v in attrs.items():
+        d.attrs[k] = v
+
+
+def _spot(beam: str, sc_orient: int) -> int | None:
+    i = _BEAMS.index(beam)
+    return {0: i + 1, 1: 6 - i}.get(sc_orient)
+
+
+def write_atl03(
+    path: str | os.PathLike[str],
+    beams: Mapping[str, Atl03BeamData],
+    *,
+    sc_orient: int = 0,
+    rgt: int = 0,
+    cycle: int = 0,
+    ancillary: bool = True,
+    extra_group: str = "canopyblocks_truth",
+    segment_dist_x0: float = 0.0,
+) -> Path:
+    """Write beams of photons as an ATL03-layout HDF5 file (atomically).
+
+    Parameters
+    ----------
+    path : path-like
+        Output ``.h5`` file; replaced only when writing succeeded.
+    beams : mapping beam name -> Atl03BeamData
+        Beam names ``gt1l`` ... ``gt3r``.
+    sc_orient : int
+        ``orbit_info/sc_orient``: 0 backward (left beams strong), 1 forward (right
+        beams strong), 2 transition.
+    rgt, cycle : int
+        Reference ground track and cycle number written to ``orbit_info``.
+    ancillary : bool
+        Write ``ancillary_data/atlas_sdp_gps_epoch`` (real granules have it; the
+        shared Wyoming clip does not).
+    extra_group : str
+        Group name for each beam's extra per-photon columns.
+    segment_dist_x0 : float
+        ``segment_dist_x`` of the first segment (metres from the equator crossing);
+        the reader's ``s`` is ``segment_dist_x0 + Atl03BeamData.s``.
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    import h5py
+
+    if not beams:
+        raise InputError("write_atl03 needs at least one beam")
+    for b, data in beams.items():
+        if b not in _BEAMS:
+            raise InputError(f"beam {b!r} is not an ATL03 beam; use one of {', '.join(_BEAMS)}")
+        if not isinstance(data, Atl03BeamData):
+            raise InputError(f"beam {b}: expected Atl03BeamData, got {type(data).__name__}")
+    if sc_orient not in (0, 1, 2):
+        raise InputError(f"sc_orient {sc_orient!r} must be 0 (backward), 1 (forward) or 2")
+    if not extra_group or "/" in extra_group:
+        raise InputError(f"extra_group {extra_group!r} must be a plain group name")
+    out = Path(path)
+    with atomic_output(out) as tmp, h5py.File(tmp, "w") as f:
+        f.attrs["short_name"] = "ATL03"
+        f.attrs["identifier_product_type"] = "ATL03"
+        f.attrs["description"] = ("ATL03-layout photons written by canopyblocks (simulated or "
+                                  "converted); not a NASA product")
+        f.attrs["Conventions"] = "CF-1.6"
+        oi = f.create_group("orbit_info")
+        _ds(oi, "sc_orient", np.array([sc_orient], np.int8), "1", "Spacecraft Orientation",
+            flag_meanings="backward forward transition")
+        _ds(oi, "rgt", np.array([rgt], np.int16), "1", "Reference Ground track")
+        _ds(oi, "cycle_number", np.array([cycle], np.int8), "1", "Cycle Number")
+        if ancillary:
+            anc = f.create_group("ancillary_data")
+            _ds(anc, "atlas_sdp_gps_epoch", np.array([ATLAS_SDP_GPS_EPOCH]),
+                "seconds since 1980-01-06T00:00:00.000000Z", "ATLAS Epoch Offset")
+        for beam, data in beams.items():
+            _write_beam(f, beam, data, sc_orient, extra_group, float(segment_dist_x0))
+    log.info("wrote ATL03-layout file %s (%s)", out, ", ".join(beams))
+    return out
+
+
+def _write_beam(f: object, beam: str, d: Atl03BeamData, sc_orient: int, extra_group: str,
+                dist_x0: float) -> None:
+    n = len(d)
+    seg = np.floor(d.s / SEGMENT_LENGTH).astype(np.int64)
+    order = np.lexsort((d.delta_time, seg))  # photons grouped by segment, in time order
+    seg = seg[order]
+    n_seg = int(seg.max()) + 1 if n else 0
+    cnt = np.bincount(seg, minlength=n_seg).astype(np.int64)
+    first = np.cumsum(cnt) - cnt  # 0-based first row of each segment
+    beg = np.where(cnt > 0, first + 1, 0)
+    seg_start = np.arange(n_seg) * SEGMENT_LENGTH
+    s_sorted = d.s[order]
+    # reference position/time of each segment: photons interpolated at the segment start
+    by_s = np.argsort(d.s, kind="stable")
+    ref_lat = np.interp(seg_start, d.s[by_s], d.lat[by_s]) if n else np.empty(0)
+    ref_lon = np.interp(seg_start, d.s[by_s], d.lon[by_s]) if n else np.empty(0)
+    ref_t = np.interp(seg_start, d.s[by_s], d.delta_time[by_s]) if n else np.empty(0)
+
+    strength = d.strength or {0: "strong" if beam.endswith("l") else "weak",
+                              1: "strong" if beam.endswith("r") else "weak"}.get(sc_orient)
+    g = f.create_group(beam)  # type: ignore[attr-defined]
+    g.attrs["groundtrack_id"] = beam
+    if strength:
+        g.attrs["atlas_beam_type"] = strength
+    spot = _spot(beam, sc_orient)
+    if spot is not None:
+        g.attrs["atlas_spot_number"] = str(spot)
+    g.attrs["sc_orientation"] = {0: "Backward", 1: "Forward", 2: "Transition"}[sc_orient]
+
+    hg = g.create_group("heights")
+    _ds(hg, "delta_time", d.delta_time[order], "seconds since 2018-01-01",
+        "Elapsed GPS seconds")
+    _ds(hg, "lat_ph", d.lat[order], "degrees_north", "Latitude")
+    _ds(hg, "lon_ph", d.lon[order], "degrees_east", "Longitude")
+    _ds(hg, "h_ph", d.h[order].astype(np.float32), "meters", "Photon WGS84 Height")
+    _ds(hg, "dist_ph_along", (s_sorted - seg_start[seg]).astype(np.float32), "meters",
+        "Distance from equator crossing.")
+    _ds(hg, "dist_ph_across", np.zeros(n, np.float32), "meters", "Distance off RGT.")
+    _ds(hg, "signal_conf_ph", np.asarray(d.signal_conf)[order], "1", "Photon Signal Confidence",
+        flag_meanings="possible_tep not_considered noise buffer low medium high")
+    _ds(hg, "quality_ph", np.zeros(n, np.int8), "1", "Photon Quality")
+
+    gg = g.create_group("geolocation")
+    _ds(gg, "segment_id", (np.arange(n_seg) + 1 + int(round(dist_x0 / SEGMENT_LENGTH))
+                           ).astype(np.int32), "1", "along-track segment ID number.")
+    _ds(gg, "segment_dist_x", dist_x0 + seg_start, "meters", "Segment Distance from EQC")
+    _ds(gg, "segment_length", np.full(n_seg, SEGMENT_LENGTH), "meters",
+        "along-track segment length")
+    _ds(gg, "ph_index_beg", beg.astype(np.int64), "counts", "Photon Index Begin")
+    _ds(gg, "segment_ph_cnt", cnt.astype(np.int32), "counts", "Number of photons")
+    _ds(gg, "reference_photon_index", (cnt > 0).astype(np.int32), "counts",
+        "Reference Photon Index")
+    _ds(gg, "reference_photon_lat", ref_lat, "degrees_north", "Segment Latitude")
+    _ds(gg, "reference_photon_lon", ref_lon, "degrees_east", "Segment Longitude")
+    _ds(gg, "delta_time", ref_t, "seconds since 2018-01-01", "Delta Time")
+
+    if d.extra:
+        eg = g.create_group(extra_group)
+        eg.attrs["description"] = "per-photon columns added by canopyblocks (e.g. truth)"
+        for name, arr in d.extra.items():
+            eg.create_dataset(name, data=np.asarray(arr)[order])
+
+
+# attributes of the real MABEL L2A photon datasets (from the granule's DMR)
+_MABEL_ATTRS: dict[str, dict[str, str]] = {
+    "delta_time": {"units": "seconds", "long_name": "delta_time", "standard_name": "time",
+                   "description": "Elapsed seconds since first data point in granule",
+                   "source": "Derived (gps_seconds-gps_second_offset)"},
+    "elev": {"units": "meters", "long_name": "elev", "standard_name": "elevation",
+             "description": "Height above the WGS84 ellipsoid",
+             "source": "Derived (Geolocation ATBD)"},
+    "flag": {"units": "NA", "long_name": "flag", "standard_name": "flag",
+             "description": "Undefined 1-byte Flag", "source": "Derived (TBD)"},
+    "latitude": {"units": "degrees_north", "long_name": "lat", "standard_name": "latitude",
+                 "description": "Latitude, WGS84, North=+",
+                 "source": "Derived (Geolocation ATBD)"},
+    "longitude": {"units": "degrees_east", "long_name": "lon", "standard_name": "longitude",
+                  "description": "Longitude, WGS84, East=+",
+                  "source": "Derived (Geolocation ATBD)"},
+    "photon_id": {"units": "NA", "long_name": "photon_id", "standard_name": "photon_id",
+                  "description": "Photon-per-shot counter.  Increments for each photon "
+                                 "detected within a shot.  Together with shot_num, forms a "
+                                 "unique identifier for each photon. However, be aware of "
+                                 "shot_num rollover.", "source": "Derived"},
+    "shot_num": {"units": "counts", "long_name": "shot_number", "standard_name": "counter",
+                 "description": "Shot Number, copied from the L1A shottag packet.",
+                 "source": "L1A Shottag packet"},
+}
+
+
+def write_mabel(
+    path: str | os.PathLike[str],
+    channels: Mapping[int, MabelChannelData],
+    *,
+    extra_group: str = "canopyblocks_truth",
+) -> Path:
+    """Write channels of photons as a MABEL L2A-layout HDF5 file (atomically).
+
+    Parameters
+    ----------
+    path : path-like
+        Output ``.h5`` file.
+    channels : mapping channel number (1..999) -> MabelChannelData
+    extra_group : str
+        Top-level group for extra per-photon columns (``<extra_group>/channelNNN``).
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    import h5py
+
+    if not channels:
+        raise InputError("write_mabel needs at least one channel")
+    for ch, data in channels.items():
+        if isinstance(ch, bool) or not isinstance(ch, (int, np.integer)) or not 0 < ch < 1000:
+            raise InputError(f"MABEL channel {ch!r} must be an integer in 1..999")
+        if not isinstance(data, MabelChannelData):
+            raise InputError(f"channel {ch}: expected MabelChannelData, "
+                             f"got {type(data).__name__}")
+    out = Path(path)
+    with atomic_output(out) as tmp, h5py.File(tmp, "w") as f:
+        photon = f.create_group("photon")
+        photon.attrs["Description"] = ("This group contains subgroups of per-channel photon "
+                                       "parameters (written by canopyblocks).")
+        for ch, d in sorted(channels.items()):
+            g = photon.create_group(f"channel{int(ch):03d}")
+            cols = {"delta_time": d.delta_time, "elev": d.elev.astype(np.float32),
+                    "flag": d.flag, "latitude": d.lat, "longitude": d.lon,
+                    "photon_id": d.photon_id, "shot_num": d.shot_num}
+            for name, arr in cols.items():
+                ds = g.create_dataset(name, data=arr)
+                ds.attrs["hertz"] = " per photon"
+                for k, v in _MABEL_ATTRS[name].items():
+                    ds.attrs[k] = v
+            if d.extra:
+                eg = f.require_group(f"{extra_group}/channel{int(ch):03d}")
+                for name, arr in d.extra.items():
+                    eg.create_dataset(name, data=arr)
+    log.info("wrote MABEL-layout file %s (channels %s)", out, sorted(channels))
+    return out

@@ -1,0 +1,60 @@
+"""A short, self-contained HTML report of a run: inputs, parameters, statistics, plots."""
+
+from __future__ import annotations
+
+import html
+import os
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pandas as pd
+
+from .atomic import atomic_output
+
+__all__ = ["ReportSection", "write_report"]
+
+
+@dataclass
+class ReportSection:
+    """One section: a heading, paragraphs, tables and images (paths relative to the report)."""
+
+    heading: str
+    paragraphs: Sequence[str] = ()
+    tables: Mapping[str, pd.DataFrame] = field(default_factory=dict)
+    images: Sequence[str | os.PathLike[str]] = ()
+
+
+_CSS = """
+body{font-family:system-ui,sans-serif;max-width:70rem;margin:2rem auto;padding:0 1rem;color:#222}
+h1{font-size:1.6rem}h2{font-size:1.25rem;border-bottom:1px solid #ccc;padding-bottom:.2rem}
+table{border-collapse:collapse;font-size:.85rem;margin:.5rem 0 1rem}
+td,th{border:1px solid #ccc;padding:.2rem .5rem;text-align:right}th{background:#f3f3f3}
+td:first-child,th:first-child{text-align:left}img{max-width:100%;border:1px solid #ddd;margin:.5rem 0}
+.cap{font-size:.85rem;color:#555}
+"""
+
+
+def _table_html(df: pd.DataFrame) -> str:
+    return df.to_html(index=False, na_rep="", float_format=lambda v: f"{v:.3f}", border=0,
+                      escape=True)
+
+
+def write_report(path: str | os.PathLike[str], title: str, sections: Sequence[ReportSection]
+                 ) -> Path:
+    """Write an HTML report atomically; images are linked relative to the report's folder."""
+    out = Path(path)
+    parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}"
+             f"</title><style>{_CSS}</style></head><body><h1>{html.escape(title)}</h1>"]
+    for sec in sections:
+        parts.append(f"<h2>{html.escape(sec.heading)}</h2>")
+        parts.extend(f"<p>{html.escape(p)}</p>" for p in sec.paragraphs)
+        for caption, df in sec.tables.items():
+            parts.append(f"<p class='cap'>{html.escape(caption)}</p>{_table_html(df)}")
+        for img in sec.images:
+            rel = os.path.relpath(Path(img), out.parent)
+            parts.append(f"<img src='{html.escape(rel)}' alt='{html.escape(Path(img).stem)}'>")
+    parts.append("</body></html>")
+    with atomic_output(out) as tmp:
+        tmp.write_text("\n".join(parts), encoding="utf-8")
+    return out

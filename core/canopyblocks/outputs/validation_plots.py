@@ -1,0 +1,166 @@
+"""Validation figures: photon vs reference scatter per block length, errors by aspect.
+
+* :func:`plot_validation_scatter`: one panel per metric (ground, top, Hmax, H90) with
+  the 1:1 line, the OLS fit of photon on reference and n / r^2 / RMSE / bias (as in
+  seed 001 figure 5); blocks with ``use`` only.
+* :func:`plot_aspect_errors`: polar bars of RMSE (or bias) per aspect class, one panel
+  per metric (seed 001 found the largest errors on easterly aspects).
+* :func:`write_validation_plots`: both, per block length, into a folder.
+
+All PNGs are written atomically (Agg backend, no display).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import warnings
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from ..errors import InputError
+from ..schema import METRICS
+from ..validation.residuals import RESIDUAL_PAIRS
+from ..validation.stats import error_stats
+from .plotting import new_figure, save_figure
+
+__all__ = ["plot_validation_scatter", "plot_aspect_errors", "write_validation_plots"]
+
+log = logging.getLogger(__name__)
+
+_TITLES = {"ground": "Ground (m)", "top": "Canopy top (m)", "hmax": "Hmax (m)",
+           "h90": "H90 (m)"}
+_ASPECTS = ("N", "NE", "E", "SE", "S", "SW", "W", "NW")
+
+
+def _import_matplotlib() -> None:
+    """Import matplotlib's figure module once, silencing one known environment warning.
+
+    With Debian's python3-matplotlib beside a pip matplotlib (the QGIS venv), the
+    system ``mpl_toolkits`` namespace shadows the pip one and matplotlib warns
+    "Unable to import Axes3D" on import; 3-D axes are not used here.
+    """
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message="Unable to import Axes3D",
+                                category=UserWarning)
+        try:
+            import matplotlib.figure  # noqa: F401
+        except ImportError:
+            pass  # new_figure raises DependencyError with what to install
+
+
+def _length_rows(df: pd.DataFrame, length: float) -> pd.DataFrame:
+    sub = df[np.isclose(df["length"].to_numpy(float), float(length))]
+    if "use" in sub.columns:
+        sub = sub[sub["use"].to_numpy(bool)]
+    return sub
+
+
+def plot_validation_scatter(residuals: pd.DataFrame, path: str | os.PathLike[str], *,
+                            length: float, metrics: Sequence[str] = METRICS) -> Path:
+    """Photon vs reference scatter for one block length, one panel per metric.
+
+    Parameters
+    ----------
+    residuals : DataFrame
+        From :func:`~canopyblocks.validation.residuals.compute_residuals`.
+    path : path
+        PNG to write (atomically).
+    length : float
+        Block length, metres.
+    """
+    _import_matplotlib()
+    sub = _length_rows(residuals, length)
+    fig, axes = new_figure(figsize=(3.6 * len(metrics), 3.8), ncols=len(metrics), squeeze=False)
+    for ax, m in zip(axes[0], metrics):
+        if m not in RESIDUAL_PAIRS:
+            raise InputError(f"unknown metric {m!r}; use {', '.join(RESIDUAL_PAIRS)}")
+        x = sub[RESIDUAL_PAIRS[m]].to_numpy(float)
+        y = sub[m].to_numpy(float)
+        ok = np.isfinite(x) & np.isfinite(y)
+        x, y = x[ok], y[ok]
+        st = error_stats(y, x)
+        ax.scatter(x, y, s=12, alpha=0.7, color="tab:green", edgecolor="none")
+        if x.size:
+            lo = float(min(x.min(), y.min()))
+            hi = float(max(x.max(), y.max()))
+            pad = 0.05 * (hi - lo if hi > lo else 1.0)
+            lim = (lo - pad, hi + pad)
+            ax.plot(lim, lim, color="0.4", lw=1, ls="--", label="1:1")
+            if np.isfinite(st["slope"]):
+                ax.plot(lim, [st["intercept"] + st["slope"] * v for v in lim], color="tab:red",
+                        lw=1.2, label="OLS")
+            ax.set_xlim(lim)
+            ax.set_ylim(lim)
+            ax.set_aspect("equal")
+        ax.set_xlabel(f"reference {_TITLES.get(m, m)}")
+        ax.set_ylabel(f"photon {_TITLES.get(m, m)}")
+        ax.set_title(m)
+        ax.text(0.03, 0.97,
+                f"n = {st['n']}\nr² = {st['r2']:.2f}\nRMSE = {st['rmse']:.2f} m\n"
+                f"bias = {st['bias']:+.2f} m",
+                transform=ax.transAxes, va="top", ha="left", fontsize=8,
+                bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "0.8"})
+        if x.size:
+            ax.legend(loc="lower right", fontsize=7)
+    fig.suptitle(f"Photon blocks vs reference, {length:g} m blocks")
+    return save_figure(fig, path)
+
+
+def plot_aspect_errors(stats: pd.DataFrame, path: str | os.PathLike[str], *, length: float,
+                       value: str = "rmse", metrics: Sequence[str] = METRICS) -> Path:
+    """Polar bars of ``value`` (``rmse``, ``bias`` or ``mae``) per aspect class.
+
+    The bar length is the statistic (metres; negative biases are drawn in red by
+    their magnitude); the class's n is written at the bar end.
+    """
+    if value not in ("rmse", "bias", "mae"):
+        raise InputError(f"value must be rmse, bias or mae, got {value!r}")
+    _import_matplotlib()
+    st = stats[np.isclose(stats["length"].to_numpy(float), float(length))]
+    fig, axes = new_figure(figsize=(3.4 * len(metrics), 3.8), ncols=len(metrics), squeeze=False,
+                           subplot_kw={"projection": "polar"})
+    theta = np.radians(np.arange(8) * 45.0)
+    for ax, m in zip(axes[0], metrics):
+        sm = st[st["metric"] == m].set_index("group")
+        vals = np.array([sm[value].get(f"aspect:{c}", np.nan) for c in _ASPECTS], dtype=float)
+        ns = [int(sm["n"].get(f"aspect:{c}", 0)) for c in _ASPECTS]
+        ax.set_theta_zero_location("N")
+        ax.set_theta_direction(-1)
+        colours = ["tab:red" if v < 0 else "tab:blue" for v in np.nan_to_num(vals)]
+        ax.bar(theta, np.abs(np.nan_to_num(vals)), width=np.radians(40), color=colours,
+               alpha=0.75)
+        ax.set_xticks(theta)
+        ax.set_xticklabels(_ASPECTS)
+        top = np.nanmax(np.abs(vals)) if np.isfinite(vals).any() and np.nanmax(
+            np.abs(vals)) > 0 else 1.0
+        ax.set_ylim(0, 1.2 * top)
+        ax.set_rlabel_position(202.5)
+        ax.tick_params(axis="y", labelsize=6)
+        for th, v, k in zip(theta, vals, ns):
+            if np.isfinite(v):
+                ax.text(th, abs(v) + 0.08 * top, f"n={k}", ha="center", fontsize=6)
+        ax.set_title(f"{m}: {value} by aspect (m)", fontsize=9)
+    fig.suptitle(f"Errors by aspect, {length:g} m blocks")
+    return save_figure(fig, path)
+
+
+def write_validation_plots(residuals: pd.DataFrame, stats: pd.DataFrame,
+                           folder: str | os.PathLike[str]) -> list[Path]:
+    """Scatter and aspect figures for every block length into ``folder``.
+
+    Files: ``validation_<L>m.png`` and ``aspect_rmse_<L>m.png``.
+    """
+    out = Path(folder)
+    paths = []
+    for length in sorted(pd.unique(residuals["length"])):
+        tag = f"{float(length):g}m"
+        paths.append(plot_validation_scatter(residuals, out / f"validation_{tag}.png",
+                                             length=float(length)))
+        paths.append(plot_aspect_errors(stats, out / f"aspect_rmse_{tag}.png",
+                                        length=float(length)))
+    log.info("wrote %d validation figures to %s", len(paths), out)
+    return paths

@@ -1,0 +1,234 @@
+"""File-to-layer orchestration shared by the CLI and the QGIS plugin.
+
+``read_tracks`` (file -> PhotonTracks) and ``blocks_from_file`` (file -> block
+table, optional photon layer and profile plot, written atomically).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import geopandas as gpd
+import numpy as np
+import pandas as pd
+
+from .blocks import BlockParams, compute_blocks
+from .errors import CanopyBlocksWarning, NoUsableDataError
+from .photons import PhotonTrack
+from .progress import Progress, as_progress
+from .schema import BLOCK_COLUMNS, LABEL_NAMES, LAYER_BLOCKS, LAYER_PHOTONS
+
+__all__ = ["BlocksResult", "select_tracks", "read_tracks", "run_blocks", "blocks_from_file", "photon_layer"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class BlocksResult:
+    """What :func:`blocks_from_file` produced.
+
+    Attributes
+    ----------
+    tracks : list of PhotonTrack
+        One per beam/channel read, all in the same metric CRS.
+    blocks : GeoDataFrame
+        The block table of all tracks (DESIGN section 5 columns).
+    labels : dict
+        ``labels[track_id][length]`` -> per-photon int8 labels.
+    outputs : list of Path
+        Files written.
+    """
+
+    tracks: list[PhotonTrack]
+    blocks: gpd.GeoDataFrame
+    labels: dict[str, dict[float, np.ndarray]] = field(default_factory=dict)
+    outputs: list[Path] = field(default_factory=list)
+
+
+def select_tracks(path: str, beams: tuple[str, ...], channel: int | str | None) -> list[dict]:
+    """The list of ``open_track`` keyword sets to read: one per beam/channel.
+
+    ATL03 without ``--beam``: every beam that holds photons.  MABEL without
+    ``--channel``: the channel with the most photons (as seed 001 picked channel 49).
+    """
+    from .readers import file_info
+
+    info = file_info(path)
+    product = str(info.get("product", "")).upper()
+    if product.startswith("ATL03"):
+        names = list(beams) or [b["name"] for b in info.get("beams", []) if b.get("n_photons", 0)]
+        return [{"beam": b} for b in names]
+    if product.startswith("MABEL"):
+        return [{"channel": channel if channel is not None else "most"}]
+    return [{}]
+
+
+
+def read_tracks(
+    path: str | os.PathLike[str],
+    *,
+    beams: Sequence[str] = (),
+    channel: int | str | None = None,
+    atl08: str | os.PathLike[str] | None = None,
+    bbox: tuple[float, float, float, float] | None = None,
+    crs: object = None,
+    min_signal_conf: int | None = None,
+    progress: Progress | None = None,
+) -> list[PhotonTrack]:
+    """Read the tracks of a photon file: the given ATL03 beams (default every beam
+    with photons), a MABEL channel (default the one with most photons), or a table.
+
+    All tracks are projected to one metric CRS (``crs`` or the UTM zone of the
+    first track).  Beams without usable photons are skipped with a warning.
+
+    Raises
+    ------
+    NoUsableDataError
+        When no requested beam/channel holds usable photons (e.g. a sea-ice granule
+        with ``min_signal_conf`` set: its land confidence is -1 everywhere).
+    """
+    from .readers import open_track
+
+    prog = as_progress(progress)
+    selections = select_tracks(str(path), tuple(beams), channel)
+    tracks: list[PhotonTrack] = []
+    problems: list[str] = []
+    for i, sel in enumerate(selections):
+        prog.update(i / max(1, len(selections)), f"reading {sel or Path(path).name}")
+        try:
+            t = open_track(path, bbox=bbox, atl08=atl08, crs=crs, **sel)
+        except NoUsableDataError as exc:
+            problems.append(str(exc))
+            continue
+        if min_signal_conf is not None:
+            _require_signal(t, min_signal_conf)
+        if len(t) == 0:
+            problems.append(f"{t.track} of {path}: no photons")
+            continue
+        if crs is None:
+            crs = t.crs
+        tracks.append(t)
+    if not tracks:
+        raise NoUsableDataError("; ".join(problems) or f"{path}: no usable photons")
+    for msg in problems:
+        warnings.warn(f"skipped: {msg}", CanopyBlocksWarning, stacklevel=2)
+    prog.update(1.0)
+    return tracks
+
+
+def _require_signal(track: PhotonTrack, level: int) -> None:
+    if track.signal_conf is None:
+        return  # BlockParams validation reports a missing signal_conf column
+    good = int(np.count_nonzero(track.signal_conf >= level))
+    if good == 0:
+        values = np.unique(track.signal_conf)
+        raise NoUsableDataError(
+            f"{track.track} of {track.source}: no photon has land signal confidence >= {level} "
+            f"(values present: {', '.join(map(str, values[:8]))}); the surface is not land "
+            "(e.g. sea ice or ocean) or the level is too strict"
+        )
+
+
+def run_blocks(
+    tracks: Sequence[PhotonTrack],
+    params: BlockParams,
+    *,
+    labels: bool = False,
+    progress: Progress | None = None,
+) -> tuple[gpd.GeoDataFrame, dict[str, dict[float, np.ndarray]]]:
+    """Block table of several tracks (concatenated) and, optionally, their labels."""
+    prog = as_progress(progress)
+    frames: list[gpd.GeoDataFrame] = []
+    all_labels: dict[str, dict[float, np.ndarray]] = {}
+    for i, t in enumerate(tracks):
+        sub = prog.sub(i / len(tracks), (i + 1) / len(tracks))
+        if labels:
+            b, lab = compute_blocks(t, params, labels=True, progress=sub)
+            all_labels[t.track] = lab
+        else:
+            b = compute_blocks(t, params, progress=sub)
+        frames.append(b)
+    crs = tracks[0].crs if tracks else None
+    if not frames:
+        return gpd.GeoDataFrame(columns=[*BLOCK_COLUMNS, "geometry"], geometry="geometry",
+                                crs=crs), all_labels
+    out = gpd.GeoDataFrame(pd.concat(frames, ignore_index=True), geometry="geometry", crs=crs)
+    return out, all_labels
+
+
+def photon_layer(tracks: Sequence[PhotonTrack],
+                 labels: dict[str, dict[float, np.ndarray]]) -> gpd.GeoDataFrame:
+    """Photons of all tracks as points, with a ``label_<L>m`` column per block length."""
+    frames = []
+    for t in tracks:
+        g = t.to_geodataframe()
+        for length, lab in sorted(labels.get(t.track, {}).items()):
+            names = np.array([LABEL_NAMES.get(i, "outside") for i in range(-1, 4)], dtype=object)
+            g[f"label_{length:g}m"] = names[np.asarray(lab, dtype=np.int64) + 1]
+        frames.append(g)
+    return gpd.GeoDataFrame(pd.concat(frames, ignore_index=True), geometry="geometry",
+                            crs=tracks[0].crs)
+
+
+def blocks_from_file(
+    path: str | os.PathLike[str],
+    params: BlockParams,
+    *,
+    beams: Sequence[str] = (),
+    channel: int | str | None = None,
+    atl08: str | os.PathLike[str] | None = None,
+    bbox: tuple[float, float, float, float] | None = None,
+    crs: object = None,
+    output: str | os.PathLike[str] | None = None,
+    with_photons: bool = False,
+    profile: str | os.PathLike[str] | None = None,
+    progress: Progress | None = None,
+) -> BlocksResult:
+    """Read a photon file, compute the block table, and write the requested outputs.
+
+    Parameters
+    ----------
+    path : path-like
+        ATL03 granule, MABEL L2A file, or a CSV/Parquet photon table.
+    params : BlockParams
+        Block lengths, noise filter, cut-offs.
+    output : path-like, optional
+        ``.gpkg`` (layer ``blocks``, plus ``photons`` with ``with_photons``),
+        ``.parquet`` or ``.csv``; written atomically.
+    profile : path-like, optional
+        PNG profile plot of the first track (smallest block length).
+
+    Returns
+    -------
+    BlocksResult
+    """
+    from .outputs.tables import write_layers
+
+    prog = as_progress(progress)
+    tracks = read_tracks(path, beams=beams, channel=channel, atl08=atl08, bbox=bbox, crs=crs,
+                         min_signal_conf=params.min_signal_conf, progress=prog.sub(0.0, 0.3))
+    want_labels = with_photons or profile is not None
+    blocks, labels = run_blocks(tracks, params, labels=want_labels, progress=prog.sub(0.3, 0.85))
+    result = BlocksResult(tracks=tracks, blocks=blocks, labels=labels)
+    if output is not None:
+        layers: dict[str, pd.DataFrame] = {LAYER_BLOCKS: blocks}
+        if with_photons:
+            if Path(output).suffix.lower() == ".gpkg":
+                layers[LAYER_PHOTONS] = photon_layer(tracks, labels)
+            else:
+                warnings.warn("--photons needs a .gpkg output; photon layer not written",
+                              CanopyBlocksWarning, stacklevel=2)
+        prog.update(0.9, "writing")
+        result.outputs.append(write_layers(layers, output))
+    if profile is not None:
+        from .outputs.profile_plot import plot_profile
+
+        t = tracks[0]
+        result.outputs.append(plot_profile(t, blocks, profile, labels=labels.get(t.track)))
+    prog.update(1.0, "done")
+    return result

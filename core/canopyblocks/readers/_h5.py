@@ -1,0 +1,223 @@
+"""The one place where h5py is touched: safe opening, reading and attribute decoding.
+
+Every h5py/OS error (missing file, not HDF5, truncated file, missing group or
+dataset, unreadable chunk) becomes a :class:`~canopyblocks.errors.FileFormatError`
+that names the file and what is missing, so no h5py traceback reaches a user.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..errors import FileFormatError
+
+__all__ = ["H5File", "open_h5", "decode_attr", "HDF5_SIGNATURE"]
+
+log = logging.getLogger(__name__)
+
+HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+
+
+def _import_h5py() -> Any:
+    import h5py
+
+    return h5py
+
+
+def decode_attr(value: object) -> object:
+    """Turn an HDF5 attribute value into a plain Python value.
+
+    Real ICESat-2 files store strings three ways: fixed-length bytes scalars
+    (``b'weak'``), variable-length strings in a one-element object array
+    (``array(['weak'], dtype=object)``), and plain ``str``.  All become ``str``;
+    one-element numeric arrays become Python scalars.
+    """
+    if isinstance(value, bytes):
+        return value.decode("utf-8", "replace").strip("\x00 ")
+    if isinstance(value, np.ndarray):
+        if value.size == 1:
+            return decode_attr(value.reshape(-1)[0])
+        return [decode_attr(v) for v in value.reshape(-1)]
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, str):
+        return value.strip("\x00 ")
+    return value
+
+
+def _looks_like_hdf5(path: Path) -> bool:
+    """True when the HDF5 signature is at offset 0, 512, 1024, ... (user block)."""
+    try:
+        size = path.stat().st_size
+        with path.open("rb") as fh:
+            off = 0
+            while off + 8 <= size and off <= 1 << 20:
+                fh.seek(off)
+                if fh.read(8) == HDF5_SIGNATURE:
+                    return True
+                off = 512 if off == 0 else off * 2
+    except OSError:
+        return False
+    return False
+
+
+class H5File:
+    """An open HDF5 file whose every access raises :class:`FileFormatError` on failure.
+
+    Use :func:`open_h5` to get one.  Paths inside the file are strings such as
+    ``"gt1r/heights/h_ph"``.
+    """
+
+    def __init__(self, handle: Any, path: Path, product: str = "HDF5") -> None:
+        self._f = handle
+        self.path = path
+        self.product = product
+
+    # ---------------------------------------------------------------- helpers
+    def _fail(self, what: str, exc: BaseException | None = None) -> FileFormatError:
+        tail = f" ({type(exc).__name__}: {exc})" if exc is not None else ""
+        return FileFormatError(f"{self.path}: {what}{tail}")
+
+    def has(self, name: str) -> bool:
+        """True when group or dataset ``name`` exists (False on any read error)."""
+        try:
+            return name in self._f
+        except (OSError, KeyError, RuntimeError, ValueError):
+            return False
+
+    def is_group(self, name: str) -> bool:
+        """True when ``name`` exists and is a group."""
+        h5py = _import_h5py()
+        try:
+            return isinstance(self._f.get(name), h5py.Group)
+        except (OSError, KeyError, RuntimeError, ValueError):
+            return False
+
+    def is_dataset(self, name: str) -> bool:
+        """True when ``name`` exists and is a dataset."""
+        h5py = _import_h5py()
+        try:
+            return isinstance(self._f.get(name), h5py.Dataset)
+        except (OSError, KeyError, RuntimeError, ValueError):
+            return False
+
+    def keys(self, group: str = "/") -> list[str]:
+        """Member names of ``group`` (sorted); empty when it does not exist."""
+        try:
+            g = self._f[group]
+            return sorted(g.keys()) if hasattr(g, "keys") else []
+        except (OSError, KeyError, RuntimeError, ValueError):
+            return []
+
+    def _dataset(self, name: str, what: str = "") -> Any:
+        h5py = _import_h5py()
+        try:
+            obj = self._f.get(name)
+        except (OSError, KeyError, RuntimeError, ValueError) as exc:
+            raise self._fail(f"cannot open dataset /{name}", exc) from None
+        if not isinstance(obj, h5py.Dataset):
+            kind = "is a group, not a dataset" if obj is not None else "is missing"
+            extra = f" ({what})" if what else ""
+            raise self._fail(
+                f"dataset /{name}{extra} {kind}; this {self.product} file is incomplete or "
+                "not the expected product"
+            )
+        return obj
+
+    def shape(self, name: str) -> tuple[int, ...]:
+        """Shape of dataset ``name``."""
+        return tuple(int(n) for n in self._dataset(name).shape)
+
+    def dtype(self, name: str) -> np.dtype:
+        """dtype of dataset ``name``."""
+        return np.dtype(self._dataset(name).dtype)
+
+    def read(self, name: str, sel: Any = None, *, dtype: Any = None, what: str = "") -> np.ndarray:
+        """Read dataset ``name`` (optionally a slice ``sel``) as a numpy array.
+
+        Parameters
+        ----------
+        name : str
+            Path inside the file.
+        sel : slice, tuple or index array, optional
+            Selection passed to h5py (read only that part).
+        dtype : numpy dtype, optional
+            Convert after reading.
+        what : str
+            Description used in the error message.
+        """
+        ds = self._dataset(name, what)
+        try:
+            arr = np.asarray(ds[()] if sel is None else ds[sel])
+        except (OSError, RuntimeError, ValueError, TypeError, KeyError) as exc:
+            raise self._fail(
+                f"cannot read /{name}: the file is truncated or corrupt", exc
+            ) from None
+        return arr.astype(dtype, copy=False) if dtype is not None else arr
+
+    def attr(self, name: str, key: str, default: object = None) -> object:
+        """Decoded attribute ``key`` of object ``name`` (``"/"`` = root), or ``default``."""
+        try:
+            obj = self._f[name]
+            if key not in obj.attrs:
+                return default
+            return decode_attr(obj.attrs[key])
+        except (OSError, KeyError, RuntimeError, ValueError, TypeError):
+            return default
+
+    def attrs(self, name: str = "/") -> dict[str, object]:
+        """All decoded attributes of ``name`` (empty on error)."""
+        try:
+            obj = self._f[name]
+            return {k: decode_attr(obj.attrs[k]) for k in obj.attrs}
+        except (OSError, KeyError, RuntimeError, ValueError, TypeError):
+            return {}
+
+    def scalar(self, name: str, default: object = None) -> object:
+        """First element of a small dataset (e.g. ``orbit_info/sc_orient``), or ``default``."""
+        if not self.is_dataset(name):
+            return default
+        try:
+            return decode_attr(self.read(name).reshape(-1)[:1])
+        except FileFormatError:
+            return default
+
+
+@contextlib.contextmanager
+def open_h5(path: str | os.PathLike[str], product: str = "HDF5") -> Iterator[H5File]:
+    """Open ``path`` read-only as an :class:`H5File`.
+
+    Raises
+    ------
+    FileFormatError
+        When the file does not exist, is not HDF5, or cannot be opened
+        (truncated, corrupt); the message names the file.
+    """
+    p = Path(path)
+    if not p.exists():
+        raise FileFormatError(f"{p}: file does not exist")
+    if p.is_dir():
+        raise FileFormatError(f"{p}: is a folder, expected an HDF5 {product} file")
+    if not _looks_like_hdf5(p):
+        raise FileFormatError(
+            f"{p}: not an HDF5 file (no HDF5 signature); expected an HDF5 {product} file"
+        )
+    h5py = _import_h5py()
+    try:
+        handle = h5py.File(p, "r")
+    except (OSError, RuntimeError, ValueError) as exc:
+        raise FileFormatError(
+            f"{p}: cannot open as HDF5, the file is truncated or corrupt ({exc})"
+        ) from None
+    try:
+        yield H5File(handle, p, product)
+    finally:
+        with contextlib.suppress(Exception):
+            handle.close()

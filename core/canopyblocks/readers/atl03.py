@@ -1,0 +1,438 @@
+"""ICESat-2 ATL03 (v005/v006) geolocated photons, one ground-track beam at a time.
+
+Layout used (as in real granules): ``gtXX/heights/{delta_time, lat_ph, lon_ph, h_ph,
+dist_ph_along, signal_conf_ph}`` per photon and ``gtXX/geolocation/{segment_id,
+segment_dist_x, segment_length, ph_index_beg, segment_ph_cnt, reference_photon_lat,
+reference_photon_lon}`` per ~20 m geolocation segment.  Photons of segment ``i`` are
+rows ``ph_index_beg[i] - 1 ... + segment_ph_cnt[i]`` (1-based; 0 marks an empty
+segment).  A subset is found from the segments first, so only the needed photon rows
+are read.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import pyproj
+
+from ..errors import FileFormatError, InputError, NoUsableDataError
+from ..photons import PhotonTrack
+from ..progress import Progress, as_progress
+from ._common import bbox_mask, check_bbox, check_s_range, s_mask
+from ._h5 import H5File, open_h5
+from .atl08 import BEAMS, join_atl08, read_atl08_photons
+
+__all__ = ["BeamInfo", "BEAMS", "atl03_beams", "read_atl03", "beam_strength", "beam_spot",
+           "EXTRA_GROUP"]
+
+log = logging.getLogger(__name__)
+
+EXTRA_GROUP = "canopyblocks_truth"
+"""Per-beam group holding extra per-photon columns (the simulator's truth)."""
+
+SIGNAL_CONF_COLUMNS = ("land", "ocean", "sea_ice", "land_ice", "inland_water")
+_SEG_MARGIN_M = 25.0  # photons lie up to ~1 m outside their 20 m segment; keep one more
+_BBOX_MARGIN_M = 30.0  # plus one neighbouring segment each side
+
+
+@dataclass(frozen=True)
+class BeamInfo:
+    """One ATL03 beam of a file.
+
+    Attributes
+    ----------
+    name : str
+        ``"gt1l"`` ... ``"gt3r"``.
+    strength : str
+        ``"strong"``, ``"weak"``, or ``"unknown"`` (spacecraft in transition).
+    n_photons : int
+        Photons in ``gtXX/heights``.
+    spot : int or None
+        ATLAS spot number 1-6 when known.
+    """
+
+    name: str
+    strength: str
+    n_photons: int
+    spot: int | None = None
+
+
+def beam_strength(beam: str, sc_orient: int | None) -> str:
+    """Beam strength from ``orbit_info/sc_orient``.
+
+    0 (backward): the left beams (``gtXl``) are strong; 1 (forward): the right
+    beams (``gtXr``) are strong; 2 (transition) or unknown: ``"unknown"``.
+    """
+    if sc_orient == 0:
+        return "strong" if beam.endswith("l") else "weak"
+    if sc_orient == 1:
+        return "strong" if beam.endswith("r") else "weak"
+    return "unknown"
+
+
+def beam_spot(beam: str, sc_orient: int | None) -> int | None:
+    """ATLAS spot number (1, 3, 5 strong; 2, 4, 6 weak) of ``beam`` for ``sc_orient``."""
+    if beam not in BEAMS or sc_orient not in (0, 1):
+        return None
+    i = BEAMS.index(beam)
+    return i + 1 if sc_orient == 0 else 6 - i
+
+
+def _sc_orient(f: H5File) -> int | None:
+    v = f.scalar("orbit_info/sc_orient")
+    try:
+        return None if v is None else int(v)  # type: ignore[call-overload]
+    except (TypeError, ValueError):
+        return None
+
+
+def _file_beams(f: H5File) -> list[str]:
+    return [b for b in BEAMS if f.is_group(f"{b}/heights")]
+
+
+def _require_atl03(f: H5File) -> list[str]:
+    beams = _file_beams(f)
+    if not beams:
+        short = f.attr("/", "short_name")
+        hint = f" (its short_name is {short!r})" if short else ""
+        raise FileFormatError(
+            f"{f.path}: not an ATL03 file{hint}: no gtXX/heights group (beams gt1l..gt3r); "
+            "pass an ICESat-2 ATL03 granule"
+        )
+    return beams
+
+
+def _beam_info(f: H5File, beam: str, sc_orient: int | None) -> BeamInfo:
+    kind = f.attr(beam, "atlas_beam_type")
+    strength = str(kind).lower() if kind in ("strong", "weak", b"strong", b"weak") else \
+        beam_strength(beam, sc_orient)
+    spot_attr = f.attr(beam, "atlas_spot_number")
+    try:
+        spot: int | None = int(spot_attr)  # type: ignore[call-overload]
+    except (TypeError, ValueError):
+        spot = beam_spot(beam, sc_orient)
+    n = f.shape(f"{beam}/heights/h_ph")[0] if f.is_dataset(f"{beam}/heights/h_ph") else 0
+    return BeamInfo(beam, strength, int(n), spot)
+
+
+def atl03_beams(path: str | os.PathLike[str]) -> list[BeamInfo]:
+    """The beams of an ATL03 file, in the order gt1l, gt1r, ..., gt3r.
+
+    Strength comes from the beam group's ``atlas_beam_type`` attribute when present,
+    else from ``orbit_info/sc_orient``.
+
+    Raises
+    ------
+    FileFormatError
+        Not an ATL03 file (no ``gtXX/heights``), not HDF5, or unreadable.
+    """
+    with open_h5(path, "ATL03") as f:
+        beams = _require_atl03(f)
+        orient = _sc_orient(f)
+        return [_beam_info(f, b, orient) for b in beams]
+
+
+@dataclass(frozen=True, eq=False)
+class _Segments:
+    segment_id: np.ndarray  # int64
+    start0: np.ndarray  # 0-based first photon row
+    count: np.ndarray  # photons in the segment
+    dist_x: np.ndarray  # metres from the equator crossing
+    length: np.ndarray  # metres
+    ref_lat: np.ndarray | None
+    ref_lon: np.ndarray | None
+
+    def take(self, mask: np.ndarray) -> _Segments:
+        return _Segments(
+            self.segment_id[mask], self.start0[mask], self.count[mask], self.dist_x[mask],
+            self.length[mask],
+            None if self.ref_lat is None else self.ref_lat[mask],
+            None if self.ref_lon is None else self.ref_lon[mask],
+        )
+
+
+def _read_segments(f: H5File, beam: str, n_photons: int) -> _Segments:
+    g = f"{beam}/geolocation"
+    seg_id = f.read(f"{g}/segment_id", dtype=np.int64)
+    beg = f.read(f"{g}/ph_index_beg", dtype=np.int64)
+    cnt = f.read(f"{g}/segment_ph_cnt", dtype=np.int64)
+    dist_x = f.read(f"{g}/segment_dist_x", dtype=np.float64)
+    length = f.read(f"{g}/segment_length", dtype=np.float64) \
+        if f.is_dataset(f"{g}/segment_length") else np.full(seg_id.shape, 20.0)
+    ref_lat = ref_lon = None
+    if f.is_dataset(f"{g}/reference_photon_lat") and f.is_dataset(f"{g}/reference_photon_lon"):
+        ref_lat = f.read(f"{g}/reference_photon_lat", dtype=np.float64)
+        ref_lon = f.read(f"{g}/reference_photon_lon", dtype=np.float64)
+    shapes = {a.shape for a in (seg_id, beg, cnt, dist_x, length)}
+    if len(shapes) != 1 or seg_id.ndim != 1:
+        raise FileFormatError(
+            f"{f.path}: {g}: segment_id, ph_index_beg, segment_ph_cnt, segment_dist_x and "
+            "segment_length have different shapes; the geolocation group is corrupt"
+        )
+    if ref_lat is not None and (ref_lat.shape != seg_id.shape or ref_lon.shape != seg_id.shape):
+        ref_lat = ref_lon = None
+    nonempty = (cnt > 0) & (beg > 0)
+    end = beg + cnt - 1  # 1-based last photon row
+    if np.any(cnt < 0) or np.any(end[nonempty] > n_photons):
+        raise FileFormatError(
+            f"{f.path}: {g}: ph_index_beg/segment_ph_cnt point past the {n_photons} photons "
+            f"of {beam}/heights; the file is truncated or inconsistent"
+        )
+    segs = _Segments(seg_id, beg - 1, cnt, dist_x, length, ref_lat, ref_lon).take(nonempty)
+    return _repair_index(f, beam, segs, n_photons)
+
+
+_REPAIRED: set[tuple[str, str]] = set()  # (file, beam) already reported, to say it once
+
+
+def _repair_index(f: H5File, beam: str, segs: _Segments, n_photons: int) -> _Segments:
+    """Check that segments do not overlap; fix a known clipping-tool off-by-one.
+
+    In real granules ``ph_index_beg[i+1] = ph_index_beg[i] + segment_ph_cnt[i]``
+    over non-empty segments.  Some clipping tools rewrite ``ph_index_beg`` as the
+    running count without the +1 (e.g. the ICESat2VegR sample clip), so the
+    segments overlap by one photon.  When the counts tile the photon array exactly
+    (sum = number of photons), the cumulative counts are used instead (checked on
+    the shared Wyoming clip: every ATL08 photon then joins with identical
+    ``delta_time``).  Other overlaps are a corrupt file.
+    """
+    if segs.count.size < 2:
+        return segs
+    next_start = segs.start0[:-1] + segs.count[:-1]
+    if np.all(segs.start0[1:] >= next_start):
+        return segs  # consistent (gaps are allowed)
+    excl = np.cumsum(segs.count) - segs.count
+    if int(segs.count.sum()) == n_photons and np.all(np.abs(segs.start0 - excl) <= 1):
+        key = (str(f.path), beam)
+        (log.info if key in _REPAIRED else log.warning)(
+            "%s: %s/geolocation/ph_index_beg overlaps segment_ph_cnt (off by one, as written "
+            "by some clipping tools); using the cumulative segment_ph_cnt instead",
+            f.path, beam)
+        _REPAIRED.add(key)
+        return _Segments(segs.segment_id, excl, segs.count, segs.dist_x, segs.length,
+                         segs.ref_lat, segs.ref_lon)
+    raise FileFormatError(
+        f"{f.path}: {beam}/geolocation: ph_index_beg and segment_ph_cnt make segments "
+        "overlap; the geolocation group is corrupt"
+    )
+
+
+def _select_segments(segs: _Segments, bbox: tuple[float, float, float, float] | None,
+                     s_range: tuple[float, float] | None) -> np.ndarray:
+    """Segments that may hold photons inside ``bbox``/``s_range`` (a superset)."""
+    keep = np.ones(segs.segment_id.size, dtype=bool)
+    if s_range is not None:
+        lo = segs.dist_x - _SEG_MARGIN_M
+        hi = segs.dist_x + segs.length + _SEG_MARGIN_M
+        keep &= (hi >= s_range[0]) & (lo <= s_range[1])
+    if bbox is not None and segs.ref_lat is not None and segs.ref_lon is not None:
+        lat, lon = segs.ref_lat, segs.ref_lon
+        valid = np.isfinite(lat) & np.isfinite(lon) & (np.abs(lat) <= 90) & (np.abs(lon) <= 360)
+        dlat = _BBOX_MARGIN_M / 111_000.0
+        coslat = np.cos(np.radians(np.clip(np.where(valid, lat, 0.0), -89.9, 89.9)))
+        dlon = np.minimum(dlat / coslat, 360.0)
+        near = (lat >= bbox[1] - dlat) & (lat <= bbox[3] + dlat) & \
+            (lon >= bbox[0] - dlon) & (lon <= bbox[2] + dlon)
+        near |= ~valid  # cannot tell: keep, the photon filter decides
+        # one segment more on each side (photons scatter around the reference photon)
+        grown = near.copy()
+        grown[1:] |= near[:-1]
+        grown[:-1] |= near[1:]
+        keep &= grown
+    return keep
+
+
+def _photon_rows(segs: _Segments) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per photon: 0-based row in heights, index of its segment, 1-based index within it."""
+    total = int(segs.count.sum())
+    excl = np.cumsum(segs.count) - segs.count  # photons before each segment
+    seg_of_ph = np.repeat(np.arange(segs.count.size), segs.count)
+    within0 = np.arange(total, dtype=np.int64) - excl[seg_of_ph]
+    rows = segs.start0[seg_of_ph] + within0
+    return rows, seg_of_ph, within0 + 1
+
+
+def _signal_conf_message(beam: str, path: object, conf: np.ndarray, minimum: int) -> str:
+    vals = np.unique(conf)
+    if vals.size and np.all(vals == -1):
+        why = ("all -1: not a land surface type in this part of the granule (e.g. sea ice or "
+               "ocean); drop min_signal_conf to use every photon")
+    elif vals.size:
+        why = f"the highest is {int(vals.max())}; lower min_signal_conf or drop it"
+    else:
+        why = "there are no photons"
+    return (f"{beam} of {path}: no photon has land signal confidence >= {minimum} ({why})")
+
+
+def read_atl03(
+    path: str | os.PathLike[str],
+    beam: str,
+    *,
+    bbox: Sequence[float] | None = None,
+    s_range: Sequence[float] | None = None,
+    atl08: str | os.PathLike[str] | None = None,
+    crs: pyproj.CRS | str | int | None = None,
+    min_signal_conf: int | None = None,
+    extra_group: str | None = EXTRA_GROUP,
+    progress: Progress | None = None,
+) -> PhotonTrack:
+    """Read the photons of one ATL03 beam.
+
+    Parameters
+    ----------
+    path : path-like
+        ATL03 granule (HDF5), v005/v006 layout (subsets such as NSIDC/Harmony clips
+        work; ``ancillary_data`` and ``orbit_info`` are optional).
+    beam : str
+        ``"gt1l"`` ... ``"gt3r"``.
+    bbox : (lon_min, lat_min, lon_max, lat_max), optional
+        WGS84 degrees; only photons inside are returned.  Only the geolocation
+        segments near the box are read.
+    s_range : (s_min, s_max), optional
+        Along-track distance, metres, in the product's frame (``segment_dist_x``:
+        distance from the equator crossing).
+    atl08 : path-like, optional
+        The matching ATL08 granule; its ``signal_photons`` classes are joined by
+        (``ph_segment_id``, ``classed_pc_indx``) into ``track.classification``
+        (-1 = not classified).
+    crs : CRS-like, optional
+        Metric CRS for ``x``/``y`` (default: UTM zone of the track centre).
+    min_signal_conf : int, optional
+        Keep only photons whose land ``signal_conf_ph`` (column 0) is at least this
+        (-2..4).
+    extra_group : str or None
+        Per-beam group whose 1-D per-photon datasets go into ``track.extra``
+        (the simulator's truth); None skips it.
+    progress : Progress, optional
+
+    Returns
+    -------
+    PhotonTrack
+        ``time`` = ``delta_time`` (s since the ATLAS SDP epoch), ``h`` = ``h_ph``
+        (m above the WGS84 ellipsoid, ``vertical_datum="EPSG:4979"``),
+        ``s = segment_dist_x + dist_ph_along`` (m), ``signal_conf`` = land column;
+        sorted by ``s``.
+
+    Raises
+    ------
+    FileFormatError
+        Not HDF5/ATL03, truncated, or a required dataset is missing.
+    InputError
+        Unknown beam or a beam the file lacks (the message lists the file's beams),
+        bad ``bbox``/``s_range``/``min_signal_conf``, ATL08 not matching.
+    NoUsableDataError
+        No photon in the beam / subset, or none reaching ``min_signal_conf``.
+    """
+    prog = as_progress(progress)
+    bb = check_bbox(bbox)
+    sr = check_s_range(s_range)
+    beam = str(beam).lower().strip()
+    if beam not in BEAMS:
+        raise InputError(f"beam {beam!r} is not an ATL03 beam; use one of {', '.join(BEAMS)}")
+    if min_signal_conf is not None and (
+            not isinstance(min_signal_conf, (int, np.integer)) or not -2 <= min_signal_conf <= 4):
+        raise InputError(f"min_signal_conf {min_signal_conf!r} must be an integer in -2..4")
+    prog.update(0.0, f"reading {beam}")
+    with open_h5(path, "ATL03") as f:
+        beams = _require_atl03(f)
+        if beam not in beams:
+            orient = _sc_orient(f)
+            have = ", ".join(f"{b.name} ({b.strength}, {b.n_photons} photons)"
+                             for b in (_beam_info(f, b, orient) for b in beams))
+            raise InputError(f"{f.path}: beam {beam} is not in this file; it has {have}")
+        hg = f"{beam}/heights"
+        n_all = f.shape(f"{hg}/h_ph")[0]
+        segs = _read_segments(f, beam, n_all)
+        if n_all == 0 or segs.segment_id.size == 0:
+            raise NoUsableDataError(f"{f.path}: beam {beam} has no photons")
+        segs = segs.take(_select_segments(segs, bb, sr))
+        rows, seg_of_ph, within = _photon_rows(segs)
+        if rows.size == 0:
+            raise NoUsableDataError(_empty_message(f, beam, bb, sr))
+        lo, hi = int(rows.min()), int(rows.max()) + 1
+        take = rows - lo
+        prog.update(0.2, f"reading {rows.size} photons of {beam}")
+
+        def col(name: str, dtype: object) -> np.ndarray:
+            arr = f.read(f"{hg}/{name}", np.s_[lo:hi], dtype=dtype)
+            return arr[take]
+
+        lat = col("lat_ph", np.float64)
+        lon = col("lon_ph", np.float64)
+        dist_along = col("dist_ph_along", np.float64)
+        s = segs.dist_x[seg_of_ph] + dist_along
+        keep = bbox_mask(lon, lat, bb) & s_mask(s, sr)
+        conf = None
+        if f.is_dataset(f"{hg}/signal_conf_ph"):
+            conf_all = f.read(f"{hg}/signal_conf_ph", np.s_[lo:hi], dtype=np.int8)
+            conf = (conf_all[:, 0] if conf_all.ndim == 2 else conf_all)[take]
+        elif min_signal_conf is not None:
+            raise FileFormatError(f"{f.path}: /{hg}/signal_conf_ph is missing, so "
+                                  "min_signal_conf cannot be applied; drop min_signal_conf")
+        if not keep.any():
+            raise NoUsableDataError(_empty_message(f, beam, bb, sr))
+        if min_signal_conf is not None and conf is not None:
+            ok = conf >= min_signal_conf
+            if not (ok & keep).any():
+                raise NoUsableDataError(_signal_conf_message(beam, f.path, conf[keep],
+                                                             int(min_signal_conf)))
+            keep &= ok
+        prog.update(0.5, "reading heights")
+        time = col("delta_time", np.float64)[keep]
+        h = col("h_ph", np.float64)[keep]
+        extra: dict[str, np.ndarray] = {}
+        if extra_group and f.is_group(f"{beam}/{extra_group}"):
+            for name in f.keys(f"{beam}/{extra_group}"):
+                dpath = f"{beam}/{extra_group}/{name}"
+                if f.is_dataset(dpath) and f.shape(dpath) == (n_all,):
+                    extra[name] = f.read(dpath, np.s_[lo:hi])[take][keep]
+        seg_ids = segs.segment_id[seg_of_ph][keep]
+        within_k = within[keep]
+        rgt_cycle = (f.scalar("orbit_info/rgt"), f.scalar("orbit_info/cycle_number"))
+        src = str(f.path)
+    classification = None
+    if atl08 is not None:
+        prog.update(0.7, "joining ATL08 classes")
+        a8 = read_atl08_photons(atl08, beam)
+        _check_same_granule(src, rgt_cycle, a8.source, (a8.rgt, a8.cycle))
+        classification = join_atl08(seg_ids, within_k, time, a8, what=f"{beam} of {src}")
+    prog.update(0.85, "projecting")
+    track = PhotonTrack.from_lonlat(
+        time, lat[keep], lon[keep], h, track=beam, s=s[keep], crs=crs,
+        signal_conf=None if conf is None else conf[keep], classification=classification,
+        extra=extra, source=src, vertical_datum="EPSG:4979",
+    )
+    prog.update(1.0, f"{beam}: {len(track)} photons")
+    log.info("read %d photons of %s from %s", len(track), beam, src)
+    return track
+
+
+def _check_same_granule(a03: str, rc03: tuple[object, object], a08: str,
+                        rc08: tuple[object, object]) -> None:
+    if None in rc03 or None in rc08:
+        return
+    if tuple(int(v) for v in rc03) != tuple(int(v) for v in rc08):  # type: ignore[call-overload]
+        raise InputError(
+            f"ATL08 file {a08} is from RGT {rc08[0]} cycle {rc08[1]} but ATL03 file {a03} is "
+            f"from RGT {rc03[0]} cycle {rc03[1]}; pass the matching ATL08 granule"
+        )
+
+
+def _empty_message(f: H5File, beam: str, bbox: object, s_range: object) -> str:
+    cover = ""
+    try:
+        segs = _read_segments(f, beam, f.shape(f"{beam}/heights/h_ph")[0])
+        if segs.ref_lat is not None and segs.ref_lat.size:
+            lon, lat = segs.ref_lon, segs.ref_lat
+            cover = (f"; the beam covers lon {np.nanmin(lon):.5f}..{np.nanmax(lon):.5f}, "
+                     f"lat {np.nanmin(lat):.5f}..{np.nanmax(lat):.5f}")
+        if segs.dist_x.size:
+            cover += (f", s {segs.dist_x.min():.1f}.."
+                      f"{(segs.dist_x + segs.length).max():.1f} m")
+    except FileFormatError:
+        pass
+    return (f"{f.path}: no photons of {beam} inside bbox={bbox} s_range={s_range}{cover}")

@@ -1,0 +1,162 @@
+"""ATL08 signal-photon classes joined onto ATL03 photons.
+
+ATL08 ``gtXX/signal_photons`` lists the photons it classified by
+``ph_segment_id`` (the ATL03 geolocation ``segment_id`` of the photon) and
+``classed_pc_indx`` (the photon's 1-based position inside that segment), with
+``classed_pc_flag`` (0 noise, 1 ground, 2 canopy, 3 top of canopy).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import FileFormatError, InputError
+from ._h5 import H5File, open_h5
+
+__all__ = ["Atl08Photons", "read_atl08_photons", "join_atl08", "photon_keys", "BEAMS"]
+
+log = logging.getLogger(__name__)
+
+BEAMS = ("gt1l", "gt1r", "gt2l", "gt2r", "gt3l", "gt3r")
+
+_KEY_SHIFT = np.int64(32)
+
+
+@dataclass(frozen=True, eq=False)
+class Atl08Photons:
+    """The classified photons of one ATL08 beam.
+
+    Attributes
+    ----------
+    segment_id : ndarray int64
+        ATL03 geolocation segment of each photon (``ph_segment_id``).
+    index : ndarray int64
+        1-based photon position inside that segment (``classed_pc_indx``).
+    flag : ndarray int8
+        ``classed_pc_flag``: 0 noise, 1 ground, 2 canopy, 3 top of canopy.
+    delta_time : ndarray float64 or None
+        ``signal_photons/delta_time`` when present (checks the join).
+    rgt, cycle : int or None
+        ``orbit_info/rgt`` and ``orbit_info/cycle_number`` when present.
+    """
+
+    segment_id: np.ndarray
+    index: np.ndarray
+    flag: np.ndarray
+    delta_time: np.ndarray | None
+    rgt: int | None
+    cycle: int | None
+    source: str
+
+
+def photon_keys(segment_id: np.ndarray, index: np.ndarray) -> np.ndarray:
+    """Combined int64 key ``segment_id << 32 | index`` (index 1-based within the segment)."""
+    return (np.asarray(segment_id, np.int64) << _KEY_SHIFT) | np.asarray(index, np.int64)
+
+
+def read_atl08_photons(path: str | os.PathLike[str], beam: str) -> Atl08Photons:
+    """Read ``beam``'s ``signal_photons`` from an ATL08 file.
+
+    Raises
+    ------
+    FileFormatError
+        Not an ATL08 file / datasets missing.
+    InputError
+        The beam is not in the file (the message lists the beams it has).
+    """
+    with open_h5(path, "ATL08") as f:
+        beams = [b for b in BEAMS if f.is_group(f"{b}/signal_photons")]
+        if not beams:
+            raise FileFormatError(
+                f"{f.path}: not an ATL08 file (no gtXX/signal_photons group); pass the ATL08 "
+                "granule that matches the ATL03 file"
+            )
+        if beam not in beams:
+            raise InputError(
+                f"{f.path}: ATL08 has no signal photons for beam {beam!r}; it has "
+                f"{', '.join(beams)}"
+            )
+        g = f"{beam}/signal_photons"
+        seg = f.read(f"{g}/ph_segment_id", dtype=np.int64)
+        idx = f.read(f"{g}/classed_pc_indx", dtype=np.int64)
+        flag = f.read(f"{g}/classed_pc_flag", dtype=np.int8)
+        dt = f.read(f"{g}/delta_time", dtype=np.float64) if f.is_dataset(f"{g}/delta_time") \
+            else None
+        if not (seg.shape == idx.shape == flag.shape) or seg.ndim != 1:
+            raise FileFormatError(
+                f"{f.path}: {g}: ph_segment_id, classed_pc_indx and classed_pc_flag have "
+                f"different shapes {seg.shape}, {idx.shape}, {flag.shape}"
+            )
+        return Atl08Photons(seg, idx, flag, dt, _int_or_none(f, "orbit_info/rgt"),
+                            _int_or_none(f, "orbit_info/cycle_number"), str(f.path))
+
+
+def _int_or_none(f: H5File, name: str) -> int | None:
+    v = f.scalar(name)
+    try:
+        return None if v is None else int(v)  # type: ignore[call-overload]
+    except (TypeError, ValueError):
+        return None
+
+
+def join_atl08(
+    ph_segment_id: np.ndarray,
+    ph_index: np.ndarray,
+    ph_time: np.ndarray,
+    atl08: Atl08Photons,
+    *,
+    what: str = "",
+    time_tolerance: float = 1e-6,
+) -> np.ndarray:
+    """Classes of ATL03 photons from ATL08 (vectorised join on ``(segment_id, index)``).
+
+    Parameters
+    ----------
+    ph_segment_id, ph_index : ndarray
+        Geolocation ``segment_id`` of each ATL03 photon and its 1-based position
+        inside the segment.
+    ph_time : ndarray
+        ATL03 ``delta_time`` of each photon, seconds; checked against ATL08's.
+    atl08 : Atl08Photons
+    what : str
+        Names the ATL03 beam/file in messages.
+    time_tolerance : float
+        Largest allowed |ATL03 - ATL08| ``delta_time`` of a joined photon, seconds.
+
+    Returns
+    -------
+    ndarray int8
+        ``classed_pc_flag`` per ATL03 photon, -1 where ATL08 did not classify it.
+
+    Raises
+    ------
+    InputError
+        When more than 1 % of the joined photons have a different ``delta_time``:
+        the ATL08 file is not the partner of this ATL03 granule.
+    """
+    keys = photon_keys(ph_segment_id, ph_index)
+    k8 = photon_keys(atl08.segment_id, atl08.index)
+    order = np.argsort(k8, kind="stable")
+    k8s = k8[order]
+    pos = np.searchsorted(k8s, keys)
+    pos_c = np.minimum(pos, max(k8s.size - 1, 0))
+    hit = (pos < k8s.size) & (k8s[pos_c] == keys) if k8s.size else np.zeros(keys.size, bool)
+    out = np.full(keys.size, -1, dtype=np.int8)
+    src = order[pos_c[hit]]
+    out[hit] = atl08.flag[src]
+    if atl08.delta_time is not None and hit.any():
+        dt = np.abs(np.asarray(ph_time, np.float64)[hit] - atl08.delta_time[src])
+        bad = int(np.sum(~(dt <= time_tolerance)))
+        if bad > 0.01 * hit.sum():
+            raise InputError(
+                f"{what}: ATL08 file {atl08.source} does not match: {bad} of {int(hit.sum())} "
+                "photons joined by (segment_id, index) have a different delta_time; pass the "
+                "ATL08 granule made from this ATL03 granule"
+            )
+    log.info("%s: %d of %d ATL03 photons classified by ATL08 (%d ATL08 photons)",
+             what, int(hit.sum()), keys.size, k8.size)
+    return out

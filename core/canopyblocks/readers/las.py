@@ -1,0 +1,321 @@
+"""Read airborne discrete-return lidar (LAS/LAZ) into columnar numpy arrays.
+
+One or several tiles are read with laspy's chunk iterator (bounded memory), optionally
+cropped to a bounding box while reading.  Coordinates stay in the files' CRS (which must
+be the same for every tile); heights stay in the files' vertical datum.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pyproj
+
+from ..errors import CRSError, DependencyError, FileFormatError, InputError, NoUsableDataError
+from ..geo import as_crs, require_metric_crs
+from ..progress import Progress, as_progress
+
+__all__ = ["LasPoints", "read_las", "las_crs", "las_bounds"]
+
+log = logging.getLogger(__name__)
+
+_CHUNK = 2_000_000
+
+
+@dataclass(eq=False)
+class LasPoints:
+    """Airborne lidar points, one numpy array per dimension (equal lengths).
+
+    Attributes
+    ----------
+    x, y : ndarray float64
+        Metres in ``crs``.
+    z : ndarray float64
+        Heights, metres, in the files' vertical datum (``vertical_datum``).
+    classification : ndarray uint8
+        ASPRS class (2 = ground, 7/18 = noise).
+    return_number, number_of_returns : ndarray uint8
+    crs : pyproj.CRS
+        Horizontal CRS of ``x``/``y`` (projected, metres).
+    vertical_datum : str
+        Name of the vertical datum when the file states one, else ``"unknown"``.
+    sources : tuple of str
+        The files read.
+    row : ndarray int64 or None
+        Each point's row in the input files taken in order (file 1's points, then file
+        2's, ...), counted before any cropping or class filter; None = ``arange``.
+    """
+
+    x: np.ndarray
+    y: np.ndarray
+    z: np.ndarray
+    classification: np.ndarray
+    return_number: np.ndarray
+    number_of_returns: np.ndarray
+    crs: pyproj.CRS
+    vertical_datum: str = "unknown"
+    sources: tuple[str, ...] = ()
+    row: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return int(self.x.size)
+
+    @property
+    def bounds(self) -> tuple[float, float, float, float]:
+        """``(xmin, ymin, xmax, ymax)`` in metres; raises NoUsableDataError when empty."""
+        if len(self) == 0:
+            raise NoUsableDataError("the point cloud is empty")
+        return (float(self.x.min()), float(self.y.min()), float(self.x.max()),
+                float(self.y.max()))
+
+    def subset(self, mask: np.ndarray) -> LasPoints:
+        """Points selected by a boolean mask or an index array."""
+        return LasPoints(self.x[mask], self.y[mask], self.z[mask], self.classification[mask],
+                         self.return_number[mask], self.number_of_returns[mask], self.crs,
+                         self.vertical_datum, self.sources,
+                         self.rows[mask])
+
+    @property
+    def rows(self) -> np.ndarray:
+        """:attr:`row`, or ``arange(len(self))`` when it is None."""
+        return np.arange(len(self), dtype=np.int64) if self.row is None else self.row
+
+    @classmethod
+    def from_arrays(cls, x: np.ndarray, y: np.ndarray, z: np.ndarray, *,
+                    crs: pyproj.CRS | str | int, classification: np.ndarray | None = None,
+                    vertical_datum: str = "unknown") -> LasPoints:
+        """Build a cloud from arrays (metres in ``crs``); e.g. synthetic test clouds."""
+        x_a = np.ascontiguousarray(x, dtype=np.float64)
+        y_a = np.ascontiguousarray(y, dtype=np.float64)
+        z_a = np.ascontiguousarray(z, dtype=np.float64)
+        if not (x_a.shape == y_a.shape == z_a.shape) or x_a.ndim != 1:
+            raise InputError(
+                f"x, y, z must be 1-D arrays of equal length; got {x_a.shape}, {y_a.shape}, "
+                f"{z_a.shape}")
+        n = x_a.size
+        cls_a = (np.ones(n, np.uint8) if classification is None
+                 else np.asarray(classification, dtype=np.uint8))
+        one = np.ones(n, np.uint8)
+        return cls(x_a, y_a, z_a, cls_a, one, one.copy(),
+                   require_metric_crs(as_crs(crs, "point cloud CRS"), "point cloud CRS"),
+                   vertical_datum, ())
+
+
+def _laspy():  # noqa: ANN202
+    try:
+        import laspy
+    except ImportError:
+        raise DependencyError(
+            "reading LAS/LAZ needs laspy with a LAZ backend: pip install 'canopyblocks[las]'"
+        ) from None
+    return laspy
+
+
+def las_crs(path: str | os.PathLike[str]) -> pyproj.CRS | None:
+    """The horizontal CRS stated in a LAS/LAZ header (WKT or GeoTIFF keys), or None."""
+    laspy = _laspy()
+    p = Path(path)
+    try:
+        with laspy.open(p) as reader:
+            crs = reader.header.parse_crs()
+    except FileNotFoundError:
+        raise FileFormatError(f"{p}: no such file") from None
+    except Exception as exc:  # laspy raises several types for corrupt headers
+        raise FileFormatError(f"{p}: not a readable LAS/LAZ file ({exc})") from None
+    return _horizontal(crs) if crs is not None else None
+
+
+def las_bounds(paths: str | os.PathLike[str] | Sequence[str | os.PathLike[str]]
+               ) -> tuple[float, float, float, float]:
+    """Union of the header extents ``(xmin, ymin, xmax, ymax)`` of LAS/LAZ files, metres.
+
+    Reads headers only (no points), e.g. to place a track before reading a corridor.
+    """
+    laspy = _laspy()
+    if isinstance(paths, (str, os.PathLike)):
+        paths = [paths]
+    if not paths:
+        raise InputError("no LAS/LAZ file given")
+    lo = np.array([np.inf, np.inf])
+    hi = -lo
+    for path in (Path(p) for p in paths):
+        try:
+            with laspy.open(path) as reader:
+                mins, maxs = reader.header.mins, reader.header.maxs
+        except FileNotFoundError:
+            raise FileFormatError(f"{path}: no such file") from None
+        except Exception as exc:  # laspy raises several types for corrupt headers
+            raise FileFormatError(f"{path}: not a readable LAS/LAZ file ({exc})") from None
+        lo = np.minimum(lo, np.asarray(mins[:2], dtype=float))
+        hi = np.maximum(hi, np.asarray(maxs[:2], dtype=float))
+    return float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])
+
+
+def _horizontal(crs: pyproj.CRS) -> pyproj.CRS:
+    if crs.is_compound:
+        for sub in crs.sub_crs_list:
+            if sub.is_projected or sub.is_geographic:
+                return sub
+    return crs
+
+
+def _vertical_name(crs: pyproj.CRS | None, header: object = None) -> str:
+    """``"EPSG:nnnn"`` (or the name) of the file's vertical CRS, else ``"unknown"``."""
+    if crs is not None and crs.is_compound:
+        for sub in crs.sub_crs_list:
+            if sub.is_vertical:
+                epsg = sub.to_epsg()
+                return f"EPSG:{epsg}" if epsg else sub.name
+    for vlr in getattr(header, "vlrs", []) or []:
+        for key in getattr(vlr, "geo_keys", []) or []:
+            # VerticalCSTypeGeoKey (4096): an EPSG vertical CRS code stored inline
+            if key.id == 4096 and key.tiff_tag_location == 0 and 1024 <= key.value_offset < 32767:
+                return f"EPSG:{key.value_offset}"
+    return "unknown"
+
+
+def read_las(
+    paths: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
+    *,
+    bbox: tuple[float, float, float, float] | None = None,
+    crs: pyproj.CRS | str | int | None = None,
+    exclude_classes: Sequence[int] = (),
+    progress: Progress | None = None,
+) -> LasPoints:
+    """Read points from one or several LAS/LAZ tiles.
+
+    Parameters
+    ----------
+    paths : path or sequence of paths
+        LAS/LAZ files, all in the same horizontal CRS.
+    bbox : (xmin, ymin, xmax, ymax), optional
+        Keep only points inside (inclusive), metres in the files' CRS; tiles whose
+        header extent misses the box are skipped without decompressing.
+    crs : CRS-like, optional
+        The CRS to assume when a file states none.  When a file states a CRS that
+        differs from ``crs``, :class:`~canopyblocks.errors.CRSError` is raised
+        (reproject the tiles first, e.g. with PDAL).
+    exclude_classes : sequence of int
+        ASPRS classes to drop while reading (e.g. ``(7, 18)`` for noise).
+    progress : Progress, optional
+        Reports per tile/chunk; cancellable.
+
+    Returns
+    -------
+    LasPoints
+
+    Raises
+    ------
+    FileFormatError
+        Missing or unreadable file.
+    CRSError
+        No CRS in a file and none given; tiles in different CRSs; a non-metric CRS.
+    NoUsableDataError
+        No point left (empty files, or the box misses every tile).
+    """
+    laspy = _laspy()
+    prog = as_progress(progress)
+    if isinstance(paths, (str, os.PathLike)):
+        paths = [paths]
+    files = [Path(p) for p in paths]
+    if not files:
+        raise InputError("no LAS/LAZ file given")
+    if bbox is not None:
+        bbox = tuple(float(v) for v in bbox)  # type: ignore[assignment]
+        if len(bbox) != 4 or not (bbox[0] <= bbox[2] and bbox[1] <= bbox[3]):
+            raise InputError(f"bbox must be (xmin, ymin, xmax, ymax) with min <= max; got {bbox}")
+    given = None if crs is None else as_crs(crs, "point cloud CRS")
+    excl = np.asarray(list(exclude_classes), dtype=np.int64)
+    used_crs: pyproj.CRS | None = None
+    vdatum = "unknown"
+    parts: dict[str, list[np.ndarray]] = {k: [] for k in ("x", "y", "z", "c", "r", "n", "row")}
+    offset = 0  # rows of the files before this one
+    for i, path in enumerate(files):
+        sub = prog.sub(i / len(files), (i + 1) / len(files))
+        try:
+            reader_cm = laspy.open(path)
+        except FileNotFoundError:
+            raise FileFormatError(f"{path}: no such file") from None
+        except Exception as exc:
+            raise FileFormatError(f"{path}: not a readable LAS/LAZ file ({exc})") from None
+        with reader_cm as reader:
+            header = reader.header
+            try:
+                file_crs_full = header.parse_crs()
+            except Exception as exc:  # noqa: BLE001 - malformed CRS records
+                log.warning("%s: cannot parse the CRS records (%s)", path, exc)
+                file_crs_full = None
+            file_crs = _horizontal(file_crs_full) if file_crs_full is not None else None
+            if file_crs is None:
+                if given is None:
+                    raise CRSError(
+                        f"{path}: the file states no CRS (no WKT or GeoTIFF keys); give one, "
+                        "e.g. crs='EPSG:3005' (CLI: --crs 3005)")
+                file_crs = given
+            elif given is not None and not file_crs.equals(given, ignore_axis_order=True):
+                raise CRSError(
+                    f"{path}: the file's CRS {file_crs.to_string()} differs from the CRS given, "
+                    f"{given.to_string()}; reproject the tiles or drop the CRS argument")
+            if used_crs is None:
+                used_crs = require_metric_crs(file_crs, f"{path} CRS")
+                vdatum = _vertical_name(file_crs_full, header)
+            elif not file_crs.equals(used_crs, ignore_axis_order=True):
+                raise CRSError(
+                    f"{path}: CRS {file_crs.to_string()} differs from the first tile's "
+                    f"{used_crs.to_string()}; reproject the tiles to one CRS first")
+            if bbox is not None:
+                mins, maxs = header.mins, header.maxs
+                if (maxs[0] < bbox[0] or mins[0] > bbox[2] or maxs[1] < bbox[1]
+                        or mins[1] > bbox[3]):
+                    log.debug("%s: outside the bbox, skipped", path)
+                    offset += int(header.point_count)
+                    continue
+            total = max(int(header.point_count), 1)
+            done = 0
+            try:
+                for chunk in reader.chunk_iterator(_CHUNK):
+                    _append_chunk(chunk, parts, bbox, excl, offset + done)
+                    done += len(chunk)
+                    sub.update(done / total, f"{path.name}: {done:,} points")
+            except Exception as exc:
+                raise FileFormatError(
+                    f"{path}: truncated or corrupt point data after {done:,} points ({exc})"
+                ) from None
+            offset += int(header.point_count)
+    if used_crs is None:  # pragma: no cover - files list non-empty implies a CRS
+        raise CRSError("no CRS found")
+    if not parts["x"] or sum(a.size for a in parts["x"]) == 0:
+        where = "" if bbox is None else f" inside bbox {bbox}"
+        raise NoUsableDataError(
+            f"no points{where} in {', '.join(str(f) for f in files)}; check the files/bbox")
+    pts = LasPoints(
+        x=np.concatenate(parts["x"]), y=np.concatenate(parts["y"]), z=np.concatenate(parts["z"]),
+        classification=np.concatenate(parts["c"]), return_number=np.concatenate(parts["r"]),
+        number_of_returns=np.concatenate(parts["n"]), crs=used_crs, vertical_datum=vdatum,
+        sources=tuple(str(f) for f in files), row=np.concatenate(parts["row"]))
+    log.info("read %d points from %d file(s)", len(pts), len(files))
+    return pts
+
+
+def _append_chunk(chunk: object, parts: dict[str, list[np.ndarray]],
+                  bbox: tuple[float, float, float, float] | None, excl: np.ndarray,
+                  first_row: int) -> None:
+    x = np.asarray(chunk.x, dtype=np.float64)  # type: ignore[attr-defined]
+    y = np.asarray(chunk.y, dtype=np.float64)  # type: ignore[attr-defined]
+    z = np.asarray(chunk.z, dtype=np.float64)  # type: ignore[attr-defined]
+    c = np.asarray(chunk.classification, dtype=np.uint8)  # type: ignore[attr-defined]
+    r = np.asarray(chunk.return_number, dtype=np.uint8)  # type: ignore[attr-defined]
+    n = np.asarray(chunk.number_of_returns, dtype=np.uint8)  # type: ignore[attr-defined]
+    keep = np.isfinite(x) & np.isfinite(y) & np.isfinite(z)
+    if bbox is not None:
+        keep &= (x >= bbox[0]) & (x <= bbox[2]) & (y >= bbox[1]) & (y <= bbox[3])
+    if excl.size:
+        keep &= ~np.isin(c, excl)
+    row = np.arange(first_row, first_row + x.size, dtype=np.int64)
+    for key, arr in zip(("x", "y", "z", "c", "r", "n", "row"), (x, y, z, c, r, n, row)):
+        parts[key].append(arr[keep])

@@ -1,0 +1,178 @@
+"""Airborne lidar points through PDAL: read/crop/reproject, then arrays in Python.
+
+PDAL has no percentile writer, so :mod:`canopyblocks.reference.rasters` asks PDAL for the
+points (``points_for_p90.json``) and computes per-cell percentiles with numpy here.  Also
+cuts the points inside a corridor polygon (``crop_corridor.json``).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import FileFormatError, InputError, NoUsableDataError
+from ..outputs.atomic import atomic_output
+from ..progress import Progress
+from .pdal import expand_readers, load_pipeline, run_pipeline, tile_info, write_pipeline
+
+__all__ = ["LidarPoints", "read_points_csv", "cell_neighbourhoods", "cell_percentile",
+           "crop_corridor"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class LidarPoints:
+    """Point coordinates as float64 arrays of equal length (metres)."""
+
+    x: np.ndarray
+    y: np.ndarray
+    z: np.ndarray
+
+    def __len__(self) -> int:
+        return int(self.x.size)
+
+
+def read_points_csv(path: str | os.PathLike[str]) -> LidarPoints:
+    """x, y, z (float64) from the CSV that ``points_for_p90.json`` writes (``X,Y,Z``).
+
+    PDAL writes 8 decimals (10 nm), so positions keep PDAL's double precision for the
+    cell rule; a binary LAS would round them to its scale.
+
+    Raises
+    ------
+    FileFormatError
+        The file is missing or lacks the X, Y, Z columns.
+    """
+    import pandas as pd
+
+    p = Path(path)
+    try:
+        df = pd.read_csv(p, usecols=["X", "Y", "Z"], dtype="float64", engine="c")
+    except (OSError, ValueError, pd.errors.ParserError) as exc:
+        raise FileFormatError(f"cannot read the points PDAL wrote to {p}: {exc}") from None
+    return LidarPoints(x=df["X"].to_numpy(), y=df["Y"].to_numpy(), z=df["Z"].to_numpy())
+
+
+def cell_neighbourhoods(
+    x: np.ndarray, y: np.ndarray, *, origin_x: float, top_y: float, resolution: float,
+    width: int, height: int, radius: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Pairs (cell, point) with the point strictly within ``radius`` of the cell centre.
+
+    This is PDAL writers.gdal's rule (a point counts for every cell whose centre is at a
+    horizontal distance ``< radius``), computed for ``radius <= resolution`` by testing the
+    3 x 3 cells around each point's own cell (vectorised over points).
+
+    Parameters
+    ----------
+    x, y : ndarray
+        Point coordinates, metres, in the grid's CRS.
+    origin_x, top_y : float
+        West and north edges of the grid, metres.
+    resolution : float
+        Cell size, metres.
+    width, height : int
+        Grid columns and rows (row 0 is the north row).
+    radius : float
+        Neighbourhood radius, metres; at most ``resolution``.
+
+    Returns
+    -------
+    cell : ndarray of int64
+        Flat cell index ``row * width + col``.
+    point : ndarray of int64
+        Index into ``x``/``y``.
+    """
+    if not 0 < radius <= resolution:
+        raise InputError(f"radius {radius} must be in (0, resolution={resolution}]")
+    x = np.asarray(x, dtype=np.float64)
+    y = np.asarray(y, dtype=np.float64)
+    col0 = np.floor((x - origin_x) / resolution).astype(np.int64)
+    row0 = np.floor((top_y - y) / resolution).astype(np.int64)
+    cells, points = [], []
+    idx = np.arange(x.size, dtype=np.int64)
+    for dr in (-1, 0, 1):  # nine neighbour offsets, each vectorised over all points
+        for dc in (-1, 0, 1):
+            col = col0 + dc
+            row = row0 + dr
+            cx = origin_x + (col + 0.5) * resolution
+            cy = top_y - (row + 0.5) * resolution
+            ok = ((col >= 0) & (col < width) & (row >= 0) & (row < height)
+                  & (np.hypot(x - cx, y - cy) < radius))
+            cells.append(row[ok] * width + col[ok])
+            points.append(idx[ok])
+    return np.concatenate(cells), np.concatenate(points)
+
+
+def cell_percentile(
+    cell: np.ndarray, values: np.ndarray, n_cells: int, q: float = 90.0
+) -> np.ndarray:
+    """Per-cell ``q``-th percentile of ``values``, numpy's default ("linear") rule.
+
+    For a cell with sorted values ``v[0..n-1]``: ``pos = q/100 * (n - 1)``,
+    ``result = v[floor(pos)] + (v[ceil(pos)] - v[floor(pos)]) * (pos - floor(pos))``,
+    exactly :func:`numpy.percentile` with ``method="linear"``.  Vectorised: one sort by
+    (cell, value), no loop over cells.
+
+    Returns
+    -------
+    ndarray of float64, shape (n_cells,)
+        NaN where a cell has no value.
+    """
+    if not 0.0 <= q <= 100.0:
+        raise InputError(f"percentile q={q} must be in [0, 100]")
+    out = np.full(n_cells, np.nan)
+    if cell.size == 0:
+        return out
+    order = np.lexsort((values, cell))
+    c = cell[order]
+    v = np.asarray(values, dtype=np.float64)[order]
+    uniq, start, count = np.unique(c, return_index=True, return_counts=True)
+    pos = (q / 100.0) * (count - 1)
+    lo = np.floor(pos).astype(np.int64)
+    hi = np.minimum(lo + 1, count - 1)
+    frac = pos - lo
+    a = v[start + lo]
+    b = v[start + hi]
+    out[uniq] = a + (b - a) * frac
+    return out
+
+
+def crop_corridor(
+    las_paths: list[str | os.PathLike[str]],
+    polygon_wkt: str,
+    out_path: str | os.PathLike[str],
+    *,
+    pdal: str | os.PathLike[str] | None = None,
+    progress: Progress | None = None,
+) -> Path:
+    """Write the points of ``las_paths`` inside ``polygon_wkt`` to ``out_path`` (LAS/LAZ).
+
+    ``polygon_wkt`` is in the tiles' CRS (metres).  Uses ``crop_corridor.json``; the
+    output keeps the input's header format (``forward: all``) and is written atomically.
+
+    Raises
+    ------
+    NoUsableDataError
+        No point falls inside the polygon.
+    """
+    if not polygon_wkt.strip().upper().startswith(("POLYGON", "MULTIPOLYGON")):
+        raise InputError(f"corridor must be a WKT POLYGON or MULTIPOLYGON, got "
+                         f"{polygon_wkt[:40]!r}")
+    stages = expand_readers(load_pipeline("crop_corridor"), [(p, None) for p in las_paths])
+    out = Path(out_path)
+    with tempfile.TemporaryDirectory(prefix="canopyblocks-pdal-") as tmp, \
+            atomic_output(out) as part:
+        pipe = write_pipeline(stages, Path(tmp) / "crop_corridor.json")
+        run_pipeline(pipe, {"filters.crop.polygon": polygon_wkt,
+                            "writers.las.filename": part}, pdal=pdal, progress=progress)
+        if not part.exists() or tile_info(part, pdal=pdal).n_points == 0:
+            raise NoUsableDataError(f"no point of {', '.join(map(str, las_paths))} lies in "
+                                    "the corridor polygon; check its CRS and position")
+    return out

@@ -1,0 +1,272 @@
+"""Simulate ICESat-2/MABEL photons along a track over an airborne point cloud.
+
+The footprint contents and truth are computed once per shot; photons for all
+realisations are drawn at once from the same footprint PDFs (a chunk of shots at a
+time: bounded memory, no loop over photons).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+import pyproj
+
+from ..errors import InputError, NoUsableDataError
+from ..photons import PhotonTrack
+from ..progress import Progress, as_progress
+from ..readers.las import LasPoints
+from .footprints import CloudIndex
+from .params import SimParams
+from .sampling import draw_noise, draw_signal
+from .tracks import SimTrack, shots_along
+from .truth import RH_LEVELS, footprint_truth
+
+if TYPE_CHECKING:
+    import geopandas as gpd
+    import pandas as pd
+
+__all__ = ["Simulation", "simulate_photons", "cloud_index", "TRUTH_COLUMNS",
+           "PHOTON_TRUTH_COLUMNS"]
+
+log = logging.getLogger(__name__)
+
+#: Per-footprint truth columns of :attr:`Simulation.truth`.
+TRUTH_COLUMNS: tuple[str, ...] = ("ground", "top", *(f"rh{q}" for q in RH_LEVELS), "cover",
+                                  "n_points", "weight_sum")
+
+#: Per-photon truth columns carried in ``PhotonTrack.extra`` and the output files.
+PHOTON_TRUTH_COLUMNS: tuple[str, ...] = ("shot", "realisation", "noise", "src_index", "src_x",
+                                         "src_y", "src_z", "truth_ground", "truth_top",
+                                         "truth_cover", "x_true", "y_true")
+
+#: Along-track length of one chunk of shots, metres (one KD-tree query each).
+CHUNK_LENGTH = 60.0
+
+
+@dataclass(eq=False)
+class Simulation:
+    """Result of :func:`simulate_photons`: shots with truth, and photons with truth.
+
+    Attributes
+    ----------
+    params : SimParams
+    track : SimTrack
+    crs : pyproj.CRS
+        The point cloud's metric CRS (x/y of shots and photons).
+    vertical_datum : str
+        The point cloud's vertical datum (photon heights are in it).
+    n_realisations : int
+    shot_x, shot_y, shot_s, shot_time : ndarray float64
+        Footprint centres (m), along-track distance (m), time (s) per shot.
+    truth : dict[str, ndarray]
+        Per-shot truth (:data:`TRUTH_COLUMNS`; see ``truth.py`` for definitions).
+    photons : dict[str, ndarray]
+        Per-photon columns sorted by (realisation, shot): ``realisation``, ``shot``,
+        ``time``, ``x``, ``y`` (reported position = footprint centre + geolocation
+        error), ``s``, ``h`` and truth ``noise`` (bool), ``src_index`` (the source point's
+        ``LasPoints.rows``: its row in the input files, -1 for noise),
+        ``src_x``, ``src_y``, ``src_z``, ``x_true``, ``y_true`` (footprint centre).
+    """
+
+    params: SimParams
+    track: SimTrack
+    crs: pyproj.CRS
+    vertical_datum: str
+    n_realisations: int
+    shot_x: np.ndarray
+    shot_y: np.ndarray
+    shot_s: np.ndarray
+    shot_time: np.ndarray
+    truth: dict[str, np.ndarray]
+    photons: dict[str, np.ndarray]
+    seed: int | None = None
+    source: str = ""
+    meta: dict[str, object] = field(default_factory=dict)
+
+    @property
+    def n_shots(self) -> int:
+        return int(self.shot_s.size)
+
+    @property
+    def length(self) -> float:
+        """Simulated track length, metres."""
+        return float(self.shot_s[-1] - self.shot_s[0]) if self.n_shots else 0.0
+
+    def photon_columns(self, realisation: int | None = 0) -> dict[str, np.ndarray]:
+        """Photon columns (with per-photon truth) of one realisation, or all (None)."""
+        ph = self.photons
+        if realisation is None:
+            sel = slice(None)
+        else:
+            if not (0 <= realisation < self.n_realisations):
+                raise InputError(f"realisation must be in 0..{self.n_realisations - 1}; "
+                                 f"got {realisation}")
+            r = ph["realisation"]
+            sel = slice(int(np.searchsorted(r, realisation, "left")),
+                        int(np.searchsorted(r, realisation, "right")))
+        cols = {k: v[sel] for k, v in ph.items()}
+        shot = cols["shot"]
+        cols["truth_ground"] = self.truth["ground"][shot]
+        cols["truth_top"] = self.truth["top"][shot]
+        cols["truth_cover"] = self.truth["cover"][shot]
+        return cols
+
+    def photon_track(self, realisation: int = 0, *, name: str | None = None) -> PhotonTrack:
+        """One realisation as a :class:`~canopyblocks.photons.PhotonTrack`.
+
+        ``x``/``y`` are in the cloud's CRS, ``s`` is the distance along the simulated
+        track, ``time`` = shot index / pulse rate; truth columns go to ``extra``.
+        """
+        c = self.photon_columns(realisation)
+        extra = {k: c[k] for k in PHOTON_TRUTH_COLUMNS}
+        return PhotonTrack.from_xy(
+            c["x"], c["y"], c["h"], crs=self.crs, track=name or self.track.name,
+            time=c["time"], s=c["s"], extra=extra, source=self.source,
+            vertical_datum=self.vertical_datum)
+
+    def truth_frame(self) -> gpd.GeoDataFrame:
+        """Per-shot truth as a point GeoDataFrame in the cloud's CRS."""
+        import geopandas as gpd
+
+        data = {"shot": np.arange(self.n_shots), "s": self.shot_s, "time": self.shot_time,
+                "x": self.shot_x, "y": self.shot_y, **self.truth}
+        return gpd.GeoDataFrame(data, geometry=gpd.points_from_xy(self.shot_x, self.shot_y),
+                                crs=self.crs)
+
+    def photon_frame(self, realisation: int | None = None) -> pd.DataFrame:
+        """Photons (all realisations by default) with truth as a point GeoDataFrame."""
+        import geopandas as gpd
+
+        c = self.photon_columns(realisation)
+        return gpd.GeoDataFrame(c, geometry=gpd.points_from_xy(c["x"], c["y"]), crs=self.crs)
+
+
+def cloud_index(points: LasPoints, params: SimParams | None = None) -> CloudIndex:
+    """KD-tree over the points the simulator uses: finite, not in ``exclude_classes``.
+
+    Build it once to run several simulations over the same cloud (``index=``).
+    """
+    params = params or SimParams()
+    keep = np.isfinite(points.x) & np.isfinite(points.y) & np.isfinite(points.z)
+    if params.exclude_classes:
+        keep &= ~np.isin(points.classification, params.exclude_classes)
+    ids = np.flatnonzero(keep)
+    return CloudIndex(points.x[ids], points.y[ids], points.z[ids], ids=points.rows[ids])
+
+
+def simulate_photons(
+    points: LasPoints,
+    track: SimTrack,
+    params: SimParams | None = None,
+    *,
+    realisations: int = 1,
+    seed: int | None = 0,
+    index: CloudIndex | None = None,
+    progress: Progress | None = None,
+) -> Simulation:
+    """Simulate photon-counting lidar along ``track`` over an airborne cloud (seed 002).
+
+    Parameters
+    ----------
+    points : LasPoints
+        Airborne points in a metric CRS; ``params.exclude_classes`` are ignored.
+    track : SimTrack
+        Polyline in the cloud's CRS, metres.
+    params : SimParams, optional
+        Footprint, photon rate, PSF, noise, geolocation error (defaults: ICESat-2
+        strong beam, 13 m, temperate 1.9 photons per shot).
+    realisations : int
+        Independent photon draws from the same footprint PDFs (seed 002 used 100).
+    seed : int or None
+        Seed of the numpy Generator; the same seed gives identical photons.
+    index : CloudIndex, optional
+        :func:`cloud_index` of the same ``points`` (and ``exclude_classes``), to reuse
+        across runs; built here when None.
+    progress : Progress, optional
+
+    Returns
+    -------
+    Simulation
+
+    Raises
+    ------
+    NoUsableDataError
+        When no footprint along the track contains a point.
+    """
+    params = params or SimParams()
+    if not (isinstance(realisations, (int, np.integer)) and realisations >= 1):
+        raise InputError(f"realisations must be an integer >= 1; got {realisations!r}")
+    prog = as_progress(progress)
+    if index is None:
+        index = cloud_index(points, params)
+    sx, sy, ss = shots_along(track, float(params.shot_spacing))  # type: ignore[arg-type]
+    n = ss.size
+    rng = np.random.default_rng(seed)
+    radius, psf = params.radius, params.psf
+    mean = params.photon_mean
+    per_chunk = max(1, int(math.ceil(CHUNK_LENGTH / float(params.shot_spacing))))
+    truth = {c: np.full(n, np.nan) for c in TRUTH_COLUMNS}
+    truth["n_points"] = np.zeros(n, np.int64)
+    parts: list[dict[str, np.ndarray]] = []
+    n_chunks = int(math.ceil(n / per_chunk))
+    for ci in range(n_chunks):
+        a, b = ci * per_chunk, min(n, (ci + 1) * per_chunk)
+        pairs = index.pairs(sx[a:b], sy[a:b], radius)
+        t = footprint_truth(pairs, psf, params.truth, params.rh_floor)
+        for c in TRUTH_COLUMNS:
+            truth[c][a:b] = t[c]
+        k = b - a
+        has = pairs.counts > 0
+        counts = rng.poisson(mean, size=(realisations, k)) * has[None, :]
+        real, shot, pair, h = draw_signal(pairs, counts, psf, rng)
+        src = pairs.point[pair]  # row in the index; mapped to the cloud's ids below
+        noise = np.zeros(h.size, bool)
+        if params.noise_rate > 0:
+            below, above = params.noise_window
+            nr, ns, nh = draw_noise(t["ground"] - below, t["top"] + above, params.noise_rate,
+                                    realisations, rng)
+            real = np.concatenate([real, nr])
+            shot = np.concatenate([shot, ns])
+            h = np.concatenate([h, nh])
+            src = np.concatenate([src, np.full(nr.size, -1, np.int64)])
+            noise = np.concatenate([noise, np.ones(nr.size, bool)])
+        gshot = shot + a
+        x_true, y_true = sx[gshot], sy[gshot]
+        if params.geolocation_sigma > 0:
+            err = rng.standard_normal((2, realisations, k)) * params.geolocation_sigma
+            x_rep = x_true + err[0][real, shot]
+            y_rep = y_true + err[1][real, shot]
+        else:
+            x_rep, y_rep = x_true, y_true
+        ok = src >= 0
+        src_xa = np.full(src.size, np.nan)
+        src_ya = np.full(src.size, np.nan)
+        src_za = np.full(src.size, np.nan)
+        src_xa[ok], src_ya[ok], src_za[ok] = index.x[src[ok]], index.y[src[ok]], index.z[src[ok]]
+        src[ok] = index.ids[src[ok]]
+        parts.append({"realisation": real, "shot": gshot, "h": h, "noise": noise,
+                      "src_index": src, "src_x": src_xa, "src_y": src_ya, "src_z": src_za,
+                      "x": x_rep, "y": y_rep, "x_true": x_true, "y_true": y_true})
+        prog.update(b / n, f"{b:,} of {n:,} shots")
+    if not np.any(truth["n_points"] > 0):
+        raise NoUsableDataError(
+            f"no airborne point lies within {radius} m of the track {track.vertices}: "
+            "the track misses the point cloud")
+    photons = {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
+    # order by (realisation, shot, height descending as ATL03 photons of a pulse arrive)
+    order = np.lexsort((-photons["h"], photons["shot"], photons["realisation"]))
+    photons = {key: v[order] for key, v in photons.items()}
+    photons["realisation"] = photons["realisation"].astype(np.int32)
+    photons["s"] = ss[photons["shot"]]
+    photons["time"] = photons["shot"] / float(params.pulse_rate)  # type: ignore[arg-type]
+    log.info("simulated %d photons over %d shots x %d realisations", photons["h"].size, n,
+             realisations)
+    return Simulation(
+        params=params, track=track, crs=points.crs, vertical_datum=points.vertical_datum,
+        n_realisations=int(realisations), shot_x=sx, shot_y=sy, shot_s=ss,
+        shot_time=np.arange(n) / float(params.pulse_rate),  # type: ignore[arg-type]
+        truth=truth, photons=photons, seed=seed, source=";".join(points.sources))

@@ -1,0 +1,188 @@
+"""Parameters of the photon simulator (DESIGN.md section 3, seed 002), validated once."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal
+
+from ..errors import InputError
+
+__all__ = [
+    "SimParams",
+    "TruthParams",
+    "POISSON_MEANS",
+    "INSTRUMENTS",
+    "Instrument",
+    "Ecosystem",
+    "Beam",
+]
+
+Instrument = Literal["icesat2", "mabel"]
+Ecosystem = Literal["boreal", "temperate", "tropical"]
+Beam = Literal["strong", "weak"]
+
+#: Mean signal photons per shot of the strong beam (seed 002 table 1).
+POISSON_MEANS: dict[str, float] = {"boreal": 1.0, "temperate": 1.9, "tropical": 0.6}
+
+#: Weak beam energy relative to the strong beam (seed 002: 4:1 ratio).
+WEAK_BEAM_RATIO = 0.25
+
+#: Instrument presets: footprint diameter (m), shot spacing (m), pulse rate (Hz).
+#: ICESat-2: 13 m at the start of the mission (17 m at the end), 0.7 m, 10 kHz.
+#: MABEL: ~2 m footprint, 5 kHz at ~200 m/s aircraft speed = 0.04 m.
+INSTRUMENTS: dict[str, tuple[float, float, float]] = {
+    "icesat2": (13.0, 0.7, 10_000.0),
+    "mabel": (2.0, 0.04, 5_000.0),
+}
+
+
+def _positive(name: str, value: float) -> None:
+    if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+        raise InputError(f"{name} must be a positive number of metres; got {value!r}")
+
+
+@dataclass(frozen=True)
+class TruthParams:
+    """How truth is read from each footprint's pseudo-waveform (see ``truth.py``).
+
+    Attributes
+    ----------
+    bin_size : float
+        Pseudo-waveform bin, metres (default 0.1 m).
+    peak_fraction : float
+        A local maximum counts as a peak when its amplitude is at least this fraction
+        of the waveform's highest amplitude (0..1, default 0.05); the ground is the
+        lowest such peak.
+    rh_floor : float or None
+        RH metrics use the weighted returns more than this many metres above the
+        ground; None = 2 x PSF sigma (0.5 m for 0.25 m).
+    cover_threshold : float
+        Canopy returns for canopy cover are those more than this many metres above the
+        ground (default 2 m).
+    """
+
+    bin_size: float = 0.1
+    peak_fraction: float = 0.05
+    rh_floor: float | None = None
+    cover_threshold: float = 2.0
+
+    def __post_init__(self) -> None:
+        _positive("bin_size", self.bin_size)
+        if not (0.0 < self.peak_fraction < 1.0):
+            raise InputError(f"peak_fraction must be in (0, 1); got {self.peak_fraction!r}")
+        if self.rh_floor is not None and not (math.isfinite(self.rh_floor) and self.rh_floor >= 0):
+            raise InputError(f"rh_floor must be >= 0 metres or None; got {self.rh_floor!r}")
+        if not (math.isfinite(self.cover_threshold) and self.cover_threshold >= 0):
+            raise InputError(f"cover_threshold must be >= 0 metres; got {self.cover_threshold!r}")
+
+
+@dataclass(frozen=True)
+class SimParams:
+    """Parameters of one simulation.
+
+    Attributes
+    ----------
+    instrument : "icesat2" or "mabel"
+        Sets the defaults of ``diameter``, ``shot_spacing`` and ``pulse_rate``.
+    diameter : float or None
+        Footprint diameter, metres (ICESat-2: 13 at the start of the mission, 17 at
+        the end); weights ``exp(-2 r^2 / R^2)`` with ``R = diameter / 2`` (1/e^2 at R).
+    shot_spacing : float or None
+        Distance between footprint centres along the track, metres (0.7 for ICESat-2).
+    pulse_rate : float or None
+        Shots per second; photon ``time`` = shot index / pulse_rate (seconds).
+    preset : "boreal", "temperate" or "tropical"
+        Poisson mean of signal photons per strong-beam shot (seed 002 table 1: 1.0,
+        1.9, 0.6); ignored when ``mean_photons`` is given.
+    beam : "strong" or "weak"
+        The weak beam gets a quarter of the strong beam's mean.
+    mean_photons : float or None
+        User Poisson mean per shot (for the chosen beam), overriding preset/beam.
+    psf : float
+        Instrument point-spread (Gaussian sigma), metres (ATLAS: 0.25).
+    noise_rate : float
+        Solar background: mean noise photons per shot per metre of the height window
+        (0 = off, the default; seed 002 lists noise as future work).
+    noise_window : (float, float)
+        The window extends this far below the footprint's truth ground and above its
+        truth top, metres.
+    geolocation_sigma : float
+        Horizontal geolocation error: each shot's reported position is moved by a
+        Gaussian of this sigma (metres) in x and y; 0 = exact footprint centre.
+    exclude_classes : tuple of int
+        ASPRS classes ignored in the airborne cloud (default noise 7 and 18).
+    truth : TruthParams
+        How truth is read from the pseudo-waveform.
+    """
+
+    instrument: Instrument = "icesat2"
+    diameter: float | None = None
+    shot_spacing: float | None = None
+    pulse_rate: float | None = None
+    preset: Ecosystem = "temperate"
+    beam: Beam = "strong"
+    mean_photons: float | None = None
+    psf: float = 0.25
+    noise_rate: float = 0.0
+    noise_window: tuple[float, float] = (10.0, 10.0)
+    geolocation_sigma: float = 0.0
+    exclude_classes: tuple[int, ...] = (7, 18)
+    truth: TruthParams = field(default_factory=TruthParams)
+
+    def __post_init__(self) -> None:
+        if self.instrument not in INSTRUMENTS:
+            raise InputError(
+                f"instrument must be one of {', '.join(INSTRUMENTS)}; got {self.instrument!r}")
+        d, sp, rate = INSTRUMENTS[self.instrument]
+        if self.diameter is None:
+            object.__setattr__(self, "diameter", d)
+        if self.shot_spacing is None:
+            object.__setattr__(self, "shot_spacing", sp)
+        if self.pulse_rate is None:
+            object.__setattr__(self, "pulse_rate", rate)
+        _positive("diameter", float(self.diameter))  # type: ignore[arg-type]
+        _positive("shot_spacing", float(self.shot_spacing))  # type: ignore[arg-type]
+        _positive("pulse_rate", float(self.pulse_rate))  # type: ignore[arg-type]
+        _positive("psf", self.psf)
+        if self.preset not in POISSON_MEANS:
+            raise InputError(
+                f"preset must be one of {', '.join(POISSON_MEANS)}; got {self.preset!r}")
+        if self.beam not in ("strong", "weak"):
+            raise InputError(f"beam must be 'strong' or 'weak'; got {self.beam!r}")
+        if self.mean_photons is not None and not (
+                math.isfinite(self.mean_photons) and self.mean_photons >= 0):
+            raise InputError(
+                f"mean_photons must be >= 0 photons per shot; got {self.mean_photons!r}")
+        if not (math.isfinite(self.noise_rate) and self.noise_rate >= 0):
+            raise InputError(
+                f"noise_rate must be >= 0 photons per shot per metre; got {self.noise_rate!r}")
+        if len(self.noise_window) != 2 or not all(
+                math.isfinite(v) and v >= 0 for v in self.noise_window):
+            raise InputError(
+                f"noise_window must be two metres >= 0 (below ground, above top); "
+                f"got {self.noise_window!r}")
+        if not (math.isfinite(self.geolocation_sigma) and self.geolocation_sigma >= 0):
+            raise InputError(
+                f"geolocation_sigma must be >= 0 metres; got {self.geolocation_sigma!r}")
+        if not isinstance(self.truth, TruthParams):
+            raise InputError("truth must be a TruthParams")
+        object.__setattr__(self, "exclude_classes", tuple(int(c) for c in self.exclude_classes))
+
+    @property
+    def radius(self) -> float:
+        """Footprint radius R = diameter / 2, metres."""
+        return float(self.diameter) / 2.0  # type: ignore[arg-type]
+
+    @property
+    def photon_mean(self) -> float:
+        """Poisson mean of signal photons per shot for this beam."""
+        if self.mean_photons is not None:
+            return float(self.mean_photons)
+        m = POISSON_MEANS[self.preset]
+        return m * WEAK_BEAM_RATIO if self.beam == "weak" else m
+
+    @property
+    def rh_floor(self) -> float:
+        """Metres above ground from which returns count as canopy energy for RH metrics."""
+        return 2.0 * self.psf if self.truth.rh_floor is None else float(self.truth.rh_floor)

@@ -1,0 +1,132 @@
+"""Validation of a block table against reference rasters or ATL08 (orchestration).
+
+``validate_blocks``: corridors -> vertical datum check/conversion -> reference values
+-> terrain -> residuals -> statistics.  ``validate_atl08``: the same with ATL08 land
+segments as reference (no terrain classes).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from dataclasses import dataclass
+
+import geopandas as gpd
+import pandas as pd
+import pyproj
+
+from ..errors import FileFormatError, InputError
+from ..progress import Progress, as_progress
+from ..reference.atl08 import atl08_reference_values, read_atl08_segments
+from ..reference.corridor import block_corridors
+from ..reference.datum import apply_vertical_offset, check_vertical_datums
+from ..reference.terrain import block_terrain
+from ..reference.zonal import block_reference_values
+from .residuals import compute_residuals
+from .stats import block_stats
+
+__all__ = ["ValidationResult", "validate_blocks", "validate_atl08", "PHOTON_VERTICAL_CRS"]
+
+log = logging.getLogger(__name__)
+
+#: Photon heights of ATL03/MABEL: WGS84 ellipsoidal.
+PHOTON_VERTICAL_CRS = "EPSG:4979"
+
+
+@dataclass(frozen=True, eq=False)
+class ValidationResult:
+    """Residuals per block (corridor polygons) and statistics per length/metric/group."""
+
+    residuals: gpd.GeoDataFrame
+    stats: pd.DataFrame
+    datum: str = "unknown"
+
+
+def _raster_crs(path: str | os.PathLike[str]) -> pyproj.CRS | None:
+    try:
+        import rasterio
+    except ImportError:
+        return None
+    if not os.path.exists(path):
+        raise FileFormatError(f"DTM raster {path}: no such file")
+    try:
+        with rasterio.open(path) as src:
+            return None if src.crs is None else pyproj.CRS.from_user_input(src.crs.to_wkt())
+    except rasterio.errors.RasterioIOError as exc:
+        raise FileFormatError(f"DTM raster {path}: cannot read ({exc})") from None
+
+
+def _check_blocks(blocks: pd.DataFrame) -> None:
+    if not isinstance(blocks, pd.DataFrame) or len(blocks) == 0:
+        raise InputError("the block table is empty; nothing to validate")
+
+
+def validate_blocks(blocks: gpd.GeoDataFrame, *, dtm: str | os.PathLike[str],
+                    dsm_max: str | os.PathLike[str], dsm_p90: str | os.PathLike[str],
+                    width: float = 2.0, geoid: str | os.PathLike[str] | None = None,
+                    offset: float | None = None, reference_vertical_crs: object = None,
+                    photon_vertical_crs: object = None, slope_threshold: float = 2.0,
+                    all_touched: bool = True, ground_stat: str = "mean",
+                    top_stat: str = "max", top90_stat: str = "max",
+                    progress: Progress | None = None) -> ValidationResult:
+    """Validate photon blocks against reference lidar rasters (DESIGN section 2).
+
+    Parameters
+    ----------
+    blocks : GeoDataFrame
+        Block table in the track's metric CRS.
+    dtm, dsm_max, dsm_p90 : path
+        Reference GeoTIFFs on one grid (metres).
+    width : float
+        Corridor width, metres (2 m default; the footprint for ICESat-2).
+    geoid, offset
+        Vertical conversion of the photon heights (see ``reference.datum``).
+    reference_vertical_crs : CRS-like, optional
+        Vertical (or compound/3-D) CRS of the rasters' heights; default the DTM's CRS
+        (a horizontal-only CRS means "unknown": warned, not refused).
+    photon_vertical_crs : CRS-like, optional
+        Default ``blocks.attrs["vertical_datum"]`` or EPSG:4979 (WGS84 ellipsoid).
+    slope_threshold : float
+        Degrees below which the aspect class is ``flat``.
+
+    Raises
+    ------
+    DatumError, CoverageError, CRSError, InputError, FileFormatError
+    """
+    _check_blocks(blocks)
+    prog = as_progress(progress)
+    ref_crs = reference_vertical_crs if reference_vertical_crs is not None else _raster_crs(dtm)
+    pv = photon_vertical_crs or blocks.attrs.get("vertical_datum") or PHOTON_VERTICAL_CRS
+    decision = check_vertical_datums(pv, ref_crs, geoid=geoid, offset=offset)
+    prog.update(0.0, "corridors")
+    corridors = block_corridors(blocks, width=width)
+    work = apply_vertical_offset(blocks, geoid=geoid, offset=offset)
+    ref = block_reference_values(corridors, dtm=dtm, dsm_max=dsm_max, dsm_p90=dsm_p90,
+                                 ground_stat=ground_stat, top_stat=top_stat,
+                                 top90_stat=top90_stat, all_touched=all_touched,
+                                 progress=prog.sub(0.02, 0.6))
+    terrain = block_terrain(corridors, dtm, slope_threshold=slope_threshold,
+                            all_touched=all_touched, progress=prog.sub(0.6, 0.95))
+    residuals = compute_residuals(work, ref, terrain, corridors=corridors)
+    stats = block_stats(residuals)
+    prog.update(1.0, "validation done")
+    return ValidationResult(residuals, stats, decision)
+
+
+def validate_atl08(blocks: gpd.GeoDataFrame, atl08: str | os.PathLike[str], *,
+                   width: float = 2.0, max_distance: float | None = None,
+                   progress: Progress | None = None) -> ValidationResult:
+    """Validate photon blocks against ATL08 land segments (heights stay ellipsoidal).
+
+    The residual layer's geometry is the block corridor (``width`` metres).
+    """
+    _check_blocks(blocks)
+    prog = as_progress(progress)
+    segs = read_atl08_segments(atl08)
+    ref = atl08_reference_values(blocks, segs, max_distance=max_distance)
+    prog.update(0.5, "ATL08 matched")
+    corridors = block_corridors(blocks, width=width)
+    residuals = compute_residuals(blocks, ref, None, corridors=corridors)
+    stats = block_stats(residuals)
+    prog.update(1.0, "validation done")
+    return ValidationResult(residuals, stats, "same")

@@ -1,0 +1,103 @@
+"""Residuals per block: photon metrics minus reference values (DESIGN 2.4, section 5).
+
+All blocks are kept; the column ``use`` marks those that enter the statistics:
+block ``flag == "ok"`` and reference ``ref_flag == "ok"``.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import geopandas as gpd
+import numpy as np
+import pandas as pd
+
+from ..errors import InputError
+from ..schema import BLOCK_COLUMNS, FLAG_OK, REFERENCE_COLUMNS, RESIDUAL_COLUMNS
+
+__all__ = ["compute_residuals", "RESIDUAL_PAIRS", "KEY_COLUMNS"]
+
+log = logging.getLogger(__name__)
+
+#: Photon column -> reference column of each validated metric.
+RESIDUAL_PAIRS: dict[str, str] = {
+    "ground": "ref_ground", "top": "ref_top", "hmax": "ref_hmax", "h90": "ref_h90",
+}
+KEY_COLUMNS: tuple[str, ...] = ("track", "length", "block")
+
+
+def _align(blocks: pd.DataFrame, other: pd.DataFrame, what: str) -> pd.DataFrame:
+    """Rows of ``other`` in the order of ``blocks``, matched by (track, length, block)."""
+    if all(c in other.columns for c in KEY_COLUMNS):
+        right = other.drop_duplicates(list(KEY_COLUMNS)).set_index(list(KEY_COLUMNS))
+        idx = pd.MultiIndex.from_frame(blocks[list(KEY_COLUMNS)].reset_index(drop=True))
+        return right.reindex(idx).reset_index(drop=True)
+    if len(other) != len(blocks) or not other.index.equals(blocks.index):
+        raise InputError(
+            f"the {what} table has neither track/length/block columns nor the blocks' index; "
+            "pass the output of block_reference_values / block_terrain for these blocks"
+        )
+    return other.reset_index(drop=True)
+
+
+def compute_residuals(blocks: pd.DataFrame, ref_values: pd.DataFrame,
+                      terrain: pd.DataFrame | None = None, *,
+                      corridors: gpd.GeoDataFrame | None = None) -> gpd.GeoDataFrame:
+    """Join blocks with reference values and terrain; residuals photon minus reference.
+
+    Parameters
+    ----------
+    blocks : GeoDataFrame
+        Block table (``schema.BLOCK_COLUMNS``), heights in the reference's datum
+        (see :func:`~canopyblocks.reference.datum.apply_vertical_offset`).
+    ref_values : DataFrame
+        ``ref_ground, ref_top, ref_top90, ref_hmax, ref_h90`` (+ ``coverage``,
+        ``ref_flag``), matched to blocks by ``track, length, block``.
+    terrain : DataFrame, optional
+        ``slope, aspect, aspect_class, slope_class``; NaN/``unknown`` when None.
+    corridors : GeoDataFrame, optional
+        Geometry for the output (corridor polygons); default the blocks' geometry.
+
+    Returns
+    -------
+    GeoDataFrame
+        Block columns, ``schema.RESIDUAL_COLUMNS``, ``slope_class``, ``ref_flag`` and
+        ``use`` (bool), in the blocks' order and index.
+    """
+    missing = [c for c in (*KEY_COLUMNS, *RESIDUAL_PAIRS) if c not in blocks.columns]
+    if missing:
+        raise InputError(f"the block table lacks column(s) {', '.join(missing)}")
+    ref = _align(blocks, ref_values, "reference")
+    out = pd.DataFrame({c: blocks[c].to_numpy() for c in BLOCK_COLUMNS if c in blocks.columns})
+    for c in REFERENCE_COLUMNS:
+        out[c] = ref[c].to_numpy(float) if c in ref else np.nan
+    for m, r in RESIDUAL_PAIRS.items():
+        out[f"res_{m}"] = blocks[m].to_numpy(float) - out[r].to_numpy(float)
+    if terrain is not None:
+        ter = _align(blocks, terrain, "terrain")
+        out["slope"] = ter["slope"].to_numpy(float)
+        out["aspect"] = ter["aspect"].to_numpy(float)
+        out["aspect_class"] = ter["aspect_class"].fillna("unknown").to_numpy(object)
+        sc = ter["slope_class"] if "slope_class" in ter else pd.Series(["unknown"] * len(ter))
+        slope_cls = sc.fillna("unknown").to_numpy(object)
+    else:
+        out["slope"] = np.nan
+        out["aspect"] = np.nan
+        out["aspect_class"] = "unknown"
+        slope_cls = np.full(len(out), "unknown", dtype=object)
+    out["coverage"] = ref["coverage"].to_numpy(float) if "coverage" in ref else np.nan
+    out["slope_class"] = slope_cls
+    out["ref_flag"] = ref["ref_flag"].fillna("missing").to_numpy(object) if "ref_flag" in ref \
+        else "ok"
+    flag = blocks["flag"].to_numpy(object) if "flag" in blocks else np.full(len(out), FLAG_OK)
+    out["use"] = (flag == FLAG_OK) & (out["ref_flag"].to_numpy(object) == "ok")
+    order = [c for c in BLOCK_COLUMNS if c in out] + list(RESIDUAL_COLUMNS) + \
+        ["slope_class", "ref_flag", "use"]
+    out = out[order]
+    out.index = blocks.index
+    geom = corridors.geometry.to_numpy() if corridors is not None else \
+        getattr(blocks, "geometry", None)
+    crs = corridors.crs if corridors is not None else getattr(blocks, "crs", None)
+    if geom is None:
+        return gpd.GeoDataFrame(out)
+    return gpd.GeoDataFrame(out, geometry=np.asarray(geom), crs=crs)

@@ -1,0 +1,194 @@
+"""``canopyblocks:blockheights``: photon file -> canopy top, ground, Hmax, H90 per block."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from qgis.core import (
+    QgsProcessing,
+    QgsProcessingContext,
+    QgsProcessingException,
+    QgsProcessingFeedback,
+    QgsProcessingParameterEnum,
+    QgsProcessingParameterFeatureSink,
+    QgsProcessingParameterFile,
+    QgsProcessingParameterFileDestination,
+    QgsProcessingParameterNumber,
+    QgsProcessingParameterString,
+)
+
+from ..core_bridge import import_core
+from ..layers import write_frame
+from ..styles import style_on_load
+from .base import SEED_001, CanopyBlocksAlgorithm, parse_lengths
+
+__all__ = ["BlockHeightsAlgorithm"]
+
+NOISE_OPTIONS = ("sigma", "none")
+
+
+def _optional_number(alg: Any, parameters: dict[str, Any], name: str,
+                     context: QgsProcessingContext) -> float | None:
+    value = parameters.get(name)
+    if value is None or (isinstance(value, str) and not value.strip()):
+        return None
+    return alg.parameterAsDouble(parameters, name, context)
+
+
+def parse_track(text: str) -> dict[str, Any]:
+    """``"gt1r"`` -> beam; ``"49"``/``"most"`` -> MABEL channel; ``""`` -> reader default."""
+    t = (text or "").strip()
+    if not t:
+        return {}
+    if t.lower() == "most":
+        return {"channel": "most"}
+    if t.isdigit():
+        return {"channel": int(t)}
+    return {"beam": t.lower()}
+
+
+class BlockHeightsAlgorithm(CanopyBlocksAlgorithm):
+    """Block canopy heights from one ATL03 beam, MABEL channel or photon table."""
+
+    ALG_ID = "blockheights"
+    DISPLAY = "Block canopy heights from photons"
+    HELP = (
+        "Cuts one photon track (an ATL03 beam, a MABEL channel, or a photon table) into "
+        "along-track blocks of the given lengths and computes per block the canopy top, the "
+        "mean ground, Hmax = top - ground and H90, with the expansion-window method on 0.5 m "
+        "height histograms after a per-block k-sigma noise filter.<br><br>"
+        "Method: " + SEED_001 + ". Default cut-offs by block length (top/ground): 50 m "
+        "10 %/25 %, 25 m 10 %/20 %, 10 m 5 %/7.5 %; other lengths interpolated.<br><br>"
+        "<b>Photon file</b>: ATL03 HDF5, MABEL HDF5 or a table (CSV/Parquet).<br>"
+        "<b>Beam or channel</b>: gt1l..gt3r for ATL03, a channel number or 'most' for MABEL; "
+        "empty = the reader's default.<br>"
+        "<b>Block lengths</b>: metres, comma separated (e.g. '25, 10').<br>"
+        "Outputs: block points (track CRS, UTM by default) with fields track, length, block, "
+        "s_start, s_end, x, y, lon, lat, n_photons, n_kept, n_between, top, ground, hmax, z90, "
+        "h90, flag (ok/sparse/inverted); optionally the photons with their labels per block "
+        "length (0 noise, 1 ground window, 2 canopy window, 3 between) and a profile PNG. "
+        "Heights are in the input's vertical datum (ellipsoidal for ATL03/MABEL)."
+    )
+
+    INPUT = "INPUT"
+    TRACK = "TRACK"
+    LENGTHS = "LENGTHS"
+    S0 = "S0"
+    K_SIGMA = "K_SIGMA"
+    NOISE = "NOISE"
+    TOP_CUTOFF = "TOP_CUTOFF"
+    GROUND_CUTOFF = "GROUND_CUTOFF"
+    MIN_PHOTONS = "MIN_PHOTONS"
+    MIN_SIGNAL_CONF = "MIN_SIGNAL_CONF"
+    ATL08 = "ATL08"
+    OUTPUT = "OUTPUT"
+    PHOTONS = "PHOTONS"
+    PROFILE = "PROFILE"
+
+    def initAlgorithm(self, config: dict[str, Any] | None = None) -> None:  # noqa: N802
+        self.addParameter(QgsProcessingParameterFile(
+            self.INPUT, "Photon file (ATL03 / MABEL HDF5, CSV, Parquet)",
+            behavior=QgsProcessingParameterFile.Behavior.File,
+            fileFilter="Photon files (*.h5 *.hdf5 *.he5 *.csv *.parquet);;All files (*.*)"))
+        self.addParameter(QgsProcessingParameterString(
+            self.TRACK, "Beam (gt1l..gt3r) or MABEL channel (number or 'most')",
+            defaultValue="", optional=True))
+        self.addParameter(QgsProcessingParameterString(
+            self.LENGTHS, "Block lengths (m, comma separated)", defaultValue="25"))
+        self.addParameter(QgsProcessingParameterNumber(
+            self.S0, "Block origin along track s0 (m; empty = track start)",
+            type=QgsProcessingParameterNumber.Type.Double, optional=True))
+        self.addParameter(QgsProcessingParameterEnum(
+            self.NOISE, "Noise filter", options=["k-sigma per block (paper)", "none"],
+            defaultValue=0))
+        self.addParameter(QgsProcessingParameterNumber(
+            self.K_SIGMA, "Noise filter k (standard deviations)",
+            type=QgsProcessingParameterNumber.Type.Double, defaultValue=2.5, minValue=0.01))
+        self.addParameter(QgsProcessingParameterNumber(
+            self.TOP_CUTOFF, "Canopy-top cut-off fraction (empty = paper default by length)",
+            type=QgsProcessingParameterNumber.Type.Double, optional=True,
+            minValue=0.0, maxValue=1.0))
+        self.addParameter(QgsProcessingParameterNumber(
+            self.GROUND_CUTOFF, "Ground cut-off fraction (empty = paper default by length)",
+            type=QgsProcessingParameterNumber.Type.Double, optional=True,
+            minValue=0.0, maxValue=1.0))
+        self.addParameter(QgsProcessingParameterNumber(
+            self.MIN_PHOTONS, "Minimum kept photons per block (else flagged sparse)",
+            type=QgsProcessingParameterNumber.Type.Integer, defaultValue=10, minValue=1))
+        self.addParameter(QgsProcessingParameterNumber(
+            self.MIN_SIGNAL_CONF,
+            "ATL03: minimum land signal_conf_ph (-2..4; empty = no filter)",
+            type=QgsProcessingParameterNumber.Type.Integer, optional=True,
+            minValue=-2, maxValue=4))
+        self.addParameter(QgsProcessingParameterFile(
+            self.ATL08, "Matching ATL08 file (adds photon classes; optional)",
+            behavior=QgsProcessingParameterFile.Behavior.File, optional=True,
+            fileFilter="HDF5 (*.h5 *.hdf5);;All files (*.*)"))
+        self.addParameter(QgsProcessingParameterFeatureSink(
+            self.OUTPUT, "Blocks", type=QgsProcessing.SourceType.TypeVectorPoint))
+        self.addParameter(QgsProcessingParameterFeatureSink(
+            self.PHOTONS, "Photons with labels", type=QgsProcessing.SourceType.TypeVectorPoint,
+            optional=True, createByDefault=False))
+        self.addParameter(QgsProcessingParameterFileDestination(
+            self.PROFILE, "Profile plot", fileFilter="PNG (*.png)", optional=True,
+            createByDefault=False))
+
+    def execute(self, parameters: dict[str, Any], context: QgsProcessingContext,
+                feedback: QgsProcessingFeedback, progress: Any) -> dict[str, Any]:
+        blocks_mod = import_core("canopyblocks.blocks")
+        readers = import_core("canopyblocks.readers")
+        path = self.parameterAsFile(parameters, self.INPUT, context)
+        track_kw = parse_track(self.parameterAsString(parameters, self.TRACK, context))
+        lengths = parse_lengths(self.parameterAsString(parameters, self.LENGTHS, context))
+        conf = parameters.get(self.MIN_SIGNAL_CONF)
+        min_conf = None if conf in (None, "") else self.parameterAsInt(
+            parameters, self.MIN_SIGNAL_CONF, context)
+        params = blocks_mod.BlockParams(
+            lengths=lengths,
+            s0=_optional_number(self, parameters, self.S0, context),
+            k_sigma=self.parameterAsDouble(parameters, self.K_SIGMA, context),
+            noise=NOISE_OPTIONS[self.parameterAsEnum(parameters, self.NOISE, context)],
+            top_cutoff=_optional_number(self, parameters, self.TOP_CUTOFF, context),
+            ground_cutoff=_optional_number(self, parameters, self.GROUND_CUTOFF, context),
+            min_photons=self.parameterAsInt(parameters, self.MIN_PHOTONS, context),
+            min_signal_conf=min_conf,
+        )
+        atl08 = self.parameterAsFile(parameters, self.ATL08, context) or None
+        if atl08:
+            track_kw["atl08"] = atl08
+        want_photons = parameters.get(self.PHOTONS) is not None
+        profile = self.parameterAsFileOutput(parameters, self.PROFILE, context) \
+            if parameters.get(self.PROFILE) is not None else ""
+        want_labels = want_photons or bool(profile)
+
+        feedback.pushInfo(f"reading {path} {track_kw or ''}")
+        track = readers.open_track(path, progress=progress.sub(0.0, 0.2), **track_kw)
+        progress.update(0.2, f"{len(track)} photons read")
+        result = blocks_mod.compute_blocks(track, params, labels=want_labels,
+                                           progress=progress.sub(0.2, 0.85))
+        blocks, labels = result if want_labels else (result, None)
+        feedback.pushInfo(
+            f"{len(blocks)} blocks, {int((blocks['flag'] == 'ok').sum())} flagged ok")
+        results: dict[str, Any] = {}
+        dest = write_frame(self, parameters, self.OUTPUT, context, blocks, feedback)
+        results[self.OUTPUT] = dest
+        style_on_load(context, dest, "height", "hmax")
+        if want_photons and labels is not None:
+            photons = track.to_geodataframe()
+            first = None
+            for length, lab in labels.items():
+                col = f"label_{float(length):g}".replace(".", "_")
+                photons[col] = lab
+                first = first or col
+            pdest = write_frame(self, parameters, self.PHOTONS, context, photons, feedback)
+            results[self.PHOTONS] = pdest
+            if first:
+                style_on_load(context, pdest, "label", first)
+        progress.update(0.95, "written")
+        if profile:
+            plots = import_core("canopyblocks.outputs.profile_plot")
+            plots.plot_profile(track, blocks, profile, labels=labels)
+            results[self.PROFILE] = profile
+        if feedback.isCanceled():
+            raise QgsProcessingException("cancelled by the user")
+        return results

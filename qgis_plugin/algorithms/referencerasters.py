@@ -1,0 +1,133 @@
+"""``canopyblocks:referencerasters``: LAS/LAZ -> DTM, DSM (max) and DSM (90th percentile)."""
+
+from __future__ import annotations
+
+import os
+import shutil
+from typing import Any
+
+from qgis.core import (
+    QgsProcessing,
+    QgsProcessingContext,
+    QgsProcessingException,
+    QgsProcessingFeedback,
+    QgsProcessingOutputRasterLayer,
+    QgsProcessingParameterCrs,
+    QgsProcessingParameterEnum,
+    QgsProcessingParameterExtent,
+    QgsProcessingParameterFolderDestination,
+    QgsProcessingParameterMultipleLayers,
+    QgsProcessingParameterNumber,
+)
+
+from ..core_bridge import import_core
+from ..layers import pyproj_crs
+from .base import SEED_001, CanopyBlocksAlgorithm
+
+__all__ = ["ReferenceRastersAlgorithm", "pdal_status"]
+
+GROUND_OPTIONS = (("class 2 of the files", "class2"), ("classified by PDAL's SMRF", "smrf"))
+PDAL_HINT = "run scripts/install_pdal.sh or set CANOPYBLOCKS_PDAL to the pdal executable"
+
+
+def pdal_status() -> tuple[bool, str]:
+    """(available, message): is the ``pdal`` command line usable from this process?"""
+    try:
+        pdal = import_core("canopyblocks.reference.pdal")
+    except QgsProcessingException:
+        pdal = None
+    if pdal is not None and hasattr(pdal, "find_pdal"):
+        try:
+            exe = pdal.find_pdal()
+        except Exception as exc:  # noqa: BLE001 - the core's DependencyError or similar
+            return False, f"PDAL is missing: {exc}; {PDAL_HINT}"
+        return True, str(exe)
+    env = os.environ.get("CANOPYBLOCKS_PDAL")
+    exe = env if env and os.path.exists(env) else shutil.which("pdal")
+    if exe is None:
+        return False, f"PDAL is missing (no 'pdal' command found); {PDAL_HINT}"
+    return True, exe
+
+
+class ReferenceRastersAlgorithm(CanopyBlocksAlgorithm):
+    """Reference rasters from airborne discrete-return lidar through the pdal command line."""
+
+    ALG_ID = "referencerasters"
+    DISPLAY = "Reference rasters from airborne lidar (PDAL)"
+    GROUP = "Validation"
+    GROUP_ID = "validation"
+    HELP = (
+        "Grids LAS/LAZ point clouds into a DTM (ground points: class 2, or SMRF), a DSM of the "
+        "maximum and a DSM of the 90th percentile of point elevations per cell, on one "
+        "aligned grid, through the pdal command line (PDAL is run in a subprocess; the 90th "
+        "percentile is computed by canopyblocks).<br><br>"
+        "Method: " + SEED_001 + ", section 2.3 (2 m rasters).<br>"
+        "Needs the <b>pdal</b> command: " + PDAL_HINT + ".<br>"
+        "Heights stay in the point cloud's vertical datum."
+    )
+
+    INPUT = "INPUT"
+    RESOLUTION = "RESOLUTION"
+    GROUND = "GROUND"
+    CRS = "CRS"
+    EXTENT = "EXTENT"
+    OUTPUT_DIR = "OUTPUT_DIR"
+    DTM = "DTM"
+    DSM_MAX = "DSM_MAX"
+    DSM_P90 = "DSM_P90"
+
+    def initAlgorithm(self, config: dict[str, Any] | None = None) -> None:  # noqa: N802
+        self.addParameter(QgsProcessingParameterMultipleLayers(
+            self.INPUT, "LAS/LAZ files", QgsProcessing.SourceType.TypeFile))
+        self.addParameter(QgsProcessingParameterNumber(
+            self.RESOLUTION, "Cell size (m)", type=QgsProcessingParameterNumber.Type.Double,
+            defaultValue=2.0, minValue=0.01))
+        self.addParameter(QgsProcessingParameterEnum(
+            self.GROUND, "Ground points", options=[label for label, _ in GROUND_OPTIONS],
+            defaultValue=0))
+        self.addParameter(QgsProcessingParameterCrs(
+            self.CRS, "Output CRS (metric; empty = the tiles' CRS)", optional=True))
+        self.addParameter(QgsProcessingParameterExtent(
+            self.EXTENT, "Area to grid (empty = all tiles)", optional=True))
+        self.addParameter(QgsProcessingParameterFolderDestination(
+            self.OUTPUT_DIR, "Output folder (dtm.tif, dsm_max.tif, dsm_p90.tif)"))
+        self.addOutput(QgsProcessingOutputRasterLayer(self.DTM, "DTM"))
+        self.addOutput(QgsProcessingOutputRasterLayer(self.DSM_MAX, "DSM (maximum)"))
+        self.addOutput(QgsProcessingOutputRasterLayer(self.DSM_P90, "DSM (90th percentile)"))
+
+    def canExecute(self) -> tuple[bool, str]:  # noqa: N802 - QGIS API
+        return pdal_status()
+
+    def checkParameterValues(self, parameters: dict[str, Any],  # noqa: N802 - QGIS API
+                             context: QgsProcessingContext) -> tuple[bool, str]:
+        ok, msg = pdal_status()
+        if not ok:
+            return False, msg
+        return super().checkParameterValues(parameters, context)
+
+    def execute(self, parameters: dict[str, Any], context: QgsProcessingContext,
+                feedback: QgsProcessingFeedback, progress: Any) -> dict[str, Any]:
+        rasters = import_core("canopyblocks.reference.rasters")
+        files = [str(f) for f in self.parameterAsFileList(parameters, self.INPUT, context)]
+        if not files:
+            raise QgsProcessingException("no LAS/LAZ file given")
+        out_dir = self.parameterAsString(parameters, self.OUTPUT_DIR, context)
+        qcrs = self.parameterAsCrs(parameters, self.CRS, context)
+        crs = pyproj_crs(qcrs) if qcrs.isValid() else None
+        bounds = None
+        if parameters.get(self.EXTENT) not in (None, ""):
+            target = qcrs if qcrs.isValid() else None
+            ext = (self.parameterAsExtent(parameters, self.EXTENT, context, target)
+                   if target is not None else
+                   self.parameterAsExtent(parameters, self.EXTENT, context))
+            if not ext.isNull():
+                bounds = (ext.xMinimum(), ext.yMinimum(), ext.xMaximum(), ext.yMaximum())
+        made = rasters.make_reference_rasters(
+            files, out_dir,
+            resolution=self.parameterAsDouble(parameters, self.RESOLUTION, context),
+            crs=crs, bounds=bounds,
+            ground=GROUND_OPTIONS[self.parameterAsEnum(parameters, self.GROUND, context)][1],
+            progress=progress)
+        feedback.pushInfo(f"PDAL {made.pdal_version}: {made.grid}")
+        return {self.OUTPUT_DIR: out_dir, self.DTM: str(made.dtm),
+                self.DSM_MAX: str(made.dsm_max), self.DSM_P90: str(made.dsm_p90)}

@@ -1,0 +1,208 @@
+"""Bridge to the canopyblocks core: lazy import, progress/cancel, errors, logging.
+
+The plugin imports nothing of the core at load time, so QGIS starts even when the
+core is not installed in QGIS's Python; the algorithms then fail with a message
+saying how to install it.
+"""
+
+from __future__ import annotations
+
+import logging
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
+from types import ModuleType
+from typing import Any
+
+from qgis.core import Qgis, QgsMessageLog, QgsProcessingException, QgsProcessingFeedback
+
+__all__ = [
+    "MESSAGE_TAG",
+    "LIBRARY_CLASH_SIGNS",
+    "feedback_logging",
+    "install_hint",
+    "core",
+    "core_available",
+    "import_core",
+    "progress_for",
+    "core_errors",
+    "QgsLogHandler",
+    "attach_log_handler",
+    "detach_log_handler",
+]
+
+MESSAGE_TAG = "canopyblocks"
+
+
+def install_hint() -> str:
+    """How to install the core into the Python that runs QGIS (platform-specific)."""
+    if sys.platform.startswith("linux"):
+        cmd = (
+            "/usr/bin/python3 -m pip install --user --break-system-packages --no-deps "
+            "canopyblocks (or a source checkout), with Debian's python3-h5py python3-pyproj "
+            "python3-rasterio python3-scipy python3-pandas python3-matplotlib and pip's "
+            "'shapely>=2.0,<2.1' 'geopandas>=1.0,<1.1' (scripts/install_qgis.sh sets this up in "
+            "/opt/canopyblocks-qgis-python: start QGIS with PYTHONPATH=/opt/canopyblocks-qgis-"
+            "python:<checkout>/core)"
+        )
+    elif sys.platform == "darwin":
+        cmd = "the QGIS app's python3 -m pip install 'canopyblocks[all]'"
+    else:
+        cmd = "python3 -m pip install canopyblocks[all]  (in the OSGeo4W shell)"
+    return "install canopyblocks into QGIS's Python: " + cmd + ", then restart QGIS"
+
+
+#: Messages of PyPI wheels that bundle GEOS/HDF5/GDAL and meet QGIS's own copies in the
+#: QGIS process (the executable's libraries take precedence over the wheel's).
+LIBRARY_CLASH_SIGNS = ("Not a datatype", "WKB output dimension", "undefined symbol",
+                       "GEOS_", "H5T", "free(): invalid")
+
+
+def import_core(name: str = "canopyblocks") -> ModuleType:
+    """Import ``name`` (a core module) or raise QgsProcessingException with the install hint."""
+    import importlib
+
+    try:
+        return importlib.import_module(name)
+    except ImportError as exc:
+        missing = getattr(exc, "name", None) or str(exc)
+        if name != "canopyblocks" and core_available():
+            raise QgsProcessingException(
+                f"canopyblocks is installed but {name} could not be imported ({exc}); "
+                f"this plugin needs a matching canopyblocks version; " + install_hint()
+            ) from exc
+        raise QgsProcessingException(
+            f"the canopyblocks core library is not importable (missing: {missing}); "
+            + install_hint()
+        ) from exc
+
+
+def core() -> ModuleType:
+    """The ``canopyblocks`` package (see :func:`import_core`)."""
+    return import_core("canopyblocks")
+
+
+def core_available() -> bool:
+    """True when ``import canopyblocks`` works in this Python."""
+    try:
+        import canopyblocks  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def progress_for(feedback: QgsProcessingFeedback | None) -> Any:
+    """A core ``Progress`` that drives ``feedback`` (percent, text) and sees its cancel flag."""
+    progress_mod = import_core("canopyblocks.progress")
+    if feedback is None:
+        return progress_mod.Progress()
+    last = [""]
+
+    def callback(fraction: float, message: str) -> None:
+        feedback.setProgress(100.0 * fraction)
+        if message and message != last[0]:
+            last[0] = message
+            feedback.setProgressText(message)
+
+    return progress_mod.Progress(callback=callback, cancelled=feedback.isCanceled)
+
+
+@contextmanager
+def core_errors() -> Iterator[None]:
+    """Turn the core's errors into QgsProcessingException carrying the core's message."""
+    errors = import_core("canopyblocks.errors")
+    try:
+        yield
+    except QgsProcessingException:
+        raise
+    except errors.CancelledError as exc:
+        raise QgsProcessingException(f"canopyblocks: {exc}") from exc
+    except errors.CanopyBlocksError as exc:
+        raise QgsProcessingException(f"canopyblocks: {exc}") from exc
+    except Exception as exc:
+        text = f"{type(exc).__name__}: {exc}"
+        if any(sign in text for sign in LIBRARY_CLASH_SIGNS):
+            raise QgsProcessingException(
+                f"canopyblocks: a compiled library clashed with QGIS's own ({text}); the "
+                "Python packages seen by QGIS must be built on QGIS's GEOS/PROJ/GDAL/HDF5; "
+                + install_hint()
+            ) from exc
+        raise
+
+
+class QgsLogHandler(logging.Handler):
+    """Route ``logging`` records of the core to the QGIS message log (tab 'canopyblocks').
+
+    When a processing feedback is set (during an algorithm run), INFO and above also go to
+    the algorithm's log panel.
+    """
+
+    def __init__(self, level: int = logging.INFO) -> None:
+        super().__init__(level)
+        self.setFormatter(logging.Formatter("%(name)s: %(message)s"))
+        self.feedback: QgsProcessingFeedback | None = None
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            msg = self.format(record)
+            if record.levelno >= logging.ERROR:
+                level = Qgis.MessageLevel.Critical
+            elif record.levelno >= logging.WARNING:
+                level = Qgis.MessageLevel.Warning
+            else:
+                level = Qgis.MessageLevel.Info
+            QgsMessageLog.logMessage(msg, MESSAGE_TAG, level, False)
+            fb = self.feedback
+            if fb is not None:
+                if record.levelno >= logging.WARNING:
+                    fb.pushWarning(msg)
+                else:
+                    fb.pushInfo(msg)
+        except Exception:  # noqa: BLE001 - a log handler must never raise
+            self.handleError(record)
+
+
+_HANDLER: QgsLogHandler | None = None
+
+
+def attach_log_handler() -> QgsLogHandler:
+    """Add (once) the QGIS log handler to the ``canopyblocks`` logger."""
+    global _HANDLER
+    if _HANDLER is None:
+        _HANDLER = QgsLogHandler()
+        logger = logging.getLogger("canopyblocks")
+        logger.addHandler(_HANDLER)
+        if logger.level == logging.NOTSET or logger.level > logging.INFO:
+            logger.setLevel(logging.INFO)
+    return _HANDLER
+
+
+def detach_log_handler() -> None:
+    """Remove the handler added by :func:`attach_log_handler` (plugin unload)."""
+    global _HANDLER
+    if _HANDLER is not None:
+        logging.getLogger("canopyblocks").removeHandler(_HANDLER)
+        _HANDLER = None
+
+
+@contextmanager
+def feedback_logging(feedback: QgsProcessingFeedback | None) -> Iterator[None]:
+    """During an algorithm run, also echo core log records and warnings to ``feedback``."""
+    import warnings
+
+    handler = attach_log_handler()
+    previous = handler.feedback
+    handler.feedback = feedback
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            yield
+        for w in caught:
+            text = f"{w.category.__name__}: {w.message}"
+            QgsMessageLog.logMessage(text, MESSAGE_TAG, Qgis.MessageLevel.Warning, False)
+            if feedback is not None:
+                feedback.pushWarning(text)
+    finally:
+        handler.feedback = previous
+
+

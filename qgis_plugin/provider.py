@@ -1,0 +1,52 @@
+"""The ``canopyblocks`` Processing provider; algorithms are listed explicitly."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from qgis.core import QgsProcessingProvider
+from qgis.PyQt.QtGui import QIcon
+
+from .algorithms.aspecterrors import AspectErrorsAlgorithm
+from .algorithms.blockheights import BlockHeightsAlgorithm
+from .algorithms.corridor import CorridorAlgorithm
+from .algorithms.referencerasters import ReferenceRastersAlgorithm
+from .algorithms.simulate import SimulateAlgorithm
+from .algorithms.validate import ValidateAlgorithm
+
+__all__ = ["CanopyBlocksProvider", "ALGORITHMS", "ICON"]
+
+ICON = Path(__file__).resolve().parent / "icons" / "canopyblocks.svg"
+
+#: Every algorithm of the provider, in menu order.  Their ids are stable.
+ALGORITHMS = (
+    BlockHeightsAlgorithm,
+    CorridorAlgorithm,
+    ReferenceRastersAlgorithm,
+    ValidateAlgorithm,
+    AspectErrorsAlgorithm,
+    SimulateAlgorithm,
+)
+
+
+class CanopyBlocksProvider(QgsProcessingProvider):
+    """Provider id ``canopyblocks``: ``processing.run("canopyblocks:blockheights", ...)``."""
+
+    def id(self) -> str:
+        return "canopyblocks"
+
+    def name(self) -> str:
+        return "canopyblocks"
+
+    def longName(self) -> str:  # noqa: N802 - QGIS API
+        return "canopyblocks: canopy height per along-track lidar block"
+
+    def icon(self) -> QIcon:
+        return QIcon(str(ICON))
+
+    def svgIconPath(self) -> str:  # noqa: N802 - QGIS API
+        return str(ICON)
+
+    def loadAlgorithms(self) -> None:  # noqa: N802 - QGIS API
+        for cls in ALGORITHMS:
+            self.addAlgorithm(cls())
