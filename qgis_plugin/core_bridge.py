@@ -146,11 +146,11 @@ class QgsLogHandler(logging.Handler):
         try:
             msg = self.format(record)
             if record.levelno >= logging.ERROR:
-                level = Qgis.MessageLevel.Critical
+                level = Qgis.Critical
             elif record.levelno >= logging.WARNING:
-                level = Qgis.MessageLevel.Warning
+                level = Qgis.Warning
             else:
-                level = Qgis.MessageLevel.Info
+                level = Qgis.Info
             QgsMessageLog.logMessage(msg, MESSAGE_TAG, level, False)
             fb = self.feedback
             if fb is not None:
@@ -199,7 +199,7 @@ def feedback_logging(feedback: QgsProcessingFeedback | None) -> Iterator[None]:
             yield
         for w in caught:
             text = f"{w.category.__name__}: {w.message}"
-            QgsMessageLog.logMessage(text, MESSAGE_TAG, Qgis.MessageLevel.Warning, False)
+            QgsMessageLog.logMessage(text, MESSAGE_TAG, Qgis.Warning, False)
             if feedback is not None:
                 feedback.pushWarning(text)
     finally:

@@ -37,7 +37,8 @@ __all__ = [
     "pyproj_crs",
 ]
 
-_NEW_FIELD_TYPES = Qgis.versionInt() >= 33800  # QgsField takes QMetaType.Type from 3.38
+# QgsField takes QMetaType.Type from QGIS 3.38 (QVariant.Type before, deprecated after)
+_NEW_FIELD_TYPES = Qgis.QGIS_VERSION_INT >= 33800
 
 
 def _field_type(kind: str) -> Any:
@@ -75,10 +76,10 @@ def frame_fields(frame: Any) -> QgsFields:
 def frame_wkb_type(frame: Any) -> Any:
     """The single WKB type of a GeoDataFrame's geometries (NoGeometry for a plain table)."""
     if not hasattr(frame, "geometry") or getattr(frame, "_geometry_column_name", None) is None:
-        return QgsWkbTypes.Type.NoGeometry
+        return QgsWkbTypes.NoGeometry
     types = {t for t in frame.geometry.geom_type.dropna().unique()}
     if not types:
-        return QgsWkbTypes.Type.Point
+        return QgsWkbTypes.Point
     multi = {"MultiPolygon", "MultiLineString", "MultiPoint"}
     if types & multi or len(types) > 1:
         base = sorted(types)[0].replace("Multi", "")
@@ -86,10 +87,10 @@ def frame_wkb_type(frame: Any) -> Any:
     else:
         name = types.pop()
     has_z = bool(frame.geometry.has_z.any())
-    wkb = {"Point": QgsWkbTypes.Type.Point, "LineString": QgsWkbTypes.Type.LineString,
-           "Polygon": QgsWkbTypes.Type.Polygon, "MultiPoint": QgsWkbTypes.Type.MultiPoint,
-           "MultiLineString": QgsWkbTypes.Type.MultiLineString,
-           "MultiPolygon": QgsWkbTypes.Type.MultiPolygon}.get(name, QgsWkbTypes.Type.Unknown)
+    wkb = {"Point": QgsWkbTypes.Point, "LineString": QgsWkbTypes.LineString,
+           "Polygon": QgsWkbTypes.Polygon, "MultiPoint": QgsWkbTypes.MultiPoint,
+           "MultiLineString": QgsWkbTypes.MultiLineString,
+           "MultiPolygon": QgsWkbTypes.MultiPolygon}.get(name, QgsWkbTypes.Unknown)
     return QgsWkbTypes.addZ(wkb) if has_z else wkb
 
 
@@ -117,7 +118,7 @@ def pyproj_crs(crs: QgsCoordinateReferenceSystem) -> Any:
             return pyproj.CRS.from_user_input(authid)
         except pyproj.exceptions.CRSError:
             pass
-    return pyproj.CRS.from_wkt(crs.toWkt(QgsCoordinateReferenceSystem.WktVariant.WKT2_2019))
+    return pyproj.CRS.from_wkt(crs.toWkt(QgsCoordinateReferenceSystem.WKT2_2019))
 
 
 def _python_values(frame: Any, columns: list[str]) -> list[list[Any]]:
@@ -166,7 +167,7 @@ def write_frame(
     fields = frame_fields(frame)
     wkb_type = frame_wkb_type(frame)
     if crs is None:
-        crs = qgs_crs(getattr(frame, "crs", None)) if wkb_type != QgsWkbTypes.Type.NoGeometry \
+        crs = qgs_crs(getattr(frame, "crs", None)) if wkb_type != QgsWkbTypes.NoGeometry \
             else QgsCoordinateReferenceSystem()
     sink, dest = alg.parameterAsSink(parameters, name, context, fields, wkb_type, crs)
     if sink is None:
@@ -175,7 +176,7 @@ def write_frame(
         raise QgsProcessingException(alg.invalidSinkError(parameters, name))
     columns = _columns(frame)
     values = _python_values(frame, columns)
-    if wkb_type != QgsWkbTypes.Type.NoGeometry:
+    if wkb_type != QgsWkbTypes.NoGeometry:
         wkbs = shapely.to_wkb(frame.geometry.values.to_numpy() if hasattr(
             frame.geometry.values, "to_numpy") else frame.geometry.values)
     else:
@@ -191,12 +192,12 @@ def write_frame(
             f.setGeometry(g)
         batch.append(f)
         if len(batch) >= 5000:
-            if not sink.addFeatures(batch, QgsFeatureSink.Flag.FastInsert):
+            if not sink.addFeatures(batch, QgsFeatureSink.FastInsert):
                 raise QgsProcessingException(alg.writeFeatureError(sink, parameters, name))
             batch = []
             if feedback is not None and feedback.isCanceled():
                 break
-    if batch and not sink.addFeatures(batch, QgsFeatureSink.Flag.FastInsert):
+    if batch and not sink.addFeatures(batch, QgsFeatureSink.FastInsert):
         raise QgsProcessingException(alg.writeFeatureError(sink, parameters, name))
     if hasattr(sink, "finalize"):
         sink.finalize()

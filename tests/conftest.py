@@ -31,6 +31,12 @@ HAVE_QGIS = _qgis_importable()
 pytest_plugins = ["pytest_qgis.plugin"] if HAVE_QGIS else []
 
 
+def pytest_addoption(parser: pytest.Parser) -> None:
+    if not HAVE_QGIS:  # pytest-qgis not loaded: keep its ini key known
+        parser.addini("qgis_gui_enabled", "pytest-qgis setting (not loaded: no QGIS)",
+                      type="bool", default=False)
+
+
 def require(available: bool, what: str, how: str) -> None:
     """Skip when ``what`` is missing on a user's machine; fail under ``CI=true``."""
     if available:

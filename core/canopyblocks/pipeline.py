@@ -207,8 +207,10 @@ def blocks_from_file(
     -------
     BlocksResult
     """
-    from .outputs.tables import write_layers
+    from .outputs.tables import check_output_path, write_layers
 
+    if output is not None:
+        check_output_path(output)  # fail before reading, not after an hour of work
     prog = as_progress(progress)
     tracks = read_tracks(path, beams=beams, channel=channel, atl08=atl08, bbox=bbox, crs=crs,
                          min_signal_conf=params.min_signal_conf, progress=prog.sub(0.0, 0.3))

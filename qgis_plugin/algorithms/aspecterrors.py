@@ -51,12 +51,12 @@ class AspectErrorsAlgorithm(CanopyBlocksAlgorithm):
 
     def initAlgorithm(self, config: dict[str, Any] | None = None) -> None:  # noqa: N802
         self.addParameter(QgsProcessingParameterFeatureSource(
-            self.INPUT, "Residuals", [QgsProcessing.SourceType.TypeVector]))
+            self.INPUT, "Residuals", [QgsProcessing.TypeVector]))
         self.addParameter(QgsProcessingParameterEnum(
             self.GROUP_BY, "Group by", options=[g[0] for g in GROUPINGS],
             defaultValue=0))
         self.addParameter(QgsProcessingParameterFeatureSink(
-            self.OUTPUT, "Statistics per class", type=QgsProcessing.SourceType.TypeVector))
+            self.OUTPUT, "Statistics per class", type=QgsProcessing.TypeVector))
 
     def execute(self, parameters: dict[str, Any], context: QgsProcessingContext,
                 feedback: QgsProcessingFeedback, progress: Any) -> dict[str, Any]:

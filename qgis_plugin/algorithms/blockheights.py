@@ -88,7 +88,7 @@ class BlockHeightsAlgorithm(CanopyBlocksAlgorithm):
     def initAlgorithm(self, config: dict[str, Any] | None = None) -> None:  # noqa: N802
         self.addParameter(QgsProcessingParameterFile(
             self.INPUT, "Photon file (ATL03 / MABEL HDF5, CSV, Parquet)",
-            behavior=QgsProcessingParameterFile.Behavior.File,
+            behavior=QgsProcessingParameterFile.File,
             fileFilter="Photon files (*.h5 *.hdf5 *.he5 *.csv *.parquet);;All files (*.*)"))
         self.addParameter(QgsProcessingParameterString(
             self.TRACK, "Beam (gt1l..gt3r) or MABEL channel (number or 'most')",
@@ -97,37 +97,37 @@ class BlockHeightsAlgorithm(CanopyBlocksAlgorithm):
             self.LENGTHS, "Block lengths (m, comma separated)", defaultValue="25"))
         self.addParameter(QgsProcessingParameterNumber(
             self.S0, "Block origin along track s0 (m; empty = track start)",
-            type=QgsProcessingParameterNumber.Type.Double, optional=True))
+            type=QgsProcessingParameterNumber.Double, optional=True))
         self.addParameter(QgsProcessingParameterEnum(
             self.NOISE, "Noise filter", options=["k-sigma per block (paper)", "none"],
             defaultValue=0))
         self.addParameter(QgsProcessingParameterNumber(
             self.K_SIGMA, "Noise filter k (standard deviations)",
-            type=QgsProcessingParameterNumber.Type.Double, defaultValue=2.5, minValue=0.01))
+            type=QgsProcessingParameterNumber.Double, defaultValue=2.5, minValue=0.01))
         self.addParameter(QgsProcessingParameterNumber(
             self.TOP_CUTOFF, "Canopy-top cut-off fraction (empty = paper default by length)",
-            type=QgsProcessingParameterNumber.Type.Double, optional=True,
+            type=QgsProcessingParameterNumber.Double, optional=True,
             minValue=0.0, maxValue=1.0))
         self.addParameter(QgsProcessingParameterNumber(
             self.GROUND_CUTOFF, "Ground cut-off fraction (empty = paper default by length)",
-            type=QgsProcessingParameterNumber.Type.Double, optional=True,
+            type=QgsProcessingParameterNumber.Double, optional=True,
             minValue=0.0, maxValue=1.0))
         self.addParameter(QgsProcessingParameterNumber(
             self.MIN_PHOTONS, "Minimum kept photons per block (else flagged sparse)",
-            type=QgsProcessingParameterNumber.Type.Integer, defaultValue=10, minValue=1))
+            type=QgsProcessingParameterNumber.Integer, defaultValue=10, minValue=1))
         self.addParameter(QgsProcessingParameterNumber(
             self.MIN_SIGNAL_CONF,
             "ATL03: minimum land signal_conf_ph (-2..4; empty = no filter)",
-            type=QgsProcessingParameterNumber.Type.Integer, optional=True,
+            type=QgsProcessingParameterNumber.Integer, optional=True,
             minValue=-2, maxValue=4))
         self.addParameter(QgsProcessingParameterFile(
             self.ATL08, "Matching ATL08 file (adds photon classes; optional)",
-            behavior=QgsProcessingParameterFile.Behavior.File, optional=True,
+            behavior=QgsProcessingParameterFile.File, optional=True,
             fileFilter="HDF5 (*.h5 *.hdf5);;All files (*.*)"))
         self.addParameter(QgsProcessingParameterFeatureSink(
-            self.OUTPUT, "Blocks", type=QgsProcessing.SourceType.TypeVectorPoint))
+            self.OUTPUT, "Blocks", type=QgsProcessing.TypeVectorPoint))
         self.addParameter(QgsProcessingParameterFeatureSink(
-            self.PHOTONS, "Photons with labels", type=QgsProcessing.SourceType.TypeVectorPoint,
+            self.PHOTONS, "Photons with labels", type=QgsProcessing.TypeVectorPoint,
             optional=True, createByDefault=False))
         self.addParameter(QgsProcessingParameterFileDestination(
             self.PROFILE, "Profile plot", fileFilter="PNG (*.png)", optional=True,

@@ -44,12 +44,12 @@ class CorridorAlgorithm(CanopyBlocksAlgorithm):
 
     def initAlgorithm(self, config: dict[str, Any] | None = None) -> None:  # noqa: N802
         self.addParameter(QgsProcessingParameterFeatureSource(
-            self.INPUT, "Blocks", [QgsProcessing.SourceType.TypeVectorPoint]))
+            self.INPUT, "Blocks", [QgsProcessing.TypeVectorPoint]))
         self.addParameter(QgsProcessingParameterNumber(
             self.WIDTH, "Corridor width (m, full width)",
-            type=QgsProcessingParameterNumber.Type.Double, defaultValue=2.0, minValue=0.001))
+            type=QgsProcessingParameterNumber.Double, defaultValue=2.0, minValue=0.001))
         self.addParameter(QgsProcessingParameterFeatureSink(
-            self.OUTPUT, "Corridors", type=QgsProcessing.SourceType.TypeVectorPolygon))
+            self.OUTPUT, "Corridors", type=QgsProcessing.TypeVectorPolygon))
 
     def execute(self, parameters: dict[str, Any], context: QgsProcessingContext,
                 feedback: QgsProcessingFeedback, progress: Any) -> dict[str, Any]:

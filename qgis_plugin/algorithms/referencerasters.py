@@ -78,9 +78,9 @@ class ReferenceRastersAlgorithm(CanopyBlocksAlgorithm):
 
     def initAlgorithm(self, config: dict[str, Any] | None = None) -> None:  # noqa: N802
         self.addParameter(QgsProcessingParameterMultipleLayers(
-            self.INPUT, "LAS/LAZ files", QgsProcessing.SourceType.TypeFile))
+            self.INPUT, "LAS/LAZ files", QgsProcessing.TypeFile))
         self.addParameter(QgsProcessingParameterNumber(
-            self.RESOLUTION, "Cell size (m)", type=QgsProcessingParameterNumber.Type.Double,
+            self.RESOLUTION, "Cell size (m)", type=QgsProcessingParameterNumber.Double,
             defaultValue=2.0, minValue=0.01))
         self.addParameter(QgsProcessingParameterEnum(
             self.GROUND, "Ground points", options=[label for label, _ in GROUND_OPTIONS],

@@ -60,29 +60,29 @@ class SimulateAlgorithm(CanopyBlocksAlgorithm):
     def initAlgorithm(self, config: dict[str, Any] | None = None) -> None:  # noqa: N802
         self.addParameter(QgsProcessingParameterMultipleLayers(
             self.INPUT, "Airborne LAS/LAZ files (one metric CRS)",
-            QgsProcessing.SourceType.TypeFile))
+            QgsProcessing.TypeFile))
         self.addParameter(QgsProcessingParameterFeatureSource(
             self.TRACK_LINE, "Track line (optional)",
-            [QgsProcessing.SourceType.TypeVectorLine], optional=True))
+            [QgsProcessing.TypeVectorLine], optional=True))
         self.addParameter(QgsProcessingParameterNumber(
             self.AZIMUTH, "Track azimuth when no line is given (degrees from north)",
-            type=QgsProcessingParameterNumber.Type.Double, defaultValue=0.0,
+            type=QgsProcessingParameterNumber.Double, defaultValue=0.0,
             minValue=-360.0, maxValue=360.0))
         self.addParameter(QgsProcessingParameterNumber(
             self.DIAMETER, "Footprint diameter (m; 13 start, 17 end of mission)",
-            type=QgsProcessingParameterNumber.Type.Double, defaultValue=13.0, minValue=0.1))
+            type=QgsProcessingParameterNumber.Double, defaultValue=13.0, minValue=0.1))
         self.addParameter(QgsProcessingParameterEnum(
             self.PRESET, "Ecosystem photon rate", options=list(PRESETS), defaultValue=1))
         self.addParameter(QgsProcessingParameterEnum(
             self.BEAM, "Beam", options=list(BEAMS), defaultValue=0))
         self.addParameter(QgsProcessingParameterNumber(
-            self.SEED, "Random seed", type=QgsProcessingParameterNumber.Type.Integer,
+            self.SEED, "Random seed", type=QgsProcessingParameterNumber.Integer,
             defaultValue=0, minValue=0))
         self.addParameter(QgsProcessingParameterFileDestination(
             self.OUTPUT, "Simulated photons (ATL03 layout)", fileFilter="HDF5 (*.h5)"))
         self.addParameter(QgsProcessingParameterFeatureSink(
             self.PHOTONS, "Simulated photons with truth",
-            type=QgsProcessing.SourceType.TypeVectorPoint, optional=True,
+            type=QgsProcessing.TypeVectorPoint, optional=True,
             createByDefault=False))
 
     def execute(self, parameters: dict[str, Any], context: QgsProcessingContext,

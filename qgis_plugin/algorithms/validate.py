@@ -66,27 +66,27 @@ class ValidateAlgorithm(CanopyBlocksAlgorithm):
 
     def initAlgorithm(self, config: dict[str, Any] | None = None) -> None:  # noqa: N802
         self.addParameter(QgsProcessingParameterFeatureSource(
-            self.INPUT, "Blocks", [QgsProcessing.SourceType.TypeVectorPoint]))
+            self.INPUT, "Blocks", [QgsProcessing.TypeVectorPoint]))
         self.addParameter(QgsProcessingParameterRasterLayer(self.DTM, "DTM"))
         self.addParameter(QgsProcessingParameterRasterLayer(self.DSM_MAX, "DSM (maximum)"))
         self.addParameter(QgsProcessingParameterRasterLayer(self.DSM_P90,
                                                             "DSM (90th percentile)"))
         self.addParameter(QgsProcessingParameterNumber(
-            self.WIDTH, "Corridor width (m)", type=QgsProcessingParameterNumber.Type.Double,
+            self.WIDTH, "Corridor width (m)", type=QgsProcessingParameterNumber.Double,
             defaultValue=2.0, minValue=0.001))
         self.addParameter(QgsProcessingParameterNumber(
             self.OFFSET, "Vertical offset N = h_photon - H_reference (m; empty = none)",
-            type=QgsProcessingParameterNumber.Type.Double, optional=True))
+            type=QgsProcessingParameterNumber.Double, optional=True))
         self.addParameter(QgsProcessingParameterRasterLayer(
             self.GEOID, "Geoid undulation raster (optional)", optional=True))
         self.addParameter(QgsProcessingParameterNumber(
             self.SLOPE_THRESHOLD, "Slope below which the aspect class is 'flat' (degrees)",
-            type=QgsProcessingParameterNumber.Type.Double, defaultValue=2.0, minValue=0.0,
+            type=QgsProcessingParameterNumber.Double, defaultValue=2.0, minValue=0.0,
             maxValue=90.0))
         self.addParameter(QgsProcessingParameterFeatureSink(
-            self.OUTPUT, "Residuals", type=QgsProcessing.SourceType.TypeVectorPolygon))
+            self.OUTPUT, "Residuals", type=QgsProcessing.TypeVectorPolygon))
         self.addParameter(QgsProcessingParameterFeatureSink(
-            self.STATS, "Statistics", type=QgsProcessing.SourceType.TypeVector))
+            self.STATS, "Statistics", type=QgsProcessing.TypeVector))
 
     def execute(self, parameters: dict[str, Any], context: QgsProcessingContext,
                 feedback: QgsProcessingFeedback, progress: Any) -> dict[str, Any]:

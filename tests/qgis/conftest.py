@@ -140,7 +140,7 @@ def _layer_rows(layer: Any) -> list[dict[str, Any]]:
         g = feat.geometry()
         row["_wkt"] = g.asWkt()
         row["_area"] = g.area()
-        if not g.isNull() and g.type() == QgsWkbTypes.GeometryType.PointGeometry:
+        if not g.isNull() and g.type() == QgsWkbTypes.PointGeometry:
             p = g.asPoint()
             row["_xy"] = (p.x(), p.y())
         rows.append(row)

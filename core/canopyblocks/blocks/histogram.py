@@ -43,8 +43,9 @@ __all__ = ["BlockHistograms", "sigma_filter", "count_needed", "segment_starts"]
 log = logging.getLogger(__name__)
 
 #: Use dense global histograms while their total bin count is at most this many
-#: times the number of kept photons (plus a floor); beyond, sort the keys instead.
-DENSE_FACTOR = 4
+#: times the number of kept photons (plus a floor): at most 16 bytes per photon; beyond,
+#: sort the keys instead (slower, 8 bytes per photon).
+DENSE_FACTOR = 2
 DENSE_FLOOR = 1 << 16
 
 
@@ -234,7 +235,8 @@ class BlockHistograms:
         if dense is None:
             dense = total <= DENSE_FACTOR * int(key.size) + DENSE_FLOOR
         if dense:
-            self._cum = np.cumsum(np.bincount(key, minlength=total))
+            cum = np.bincount(key, minlength=total)
+            self._cum = np.cumsum(cum, out=cum)
         else:
             self._sorted = np.sort(key)
         log.debug("histograms: %d blocks, %d kept photons, %d bins (%s)", nk.size, key.size,

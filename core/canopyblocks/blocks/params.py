@@ -179,7 +179,8 @@ class BlockParams:
                 )
             set_(self, "min_signal_conf", int(msc))
 
-    def _cutoff_spec(self, spec: object, what: str) -> float | tuple[tuple[float, float], ...] | None:
+    def _cutoff_spec(self, spec: object, what: str
+                     ) -> float | tuple[tuple[float, float], ...] | None:
         if spec is None:
             return None
         if _is_number(spec):

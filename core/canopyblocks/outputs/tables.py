@@ -13,7 +13,7 @@ from ..errors import DependencyError, FileFormatError, InputError
 from ..schema import LAYER_BLOCKS
 from .atomic import atomic_output
 
-__all__ = ["write_table", "write_layers", "read_layer", "read_blocks", "SUFFIXES"]
+__all__ = ["check_output_path", "write_table", "write_layers", "read_layer", "read_blocks", "SUFFIXES"]
 
 log = logging.getLogger(__name__)
 
@@ -27,6 +27,13 @@ def _suffix(path: Path) -> str:
             f"cannot write {path}: unknown suffix {suf!r}; use one of {', '.join(SUFFIXES)}"
         )
     return suf
+
+
+def check_output_path(path: str | os.PathLike[str]) -> Path:
+    """Check an output table path's suffix before any work is done; return it as a Path."""
+    p = Path(path)
+    _suffix(p)
+    return p
 
 
 def _write_one(df: pd.DataFrame, tmp: Path, suf: str, layer: str) -> None:
