@@ -36,6 +36,37 @@ from .outputs.tables import read_blocks, read_layer, write_layers, write_table
 from .photons import PhotonTrack, along_track_distance
 from .pipeline import BlocksResult, blocks_from_file, read_tracks
 from .progress import Progress
+from .chain import ChainResult, run_chain
+from .simulate import (
+    SimParams,
+    Simulation,
+    SimTrack,
+    line_through,
+    seed002_experiment,
+    simulate_photons,
+)
+from .validation import (
+    ValidationResult,
+    block_stats,
+    compute_residuals,
+    error_stats,
+    validate_atl08,
+    validate_blocks,
+)
+from .reference import (
+    Grid,
+    ReferenceRasters,
+    atl08_reference_values,
+    block_corridors,
+    block_reference_values,
+    block_terrain,
+    check_vertical_datums,
+    find_pdal,
+    horn_slope_aspect,
+    make_reference_rasters,
+    read_atl08_segments,
+    run_pipeline,
+)
 from .readers import (
     BeamInfo,
     atl03_beams,
@@ -100,4 +131,34 @@ __all__ = [
     "BlocksResult",
     "blocks_from_file",
     "read_tracks",
+    # reference
+    "Grid",
+    "ReferenceRasters",
+    "atl08_reference_values",
+    "block_corridors",
+    "block_reference_values",
+    "block_terrain",
+    "check_vertical_datums",
+    "find_pdal",
+    "horn_slope_aspect",
+    "make_reference_rasters",
+    "read_atl08_segments",
+    "run_pipeline",
+    # validation
+    "ValidationResult",
+    "block_stats",
+    "compute_residuals",
+    "error_stats",
+    "validate_atl08",
+    "validate_blocks",
+    # simulator
+    "SimParams",
+    "Simulation",
+    "SimTrack",
+    "line_through",
+    "seed002_experiment",
+    "simulate_photons",
+    # whole chain
+    "ChainResult",
+    "run_chain",
 ]

@@ -1,1 +1,44 @@
-"""canopyblocks.reference (filled in by its issue)."""
+"""canopyblocks.reference: what photon blocks are judged against.
+
+PDAL rasters from airborne lidar (``pdal``, ``rasters``, ``lidar_points``), the corridor
+polygons cut at block edges (``corridor``), zonal block values (``zonal``), terrain slope
+and aspect (``terrain``), vertical datums (``datum``) and ATL08 land segments (``atl08``).
+"""
+
+from __future__ import annotations
+
+from .atl08 import atl08_reference_values, read_atl08_segments
+from .corridor import block_corridors
+from .datum import apply_vertical_offset, check_vertical_datums, vertical_part
+from .lidar_points import cell_percentile, crop_corridor
+from .pdal import PIPELINES, TileInfo, find_pdal, pdal_version, run_pipeline, tile_info
+from .rasters import NODATA, Grid, RasterParams, ReferenceRasters, make_reference_rasters
+from .terrain import aspect_class, block_terrain, horn_slope_aspect, slope_class
+from .zonal import block_reference_values
+
+__all__ = [
+    "atl08_reference_values",
+    "read_atl08_segments",
+    "block_corridors",
+    "apply_vertical_offset",
+    "check_vertical_datums",
+    "vertical_part",
+    "cell_percentile",
+    "crop_corridor",
+    "PIPELINES",
+    "TileInfo",
+    "find_pdal",
+    "pdal_version",
+    "run_pipeline",
+    "tile_info",
+    "NODATA",
+    "Grid",
+    "RasterParams",
+    "ReferenceRasters",
+    "make_reference_rasters",
+    "aspect_class",
+    "block_terrain",
+    "horn_slope_aspect",
+    "slope_class",
+    "block_reference_values",
+]

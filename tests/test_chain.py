@@ -1,0 +1,114 @@
+"""The whole chain (`canopyblocks run`): simulated photons over a real tile -> blocks ->
+real PDAL rasters -> validation -> layers, plots, report; checked by recomputation."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+
+import geopandas as gpd
+import numpy as np
+import pandas as pd
+import pytest
+import rasterio
+import shapely
+
+TILE = "als/lasR_bcts_1.laz"
+
+
+@pytest.fixture(scope="module")
+def chain_out(sample, pdal_bin, tmp_path_factory):
+    out = tmp_path_factory.mktemp("chain")
+    r = subprocess.run(
+        [sys.executable, "-m", "canopyblocks", "-q", "run", str(sample(TILE)), "--seed", "3",
+         "--azimuth", "15", "--length", "25", "--length", "50", "-o", str(out)],
+        capture_output=True, text=True, timeout=600,
+        env={**__import__("os").environ, "CANOPYBLOCKS_PDAL": pdal_bin},
+    )
+    assert r.returncode == 0, r.stderr
+    return out
+
+
+def test_chain_writes_every_output(chain_out) -> None:
+    for name in ("photons_atl03.h5", "blocks.gpkg", "validation.gpkg", "stats.csv",
+                 "report.html", "rasters/dtm.tif", "rasters/dsm_max.tif", "rasters/dsm_p90.tif",
+                 "plots/profile.png", "plots/validation_25m.png", "plots/aspect_rmse_50m.png"):
+        assert (chain_out / name).stat().st_size > 0, name
+    html = (chain_out / "report.html").read_text()
+    images = re.findall(r"<img src='([^']+)'", html)
+    assert len(images) >= 5 and all((chain_out / i).exists() for i in images)
+    assert not list(chain_out.rglob("*.part*")), "temporary files left behind"
+
+
+def test_residuals_and_stats_recomputed_independently(chain_out) -> None:
+    res = gpd.read_file(chain_out / "validation.gpkg", layer="residuals")
+    stats = gpd.read_file(chain_out / "validation.gpkg", layer="stats")
+    blocks = gpd.read_file(chain_out / "blocks.gpkg", layer="blocks")
+    assert res.crs == blocks.crs and res.geom_type.eq("Polygon").all()
+    # residual = photon minus reference, row by row
+    for m in ("ground", "top", "hmax", "h90"):
+        np.testing.assert_allclose(res[f"res_{m}"], res[m] - res[f"ref_{m}"], atol=1e-6,
+                                   equal_nan=True)
+    np.testing.assert_allclose(res["ref_hmax"], res["ref_top"] - res["ref_ground"], atol=1e-6,
+                               equal_nan=True)
+    # the 'all' statistics from the residual layer with plain numpy / pandas
+    used = res[res["use"].astype(bool)]
+    for (length, metric), row in stats[stats["group"] == "all"].set_index(
+            ["length", "metric"]).iterrows():
+        r = used.loc[used["length"] == length, f"res_{metric}"].dropna().to_numpy()
+        assert row["n"] == r.size > 3
+        assert row["bias"] == pytest.approx(r.mean(), abs=1e-6)
+        assert row["rmse"] == pytest.approx(np.sqrt(np.mean(r**2)), abs=1e-6)
+        assert row["mae"] == pytest.approx(np.mean(np.abs(r)), abs=1e-6)
+        sub = used[used["length"] == length].dropna(subset=[metric, f"ref_{metric}"])
+        fit = np.polyfit(sub[f"ref_{metric}"], sub[metric], 1)
+        assert row["slope"] == pytest.approx(fit[0], rel=1e-6)
+        assert row["r2"] == pytest.approx(np.corrcoef(sub[f"ref_{metric}"], sub[metric])[0, 1]
+                                          ** 2, abs=1e-9)
+    # aspect groups partition the blocks of each length (flat included)
+    asp = stats[stats["group"].str.startswith("aspect:")]
+    total = stats[stats["group"] == "all"].set_index(["length", "metric"])["n"]
+    summed = asp.groupby(["length", "metric"])["n"].sum()
+    pd.testing.assert_series_equal(summed.sort_index(), total.sort_index(), check_names=False,
+                                   check_dtype=False)
+
+
+def test_reference_values_from_the_rasters_by_brute_force(chain_out) -> None:
+    """ref_ground = mean of DTM cells touched by the corridor; ref_top = max of DSM cells."""
+    res = gpd.read_file(chain_out / "validation.gpkg", layer="residuals")
+    with rasterio.open(chain_out / "rasters/dtm.tif") as d, \
+            rasterio.open(chain_out / "rasters/dsm_max.tif") as m:
+        dtm, dsm, tr, nod = d.read(1), m.read(1), d.transform, d.nodata
+    res_x, res_y = tr.a, -tr.e
+    rows = res[res["ref_flag"] == "ok"].head(12)
+    assert len(rows) >= 8
+    for _, b in rows.iterrows():
+        poly = b.geometry
+        x0, y0, x1, y1 = poly.bounds
+        c0, c1 = int((x0 - tr.c) // res_x), int((x1 - tr.c) // res_x)
+        r0, r1 = int((tr.f - y1) // res_y), int((tr.f - y0) // res_y)
+        g, t = [], []
+        for r in range(max(r0, 0), min(r1 + 1, dtm.shape[0])):
+            for c in range(max(c0, 0), min(c1 + 1, dtm.shape[1])):
+                cell = shapely.box(tr.c + c * res_x, tr.f - (r + 1) * res_y,
+                                   tr.c + (c + 1) * res_x, tr.f - r * res_y)
+                if cell.intersects(poly):
+                    if dtm[r, c] != nod:
+                        g.append(dtm[r, c])
+                    if dsm[r, c] != nod:
+                        t.append(dsm[r, c])
+        assert b["ref_ground"] == pytest.approx(np.mean(g), abs=1e-4)
+        assert b["ref_top"] == pytest.approx(np.max(t), abs=1e-4)
+
+
+def test_simulated_photons_keep_the_tile_datum_and_ids(chain_out) -> None:
+    blocks = gpd.read_file(chain_out / "blocks.gpkg", layer="blocks")
+    res = gpd.read_file(chain_out / "validation.gpkg", layer="residuals")
+    assert blocks.crs.to_epsg() == 3005  # the tile's CRS, not a UTM zone
+    assert set(pd.unique(blocks["length"])) == {25.0, 50.0}
+    key = ["track", "length", "block"]
+    assert res[key].merge(blocks[key]).shape[0] == len(res) == len(blocks)
+    ok = res[res["use"].astype(bool)]
+    # ground from photons within a metre or two of the DTM (seed 001: ground is robust)
+    assert ok["res_ground"].abs().median() < 2.0
