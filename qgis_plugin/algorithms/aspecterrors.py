@@ -7,7 +7,6 @@ from typing import Any
 from qgis.core import (
     QgsProcessing,
     QgsProcessingContext,
-    QgsProcessingException,
     QgsProcessingFeedback,
     QgsProcessingParameterEnum,
     QgsProcessingParameterFeatureSink,
@@ -15,7 +14,7 @@ from qgis.core import (
 )
 
 from ..core_bridge import import_core
-from ..layers import source_to_frame, write_frame
+from ..layers import write_frame
 from .base import SEED_001, CanopyBlocksAlgorithm
 
 __all__ = ["AspectErrorsAlgorithm"]
@@ -61,10 +60,7 @@ class AspectErrorsAlgorithm(CanopyBlocksAlgorithm):
     def execute(self, parameters: dict[str, Any], context: QgsProcessingContext,
                 feedback: QgsProcessingFeedback, progress: Any) -> dict[str, Any]:
         stats_mod = import_core("canopyblocks.validation.stats")
-        source = self.parameterAsSource(parameters, self.INPUT, context)
-        if source is None:
-            raise QgsProcessingException(self.invalidSourceError(parameters, self.INPUT))
-        residuals = source_to_frame(source, feedback)
+        residuals = self.source_frame(parameters, self.INPUT, context, feedback)
         groups = GROUPINGS[self.parameterAsEnum(parameters, self.GROUP_BY, context)][1]
         progress.update(0.3, f"{len(residuals)} blocks read")
         if "use" in residuals.columns:  # a layer stores booleans as 0/1 or NULL

@@ -91,3 +91,13 @@ class CanopyBlocksAlgorithm(QgsProcessingAlgorithm):
     def execute(self, parameters: dict[str, Any], context: QgsProcessingContext,
                 feedback: QgsProcessingFeedback, progress: Any) -> dict[str, Any]:
         raise NotImplementedError
+
+    def source_frame(self, parameters: dict[str, Any], name: str,
+                     context: QgsProcessingContext, feedback: QgsProcessingFeedback) -> Any:
+        """The feature source parameter ``name`` as a GeoDataFrame (QGIS's error if unset)."""
+        from ..layers import source_to_frame
+
+        source = self.parameterAsSource(parameters, name, context)
+        if source is None:
+            raise QgsProcessingException(self.invalidSourceError(parameters, name))
+        return source_to_frame(source, feedback)

@@ -7,7 +7,6 @@ from typing import Any
 from qgis.core import (
     QgsProcessing,
     QgsProcessingContext,
-    QgsProcessingException,
     QgsProcessingFeedback,
     QgsProcessingParameterFeatureSink,
     QgsProcessingParameterFeatureSource,
@@ -15,7 +14,7 @@ from qgis.core import (
 )
 
 from ..core_bridge import import_core
-from ..layers import source_to_frame, write_frame
+from ..layers import write_frame
 from .base import SEED_001, CanopyBlocksAlgorithm
 
 __all__ = ["CorridorAlgorithm"]
@@ -54,10 +53,7 @@ class CorridorAlgorithm(CanopyBlocksAlgorithm):
     def execute(self, parameters: dict[str, Any], context: QgsProcessingContext,
                 feedback: QgsProcessingFeedback, progress: Any) -> dict[str, Any]:
         corridor = import_core("canopyblocks.reference.corridor")
-        source = self.parameterAsSource(parameters, self.INPUT, context)
-        if source is None:
-            raise QgsProcessingException(self.invalidSourceError(parameters, self.INPUT))
-        blocks = source_to_frame(source, feedback)
+        blocks = self.source_frame(parameters, self.INPUT, context, feedback)
         progress.update(0.3, f"{len(blocks)} blocks read")
         width = self.parameterAsDouble(parameters, self.WIDTH, context)
         polys = corridor.block_corridors(blocks, width=width)

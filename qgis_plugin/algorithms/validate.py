@@ -16,7 +16,7 @@ from qgis.core import (
 )
 
 from ..core_bridge import import_core
-from ..layers import source_to_frame, write_frame
+from ..layers import write_frame
 from ..styles import style_on_load
 from .base import SEED_001, CanopyBlocksAlgorithm
 
@@ -91,10 +91,7 @@ class ValidateAlgorithm(CanopyBlocksAlgorithm):
     def execute(self, parameters: dict[str, Any], context: QgsProcessingContext,
                 feedback: QgsProcessingFeedback, progress: Any) -> dict[str, Any]:
         pipeline = import_core("canopyblocks.validation.pipeline")
-        source = self.parameterAsSource(parameters, self.INPUT, context)
-        if source is None:
-            raise QgsProcessingException(self.invalidSourceError(parameters, self.INPUT))
-        blocks = source_to_frame(source, feedback)
+        blocks = self.source_frame(parameters, self.INPUT, context, feedback)
         progress.update(0.1, f"{len(blocks)} blocks read")
         offset = parameters.get(self.OFFSET)
         kwargs: dict[str, Any] = {}

@@ -4,35 +4,13 @@ from __future__ import annotations
 
 import json
 import logging
-import warnings
 from pathlib import Path
 
 import click
 
-from .common import progress_bar
+from .common import parse_channel, parse_floats, progress_bar
 
 log = logging.getLogger(__name__)
-
-
-def _parse_bbox(value: str | None) -> tuple[float, float, float, float] | None:
-    if value is None:
-        return None
-    try:
-        parts = tuple(float(v) for v in value.split(","))
-    except ValueError:
-        parts = ()
-    if len(parts) != 4:
-        raise click.BadParameter(f"expected lon_min,lat_min,lon_max,lat_max; got {value!r}")
-    return parts  # type: ignore[return-value]
-
-
-def _parse_channel(value: str | None) -> int | str | None:
-    if value is None or value == "most":
-        return value
-    try:
-        return int(value)
-    except ValueError:
-        raise click.BadParameter(f"expected a channel number or 'most'; got {value!r}") from None
 
 
 @click.command("info")
@@ -98,8 +76,9 @@ def blocks_cmd(ctx: click.Context, path: str, output: str, beams: tuple[str, ...
     quiet = bool(ctx.obj and ctx.obj.get("quiet"))
     with progress_bar("blocks", quiet=quiet) as progress:
         result = blocks_from_file(
-            path, params, beams=beams, channel=_parse_channel(channel), atl08=atl08,
-            bbox=_parse_bbox(bbox), crs=crs, output=output, with_photons=with_photons,
+            path, params, beams=beams, channel=parse_channel(channel), atl08=atl08,
+            bbox=parse_floats(bbox, 4, "lon_min,lat_min,lon_max,lat_max"),  # type: ignore[arg-type]
+            crs=crs, output=output, with_photons=with_photons,
             profile=profile, progress=progress,
         )
     n_ok = int((result.blocks["flag"] == "ok").sum()) if len(result.blocks) else 0
@@ -116,4 +95,3 @@ def register(group: click.Group) -> None:
     group.add_command(blocks_cmd)
 
 
-_ = warnings  # warnings are shown through cli.common.setup_logging

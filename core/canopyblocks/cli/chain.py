@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import click
 
-from .common import progress_bar
+from .common import parse_channel, progress_bar
 
 
 @click.command("run")
@@ -56,12 +56,7 @@ def run_cmd(ctx: click.Context, tiles: tuple[str, ...], out_dir: str, photons: s
     params = BlockParams(lengths=tuple(lengths) or (10.0, 25.0, 50.0),
                          min_signal_conf=min_signal_conf)
     quiet = bool(ctx.obj and ctx.obj.get("quiet"))
-    chan: int | str | None = channel
-    if channel is not None and channel != "most":
-        try:
-            chan = int(channel)
-        except ValueError:
-            raise click.BadParameter(f"expected a channel number or 'most'; got {channel!r}")
+    chan = parse_channel(channel)
     with progress_bar("run", quiet=quiet) as progress:
         result = run_chain(tiles, out_dir, photons=photons, beams=beams, channel=chan,
                            atl08=atl08, azimuth=azimuth, diameter=diameter, preset=preset,

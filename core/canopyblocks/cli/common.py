@@ -13,11 +13,34 @@ import click
 from ..errors import CancelledError, CanopyBlocksError, CanopyBlocksWarning
 from ..progress import Progress
 
-__all__ = ["run_main", "setup_logging", "progress_bar", "EXIT_OK", "EXIT_BAD_INPUT", "EXIT_BUG"]
+__all__ = ["parse_floats", "parse_channel", "run_main", "setup_logging", "progress_bar", "EXIT_OK", "EXIT_BAD_INPUT", "EXIT_BUG"]
 
 EXIT_OK = 0
 EXIT_BUG = 1
 EXIT_BAD_INPUT = 2
+
+
+def parse_floats(value: str | None, n: int, what: str) -> tuple[float, ...] | None:
+    """Parse ``"a,b,..."`` into ``n`` floats (None stays None); a usage error otherwise."""
+    if value is None:
+        return None
+    try:
+        parts = tuple(float(v) for v in value.split(","))
+    except ValueError:
+        parts = ()
+    if len(parts) != n:
+        raise click.BadParameter(f"expected {what}; got {value!r}")
+    return parts
+
+
+def parse_channel(value: str | None) -> int | str | None:
+    """A MABEL channel option: a number, ``"most"`` or None."""
+    if value is None or value == "most":
+        return value
+    try:
+        return int(value)
+    except ValueError:
+        raise click.BadParameter(f"expected a channel number or 'most'; got {value!r}") from None
 
 
 def setup_logging(verbose: int, quiet: bool) -> None:

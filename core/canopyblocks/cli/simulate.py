@@ -7,21 +7,10 @@ from pathlib import Path
 
 import click
 
+from .common import parse_floats as _floats
 from .common import progress_bar
 
 log = logging.getLogger(__name__)
-
-
-def _floats(value: str | None, n: int, what: str) -> tuple[float, ...] | None:
-    if value is None:
-        return None
-    try:
-        parts = tuple(float(v) for v in value.split(","))
-    except ValueError:
-        parts = ()
-    if len(parts) != n:
-        raise click.BadParameter(f"expected {what}; got {value!r}")
-    return parts
 
 
 @click.command("simulate")
