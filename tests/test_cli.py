@@ -84,8 +84,13 @@ def test_blocks_with_signal_confidence_matches_the_oracle(sample, tmp_path) -> N
 def test_blocks_on_simulated_atl03_and_mabel_files(sample, tmp_path) -> None:
     """Files the engine has not seen: photons simulated over a real airborne tile."""
     from canopyblocks.readers.las import read_las
-    from canopyblocks.simulate import (SimParams, line_through, simulate_photons,
-                                       write_simulation_atl03, write_simulation_mabel)
+    from canopyblocks.simulate import (
+        SimParams,
+        line_through,
+        simulate_photons,
+        write_simulation_atl03,
+        write_simulation_mabel,
+    )
 
     pts = read_las(sample("als/lasR_bcts_1.laz"))
     sim = simulate_photons(pts, line_through(pts.bounds, 20.0, inset=7.0),

@@ -14,9 +14,15 @@ import pytest
 
 from canopyblocks.errors import CancelledError, FileFormatError, InputError, PdalError
 from canopyblocks.progress import Progress
-from canopyblocks.reference.pdal import (PIPELINES, expand_readers, insert_after_readers,
-                                         load_pipeline, pipeline_path, run_pipeline,
-                                         tile_info)
+from canopyblocks.reference.pdal import (
+    PIPELINES,
+    expand_readers,
+    insert_after_readers,
+    load_pipeline,
+    pipeline_path,
+    run_pipeline,
+    tile_info,
+)
 
 laspy = pytest.importorskip("laspy")
 rasterio = pytest.importorskip("rasterio")

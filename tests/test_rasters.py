@@ -16,8 +16,13 @@ import numpy as np
 import pyproj
 import pytest
 
-from canopyblocks.errors import (CoverageError, CRSError, FileFormatError, InputError,
-                                 NoUsableDataError)
+from canopyblocks.errors import (
+    CoverageError,
+    CRSError,
+    FileFormatError,
+    InputError,
+    NoUsableDataError,
+)
 from canopyblocks.reference.lidar_points import cell_neighbourhoods, cell_percentile
 from canopyblocks.reference.rasters import NODATA, Grid, RasterParams, make_reference_rasters
 

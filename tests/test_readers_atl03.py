@@ -136,7 +136,7 @@ def test_readme_1516_comes_from_trusting_the_clip_ph_index_beg(sample):
     the clip's (off-by-one) ph_index_beg is trusted; the correct join has 1,610, all equal."""
     with h5py.File(sample(VEGR), "r") as f:
         g = f["gt1r/geolocation"]
-        beg, cnt, seg = g["ph_index_beg"][:], g["segment_ph_cnt"][:], g["segment_id"][:]
+        beg, seg = g["ph_index_beg"][:], g["segment_id"][:]
         t = f["gt1r/heights/delta_time"][:]
     with h5py.File(sample(VEGR08), "r") as f:
         sp = f["gt1r/signal_photons"]

@@ -8,6 +8,14 @@ from __future__ import annotations
 
 import logging
 
+from .blocks import (
+    BlockParams,
+    CalibrationResult,
+    calibrate_cutoffs,
+    compute_blocks,
+    default_cutoffs,
+)
+from .chain import ChainResult, run_chain
 from .errors import (
     CancelledError,
     CanopyBlocksError,
@@ -22,36 +30,23 @@ from .errors import (
     PdalError,
     SparseBlockWarning,
 )
-from .blocks import (
-    BlockParams,
-    CalibrationResult,
-    calibrate_cutoffs,
-    compute_blocks,
-    default_cutoffs,
-)
 from .geo import utm_crs_for
-from .outputs.h5_layouts import Atl03BeamData, MabelChannelData, write_atl03, write_mabel
 from .outputs.atomic import atomic_output
+from .outputs.h5_layouts import Atl03BeamData, MabelChannelData, write_atl03, write_mabel
 from .outputs.tables import read_blocks, read_layer, write_layers, write_table
 from .photons import PhotonTrack, along_track_distance
 from .pipeline import BlocksResult, blocks_from_file, read_tracks
 from .progress import Progress
-from .chain import ChainResult, run_chain
-from .simulate import (
-    SimParams,
-    Simulation,
-    SimTrack,
-    line_through,
-    seed002_experiment,
-    simulate_photons,
-)
-from .validation import (
-    ValidationResult,
-    block_stats,
-    compute_residuals,
-    error_stats,
-    validate_atl08,
-    validate_blocks,
+from .readers import (
+    BeamInfo,
+    atl03_beams,
+    file_info,
+    mabel_channels,
+    open_track,
+    read_atl03,
+    read_las,
+    read_mabel,
+    read_table,
 )
 from .reference import (
     Grid,
@@ -67,16 +62,21 @@ from .reference import (
     read_atl08_segments,
     run_pipeline,
 )
-from .readers import (
-    BeamInfo,
-    atl03_beams,
-    file_info,
-    mabel_channels,
-    open_track,
-    read_atl03,
-    read_las,
-    read_mabel,
-    read_table,
+from .simulate import (
+    SimParams,
+    SimTrack,
+    Simulation,
+    line_through,
+    seed002_experiment,
+    simulate_photons,
+)
+from .validation import (
+    ValidationResult,
+    block_stats,
+    compute_residuals,
+    error_stats,
+    validate_atl08,
+    validate_blocks,
 )
 
 __version__ = "0.1.0"

@@ -18,9 +18,8 @@ N_PHOTONS_GT1R = 6809  # data/README.md: photons of beam gt1r in vegr_atl03_clip
 def direct_blocks(atl03_sample: Path):
     """The core called directly with the same parameters as the QGIS runs below."""
     from canopyblocks.blocks import BlockParams, compute_blocks
-    from canopyblocks.readers import open_track
-
     from canopyblocks.errors import SparseBlockWarning
+    from canopyblocks.readers import open_track
 
     track = open_track(atl03_sample, beam="gt1r")
     with warnings.catch_warnings():

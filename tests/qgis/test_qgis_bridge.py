@@ -13,7 +13,6 @@ pytestmark = [pytest.mark.qgis]
 
 def test_missing_core_module_names_the_install_command(qgis_session):
     from qgis.core import QgsProcessingException
-
     from qgis_plugin.core_bridge import import_core, install_hint
 
     with pytest.raises(QgsProcessingException) as exc:
@@ -58,7 +57,6 @@ def test_frame_round_trip_through_a_memory_layer(qgis_session):
     import pandas as pd
     import shapely
     from qgis.core import QgsFeature, QgsGeometry, QgsVectorLayer
-
     from qgis_plugin.layers import frame_fields, frame_wkb_type, source_to_frame
 
     df = gpd.GeoDataFrame(

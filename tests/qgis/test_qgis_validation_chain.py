@@ -153,7 +153,6 @@ def test_aspect_errors_partition_the_blocks(chain, open_layer, layer_rows):
 
 def test_residual_and_aspect_styles(chain, open_layer):
     from qgis.core import QgsProcessingContext, QgsProcessingFeedback
-
     from qgis_plugin import styles
 
     layer = open_layer(chain["validate"]["OUTPUT"])

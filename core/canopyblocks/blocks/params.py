@@ -12,7 +12,7 @@ import logging
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Literal, Union
+from typing import Literal
 
 import numpy as np
 
@@ -40,7 +40,7 @@ DEFAULT_CUTOFFS: dict[float, tuple[float, float]] = {
 }
 
 #: A cut-off given by the user: one fraction for every length, or length -> fraction.
-CutoffSpec = Union[float, Mapping[float, float], tuple[tuple[float, float], ...], None]
+CutoffSpec = float | Mapping[float, float] | tuple[tuple[float, float], ...] | None
 
 
 def default_cutoffs(length: float) -> tuple[float, float]:

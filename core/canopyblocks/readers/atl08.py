@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -17,7 +18,7 @@ import numpy as np
 from ..errors import FileFormatError, InputError
 from ._h5 import H5File, open_h5
 
-__all__ = ["Atl08Photons", "read_atl08_photons", "join_atl08", "photon_keys", "BEAMS"]
+__all__ = ["Atl08Photons", "check_atl08_beams", "read_atl08_photons", "join_atl08", "photon_keys", "BEAMS"]
 
 log = logging.getLogger(__name__)
 
@@ -58,6 +59,34 @@ def photon_keys(segment_id: np.ndarray, index: np.ndarray) -> np.ndarray:
     return (np.asarray(segment_id, np.int64) << _KEY_SHIFT) | np.asarray(index, np.int64)
 
 
+def check_atl08_beams(f: H5File, group: str, wanted: Sequence[str] | None = None) -> list[str]:
+    """The beams of an open ATL08 file that hold ``gtXX/<group>``, checked against ``wanted``.
+
+    Returns ``wanted`` (or every such beam when None).
+
+    Raises
+    ------
+    FileFormatError
+        No beam has the group: not an ATL08 file.
+    InputError
+        A wanted beam lacks the group (the message lists the beams that have it).
+    """
+    have = [b for b in BEAMS if f.is_group(f"{b}/{group}")]
+    if not have:
+        raise FileFormatError(
+            f"{f.path}: not an ATL08 file (no gtXX/{group} group); pass the ATL08 granule "
+            "that matches the ATL03 file"
+        )
+    want = have if wanted is None else list(wanted)
+    bad = [b for b in want if b not in have]
+    if bad:
+        raise InputError(
+            f"{f.path}: ATL08 has no {group.replace('_', ' ')} for beam(s) {', '.join(bad)}; "
+            f"it has {', '.join(have)}"
+        )
+    return want
+
+
 def read_atl08_photons(path: str | os.PathLike[str], beam: str) -> Atl08Photons:
     """Read ``beam``'s ``signal_photons`` from an ATL08 file.
 
@@ -69,17 +98,7 @@ def read_atl08_photons(path: str | os.PathLike[str], beam: str) -> Atl08Photons:
         The beam is not in the file (the message lists the beams it has).
     """
     with open_h5(path, "ATL08") as f:
-        beams = [b for b in BEAMS if f.is_group(f"{b}/signal_photons")]
-        if not beams:
-            raise FileFormatError(
-                f"{f.path}: not an ATL08 file (no gtXX/signal_photons group); pass the ATL08 "
-                "granule that matches the ATL03 file"
-            )
-        if beam not in beams:
-            raise InputError(
-                f"{f.path}: ATL08 has no signal photons for beam {beam!r}; it has "
-                f"{', '.join(beams)}"
-            )
+        check_atl08_beams(f, "signal_photons", [beam])
         g = f"{beam}/signal_photons"
         seg = f.read(f"{g}/ph_segment_id", dtype=np.int64)
         idx = f.read(f"{g}/classed_pc_indx", dtype=np.int64)

@@ -34,20 +34,20 @@ from scipy.spatial import cKDTree
 from ..errors import CRSError, FileFormatError, InputError, NoUsableDataError
 from ..geo import WGS84
 from ..readers._h5 import open_h5
+from ..readers.atl08 import BEAMS, check_atl08_beams
 
 __all__ = ["read_atl08_segments", "atl08_reference_values", "atl08_beams", "ATL08_FILL"]
 
 log = logging.getLogger(__name__)
 
 ATL08_FILL = 3.4028235e38
-_BEAMS = ("gt1l", "gt1r", "gt2l", "gt2r", "gt3l", "gt3r")
 _RH90_COLUMN = {18: 16, 9: 7}  # number of canopy_h_metrics columns -> index of RH90
 
 
 def atl08_beams(path: str | os.PathLike[str]) -> list[str]:
     """Beams of an ATL08 file that hold ``land_segments``."""
     with open_h5(path, "ATL08") as f:
-        return [b for b in _BEAMS if f.is_group(f"{b}/land_segments")]
+        return [b for b in BEAMS if f.is_group(f"{b}/land_segments")]
 
 
 def _clean(a: np.ndarray) -> np.ndarray:
@@ -73,19 +73,9 @@ def read_atl08_segments(path: str | os.PathLike[str],
         A requested beam is not in the file.
     """
     with open_h5(path, "ATL08") as f:
-        have = [b for b in _BEAMS if f.is_group(f"{b}/land_segments")]
-        if not have:
-            raise FileFormatError(
-                f"{f.path}: not an ATL08 file (no gtXX/land_segments group); pass an ATL08 "
-                "granule"
-            )
-        want = have if beams is None else ([beams] if isinstance(beams, str) else list(beams))
-        bad = [b for b in want if b not in have]
-        if bad:
-            raise InputError(
-                f"{f.path}: ATL08 has no land segments for beam(s) {', '.join(bad)}; it has "
-                f"{', '.join(have)}"
-            )
+        want = check_atl08_beams(f, "land_segments",
+                           None if beams is None else [beams] if isinstance(beams, str)
+                           else list(beams))
         parts = []
         for b in want:
             g = f"{b}/land_segments"

@@ -29,8 +29,15 @@ import numpy as np
 import pandas as pd
 import pyproj
 
-from ..errors import CanopyBlocksWarning, CoverageError, CRSError, DatumError, FileFormatError
-from ..errors import DependencyError, InputError
+from ..errors import (
+    CanopyBlocksWarning,
+    CoverageError,
+    CRSError,
+    DatumError,
+    DependencyError,
+    FileFormatError,
+    InputError,
+)
 from ..geo import as_crs
 
 __all__ = [

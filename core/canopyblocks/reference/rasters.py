@@ -41,14 +41,29 @@ from typing import Any, Literal
 import numpy as np
 import pyproj
 
-from ..errors import (CoverageError, CRSError, DependencyError, FileFormatError, InputError,
-                      NoUsableDataError, PdalError)
+from ..errors import (
+    CoverageError,
+    CRSError,
+    DependencyError,
+    FileFormatError,
+    InputError,
+    NoUsableDataError,
+    PdalError,
+)
 from ..geo import as_crs, require_metric_crs
 from ..outputs.atomic import atomic_output
 from ..progress import Progress, as_progress
 from .lidar_points import cell_neighbourhoods, cell_percentile, read_points_csv
-from .pdal import (TileInfo, expand_readers, find_pdal, insert_after_readers, load_pipeline,
-                   run_pipeline, tile_info, write_pipeline)
+from .pdal import (
+    TileInfo,
+    expand_readers,
+    find_pdal,
+    insert_after_readers,
+    load_pipeline,
+    run_pipeline,
+    tile_info,
+    write_pipeline,
+)
 
 __all__ = ["NODATA", "Grid", "RasterParams", "ReferenceRasters", "make_reference_rasters",
            "check_tile_crs", "crs_label"]

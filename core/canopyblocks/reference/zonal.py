@@ -124,7 +124,7 @@ def open_grid(paths: Mapping[str, str | os.PathLike[str]]) -> RasterGrid:
         except rasterio.errors.RasterioIOError as exc:
             raise FileFormatError(f"{name} raster {p}: cannot read ({exc})") from None
     name0, p0, t0, w0, h0, c0 = grids[0]
-    for name, p, t, w, h, c in grids:
+    for name, p, t, _w, _h, c in grids:
         if c is None:
             raise CRSError(
                 f"{name} raster {p} has no CRS; assign one (e.g. gdal_edit.py -a_srs EPSG:...)"
