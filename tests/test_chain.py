@@ -22,7 +22,7 @@ def chain_out(sample, pdal_bin, tmp_path_factory):
     out = tmp_path_factory.mktemp("chain")
     r = subprocess.run(
         [sys.executable, "-m", "canopyblocks", "-q", "run", str(sample(TILE)), "--seed", "3",
-         "--azimuth", "15", "--length", "25", "--length", "50", "-o", str(out)],
+         "--azimuth", "15", "--length", "25", "--length", "50", "--calibrate", "-o", str(out)],
         capture_output=True, text=True, timeout=600,
         env={**__import__("os").environ, "CANOPYBLOCKS_PDAL": pdal_bin},
     )
@@ -112,3 +112,15 @@ def test_simulated_photons_keep_the_tile_datum_and_ids(chain_out) -> None:
     ok = res[res["use"].astype(bool)]
     # ground from photons within a metre or two of the DTM (seed 001: ground is robust)
     assert ok["res_ground"].abs().median() < 2.0
+
+
+def test_calibration_outputs(chain_out) -> None:
+    cal = pd.read_csv(chain_out / "calibration.csv")
+    assert list(cal["length"]) == [25.0, 50.0]
+    assert ((cal["top_cutoff"] > 0) & (cal["top_cutoff"] < 1)).all()
+    assert (cal["n_holdout"] > 3).all() and np.isfinite(cal["rmse_hmax_calibrated"]).all()
+    import pyogrio
+
+    layers = {n for n, _ in pyogrio.list_layers(chain_out / "validation.gpkg")}
+    assert {"residuals", "stats", "residuals_calibrated", "stats_calibrated"} <= layers
+    assert "Calibrated cut-offs" in (chain_out / "report.html").read_text()

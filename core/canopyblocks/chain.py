@@ -74,6 +74,7 @@ def run_chain(
     ground: str = "class2",
     geoid: str | os.PathLike[str] | None = None,
     offset: float | None = None,
+    calibrate: bool = False,
     progress: Progress | None = None,
 ) -> ChainResult:
     """Run photons -> blocks -> reference rasters -> validation -> report.
@@ -99,6 +100,10 @@ def run_chain(
         Reference raster cell size, m.
     geoid, offset
         Vertical conversion of real photon heights (ellipsoidal) to the tiles' datum.
+    calibrate : bool
+        Also fit the cut-offs to the reference (DESIGN.md 1.7; first track), recompute the
+        blocks with them and validate again: layers ``residuals_calibrated`` and
+        ``stats_calibrated``, table ``calibration.csv`` with held-out RMSEs.
     """
     from .outputs.profile_plot import plot_profile  # noqa: F401  (fails early without matplotlib)
     from .outputs.validation_plots import write_validation_plots
@@ -135,6 +140,20 @@ def run_chain(
                           dsm_p90=rasters.dsm_p90, width=width, geoid=geoid, offset=offset,
                           photon_vertical_crs=photon_vcrs, progress=prog.sub(0.75, 0.9))
     layers = {LAYER_RESIDUALS: val.residuals, LAYER_STATS: val.stats}
+    calibration = None
+    if calibrate:
+        from .pipeline import run_blocks
+        from .validation.calibration import calibrate_against_reference
+
+        prog.update(0.9, "calibrating cut-offs")
+        calibration = calibrate_against_reference(res.tracks[0], val.residuals, params)
+        blocks_c, _ = run_blocks(res.tracks, calibration.params)
+        val_c = validate_blocks(blocks_c, dtm=rasters.dtm, dsm_max=rasters.dsm_max,
+                                dsm_p90=rasters.dsm_p90, width=width, geoid=geoid,
+                                offset=offset, photon_vertical_crs=photon_vcrs)
+        layers.update({f"{LAYER_RESIDUALS}_calibrated": val_c.residuals,
+                       f"{LAYER_STATS}_calibrated": val_c.stats})
+        write_table(calibration.table, out / "calibration.csv", layer="calibration")
     if atl08 is not None:
         v8 = validate_atl08(blocks, atl08, width=width)
         layers.update({f"{LAYER_RESIDUALS}_atl08": v8.residuals, f"{LAYER_STATS}_atl08": v8.stats})
@@ -146,7 +165,8 @@ def run_chain(
     report = _report(out, tiles=tiles, photons=Path(photons), simulated=simulated,
                      params=params, width=width, resolution=resolution, blocks=blocks,
                      stats=val.stats, datum=val.datum, plots=plots, azimuth=azimuth,
-                     diameter=diameter, preset=preset, seed=seed)
+                     diameter=diameter, preset=preset, seed=seed,
+                     calibration=None if calibration is None else calibration.table)
     prog.update(1.0, "done")
     return ChainResult(out_dir=out, photons=Path(photons), blocks=out / "blocks.gpkg",
                        rasters={"dtm": rasters.dtm, "dsm_max": rasters.dsm_max,
@@ -158,7 +178,8 @@ def run_chain(
 def _report(out: Path, *, tiles: list[Path], photons: Path, simulated: bool,
             params: BlockParams, width: float, resolution: float, blocks: pd.DataFrame,
             stats: pd.DataFrame, datum: str, plots: list[Path], azimuth: float,
-            diameter: float, preset: str, seed: int) -> Path:
+            diameter: float, preset: str, seed: int,
+            calibration: pd.DataFrame | None = None) -> Path:
     source = (f"ICESat-2 photons simulated over the airborne tiles (seed paper 002 method): "
               f"track azimuth {azimuth:g} degrees, {diameter:g} m footprints, '{preset}' photon "
               f"rate, seed {seed}; written in the ATL03 layout to {photons.name} and read back."
@@ -186,5 +207,12 @@ def _report(out: Path, *, tiles: list[Path], photons: Path, simulated: bool,
             {"statistics (all blocks)": overall, "by aspect class": by_aspect},
             [p for p in plots if p.name != "profile.png"]),
     ]
+    if calibration is not None:
+        sections.append(ReportSection("Calibrated cut-offs", [
+            "The canopy-top and ground fractions fitted to the reference (seed 001 calibrated "
+            "its cut-offs this way). The RMSE columns are held out: cut-offs fitted on the even "
+            "blocks are scored on the odd blocks and vice versa. Layers residuals_calibrated "
+            "and stats_calibrated of validation.gpkg hold the validation with the cut-offs "
+            "fitted on all blocks."], {"calibration (metres)": calibration}))
     return write_report(out / "report.html", "canopyblocks: block heights and validation",
                         sections)

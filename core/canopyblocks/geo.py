@@ -20,6 +20,7 @@ __all__ = [
     "to_metric",
     "from_metric",
     "require_metric_crs",
+    "to_metric_local_affine",
 ]
 
 WGS84 = pyproj.CRS.from_epsg(4326)
@@ -46,6 +47,40 @@ def as_crs(crs: object, what: str = "CRS") -> pyproj.CRS:
         raise CRSError(f"{what} {crs!r} is not a CRS pyproj understands: {exc}") from None
 
 
+def _all_finite(a: np.ndarray) -> bool:
+    """True when every value is finite (two reductions, no temporary array)."""
+    if a.size == 0:
+        return True
+    with np.errstate(invalid="ignore"):
+        return bool(np.isfinite(a.min()) and np.isfinite(a.max()))
+
+
+def _median(a: np.ndarray) -> float:
+    """``float(np.median(a))`` of a finite 1-D array, exactly, without sorting it all.
+
+    A sample of ~16k values brackets the median; two counting passes check that both
+    middle order statistics lie in the bracket, and only the values inside it are
+    partitioned.  Falls back to ``np.median`` when the bracket misses.
+    """
+    n = a.size
+    if n < 200_000:
+        return float(np.median(a))
+    sample = np.sort(a[:: max(1, n // 16_384)])
+    m = sample.size
+    half = int(4.0 * np.sqrt(m)) + 2  # ~8 standard deviations of the sample rank
+    lo_v = sample[max(0, m // 2 - half)]
+    hi_v = sample[min(m - 1, m // 2 + half)]
+    k1, k2 = (n - 1) // 2, n // 2  # 0-based middle order statistics
+    under = a < lo_v
+    below = int(np.count_nonzero(under))
+    inside = np.compress(np.logical_xor(a <= hi_v, under, out=under), a)  # lo_v <= a <= hi_v
+    if not (below <= k1 and below + inside.size > k2):
+        return float(np.median(a))
+    part = np.partition(inside, (k1 - below, k2 - below))
+    # as np.median: the mean of the two middle values (one value when n is odd)
+    return float(np.mean(part[[k1 - below, k2 - below]])) if k1 != k2 else float(part[k1 - below])
+
+
 def utm_crs_for(lon: float | np.ndarray, lat: float | np.ndarray) -> pyproj.CRS:
     """The default metric CRS of a track: the WGS84 UTM zone of its centre.
 
@@ -55,11 +90,16 @@ def utm_crs_for(lon: float | np.ndarray, lat: float | np.ndarray) -> pyproj.CRS:
     """
     lon_a = np.asarray(lon, dtype=float)
     lat_a = np.asarray(lat, dtype=float)
-    ok = np.isfinite(lon_a) & np.isfinite(lat_a)
-    if not ok.any():
-        raise CRSError("cannot choose a UTM zone: no finite longitude/latitude")
-    lon_c = float(np.median(lon_a[ok]))
-    lat_c = float(np.median(lat_a[ok]))
+    if _all_finite(lon_a) and _all_finite(lat_a) and lon_a.shape == lat_a.shape:
+        if lon_a.size == 0:
+            raise CRSError("cannot choose a UTM zone: no finite longitude/latitude")
+        lon_c, lat_c = _median(lon_a.ravel()), _median(lat_a.ravel())
+    else:
+        ok = np.isfinite(lon_a) & np.isfinite(lat_a)
+        if not ok.any():
+            raise CRSError("cannot choose a UTM zone: no finite longitude/latitude")
+        lon_c = float(np.median(lon_a[ok]))
+        lat_c = float(np.median(lat_a[ok]))
     if lat_c > 84.0:
         return pyproj.CRS.from_epsg(3413)  # NSIDC Sea Ice Polar Stereographic North
     if lat_c < -80.0:
@@ -132,3 +172,159 @@ def from_metric(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Inverse of :func:`to_metric`: ``x``/``y`` in ``crs`` to WGS84 lon, lat (degrees)."""
     return _transform(_transformer(as_crs(crs), WGS84), x, y)
+
+
+# --------------------------------------------------------------------------- fast path
+_AFFINE_STEP_DEG = 1e-6  # forward-difference step of the local Jacobian (~0.1 m)
+_HESS_STEP_DEG = 1e-3  # step of the second-derivative estimate at the knots (~100 m)
+_KNOT_EVERY = 16  # blocks between second-derivative knots
+_AFFINE_MAX_SPAN_DEG = 0.01  # a block reaching farther from its reference is projected exactly
+_CHUNK = 1 << 14  # photons per cache-sized chunk of the per-photon arithmetic
+
+
+def _block_size(lon: np.ndarray, lat: np.ndarray, target_m: float = 24.0) -> int:
+    """Photons per affine block: a power of two spanning about ``target_m`` metres.
+
+    The density is estimated from ~1000 evenly spaced photons (equirectangular
+    distances); NaNs or a degenerate track give a block of 64.
+    """
+    n = lon.size
+    step = max(1, n // 1024)
+    lo, la = lon[::step], lat[::step]
+    dx = np.diff(lo) * np.cos(np.radians(np.clip(la[1:], -89.9, 89.9)))
+    dy = np.diff(la)
+    with np.errstate(invalid="ignore"):
+        length_m = float(np.nansum(np.hypot(dx, dy))) * 111_195.0
+    if not np.isfinite(length_m) or length_m <= 0.0:
+        return 64
+    per_m = n / length_m
+    b = 1 << max(0, int(np.floor(np.log2(max(per_m * target_m, 1.0)))))
+    return int(min(max(b, 8), 1024))
+
+
+def to_metric_local_affine(
+    lon: np.ndarray,
+    lat: np.ndarray,
+    crs: pyproj.CRS | None = None,
+    *,
+    tol_m: float = 1e-4,
+    min_photons: int = 65_536,
+    block: int | None = None,
+) -> tuple[np.ndarray, np.ndarray, pyproj.CRS]:
+    """Fast :func:`to_metric` for photons ordered along a track, exact to ``tol_m`` metres.
+
+    The photons are cut into blocks of ``block`` consecutive points (default: a power
+    of two spanning ~24 m of track).  Each block's middle point is projected with
+    pyproj, plus two points 1e-6 degrees east and north of it (a forward-difference
+    Jacobian); every photon of the block is then mapped with that local affine map in
+    numpy.  The neglected second-order term is bounded per block from the block's
+    extent in degrees and the projection's second derivatives (estimated with pyproj
+    at every 16th block, taken as the larger of the two enclosing estimates, times a
+    safety factor of 2).  Blocks whose bound exceeds ``tol_m`` -- sparse or scattered
+    photons, the antimeridian, NaN/inf coordinates, points outside the CRS's domain --
+    and the last partial block are projected exactly with pyproj, so the result
+    differs from :func:`to_metric` by less than ``tol_m`` everywhere and is identical
+    where pyproj gives non-finite values.
+
+    Parameters
+    ----------
+    lon, lat : ndarray
+        WGS84 degrees, in track order (consecutive photons close to each other).
+    crs : pyproj.CRS, optional
+        Metric target CRS; default the UTM zone of the centre (as :func:`to_metric`).
+    tol_m : float
+        Largest allowed difference from the full pyproj projection, metres.
+    min_photons : int
+        Fewer photons than this are projected exactly with pyproj (no gain below).
+    block : int, optional
+        Photons per affine block (for tests); default chosen from the density.
+
+    Returns
+    -------
+    x, y : ndarray of float64, metres
+    crs : pyproj.CRS actually used
+    """
+    lon = np.ascontiguousarray(lon, dtype=np.float64)
+    lat = np.ascontiguousarray(lat, dtype=np.float64)
+    crs = utm_crs_for(lon, lat) if crs is None else require_metric_crs(crs)
+    tr = _transformer(WGS84, crs)
+    n = lon.size
+    b = int(block) if block is not None else (_block_size(lon, lat) if n >= 2 else 1)
+    m = n // b if b >= 2 else 0
+    if n < max(min_photons, 2) or m < 2 or lon.shape != lat.shape or lon.ndim != 1:
+        x, y = _transform(tr, lon, lat)
+        return x, y, crs
+    nb = m * b
+    lon2, lat2 = lon[:nb].reshape(m, b), lat[:nb].reshape(m, b)
+    lon0 = lon2[:, b // 2].copy()
+    lat0 = lat2[:, b // 2].copy()
+    # reference points, the Jacobian's forward points, and the knots' second differences
+    kn = np.unique(np.r_[np.arange(0, m, _KNOT_EVERY), m - 1])
+    hs, hh = _AFFINE_STEP_DEG, _HESS_STEP_DEG
+    k_lon, k_lat = lon0[kn], lat0[kn]
+    qlon = np.concatenate([lon0, lon0 + hs, lon0, k_lon - hh, k_lon + hh, k_lon, k_lon,
+                           k_lon + hh])
+    qlat = np.concatenate([lat0, lat0, lat0 + hs, k_lat, k_lat, k_lat - hh, k_lat + hh,
+                           k_lat + hh])
+    with np.errstate(invalid="ignore", over="ignore"):
+        qx, qy = _transform(tr, qlon, qlat)
+        x0, x1, x2 = qx[:m], qx[m:2 * m], qx[2 * m:3 * m]
+        y0, y1, y2 = qy[:m], qy[m:2 * m], qy[2 * m:3 * m]
+        jxl, jxp = (x1 - x0) / hs, (x2 - x0) / hs
+        jyl, jyp = (y1 - y0) / hs, (y2 - y0) / hs
+        k = kn.size
+        kx = [qx[3 * m + i * k: 3 * m + (i + 1) * k] for i in range(5)]
+        ky = [qy[3 * m + i * k: 3 * m + (i + 1) * k] for i in range(5)]
+        h_ll = h_pp = h_lp = np.zeros(k)
+        for q, q0 in ((kx, x0[kn]), (ky, y0[kn])):
+            h_ll = h_ll + np.abs(q[0] - 2 * q0 + q[1]) / hh**2
+            h_pp = h_pp + np.abs(q[2] - 2 * q0 + q[3]) / hh**2
+            h_lp = h_lp + np.abs(q[4] - q[1] - q[3] + q0) / hh**2
+        # each block takes the larger estimate of its two enclosing knots
+        pos = np.clip(np.searchsorted(kn, np.arange(m), side="right") - 1, 0, k - 1)
+        nxt = np.minimum(pos + 1, k - 1)
+        c_ll = np.maximum(h_ll[pos], h_ll[nxt])
+        c_pp = np.maximum(h_pp[pos], h_pp[nxt])
+        c_lp = np.maximum(h_lp[pos], h_lp[nxt])
+        # x = x0 + jxl (lon - lon0) + jxp (lat - lat0) = ax + jxl lon + jxp lat per block
+        ax = x0 - jxl * lon0 - jxp * lat0
+        ay = y0 - jyl * lon0 - jyp * lat0
+    x = np.empty(n)
+    y = np.empty(n)
+    xv, yv = x[:nb].reshape(m, b), y[:nb].reshape(m, b)
+    lon_hi, lon_lo, lat_hi, lat_lo = (np.empty(m) for _ in range(4))
+    rows = max(1, _CHUNK // b)
+    tmp = np.empty((rows, b))
+    r0 = 0
+    with np.errstate(invalid="ignore", over="ignore"):
+        while r0 < m:  # cache-sized chunks: each photon column is read from memory once
+            r1 = min(m, r0 + rows)
+            lc, pc, xd, yd, c = lon2[r0:r1], lat2[r0:r1], xv[r0:r1], yv[r0:r1], tmp[: r1 - r0]
+            lc.max(axis=1, out=lon_hi[r0:r1])
+            lc.min(axis=1, out=lon_lo[r0:r1])
+            pc.max(axis=1, out=lat_hi[r0:r1])
+            pc.min(axis=1, out=lat_lo[r0:r1])
+            np.multiply(lc, jxl[r0:r1, None], out=xd)
+            np.multiply(pc, jxp[r0:r1, None], out=c)
+            xd += c
+            xd += ax[r0:r1, None]
+            np.multiply(lc, jyl[r0:r1, None], out=yd)
+            np.multiply(pc, jyp[r0:r1, None], out=c)
+            yd += c
+            yd += ay[r0:r1, None]
+            r0 = r1
+        dl = np.maximum(lon_hi - lon0, lon0 - lon_lo)  # NaN when the block holds a NaN
+        dp = np.maximum(lat_hi - lat0, lat0 - lat_lo)
+        bound = c_ll * dl * dl + 2.0 * c_lp * dl * dp + c_pp * dp * dp  # 2 x (1/2 H d d)
+        good = (bound <= tol_m) & (dl <= _AFFINE_MAX_SPAN_DEG) & (dp <= _AFFINE_MAX_SPAN_DEG) \
+            & np.isfinite(ax) & np.isfinite(ay) & np.isfinite(jxl) & np.isfinite(jxp) \
+            & np.isfinite(jyl) & np.isfinite(jyp)
+    bad = np.flatnonzero(~good)
+    if bad.size:
+        sel = (bad[:, None] * b + np.arange(b)).ravel()
+        xv_bad, yv_bad = _transform(tr, lon[sel], lat[sel])
+        x[sel] = xv_bad
+        y[sel] = yv_bad
+    if nb < n:
+        x[nb:], y[nb:] = _transform(tr, lon[nb:], lat[nb:])
+    return x, y, crs

@@ -8,7 +8,7 @@ from __future__ import annotations
 import click
 
 from .. import __version__
-from . import blocks, chain, reference, simulate, validate
+from . import blocks, calibrate, chain, reference, simulate, validate
 from .common import run_main
 
 
@@ -27,7 +27,7 @@ def cli(ctx: click.Context, verbose: int, quiet: bool) -> None:
     setup_logging(verbose, quiet)
 
 
-for _module in (blocks, reference, validate, simulate, chain):
+for _module in (blocks, reference, validate, calibrate, simulate, chain):
     _module.register(cli)
 
 

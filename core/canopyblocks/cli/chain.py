@@ -41,12 +41,15 @@ from .common import parse_channel, progress_bar
               help="Geoid height raster (m above the ellipsoid) for real photons.")
 @click.option("--offset", type=float, default=None,
               help="Constant h_photon - H_reference, m, for real photons.")
+@click.option("--calibrate", is_flag=True,
+              help="Also fit the cut-offs to the reference and validate again with them.")
 @click.pass_context
 def run_cmd(ctx: click.Context, tiles: tuple[str, ...], out_dir: str, photons: str | None,
             simulate: bool, beams: tuple[str, ...], channel: str | None, atl08: str | None,
             azimuth: float, diameter: float, preset: str, seed: int,
             lengths: tuple[float, ...], min_signal_conf: int | None, width: float | None,
-            resolution: float, smrf: bool, geoid: str | None, offset: float | None) -> None:
+            resolution: float, smrf: bool, geoid: str | None, offset: float | None,
+            calibrate: bool) -> None:
     """Photons + airborne TILES -> blocks, reference rasters, validation, plots, report."""
     from ..blocks import BlockParams
     from ..chain import run_chain
@@ -62,7 +65,7 @@ def run_cmd(ctx: click.Context, tiles: tuple[str, ...], out_dir: str, photons: s
                            atl08=atl08, azimuth=azimuth, diameter=diameter, preset=preset,
                            seed=seed, params=params, width=width, resolution=resolution,
                            ground="smrf" if smrf else "class2", geoid=geoid, offset=offset,
-                           progress=progress)
+                           calibrate=calibrate, progress=progress)
     if result.stats is not None and len(result.stats):
         s = result.stats[result.stats["group"] == "all"]
         for row in s.itertuples():

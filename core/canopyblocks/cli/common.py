@@ -43,6 +43,14 @@ def parse_channel(value: str | None) -> int | str | None:
         raise click.BadParameter(f"expected a channel number or 'most'; got {value!r}") from None
 
 
+class _CliFormatter(logging.Formatter):
+    """``canopyblocks: warning: message`` for warnings and errors, plain text for info."""
+
+    def format(self, record: logging.LogRecord) -> str:
+        level = f"{record.levelname.lower()}: " if record.levelno >= logging.WARNING else ""
+        return f"canopyblocks: {level}{record.getMessage()}"
+
+
 def setup_logging(verbose: int, quiet: bool) -> None:
     """Attach a stderr handler to the package logger (the library itself stays silent)."""
     level = logging.WARNING if quiet or verbose == 0 else (
@@ -51,15 +59,14 @@ def setup_logging(verbose: int, quiet: bool) -> None:
     logger.setLevel(level)
     if not any(getattr(h, "_canopyblocks_cli", False) for h in logger.handlers):
         h = logging.StreamHandler(sys.stderr)
-        h.setFormatter(logging.Formatter("canopyblocks: %(message)s"))
+        h.setFormatter(_CliFormatter())
         h._canopyblocks_cli = True  # type: ignore[attr-defined]
         logger.addHandler(h)
 
     def _show(message, category, filename, lineno, file=None, line=None):  # noqa: ANN001
         click.echo(f"canopyblocks: warning: {message}", err=True)
 
-    if not quiet:
-        warnings.showwarning = _show
+    warnings.showwarning = _show  # one line per warning, never a source excerpt
     warnings.simplefilter("default", CanopyBlocksWarning)
 
 

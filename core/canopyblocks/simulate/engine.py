@@ -19,9 +19,9 @@ from ..errors import InputError, NoUsableDataError
 from ..photons import PhotonTrack
 from ..progress import Progress, as_progress
 from ..readers.las import LasPoints
-from .footprints import CloudIndex
+from .footprints import CloudIndex, _ranges
 from .params import SimParams
-from .sampling import draw_noise, draw_signal
+from .sampling import draw_noise, pick_sources
 from .tracks import SimTrack, shots_along
 from .truth import RH_LEVELS, footprint_truth
 
@@ -43,7 +43,8 @@ PHOTON_TRUTH_COLUMNS: tuple[str, ...] = ("shot", "realisation", "noise", "src_in
                                          "src_y", "src_z", "truth_ground", "truth_top",
                                          "truth_cover", "x_true", "y_true")
 
-#: Along-track length of one chunk of shots, metres (one KD-tree query each).
+#: Along-track length of one chunk of shots, metres (one footprint query each; chunks
+#: also end at the track's vertices, so each is straight).  Results do not depend on it.
 CHUNK_LENGTH = 60.0
 
 
@@ -145,8 +146,21 @@ class Simulation:
         return gpd.GeoDataFrame(c, geometry=gpd.points_from_xy(c["x"], c["y"]), crs=self.crs)
 
 
+def _chunks(track: SimTrack, s: np.ndarray, spacing: float) -> list[tuple[int, int]]:
+    """Runs ``[a, b)`` of shots at most ``CHUNK_LENGTH`` long, each on one track segment."""
+    v = np.asarray(track.vertices, dtype=np.float64)
+    cum = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(v, axis=0).T))])
+    # first shot of each segment (a shot on a vertex starts the next segment)
+    bounds = np.unique(np.concatenate([np.searchsorted(s, cum[:-1], side="left"), [s.size]]))
+    per = max(1, int(math.ceil(CHUNK_LENGTH / spacing)))
+    out: list[tuple[int, int]] = []
+    for a0, b0 in zip(bounds[:-1], bounds[1:]):
+        out.extend((int(a), int(min(a + per, b0))) for a in range(int(a0), int(b0), per))
+    return out
+
+
 def cloud_index(points: LasPoints, params: SimParams | None = None) -> CloudIndex:
-    """KD-tree over the points the simulator uses: finite, not in ``exclude_classes``.
+    """Grid index over the points the simulator uses: finite, not in ``exclude_classes``.
 
     Build it once to run several simulations over the same cloud (``index=``).
     """
@@ -205,58 +219,67 @@ def simulate_photons(
         index = cloud_index(points, params)
     sx, sy, ss = shots_along(track, float(params.shot_spacing))  # type: ignore[arg-type]
     n = ss.size
-    rng = np.random.default_rng(seed)
+    n_real = int(realisations)
     radius, psf = params.radius, params.psf
-    mean = params.photon_mean
-    per_chunk = max(1, int(math.ceil(CHUNK_LENGTH / float(params.shot_spacing))))
+    # all random numbers up front, in shot order: the photons of a seed do not depend
+    # on the chunks below (counts at shots without points are dropped afterwards)
+    rng = np.random.default_rng(seed)
+    counts = rng.poisson(params.photon_mean, size=(n_real, n))
+    err = (rng.standard_normal((2, n_real, n)) * params.geolocation_sigma
+           if params.geolocation_sigma > 0 else None)
+    flat = counts.ravel()
+    total = int(flat.sum())
+    u_pick = rng.random(total)
+    h_err = rng.standard_normal(total) * psf
+    real = np.repeat(np.repeat(np.arange(n_real, dtype=np.int64), n), flat)
+    shot = np.repeat(np.tile(np.arange(n, dtype=np.int64), n_real), flat)
+    offset = np.zeros(flat.size + 1, np.int64)
+    np.cumsum(flat, out=offset[1:])
+    src = np.full(total, -1, np.int64)  # source point: row in the index
     truth = {c: np.full(n, np.nan) for c in TRUTH_COLUMNS}
     truth["n_points"] = np.zeros(n, np.int64)
-    parts: list[dict[str, np.ndarray]] = []
-    n_chunks = int(math.ceil(n / per_chunk))
-    for ci in range(n_chunks):
-        a, b = ci * per_chunk, min(n, (ci + 1) * per_chunk)
+    for a, b in _chunks(track, ss, float(params.shot_spacing)):  # type: ignore[arg-type]
         pairs = index.pairs(sx[a:b], sy[a:b], radius)
         t = footprint_truth(pairs, psf, params.truth, params.rh_floor)
         for c in TRUTH_COLUMNS:
             truth[c][a:b] = t[c]
-        k = b - a
-        has = pairs.counts > 0
-        counts = rng.poisson(mean, size=(realisations, k)) * has[None, :]
-        real, shot, pair, h = draw_signal(pairs, counts, psf, rng)
-        src = pairs.point[pair]  # row in the index; mapped to the cloud's ids below
-        noise = np.zeros(h.size, bool)
-        if params.noise_rate > 0:
-            below, above = params.noise_window
-            nr, ns, nh = draw_noise(t["ground"] - below, t["top"] + above, params.noise_rate,
-                                    realisations, rng)
-            real = np.concatenate([real, nr])
-            shot = np.concatenate([shot, ns])
-            h = np.concatenate([h, nh])
-            src = np.concatenate([src, np.full(nr.size, -1, np.int64)])
-            noise = np.concatenate([noise, np.ones(nr.size, bool)])
-        gshot = shot + a
-        x_true, y_true = sx[gshot], sy[gshot]
-        if params.geolocation_sigma > 0:
-            err = rng.standard_normal((2, realisations, k)) * params.geolocation_sigma
-            x_rep = x_true + err[0][real, shot]
-            y_rep = y_true + err[1][real, shot]
-        else:
-            x_rep, y_rep = x_true, y_true
-        ok = src >= 0
-        src_xa = np.full(src.size, np.nan)
-        src_ya = np.full(src.size, np.nan)
-        src_za = np.full(src.size, np.nan)
-        src_xa[ok], src_ya[ok], src_za[ok] = index.x[src[ok]], index.y[src[ok]], index.z[src[ok]]
-        src[ok] = index.ids[src[ok]]
-        parts.append({"realisation": real, "shot": gshot, "h": h, "noise": noise,
-                      "src_index": src, "src_x": src_xa, "src_y": src_ya, "src_z": src_za,
-                      "x": x_rep, "y": y_rep, "x_true": x_true, "y_true": y_true})
+        # the chunk's photons: shots a..b-1 of every realisation
+        r0 = np.arange(n_real, dtype=np.int64) * n
+        ph = _ranges(offset[r0 + a], offset[r0 + b] - offset[r0 + a])
+        pick = pick_sources(pairs, shot[ph] - a, u_pick[ph])
+        got = pick >= 0
+        src[ph[got]] = pairs.point[pick[got]]
         prog.update(b / n, f"{b:,} of {n:,} shots")
     if not np.any(truth["n_points"] > 0):
         raise NoUsableDataError(
             f"no airborne point lies within {radius} m of the track {track.vertices}: "
             "the track misses the point cloud")
-    photons = {key: np.concatenate([p[key] for p in parts]) for key in parts[0]}
+    keep = src >= 0
+    real, shot, src = real[keep], shot[keep], src[keep]
+    h = index.z[src] + h_err[keep]
+    noise = np.zeros(h.size, bool)
+    if params.noise_rate > 0:
+        below, above = params.noise_window
+        nr, ns, nh = draw_noise(truth["ground"] - below, truth["top"] + above,
+                                params.noise_rate, n_real, rng)
+        real = np.concatenate([real, nr])
+        shot = np.concatenate([shot, ns])
+        h = np.concatenate([h, nh])
+        src = np.concatenate([src, np.full(nr.size, -1, np.int64)])
+        noise = np.concatenate([noise, np.ones(nr.size, bool)])
+    x_true, y_true = sx[shot], sy[shot]
+    if err is not None:
+        x_rep, y_rep = x_true + err[0][real, shot], y_true + err[1][real, shot]
+    else:
+        x_rep, y_rep = x_true, y_true
+    ok = src >= 0
+    src_xyz = [np.full(src.size, np.nan) for _ in range(3)]
+    for arr, col in zip(src_xyz, (index.x, index.y, index.z)):
+        arr[ok] = col[src[ok]]
+    src[ok] = index.ids[src[ok]]
+    photons = {"realisation": real, "shot": shot, "h": h, "noise": noise, "src_index": src,
+               "src_x": src_xyz[0], "src_y": src_xyz[1], "src_z": src_xyz[2],
+               "x": x_rep, "y": y_rep, "x_true": x_true, "y_true": y_true}
     # order by (realisation, shot, height descending as ATL03 photons of a pulse arrive)
     order = np.lexsort((-photons["h"], photons["shot"], photons["realisation"]))
     photons = {key: v[order] for key, v in photons.items()}

@@ -2,8 +2,10 @@
 
 Each footprint's PDF is the mixture ``sum_j w_j N(z_j, PSF) / sum_j w_j``; a photon is
 drawn exactly by picking a source point with probability proportional to its weight
-(rejection sampling: uniform proposals accepted with probability ``w_j <= 1``) and adding
-a Gaussian of sigma PSF to its height (no gridding).
+(inverse CDF: one uniform number per photon, looked up in the footprint's cumulative
+weights) and adding a Gaussian of sigma PSF to its height (no gridding).  The engine
+draws all random numbers of a simulation up front, in photon order, so the photons of
+a seed do not depend on how the shots are split into chunks.
 """
 
 from __future__ import annotations
@@ -12,48 +14,34 @@ import numpy as np
 
 from .footprints import FootprintPairs
 
-__all__ = ["draw_signal", "draw_noise"]
+__all__ = ["pick_sources", "draw_noise"]
 
 
-def draw_signal(pairs: FootprintPairs, counts: np.ndarray, psf: float,
-                rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray,
-                                                    np.ndarray]:
-    """Signal photons for ``counts[r, k]`` photons of realisation ``r`` at local shot ``k``.
+def pick_sources(pairs: FootprintPairs, shot: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """Source pair of photons of local shots ``shot`` from uniforms ``u`` in [0, 1).
 
-    Shots without points must have a count of 0.
+    Pair ``j`` of a shot is picked when ``u`` falls in its share
+    ``[W_{j-1}, W_j) / W`` of the shot's cumulative weight, i.e. with probability
+    ``w_j / sum w``.
 
     Returns
     -------
-    real, shot : ndarray int64
-        Realisation and local shot of each photon, ordered by (realisation, shot).
-    pair : ndarray int64
-        Index into ``pairs`` of the source point.
-    h : ndarray float64
-        Photon height, metres: source height + N(0, psf).
+    ndarray int64
+        Index into ``pairs`` of each photon's source point; -1 for a shot without points.
     """
-    n_real, n = counts.shape
-    flat = counts.ravel()
-    total = int(flat.sum())
-    real = np.repeat(np.repeat(np.arange(n_real, dtype=np.int64), n), flat)
-    shot = np.repeat(np.tile(np.arange(n, dtype=np.int64), n_real), flat)
-    if total == 0:
-        e = np.empty(0, np.int64)
-        return e, e.copy(), e.copy(), np.empty(0)
-    # exact rejection sampling: propose a point of the footprint uniformly, accept it
-    # with probability w (all weights are <= 1; about 43 % are accepted on average).
-    # Each round is vectorised over the photons still without a point.
-    lo = pairs.indptr[shot]
-    cnt = pairs.indptr[shot + 1] - lo
-    pair = np.empty(total, np.int64)
-    todo = np.arange(total)
-    while todo.size:
-        c = cnt[todo]
-        prop = lo[todo] + np.minimum((rng.random(todo.size) * c).astype(np.int64), c - 1)
-        acc = rng.random(todo.size) < pairs.weight[prop]
-        pair[todo[acc]] = prop[acc]
-        todo = todo[~acc]
-    h = pairs.z[pair] + psf * rng.standard_normal(total)
-    return real, shot, pair, h
+    shot = np.asarray(shot, dtype=np.int64)
+    if shot.size == 0:
+        return np.empty(0, np.int64)
+    cw = pairs.cumulative_weight
+    start, end = pairs.indptr[shot], pairs.indptr[shot + 1]
+    ok = end > start
+    if cw.size == 0:
+        return np.full(shot.size, -1, np.int64)
+    before = np.where(start > 0, cw[np.maximum(start - 1, 0)], 0.0)
+    total = cw[np.maximum(end - 1, 0)] - before
+    idx = np.searchsorted(cw, before + u * total, side="right")
+    idx = np.minimum(np.maximum(idx, start), end - 1)
+    return np.where(ok, idx, -1)
 
 
 def draw_noise(lo: np.ndarray, hi: np.ndarray, rate: float, n_real: int,

@@ -7,12 +7,13 @@ Definitions (all heights in metres, in the point cloud's vertical datum):
   ``f(z) = sum_j w_j N(z; z_j, PSF) / sum_j w_j``.  It is the PDF the photons are
   drawn from.
 * **Ground**: the lowest peak of ``f``.  Peaks are found on ``f`` sampled in bins of
-  ``TruthParams.bin_size`` (0.1 m): a bin is a peak when it is higher than the bin below,
+  ``TruthParams.bin_size`` (0.1 m, on a fixed grid of multiples of the bin size, so
+  the result does not depend on which shots are processed together): a bin is a peak when it is higher than the bin below,
   not lower than the bin above, and at least ``peak_fraction`` (5 %) of the highest bin.
   The lowest such peak (refined by a parabola through three bins) is then climbed to
   the exact mode of ``f`` by Newton/mean-shift iterations on the Gaussian mixture
-  (to ~1e-6 m), so the result does not depend on the bin grid: flat ground at
-  ``z0`` gives exactly ``z0``.
+  (each footprint until its step is below 2e-4 m, leaving an error below ~1e-6 m), so
+  the result does not depend on the bin grid: flat ground at ``z0`` gives ``z0``.
 * **Top of canopy**: the highest point in the footprint (any point within R has a
   weight > 0).
 * **RH50/60/75/90/95**: weighted percentiles of ``z - ground`` over the points more than
@@ -50,12 +51,13 @@ _MEANSHIFT_ITER = 30
 
 def footprint_truth(pairs: FootprintPairs, psf: float, tp: TruthParams,
                     rh_floor: float) -> dict[str, np.ndarray]:
-    """Truth of every footprint of a chunk.
+    """Truth of every footprint of a run of shots.
 
     Parameters
     ----------
     pairs : FootprintPairs
-        Points per footprint with weights.
+        Points per footprint with weights (sorted by height within each shot here
+        unless ``pairs.height_sorted``).
     psf : float
         Point-spread sigma, metres.
     tp : TruthParams
@@ -69,53 +71,72 @@ def footprint_truth(pairs: FootprintPairs, psf: float, tp: TruthParams,
         ``ground``, ``top``, ``rh50`` ... ``rh95``, ``cover`` (0..1), ``n_points``,
         ``weight_sum``.
     """
+    pairs = pairs.sorted_by_height()
     n = pairs.n_shots
     counts = pairs.counts
     out: dict[str, np.ndarray] = {
         "ground": np.full(n, np.nan), "top": np.full(n, np.nan),
         **{f"rh{q}": np.full(n, np.nan) for q in RH_LEVELS},
         "cover": np.full(n, np.nan), "n_points": counts.astype(np.int64),
-        "weight_sum": np.bincount(pairs.shot, weights=pairs.weight, minlength=n),
+        "weight_sum": np.zeros(n),
     }
     has = counts > 0
     if not has.any():
         return out
     shot, z, w = pairs.shot, pairs.z, pairs.weight
-    # ---- top: highest point per footprint (pairs are sorted by shot)
-    starts = pairs.indptr[:-1][has]
-    out["top"][has] = np.maximum.reduceat(z, starts)
+    starts, ends = pairs.indptr[:-1][has], pairs.indptr[1:][has]
+    cw = pairs.cumulative_weight
+    out["weight_sum"][has] = np.add.reduceat(w, starts)
+    # ---- top: highest point per footprint (pairs are sorted by height in a shot)
+    out["top"][has] = z[ends - 1]
     # ---- ground: lowest peak of the broadened weighted histogram, then mean-shift
-    ground = _lowest_peak(shot, z, w, n, psf, tp)
+    ground = _lowest_peak(shot, z, w, pairs.indptr, has, psf, tp)
     ground = _mean_shift(shot, z, w, ground, psf)
     ground[~has] = np.nan
     out["ground"] = ground
-    hag = z - ground[shot]
+    hag = z - ground[shot]  # non-decreasing within each shot
     # ---- canopy cover: unweighted share of points above ground + threshold
-    above = hag > tp.cover_threshold
-    out["cover"][has] = (np.bincount(shot, weights=above.astype(np.float64), minlength=n)[has]
-                         / counts[has])
-    # ---- RH: weighted inverse-CDF percentiles of canopy heights
-    rh = _weighted_percentiles(shot, hag, w, n, rh_floor, np.asarray(RH_LEVELS) / 100.0)
-    for i, q in enumerate(RH_LEVELS):
-        col = rh[:, i]
-        col[~has] = np.nan
+    n_cover = np.add.reduceat((hag > tp.cover_threshold).view(np.int8), starts, dtype=np.int64)
+    out["cover"][has] = n_cover / counts[has]
+    # ---- RH: weighted inverse-CDF percentiles of canopy heights (the points above
+    # the floor are the last ones of each shot)
+    n_can = np.add.reduceat((hag > rh_floor).view(np.int8), starts, dtype=np.int64)
+    c0 = ends - n_can
+    cbefore = np.where(c0 > 0, cw[np.maximum(c0 - 1, 0)], 0.0)
+    ctot = cw[ends - 1] - cbefore
+    can = n_can > 0
+    for q in RH_LEVELS:
+        idx = np.searchsorted(cw, cbefore + ctot * (q / 100.0 * (1 - 1e-12)), side="left")
+        idx = np.clip(idx, c0, ends - 1)
+        col = np.full(n, np.nan)
+        col[has] = np.where(can, hag[idx], 0.0)
         out[f"rh{q}"] = col
     return out
 
 
-def _lowest_peak(shot: np.ndarray, z: np.ndarray, w: np.ndarray, n: int, psf: float,
-                 tp: TruthParams) -> np.ndarray:
+def _lowest_peak(shot: np.ndarray, z: np.ndarray, w: np.ndarray, indptr: np.ndarray,
+                 has: np.ndarray, psf: float, tp: TruthParams) -> np.ndarray:
+    """Start of the ground climb: the lowest peak of each shot's binned waveform.
+
+    Bins are ``[i b, (i + 1) b)`` for integer ``i`` (a fixed grid); each shot's
+    histogram covers its own height range plus the filter's reach.
+    """
+    n = has.size
     b = tp.bin_size
-    pad = 4.0 * psf + 2.0 * b
-    zlo = float(z.min()) - pad
-    nb = int(math.ceil((float(z.max()) + pad - zlo) / b)) + 1
+    pad = int(math.ceil((4.0 * psf + 2.0 * b) / b))
+    ab = np.floor(z / b).astype(np.int64)
+    lo = np.zeros(n, np.int64)
+    hi = np.zeros(n, np.int64)
+    lo[has] = ab[indptr[:-1][has]] - pad
+    hi[has] = ab[indptr[1:][has] - 1] + pad
+    nb = int((hi - lo).max()) + 1
     if nb > MAX_BINS:
         raise InputError(
-            f"airborne point heights span {z.max() - z.min():.0f} m inside a few footprints; "
+            f"airborne point heights span {(nb - 2 * pad) * b:.0f} m inside one footprint; "
             "the cloud holds outliers (birds, noise): drop them (ASPRS classes 7/18 are "
             "excluded by default) or crop the cloud")
-    bi = np.minimum(((z - zlo) / b).astype(np.int64), nb - 1)
-    hist = np.bincount(shot * nb + bi, weights=w, minlength=n * nb).reshape(n, nb)
+    base = np.arange(n, dtype=np.int64) * nb - lo
+    hist = np.bincount(base[shot] + ab, weights=w, minlength=n * nb).reshape(n, nb)
     wave = gaussian_filter1d(hist, psf / b, axis=1, mode="constant", truncate=4.0)
     mid = wave[:, 1:-1]
     peak = (mid > wave[:, :-2]) & (mid >= wave[:, 2:]) & (
@@ -126,7 +147,7 @@ def _lowest_peak(shot: np.ndarray, z: np.ndarray, w: np.ndarray, n: int, psf: fl
     y0, y1, y2 = wave[rows, first - 1], wave[rows, first], wave[rows, first + 1]
     den = y0 - 2.0 * y1 + y2
     off = np.where(den < 0, 0.5 * (y0 - y2) / np.where(den < 0, den, -1.0), 0.0)
-    return zlo + (first + 0.5 + np.clip(off, -0.5, 0.5)) * b
+    return (lo + first + 0.5 + np.clip(off, -0.5, 0.5)) * b
 
 
 def _mean_shift(shot: np.ndarray, z: np.ndarray, w: np.ndarray, start: np.ndarray,
@@ -135,6 +156,8 @@ def _mean_shift(shot: np.ndarray, z: np.ndarray, w: np.ndarray, start: np.ndarra
 
     Newton steps on the mixture's derivative where it is concave, mean-shift steps
     elsewhere; steps are limited to 0.5 PSF so the climb stays on the starting peak.
+    A footprint stops after a step below 2e-4 m (Newton converges quadratically: the
+    remaining error is ~(2e-4)^2 / PSF, far below a millimetre).
     """
     n = start.size
     g = start.copy()
@@ -145,45 +168,29 @@ def _mean_shift(shot: np.ndarray, z: np.ndarray, w: np.ndarray, start: np.ndarra
     inv_var = 1.0 / (psf * psf)
     limit = 0.5 * psf
     for _ in range(_MEANSHIFT_ITER):
+        if not s.size:
+            break
+        # the shots still climbing and where their pairs start (s is sorted)
+        first = np.flatnonzero(np.concatenate([[True], s[1:] != s[:-1]]))
+        live = s[first]
         d = zz - g[s]
         k = ww * np.exp(inv * d * d)
-        den = np.bincount(s, weights=k, minlength=n)
-        d1 = np.bincount(s, weights=k * d, minlength=n)
-        d2 = np.bincount(s, weights=k * d * d, minlength=n)
+        kd = k * d
+        den = np.add.reduceat(k, first)
+        d1 = np.add.reduceat(kd, first)
+        d2 = np.add.reduceat(kd * d, first)
         curv = den - d2 * inv_var
         safe_den = np.where(den > 0, den, 1.0)
         step = np.where(curv > 1e-12 * safe_den, d1 / np.where(curv > 0, curv, 1.0),
                         d1 / safe_den)
         step = np.where(den > 0, np.clip(step, -limit, limit), 0.0)
-        g = g + step
-        # Newton converges quadratically: after a step below 2e-4 m the remaining
-        # error is ~(2e-4)^2 / PSF, far below a millimetre
-        if not n or float(np.max(np.abs(step))) < 2e-4:
+        g[live] += step
+        done = np.abs(step) < 2e-4
+        if done.all():
             break
+        if done.any():
+            climbing = np.ones(n, bool)
+            climbing[live[done]] = False
+            keep = climbing[s]
+            s, zz, ww = s[keep], zz[keep], ww[keep]
     return g
-
-
-def _weighted_percentiles(shot: np.ndarray, hag: np.ndarray, w: np.ndarray, n: int,
-                          floor: float, qs: np.ndarray) -> np.ndarray:
-    """Per shot, the smallest ``hag`` whose cumulative weight share reaches each ``q``."""
-    out = np.zeros((n, qs.size))
-    sel = hag > floor
-    if not sel.any():
-        return out
-    s, h, ww = shot[sel], hag[sel], w[sel]
-    span = float(h.max()) + 1.0
-    order = np.argsort(s * span + h, kind="stable")
-    s, h, ww = s[order], h[order], ww[order]
-    tot = np.bincount(s, weights=ww, minlength=n)
-    cnt = np.bincount(s, minlength=n)
-    first = np.cumsum(cnt) - cnt
-    csum = np.cumsum(ww)
-    before = np.concatenate([[0.0], csum])[first]  # cumulative weight before each shot
-    frac = (csum - before[s]) / tot[s]
-    key = s + np.minimum(frac, 1.0)
-    present = np.flatnonzero(cnt > 0)
-    for i, q in enumerate(qs):
-        idx = np.searchsorted(key, present + q * (1 - 1e-12), side="left")
-        idx = np.minimum(idx, first[present] + cnt[present] - 1)
-        out[present, i] = h[idx]
-    return out
