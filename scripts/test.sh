@@ -10,5 +10,6 @@ bash scripts/install_pdal.sh
 bash scripts/setup_env.sh test
 echo "canopyblocks: set-up took $(( $(date +%s) - t0 )) s" >&2
 .venv/bin/ruff check --quiet core qgis_plugin tests bench scripts
+.venv/bin/mypy --no-error-summary
 export QT_QPA_PLATFORM=offscreen
 exec .venv/bin/python -m pytest "$@"

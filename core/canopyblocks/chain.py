@@ -11,6 +11,7 @@ import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import pandas as pd
 
@@ -42,13 +43,14 @@ class ChainResult:
 
 
 def _simulate(las_paths: Sequence[Path], out: Path, *, azimuth: float, diameter: float,
-              preset: str, seed: int, progress: Progress) -> tuple[Path, object]:
+              preset: str, seed: int, progress: Progress) -> tuple[Path, Any]:
     from .readers.las import read_las
-    from .simulate import SimParams, line_through, simulate_photons, write_simulation_atl03
+    from .simulate import SimParams, line_through, simulate_photons
+    from .simulate.writers import write_simulation_atl03
 
     points = read_las(list(las_paths), progress=progress.sub(0.0, 0.3))
     params = SimParams(diameter=diameter, preset=preset)  # type: ignore[arg-type]
-    track = line_through(points.bounds, azimuth, inset=float(params.diameter) / 2.0)
+    track = line_through(points.bounds, azimuth, inset=float(params.diameter or diameter) / 2.0)
     sim = simulate_photons(points, track, params, realisations=1, seed=seed,
                            progress=progress.sub(0.3, 0.9))
     path = write_simulation_atl03(sim, out / "photons_atl03.h5")
@@ -116,9 +118,9 @@ def run_chain(
     tiles = [Path(p) for p in las_paths]
     params = params or BlockParams(lengths=(10.0, 25.0, 50.0))
     simulated = photons is None
-    crs = None
+    crs: Any = None
     photon_vcrs = None
-    if simulated:
+    if photons is None:
         photons, crs = _simulate(tiles, out, azimuth=azimuth, diameter=diameter, preset=preset,
                                  seed=seed, progress=prog.sub(0.0, 0.25))
         # simulated heights are the tiles' own heights: same vertical datum by construction

@@ -12,6 +12,7 @@ import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import geopandas as gpd
 import numpy as np
@@ -76,7 +77,7 @@ def read_tracks(
     channel: int | str | None = None,
     atl08: str | os.PathLike[str] | None = None,
     bbox: tuple[float, float, float, float] | None = None,
-    crs: object = None,
+    crs: Any = None,
     min_signal_conf: int | None = None,
     progress: Progress | None = None,
 ) -> list[PhotonTrack]:

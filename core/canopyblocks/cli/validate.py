@@ -75,7 +75,8 @@ def validate(ctx: click.Context, blocks_path: str, dtm: str | None, dsm_max: str
         if atl08 is not None:
             result = validate_atl08(blocks, atl08, width=width, progress=prog)
         else:
-            result = validate_blocks(blocks, dtm=dtm, dsm_max=dsm_max, dsm_p90=dsm_p90,
+            result = validate_blocks(blocks, dtm=str(dtm), dsm_max=str(dsm_max),
+                                     dsm_p90=str(dsm_p90),
                                      width=width, geoid=geoid, offset=offset,
                                      reference_vertical_crs=reference_vcrs,
                                      photon_vertical_crs=photon_vcrs,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from ..errors import DependencyError
 from .atomic import atomic_output
@@ -16,7 +16,7 @@ __all__ = ["new_figure", "save_figure"]
 
 
 def new_figure(*, figsize: tuple[float, float] = (10.0, 4.0), nrows: int = 1, ncols: int = 1,
-               **kwargs: object) -> tuple[Figure, object]:
+               **kwargs: Any) -> tuple[Figure, Any]:
     """A new matplotlib figure and axes on the Agg backend (no display needed)."""
     try:
         from matplotlib.figure import Figure

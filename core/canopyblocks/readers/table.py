@@ -183,7 +183,7 @@ def read_table(
         t[ok], la[ok], lo[ok], hv[ok], track=name,
         s=None if s_in is None or not np.all(np.isfinite(s_in[ok])) else s_in[ok],
         crs=out_crs, source=str(p), vertical_datum=vertical_datum,
-        **{k: v[ok] for k, v in opt.items()},  # type: ignore[arg-type]
+        **{k: v[ok] for k, v in opt.items()},
     )
     keep = bbox_mask(tr.lon, tr.lat, bb) & s_mask(tr.s, sr)
     if not keep.any():

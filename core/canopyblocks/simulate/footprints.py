@@ -19,6 +19,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+try:  # scipy's C++ counting sort of COO entries into CSR (stable; optional speed-up)
+    from scipy.sparse._sparsetools import coo_tocsr as _coo_tocsr
+except ImportError:  # pragma: no cover - private scipy API moved
+    _coo_tocsr = None
+
 __all__ = ["FootprintPairs", "CloudIndex", "footprint_weights"]
 
 log = logging.getLogger(__name__)
@@ -111,6 +116,52 @@ def _ranges(starts: np.ndarray, counts: np.ndarray) -> np.ndarray:
         return np.empty(0, np.int64)
     first = np.cumsum(counts) - counts
     return np.arange(total, dtype=np.int64) + np.repeat(starts - first, counts)
+
+
+def _sorted_index(edges: np.ndarray, t: np.ndarray, right: bool) -> np.ndarray:
+    """``np.searchsorted(edges, t, side)`` for nearly evenly spaced sorted ``edges``.
+
+    An arithmetic guess corrected by exact comparisons (identical result; cheaper than
+    a binary search per value).
+    """
+    k = edges.size
+    step = (float(edges[-1]) - float(edges[0])) / (k - 1) if k > 1 else 0.0
+    if not step > 0:
+        return np.searchsorted(edges, t, side="right" if right else "left")
+    i = np.clip(np.ceil((t - float(edges[0])) / step), 0, k).astype(np.int64)
+    for _ in range(4):
+        # move left while edges[i-1] >= t (> for right), right while edges[i] < t (<=)
+        prev = edges[np.maximum(i - 1, 0)]
+        cur = edges[np.minimum(i, k - 1)]
+        if right:
+            left = (i > 0) & (prev > t)
+            rgt = (i < k) & (cur <= t)
+        else:
+            left = (i > 0) & (prev >= t)
+            rgt = (i < k) & (cur < t)
+        if not (left.any() or rgt.any()):
+            return i
+        i = i - left + rgt
+    return np.searchsorted(edges, t, side="right" if right else "left")
+
+
+def _by_shot(k: int, m: int, shot: np.ndarray, pt: np.ndarray,
+             w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Stable counting sort of pairs by shot: (indptr int64, point, weight)."""
+    total = shot.size
+    if _coo_tocsr is not None and total < 2**31 - 1 and m < 2**31 - 1:
+        bp = np.empty(k + 1, np.int32)
+        bj = np.empty(total, np.int32)
+        bx = np.empty(total, np.float64)
+        try:
+            _coo_tocsr(k, m, total, shot, pt, w, bp, bj, bx)
+            return bp.astype(np.int64), bj, bx
+        except (TypeError, ValueError):  # pragma: no cover - a changed private API
+            pass
+    perm = np.argsort(shot.astype(np.uint16) if k <= 65536 else shot, kind="stable")
+    indptr = np.zeros(k + 1, np.int64)
+    np.cumsum(np.bincount(shot, minlength=k), out=indptr[1:])
+    return indptr, pt[perm], w[perm]
 
 
 class CloudIndex:
@@ -217,32 +268,36 @@ class CloudIndex:
         px, py = self._gx[pos] - ax, self._gy[pos] - ay
         u = px * ux + py * uy
         v = py * ux - px * uy
-        v2 = v * v
-        c2 = radius * radius - v2
+        c2 = radius * radius - v * v
         keep = (c2 >= 0) & (u >= u_shot[0] - radius) & (u <= u_shot[-1] + radius)
-        pos, u, v2, c2 = pos[keep], u[keep], v2[keep], c2[keep]
-        order = np.argsort(self._grank[pos])  # by (height, cloud order)
-        pos, u, v2 = pos[order], u[order], v2[order]
-        c = np.sqrt(c2[order])
+        pos, u, c2 = pos[keep], u[keep], c2[keep]
+        m = pos.size
+        if m == 0:
+            return _empty_pairs(k)
+        # candidates by (height, cloud order): one sort of packed integer keys
+        bits = int(m).bit_length()
+        order = np.sort((self._grank[pos] << bits) | np.arange(m, dtype=np.int64))
+        order &= (1 << bits) - 1
+        pos, u, c2 = pos[order], u[order], c2[order]
+        c = np.sqrt(c2)
         # shot k holds the point when |u_k - u| <= sqrt(R^2 - v^2)
-        lo = np.searchsorted(u_shot, u - c, side="left")
-        cnt = np.searchsorted(u_shot, u + c, side="right") - lo
+        lo = _sorted_index(u_shot, u - c, right=False)
+        cnt = _sorted_index(u_shot, u + c, right=True) - lo
         total = int(cnt.sum())
         if total == 0:
             return _empty_pairs(k)
-        pt = np.repeat(np.arange(pos.size, dtype=np.int64), cnt)
-        shot = np.arange(total, dtype=np.int64) - np.repeat(np.cumsum(cnt) - cnt - lo, cnt)
-        # stable sort by shot keeps the height order within each shot (radix sort)
-        perm = np.argsort(shot.astype(np.uint16) if k <= 65536 else shot, kind="stable")
-        pt = pt[perm]
-        per_shot = np.bincount(shot, minlength=k)
-        indptr = np.zeros(k + 1, np.int64)
-        np.cumsum(per_shot, out=indptr[1:])
-        shot = np.repeat(np.arange(k, dtype=np.int64), per_shot)
-        du = u[pt] - u_shot[shot]
-        r2 = du * du + v2[pt]
-        return FootprintPairs(k, shot, self._grow[pos][pt], self._gz[pos][pt],
-                              footprint_weights(r2, radius), indptr, True)
+        # pairs point by point (heights ascending), each point's run of shots
+        pt = np.repeat(np.arange(m, dtype=np.int32), cnt)
+        shot = np.arange(total, dtype=np.int32)
+        shot -= np.repeat((np.cumsum(cnt) - cnt - lo).astype(np.int32), cnt)
+        du = u_shot[shot] - np.repeat(u, cnt)
+        du *= du
+        du += np.repeat(radius * radius - c2, cnt)  # r^2 = du^2 + v^2
+        w = footprint_weights(du, radius)
+        # to shot order, keeping the height order within each shot (a counting sort)
+        indptr, pt, w = _by_shot(k, m, shot, pt, w)
+        shot = np.repeat(np.arange(k, dtype=np.int64), np.diff(indptr))
+        return FootprintPairs(k, shot, self._grow[pos][pt], self._gz[pos][pt], w, indptr, True)
 
     def _pairs_general(self, lx: np.ndarray, ly: np.ndarray, radius: float) -> FootprintPairs:
         k = lx.size
