@@ -9,6 +9,7 @@ from qgis.PyQt.QtGui import QIcon
 
 from .algorithms.aspecterrors import AspectErrorsAlgorithm
 from .algorithms.blockheights import BlockHeightsAlgorithm
+from .algorithms.calibrate import CalibrateAlgorithm
 from .algorithms.corridor import CorridorAlgorithm
 from .algorithms.referencerasters import ReferenceRastersAlgorithm
 from .algorithms.simulate import SimulateAlgorithm
@@ -25,6 +26,7 @@ ALGORITHMS = (
     ReferenceRastersAlgorithm,
     ValidateAlgorithm,
     AspectErrorsAlgorithm,
+    CalibrateAlgorithm,
     SimulateAlgorithm,
 )
 

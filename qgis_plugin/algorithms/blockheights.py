@@ -174,16 +174,11 @@ class BlockHeightsAlgorithm(CanopyBlocksAlgorithm):
         results[self.OUTPUT] = dest
         style_on_load(context, dest, "height", "hmax")
         if want_photons and labels is not None:
-            photons = track.to_geodataframe()
-            first = None
-            for length, lab in labels.items():
-                col = f"label_{float(length):g}".replace(".", "_")
-                photons[col] = lab
-                first = first or col
+            pipeline = import_core("canopyblocks.pipeline")
+            photons = pipeline.photon_layer([track], {track.track: labels})
             pdest = write_frame(self, parameters, self.PHOTONS, context, photons, feedback)
             results[self.PHOTONS] = pdest
-            if first:
-                style_on_load(context, pdest, "label", first)
+            style_on_load(context, pdest, "label", f"label_{min(labels):g}m")
         progress.update(0.95, "written")
         if profile:
             plots = import_core("canopyblocks.outputs.profile_plot")

@@ -35,7 +35,7 @@ def test_zip_holds_plugin_folder_and_metadata(build_plugin, tmp_path):
               "styles.py", "icons/canopyblocks.svg", "algorithms/blockheights.py",
               "algorithms/corridor.py", "algorithms/referencerasters.py",
               "algorithms/validate.py", "algorithms/aspecterrors.py",
-              "algorithms/simulate.py"):
+              "algorithms/simulate.py", "algorithms/calibrate.py"):
         assert f"canopyblocks_qgis/{f}" in names
     assert not any("__pycache__" in n or n.endswith(".pyc") for n in names)
     cp = configparser.ConfigParser(interpolation=None)

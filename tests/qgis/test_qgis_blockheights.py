@@ -80,9 +80,9 @@ def test_blockheights_matches_core_and_photon_count(run_alg, open_layer, layer_r
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     ph = open_layer(photons)
     assert ph.featureCount() == N_PHOTONS_GT1R
-    lab_idx = ph.fields().indexOf("label_25")
-    assert lab_idx >= 0 and ph.fields().indexOf("label_10") >= 0
-    n_noise = sum(1 for f in ph.getFeatures() if f.attributes()[lab_idx] == 0)
+    lab_idx = ph.fields().indexOf("label_25m")
+    assert lab_idx >= 0 and ph.fields().indexOf("label_10m") >= 0
+    n_noise = sum(1 for f in ph.getFeatures() if f.attributes()[lab_idx] == "noise")
     removed = sum(r["n_photons"] - r["n_kept"] for r in rows if r["length"] == 25.0)
     assert n_noise == removed
 

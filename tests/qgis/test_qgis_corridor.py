@@ -107,7 +107,8 @@ def test_built_zip_in_clean_profile_lists_algorithms(qgis_profile):
     listing = json.loads(r.stdout)
     prov = listing["providers"]["canopyblocks"]
     ids = set(prov["algorithms"])
-    for alg in ("blockheights", "corridor", "referencerasters", "validate", "aspecterrors"):
+    for alg in ("blockheights", "corridor", "referencerasters", "validate", "aspecterrors",
+                "calibrate", "simulate"):
         assert f"canopyblocks:{alg}" in ids
 
 

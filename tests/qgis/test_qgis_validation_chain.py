@@ -45,6 +45,10 @@ def chain(qgis_session, sample, pdal_bin, tmp_path_factory) -> dict[str, Any]:
         "INPUT": str(tmp / "blocks.gpkg"), "DTM": r["DTM"], "DSM_MAX": r["DSM_MAX"],
         "DSM_P90": r["DSM_P90"], "WIDTH": 13.0, "OFFSET": 0.0,
         "OUTPUT": str(tmp / "residuals.gpkg"), "STATS": str(tmp / "stats.csv")})
+    out["calibrate"] = run("canopyblocks:calibrate", {
+        "INPUT": str(tmp / "sim.h5"), "TRACK": "gt1r", "LENGTHS": "25", "DTM": r["DTM"],
+        "DSM_MAX": r["DSM_MAX"], "DSM_P90": r["DSM_P90"], "WIDTH": 13.0, "OFFSET": 0.0,
+        "OUTPUT": str(tmp / "calibration.csv")})
     out["aspect"] = run("canopyblocks:aspecterrors", {
         "INPUT": str(tmp / "residuals.gpkg"), "GROUP_BY": 0,
         "OUTPUT": str(tmp / "aspect_stats.csv")})
@@ -171,3 +175,23 @@ def test_residual_and_aspect_styles(chain, open_layer):
     cats = layer.renderer().categories()
     assert {c.value() for c in cats} == set(styles.ASPECT_COLOURS)
     assert layer.renderer().classAttribute() == "aspect_class"
+
+
+def test_calibrate_matches_core(chain):
+    import pandas as pd
+
+    from canopyblocks import BlockParams
+    from canopyblocks.validation.calibration import calibrate_reference_rasters
+
+    r = chain["rasters"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        core = calibrate_reference_rasters(
+            str(chain["tmp"] / "sim.h5"), BlockParams(lengths=(25.0,)), dtm=r["DTM"],
+            dsm_max=r["DSM_MAX"], dsm_p90=r["DSM_P90"], width=13.0, beam="gt1r", offset=0.0)
+    got = pd.read_csv(chain["calibrate"]["OUTPUT"])
+    assert len(got) == 1
+    for col in ("top_cutoff", "ground_cutoff", "rmse_hmax_default", "rmse_hmax_calibrated"):
+        assert got[col].iloc[0] == pytest.approx(core.table[col].iloc[0], rel=1e-9)
+    # held out: default vs calibrated scored on the same blocks
+    assert got["n_holdout"].iloc[0] > 0

@@ -45,7 +45,7 @@ PHOTON_TRUTH_COLUMNS: tuple[str, ...] = ("shot", "realisation", "noise", "src_in
 
 #: Along-track length of one chunk of shots, metres (one footprint query each; chunks
 #: also end at the track's vertices, so each is straight).  Results do not depend on it.
-CHUNK_LENGTH = 60.0
+CHUNK_LENGTH = 45.0
 
 
 @dataclass(eq=False)

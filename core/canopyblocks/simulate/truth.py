@@ -35,7 +35,7 @@ import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
 from ..errors import InputError
-from .footprints import FootprintPairs
+from .footprints import FootprintPairs, _ranges
 from .params import TruthParams
 
 __all__ = ["RH_LEVELS", "footprint_truth", "MAX_BINS"]
@@ -84,34 +84,72 @@ def footprint_truth(pairs: FootprintPairs, psf: float, tp: TruthParams,
     if not has.any():
         return out
     shot, z, w = pairs.shot, pairs.z, pairs.weight
+    ids = np.flatnonzero(has)
     starts, ends = pairs.indptr[:-1][has], pairs.indptr[1:][has]
-    cw = pairs.cumulative_weight
+    find = _HeightSearch(z, shot, n, ids, starts, ends)
     out["weight_sum"][has] = np.add.reduceat(w, starts)
     # ---- top: highest point per footprint (pairs are sorted by height in a shot)
     out["top"][has] = z[ends - 1]
     # ---- ground: lowest peak of the broadened weighted histogram, then mean-shift
     ground = _lowest_peak(shot, z, w, pairs.indptr, has, psf, tp)
-    ground = _mean_shift(shot, z, w, ground, psf)
+    g = _mean_shift(find, z, w, ground[has], psf)
     ground[~has] = np.nan
+    ground[has] = g
     out["ground"] = ground
-    hag = z - ground[shot]  # non-decreasing within each shot
+    # heights above ground z - ground increase within each shot: the points above a
+    # threshold are the last ones of each shot
     # ---- canopy cover: unweighted share of points above ground + threshold
-    n_cover = np.add.reduceat((hag > tp.cover_threshold).view(np.int8), starts, dtype=np.int64)
-    out["cover"][has] = n_cover / counts[has]
-    # ---- RH: weighted inverse-CDF percentiles of canopy heights (the points above
-    # the floor are the last ones of each shot)
-    n_can = np.add.reduceat((hag > rh_floor).view(np.int8), starts, dtype=np.int64)
-    c0 = ends - n_can
+    out["cover"][has] = (ends - find.first(g, tp.cover_threshold, True)) / counts[has]
+    # ---- RH: weighted inverse-CDF percentiles of canopy heights
+    c0 = find.first(g, rh_floor, True)
+    cw = pairs.cumulative_weight
     cbefore = np.where(c0 > 0, cw[np.maximum(c0 - 1, 0)], 0.0)
     ctot = cw[ends - 1] - cbefore
-    can = n_can > 0
+    can = c0 < ends
     for q in RH_LEVELS:
         idx = np.searchsorted(cw, cbefore + ctot * (q / 100.0 * (1 - 1e-12)), side="left")
         idx = np.clip(idx, c0, ends - 1)
         col = np.full(n, np.nan)
-        col[has] = np.where(can, hag[idx], 0.0)
+        col[has] = np.where(can, z[idx] - g, 0.0)
         out[f"rh{q}"] = col
     return out
+
+
+class _HeightSearch:
+    """Exact per-shot searches in pairs sorted by (shot, height).
+
+    ``first(g, t, strict)`` is, for each shot with points, the first pair with
+    ``z - g > t`` (``>=`` when not strict), or the shot's end: a binary search on a
+    key increasing over all pairs, then corrected by the exact comparison.
+    """
+
+    def __init__(self, z: np.ndarray, shot: np.ndarray, n: int, ids: np.ndarray,
+                 starts: np.ndarray, ends: np.ndarray) -> None:
+        zlo = float(z.min())
+        span = 2.0 * (float(z.max()) - zlo) + 2.0
+        base = np.arange(n, dtype=np.float64) * span - zlo
+        self.key = z + base[shot]  # increasing: shot, then height
+        self.base = base[ids]
+        self.z, self.ids, self.starts, self.ends = z, ids, starts, ends
+
+    def first(self, g: np.ndarray, t: float, strict: bool) -> np.ndarray:
+        z, starts, ends = self.z, self.starts, self.ends
+        i = np.searchsorted(self.key, (g + t) + self.base, side="right" if strict else "left")
+        i = np.minimum(np.maximum(i, starts), ends)
+        last = z.size - 1
+        for _ in range(64):
+            prev = z[np.maximum(i - 1, 0)] - g
+            cur = z[np.minimum(i, last)] - g
+            if strict:
+                left = (i > starts) & (prev > t)
+                right = (i < ends) & ~(cur > t)
+            else:
+                left = (i > starts) & (prev >= t)
+                right = (i < ends) & ~(cur >= t)
+            if not (left.any() or right.any()):
+                return i
+            i = i - left + right
+        raise AssertionError("height search did not converge")  # pragma: no cover
 
 
 def _lowest_peak(shot: np.ndarray, z: np.ndarray, w: np.ndarray, indptr: np.ndarray,
@@ -150,30 +188,35 @@ def _lowest_peak(shot: np.ndarray, z: np.ndarray, w: np.ndarray, indptr: np.ndar
     return (lo + first + 0.5 + np.clip(off, -0.5, 0.5)) * b
 
 
-def _mean_shift(shot: np.ndarray, z: np.ndarray, w: np.ndarray, start: np.ndarray,
+def _mean_shift(find: _HeightSearch, z: np.ndarray, w: np.ndarray, start: np.ndarray,
                 psf: float) -> np.ndarray:
     """Climb from ``start`` to the nearest mode of each footprint's Gaussian mixture.
 
-    Newton steps on the mixture's derivative where it is concave, mean-shift steps
-    elsewhere; steps are limited to 0.5 PSF so the climb stays on the starting peak.
-    A footprint stops after a step below 2e-4 m (Newton converges quadratically: the
-    remaining error is ~(2e-4)^2 / PSF, far below a millimetre).
+    ``start`` holds one value per shot with points (``find.ids``).  Newton steps on
+    the mixture's derivative where it is concave, mean-shift steps elsewhere; steps are
+    limited to 0.5 PSF so the climb stays on the starting peak.  The mixture is summed
+    over the points with ``|z - start| <= 5 PSF``.  A footprint stops after a step below
+    2e-4 m (Newton converges quadratically: the remaining error is ~(2e-4)^2 / PSF, far
+    below a millimetre).
     """
-    n = start.size
+    m = start.size
     g = start.copy()
     reach = 5.0 * psf
-    near = np.abs(z - g[shot]) <= reach
-    s, zz, ww = shot[near], z[near], w[near]
+    lo = find.first(g, -reach, False)
+    cnt = find.first(g, reach, True) - lo
+    live = np.flatnonzero(cnt > 0)  # shots still climbing (index into start)
+    lo, cnt = lo[live], cnt[live]
+    sel = _ranges(lo, cnt)
+    zz, ww = z[sel], w[sel]
+    s = np.repeat(np.arange(live.size), cnt)
     inv = -0.5 / (psf * psf)
     inv_var = 1.0 / (psf * psf)
     limit = 0.5 * psf
     for _ in range(_MEANSHIFT_ITER):
-        if not s.size:
+        if not live.size:
             break
-        # the shots still climbing and where their pairs start (s is sorted)
-        first = np.flatnonzero(np.concatenate([[True], s[1:] != s[:-1]]))
-        live = s[first]
-        d = zz - g[s]
+        first = np.cumsum(cnt) - cnt
+        d = zz - g[live][s]
         k = ww * np.exp(inv * d * d)
         kd = k * d
         den = np.add.reduceat(k, first)
@@ -189,8 +232,8 @@ def _mean_shift(shot: np.ndarray, z: np.ndarray, w: np.ndarray, start: np.ndarra
         if done.all():
             break
         if done.any():
-            climbing = np.ones(n, bool)
-            climbing[live[done]] = False
-            keep = climbing[s]
-            s, zz, ww = s[keep], zz[keep], ww[keep]
+            keep = ~done[s]
+            zz, ww = zz[keep], ww[keep]
+            live, cnt = live[~done], cnt[~done]
+            s = np.repeat(np.arange(live.size), cnt)
     return g
