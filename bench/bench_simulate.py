@@ -3,7 +3,7 @@
 Tile: /work/shared/data/als/lasR_bcts_1.laz (532k points, 11-14 pts/m2, EPSG:3005).
 13 m footprints every 0.7 m (~1,430 shots per km), temperate preset, one realisation,
 one core (BLAS/OpenMP threads pinned to 1).  Tracks at 18 azimuths through the tile
-(about 4 km in total) are simulated with a KD-tree built once; the time covers footprint
+(about 4 km in total) are simulated with a point index built once; the time covers footprint
 search, truth and photon draws.  Also reported: 100 realisations at once.
 ``km_per_s`` uses the process CPU time (best of 3), so a busy shared machine does not
 distort it; the wall time is printed too.
@@ -64,7 +64,7 @@ def main() -> None:
         n_ph += simulate_photons(pts, tr, params, realisations=100, seed=i,
                                  index=index).photons["h"].size
     t100 = time.perf_counter() - t0
-    print(f"tile: {path.name}, {len(pts):,} points; read {t_read:.2f} s, KD-tree {t_tree:.2f} s")
+    print(f"tile: {path.name}, {len(pts):,} points; read {t_read:.2f} s, index {t_tree:.2f} s")
     print(f"track: {len(tracks)} lines, {km:.2f} km, {shots:,} shots of 13 m")
     print(f"1 realisation: {best:.3f} s CPU, {best_wall:.3f} s wall "
           f"({shots / best:,.0f} shots per CPU second)")

@@ -22,7 +22,8 @@ def chain_out(sample, pdal_bin, tmp_path_factory):
     out = tmp_path_factory.mktemp("chain")
     r = subprocess.run(
         [sys.executable, "-m", "canopyblocks", "-q", "run", str(sample(TILE)), "--seed", "3",
-         "--azimuth", "15", "--length", "25", "--length", "50", "--calibrate", "-o", str(out)],
+         "--azimuth", "15", "--length", "25", "--length", "50", "--calibrate",
+         "--realisations", "20", "-o", str(out)],
         capture_output=True, text=True, timeout=600,
         env={**__import__("os").environ, "CANOPYBLOCKS_PDAL": pdal_bin},
     )
@@ -33,7 +34,8 @@ def chain_out(sample, pdal_bin, tmp_path_factory):
 def test_chain_writes_every_output(chain_out) -> None:
     for name in ("photons_atl03.h5", "blocks.gpkg", "validation.gpkg", "stats.csv",
                  "report.html", "rasters/dtm.tif", "rasters/dsm_max.tif", "rasters/dsm_p90.tif",
-                 "plots/profile.png", "plots/validation_25m.png", "plots/aspect_rmse_50m.png"):
+                 "plots/profile.png", "plots/validation_25m.png", "plots/aspect_rmse_50m.png",
+                 "seed002_table.csv", "plots/seed002_residuals_by_cover.png"):
         assert (chain_out / name).stat().st_size > 0, name
     html = (chain_out / "report.html").read_text()
     images = re.findall(r"<img src='([^']+)'", html)
@@ -124,3 +126,14 @@ def test_calibration_outputs(chain_out) -> None:
     layers = {n for n, _ in pyogrio.list_layers(chain_out / "validation.gpkg")}
     assert {"residuals", "stats", "residuals_calibrated", "stats_calibrated"} <= layers
     assert "Calibrated cut-offs" in (chain_out / "report.html").read_text()
+
+
+def test_seed002_analysis_of_the_simulation(chain_out) -> None:
+    """Seed 002's photon classification against footprint truth, 13 and 17 m footprints."""
+    t = pd.read_csv(chain_out / "seed002_table.csv")
+    assert sorted(t["diameter"]) == [13.0, 17.0]
+    assert (t["realisations"] == 20).all()
+    # the ground rule (min of 20 photons + 3 PSF) is unbiased within decimetres over a real
+    # forest floor; the canopy-top rule (max of 20 - 1 m) lands metres below the highest return
+    assert (t["ground_bias"].abs() < 0.5).all() and (t["ground_rms"] < 1.5).all()
+    assert (t["top_bias"] < -1.0).all()

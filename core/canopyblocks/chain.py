@@ -43,19 +43,32 @@ class ChainResult:
 
 
 def _simulate(las_paths: Sequence[Path], out: Path, *, azimuth: float, diameter: float,
-              preset: str, seed: int, progress: Progress) -> tuple[Path, Any]:
+              preset: str, seed: int, realisations: int, progress: Progress
+              ) -> tuple[Path, Any, pd.DataFrame | None, Path | None]:
+    """Simulate one beam over the tiles; with ``realisations`` > 0 also the seed-002
+    experiment (13 and 17 m footprints) with its table and figure."""
     from .readers.las import read_las
-    from .simulate import SimParams, line_through, simulate_photons
+    from .simulate import SimParams, line_through, seed002_experiment, simulate_photons
+    from .simulate.plots import plot_cover_residuals
     from .simulate.writers import write_simulation_atl03
 
-    points = read_las(list(las_paths), progress=progress.sub(0.0, 0.3))
+    points = read_las(list(las_paths), progress=progress.sub(0.0, 0.2))
     params = SimParams(diameter=diameter, preset=preset)  # type: ignore[arg-type]
-    track = line_through(points.bounds, azimuth, inset=float(params.diameter or diameter) / 2.0)
+    track = line_through(points.bounds, azimuth, inset=max(diameter, 17.0) / 2.0)
     sim = simulate_photons(points, track, params, realisations=1, seed=seed,
-                           progress=progress.sub(0.3, 0.9))
+                           progress=progress.sub(0.2, 0.4))
     path = write_simulation_atl03(sim, out / "photons_atl03.h5")
+    table, figure = None, None
+    if realisations > 0:
+        diams = tuple(sorted({float(diameter), 13.0, 17.0}))
+        exp = seed002_experiment(points, track, params, diameters=diams,
+                                 realisations=realisations, seed=seed, keep_simulations=False,
+                                 progress=progress.sub(0.4, 1.0))
+        table = exp.table
+        write_table(table, out / "seed002_table.csv", layer="seed002")
+        figure = plot_cover_residuals(exp, out / "plots" / "seed002_residuals_by_cover.png")
     progress.update(1.0, "photons simulated")
-    return path, points.crs
+    return path, points.crs, table, figure
 
 
 def run_chain(
@@ -77,6 +90,7 @@ def run_chain(
     geoid: str | os.PathLike[str] | None = None,
     offset: float | None = None,
     calibrate: bool = False,
+    realisations: int = 100,
     progress: Progress | None = None,
 ) -> ChainResult:
     """Run photons -> blocks -> reference rasters -> validation -> report.
@@ -102,6 +116,10 @@ def run_chain(
         Reference raster cell size, m.
     geoid, offset
         Vertical conversion of real photon heights (ellipsoidal) to the tiles' datum.
+    realisations : int
+        Simulated runs only: photon draws per footprint diameter (13 and 17 m) for the
+        seed 002 analysis of the photon classification against truth
+        (``seed002_table.csv``, ``plots/seed002_residuals_by_cover.png``); 0 skips it.
     calibrate : bool
         Also fit the cut-offs to the reference (DESIGN.md 1.7; first track), recompute the
         blocks with them and validate again: layers ``residuals_calibrated`` and
@@ -120,9 +138,12 @@ def run_chain(
     simulated = photons is None
     crs: Any = None
     photon_vcrs = None
+    seed002: pd.DataFrame | None = None
+    seed002_png: Path | None = None
     if photons is None:
-        photons, crs = _simulate(tiles, out, azimuth=azimuth, diameter=diameter, preset=preset,
-                                 seed=seed, progress=prog.sub(0.0, 0.25))
+        photons, crs, seed002, seed002_png = _simulate(
+            tiles, out, azimuth=azimuth, diameter=diameter, preset=preset, seed=seed,
+            realisations=realisations, progress=prog.sub(0.0, 0.25))
         # simulated heights are the tiles' own heights: same vertical datum by construction
         offset, geoid, photon_vcrs = 0.0, None, crs
         width = diameter if width is None else width
@@ -168,7 +189,8 @@ def run_chain(
                      params=params, width=width, resolution=resolution, blocks=blocks,
                      stats=val.stats, datum=val.datum, plots=plots, azimuth=azimuth,
                      diameter=diameter, preset=preset, seed=seed,
-                     calibration=None if calibration is None else calibration.table)
+                     calibration=None if calibration is None else calibration.table,
+                     seed002=seed002, seed002_png=seed002_png)
     prog.update(1.0, "done")
     return ChainResult(out_dir=out, photons=Path(photons), blocks=out / "blocks.gpkg",
                        rasters={"dtm": rasters.dtm, "dsm_max": rasters.dsm_max,
@@ -181,7 +203,8 @@ def _report(out: Path, *, tiles: list[Path], photons: Path, simulated: bool,
             params: BlockParams, width: float, resolution: float, blocks: pd.DataFrame,
             stats: pd.DataFrame, datum: str, plots: list[Path], azimuth: float,
             diameter: float, preset: str, seed: int,
-            calibration: pd.DataFrame | None = None) -> Path:
+            calibration: pd.DataFrame | None = None, seed002: pd.DataFrame | None = None,
+            seed002_png: Path | None = None) -> Path:
     source = (f"ICESat-2 photons simulated over the airborne tiles (seed paper 002 method): "
               f"track azimuth {azimuth:g} degrees, {diameter:g} m footprints, '{preset}' photon "
               f"rate, seed {seed}; written in the ATL03 layout to {photons.name} and read back."
@@ -209,6 +232,15 @@ def _report(out: Path, *, tiles: list[Path], photons: Path, simulated: bool,
             {"statistics (all blocks)": overall, "by aspect class": by_aspect},
             [p for p in plots if p.name != "profile.png"]),
     ]
+    if seed002 is not None:
+        sections.append(ReportSection("Simulated photons against truth (seed 002)", [
+            "Each simulated footprint keeps its truth (ground = the lowest peak of the "
+            "pseudo-waveform, top = the highest return). The photons are classified as in seed "
+            "002 (steps of 20 photons: ground below min + 3 PSF, canopy top above max - 1 m) and "
+            "compared with the truth, over many realisations per footprint diameter. "
+            "Residual = photon minus truth, metres."],
+            {"residuals per footprint diameter": seed002},
+            [seed002_png] if seed002_png is not None else []))
     if calibration is not None:
         sections.append(ReportSection("Calibrated cut-offs", [
             "The canopy-top and ground fractions fitted to the reference (seed 001 calibrated "

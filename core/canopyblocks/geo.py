@@ -47,14 +47,6 @@ def as_crs(crs: object, what: str = "CRS") -> pyproj.CRS:
         raise CRSError(f"{what} {crs!r} is not a CRS pyproj understands: {exc}") from None
 
 
-def _all_finite(a: np.ndarray) -> bool:
-    """True when every value is finite (two reductions, no temporary array)."""
-    if a.size == 0:
-        return True
-    with np.errstate(invalid="ignore"):
-        return bool(np.isfinite(a.min()) and np.isfinite(a.max()))
-
-
 def _median(a: np.ndarray) -> float:
     """``float(np.median(a))`` of a finite 1-D array, exactly, without sorting it all.
 
@@ -90,24 +82,44 @@ def utm_crs_for(lon: float | np.ndarray, lat: float | np.ndarray) -> pyproj.CRS:
     """
     lon_a = np.asarray(lon, dtype=float)
     lat_a = np.asarray(lat, dtype=float)
-    if _all_finite(lon_a) and _all_finite(lat_a) and lon_a.shape == lat_a.shape:
-        if lon_a.size == 0:
-            raise CRSError("cannot choose a UTM zone: no finite longitude/latitude")
-        lon_c, lat_c = _median(lon_a.ravel()), _median(lat_a.ravel())
-    else:
-        ok = np.isfinite(lon_a) & np.isfinite(lat_a)
-        if not ok.any():
-            raise CRSError("cannot choose a UTM zone: no finite longitude/latitude")
-        lon_c = float(np.median(lon_a[ok]))
-        lat_c = float(np.median(lat_a[ok]))
+    if lon_a.size and lon_a.shape == lat_a.shape:
+        with np.errstate(invalid="ignore"):
+            lims = (float(lon_a.min()), float(lon_a.max()), float(lat_a.min()),
+                    float(lat_a.max()))
+        if all(np.isfinite(lims)):
+            epsg = _epsg_from_limits(*lims)
+            if epsg is not None:
+                return pyproj.CRS.from_epsg(epsg)
+            return pyproj.CRS.from_epsg(_epsg_for(_median(lon_a.ravel()),
+                                                  _median(lat_a.ravel())))
+    ok = np.isfinite(lon_a) & np.isfinite(lat_a)
+    if not ok.any():
+        raise CRSError("cannot choose a UTM zone: no finite longitude/latitude")
+    return pyproj.CRS.from_epsg(_epsg_for(float(np.median(lon_a[ok])),
+                                          float(np.median(lat_a[ok]))))
+
+
+def _epsg_from_limits(lon_min: float, lon_max: float, lat_min: float, lat_max: float
+                      ) -> int | None:
+    """The EPSG code of :func:`utm_crs_for` when the ranges of finite ``lon``/``lat``
+    alone decide it, else None.  Every step of :func:`_epsg_for` is monotone in lon on
+    [-180, 179] and in lat, so when both ends of the ranges give the same code, the
+    median does too (no sorting needed)."""
+    if not (-180.0 <= lon_min and lon_max <= 179.0):
+        return None
+    epsg = _epsg_for(lon_min, lat_min)
+    return epsg if epsg == _epsg_for(lon_max, lat_max) else None
+
+
+def _epsg_for(lon_c: float, lat_c: float) -> int:
+    """EPSG code of :func:`utm_crs_for` for a centre ``lon_c``, ``lat_c`` (degrees)."""
     if lat_c > 84.0:
-        return pyproj.CRS.from_epsg(3413)  # NSIDC Sea Ice Polar Stereographic North
+        return 3413  # NSIDC Sea Ice Polar Stereographic North
     if lat_c < -80.0:
-        return pyproj.CRS.from_epsg(3031)  # Antarctic Polar Stereographic
+        return 3031  # Antarctic Polar Stereographic
     lon_c = ((lon_c + 180.0) % 360.0) - 180.0
     zone = int(np.floor((lon_c + 180.0) / 6.0)) % 60 + 1
-    epsg = (32600 if lat_c >= 0 else 32700) + zone
-    return pyproj.CRS.from_epsg(epsg)
+    return (32600 if lat_c >= 0 else 32700) + zone
 
 
 def require_metric_crs(crs: pyproj.CRS, what: str = "CRS") -> pyproj.CRS:
@@ -250,18 +262,25 @@ def to_metric_local_affine(
     """
     lon = np.ascontiguousarray(lon, dtype=np.float64)
     lat = np.ascontiguousarray(lat, dtype=np.float64)
-    crs = utm_crs_for(lon, lat) if crs is None else require_metric_crs(crs)
-    tr = _transformer(WGS84, crs)
     n = lon.size
-    b = int(block) if block is not None else (_block_size(lon, lat) if n >= 2 else 1)
+    ok_shape = lon.shape == lat.shape and lon.ndim == 1
+    b = int(block) if block is not None else (
+        _block_size(lon, lat) if ok_shape and n >= 2 else 1)
     m = n // b if b >= 2 else 0
-    if n < max(min_photons, 2) or m < 2 or lon.shape != lat.shape or lon.ndim != 1:
-        x, y = _transform(tr, lon, lat)
+    if n < max(min_photons, 2) or m < 2 or not ok_shape:
+        crs = utm_crs_for(lon, lat) if crs is None else require_metric_crs(crs)
+        x, y = _transform(_transformer(WGS84, crs), lon, lat)
         return x, y, crs
     nb = m * b
     lon2, lat2 = lon[:nb].reshape(m, b), lat[:nb].reshape(m, b)
     lon0 = lon2[:, b // 2].copy()
     lat0 = lat2[:, b // 2].copy()
+    # the default CRS is decided from the photons' ranges after the pass below (the
+    # median only when the ranges do not decide it); guess it from the blocks' middles
+    guess = crs is None
+    crs = utm_crs_for(lon0, lat0) if crs is None else require_metric_crs(crs)
+    rows = max(1, _CHUNK // b)
+    tr = _transformer(WGS84, crs)
     # reference points, the Jacobian's forward points, and the knots' second differences
     kn = np.unique(np.r_[np.arange(0, m, max(1, _knot_every)), m - 1])
     hs, hh = _AFFINE_STEP_DEG, _HESS_STEP_DEG
@@ -297,17 +316,15 @@ def to_metric_local_affine(
     y = np.empty(n)
     xv, yv = x[:nb].reshape(m, b), y[:nb].reshape(m, b)
     lon_hi, lon_lo, lat_hi, lat_lo = (np.empty(m) for _ in range(4))
-    rows = max(1, _CHUNK // b)
     tmp = np.empty((rows, b))
-    r0 = 0
     with np.errstate(invalid="ignore", over="ignore"):
-        while r0 < m:  # cache-sized chunks: each photon column is read from memory once
+        for r0 in range(0, m, rows):  # cache-sized chunks: each column read once
             r1 = min(m, r0 + rows)
             lc, pc, xd, yd, c = lon2[r0:r1], lat2[r0:r1], xv[r0:r1], yv[r0:r1], tmp[: r1 - r0]
-            pass
-            pass
-            pass
-            pass
+            lc.max(axis=1, out=lon_hi[r0:r1])  # the block's extent (NaN if it holds a NaN)
+            lc.min(axis=1, out=lon_lo[r0:r1])
+            pc.max(axis=1, out=lat_hi[r0:r1])
+            pc.min(axis=1, out=lat_lo[r0:r1])
             np.multiply(lc, jxl[r0:r1, None], out=xd)
             np.multiply(pc, jxp[r0:r1, None], out=c)
             xd += c
@@ -316,13 +333,25 @@ def to_metric_local_affine(
             np.multiply(pc, jyp[r0:r1, None], out=c)
             yd += c
             yd += ay[r0:r1, None]
-            r0 = r1
         dl = np.maximum(lon_hi - lon0, lon0 - lon_lo)  # NaN when the block holds a NaN
         dp = np.maximum(lat_hi - lat0, lat0 - lat_lo)
         bound = c_ll * dl * dl + 2.0 * c_lp * dl * dp + c_pp * dp * dp  # 2 x (1/2 H d d)
         good = (bound <= tol_m) & (dl <= _AFFINE_MAX_SPAN_DEG) & (dp <= _AFFINE_MAX_SPAN_DEG) \
             & np.isfinite(ax) & np.isfinite(ay) & np.isfinite(jxl) & np.isfinite(jxp) \
             & np.isfinite(jyl) & np.isfinite(jyp)
+    if guess:
+        with np.errstate(invalid="ignore"):
+            lims = (float(np.minimum(lon_lo.min(), lon[nb:].min(initial=np.inf))),
+                    float(np.maximum(lon_hi.max(), lon[nb:].max(initial=-np.inf))),
+                    float(np.minimum(lat_lo.min(), lat[nb:].min(initial=np.inf))),
+                    float(np.maximum(lat_hi.max(), lat[nb:].max(initial=-np.inf))))
+        epsg = _epsg_from_limits(*lims) if all(np.isfinite(lims)) else None
+        right = pyproj.CRS.from_epsg(epsg) if epsg is not None else utm_crs_for(lon, lat)
+        if right != crs:  # the middles' zone was not the photons' zone: once more
+            del x, y, xv, yv
+            return to_metric_local_affine(lon, lat, right, tol_m=tol_m,
+                                          min_photons=min_photons, block=b,
+                                          _knot_every=_knot_every)
     bad = np.flatnonzero(~good)
     if bad.size:  # again with blocks 4 times shorter, then exactly with pyproj
         sel = (bad[:, None] * b + np.arange(b)).ravel()

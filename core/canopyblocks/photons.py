@@ -72,6 +72,19 @@ def along_track_distance(x: np.ndarray, y: np.ndarray, time: np.ndarray | None =
     return s - s.min(), offset
 
 
+def stable_order(s: np.ndarray) -> np.ndarray:
+    """``np.argsort(s, kind="stable")`` of a float64 array, faster when every value is > 0.
+
+    Positive IEEE-754 doubles (and +inf) order like their bit patterns read as int64,
+    and equal values have equal bits, so the integer timsort (about 1.5 times faster
+    on the locally shuffled ``s`` of real ATL03 photons) gives the same permutation.
+    """
+    s = np.asarray(s)
+    if s.dtype == np.float64 and s.ndim == 1 and s.size and bool(s.min() > 0.0):
+        return np.argsort(np.ascontiguousarray(s).view(np.int64), kind="stable")
+    return np.argsort(s, kind="stable")
+
+
 @dataclass(eq=False)
 class PhotonTrack:
     """Geolocated photons of one track (one ICESat-2 beam or one MABEL channel).
@@ -229,9 +242,12 @@ class PhotonTrack:
 
     def sorted(self) -> PhotonTrack:
         """The track sorted by ``s`` (stable, so equal ``s`` keep time order)."""
-        if self.s.size < 2 or bool(np.all(np.diff(self.s) >= 0)):
+        s = self.s
+        # s[1:] >= s[:-1] agrees with diff(s) >= 0 except for inf - inf (NaN), where the
+        # stable sort would leave the order unchanged anyway; no float temporary
+        if s.size < 2 or bool(np.all(s[1:] >= s[:-1])):
             return self
-        return self.subset(np.argsort(self.s, kind="stable"))
+        return self.subset(stable_order(s))
 
     def validate(self) -> PhotonTrack:
         """Check the schema: equal lengths, dtypes, metric CRS, finite coordinates.

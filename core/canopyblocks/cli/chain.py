@@ -28,6 +28,9 @@ from .common import parse_channel, progress_bar
 @click.option("--preset", type=click.Choice(["boreal", "temperate", "tropical"]),
               default="temperate", show_default=True, help="Simulated photon rate.")
 @click.option("--seed", type=int, default=1, show_default=True, help="Simulation seed.")
+@click.option("--realisations", type=click.IntRange(min=0), default=100, show_default=True,
+              help="Simulated runs: photon draws per footprint diameter for the seed 002 "
+                   "analysis against truth (0 skips it).")
 @click.option("--length", "lengths", multiple=True, type=float,
               help="Block length, m; repeat (default 10, 25, 50).")
 @click.option("--min-signal-conf", type=click.IntRange(-2, 4), default=None,
@@ -49,7 +52,7 @@ def run_cmd(ctx: click.Context, tiles: tuple[str, ...], out_dir: str, photons: s
             azimuth: float, diameter: float, preset: str, seed: int,
             lengths: tuple[float, ...], min_signal_conf: int | None, width: float | None,
             resolution: float, smrf: bool, geoid: str | None, offset: float | None,
-            calibrate: bool) -> None:
+            calibrate: bool, realisations: int) -> None:
     """Photons + airborne TILES -> blocks, reference rasters, validation, plots, report."""
     from ..blocks import BlockParams
     from ..chain import run_chain
@@ -65,7 +68,8 @@ def run_cmd(ctx: click.Context, tiles: tuple[str, ...], out_dir: str, photons: s
                            atl08=atl08, azimuth=azimuth, diameter=diameter, preset=preset,
                            seed=seed, params=params, width=width, resolution=resolution,
                            ground="smrf" if smrf else "class2", geoid=geoid, offset=offset,
-                           calibrate=calibrate, progress=progress)
+                           calibrate=calibrate, realisations=realisations,
+                           progress=progress)
     if result.stats is not None and len(result.stats):
         s = result.stats[result.stats["group"] == "all"]
         for row in s.itertuples():

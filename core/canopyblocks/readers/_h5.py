@@ -154,6 +154,9 @@ class H5File:
             Description used in the error message.
         """
         ds = self._dataset(name, what)
+        direct = self._read_direct(ds, name, sel, dtype)
+        if direct is not None:
+            return direct
         try:
             arr = np.asarray(ds[()] if sel is None else ds[sel])
         except (OSError, RuntimeError, ValueError, TypeError, KeyError) as exc:
@@ -162,37 +165,55 @@ class H5File:
             ) from None
         return arr.astype(dtype, copy=False) if dtype is not None else arr
 
-    def read_range(self, name: str, lo: int, hi: int, dtype: Any = None, *,
-                   column: int | None = None, what: str = "") -> np.ndarray:
-        """Rows ``lo:hi`` of dataset ``name`` (optionally only ``column`` of a 2-D one).
-
-        Same values as ``read(name, np.s_[lo:hi], dtype=dtype)`` (``[:, column]``), but
-        read straight into the result (HDF5 converts the type on the fly when the
-        conversion is lossless, e.g. float32 -> float64), without an intermediate copy.
-        A column of a 2-D dataset is read through a small reusable buffer, which is
-        much faster than an HDF5 hyperslab of one column.
-        """
-        ds = self._dataset(name, what)
-        src = np.dtype(ds.dtype)
-        dst = src if dtype is None else np.dtype(dtype)
-        want_2d = column is not None
-        shape = tuple(int(v) for v in ds.shape)
+    @staticmethod
+    def _lossless(src: np.dtype, dst: np.dtype) -> bool:
+        """HDF5 can convert ``src`` to ``dst`` while reading, with the same values."""
         same_kind = (src.kind in "biuf" and dst.kind == src.kind) or (
             src.kind in "bu" and dst.kind == "i")
-        direct = same_kind and np.can_cast(src, dst, "safe")
-        if (not direct or len(shape) != (2 if want_2d else 1) or not 0 <= lo <= hi <= shape[0]
-                or (want_2d and not 0 <= int(column) < shape[1])):  # type: ignore[arg-type]
-            arr = self.read(name, np.s_[lo:hi], dtype=dtype, what=what)
-            return np.ascontiguousarray(arr[:, column]) if want_2d else arr
-        out = np.empty(hi - lo, dtype=dst)
-        if hi == lo:
-            return out
-        try:
-            if not want_2d:
+        return bool(same_kind and np.can_cast(src, dst, "safe"))
+
+    def _read_direct(self, ds: Any, name: str, sel: Any, dtype: Any) -> np.ndarray | None:
+        """A 1-D numeric dataset (or a step-1 slice of it) read straight into a new array
+        of ``dtype`` (HDF5 converts losslessly, e.g. float32 -> float64, on the fly):
+        no intermediate copy.  None when that does not apply."""
+        shape = ds.shape
+        if shape is None or len(shape) != 1 or not (sel is None or isinstance(sel, slice)):
+            return None  # (h5py.Empty datasets have no shape)
+        src = np.dtype(ds.dtype)
+        dst = src if dtype is None else np.dtype(dtype)
+        if not self._lossless(src, dst):
+            return None
+        lo, hi, step = (sel if sel is not None else slice(None)).indices(int(shape[0]))
+        if step != 1:
+            return None
+        out = np.empty(max(0, hi - lo), dtype=dst)
+        if out.size:
+            try:
                 ds.read_direct(out, np.s_[lo:hi], np.s_[0:hi - lo])
-                return out
-            step = max(1, (1 << 22) // max(1, shape[1] * dst.itemsize))
-            buf = np.empty((min(step, hi - lo), shape[1]), dtype=dst)
+            except (OSError, RuntimeError, ValueError, TypeError, KeyError):
+                return None  # the plain read decides (and names the problem)
+        return out
+
+    def read_column(self, name: str, lo: int, hi: int, column: int, dtype: Any = None, *,
+                    what: str = "") -> np.ndarray:
+        """``read(name, np.s_[lo:hi], dtype=dtype)[:, column]`` of a 2-D dataset, as a
+        contiguous array, read through a small reusable buffer (much faster than an
+        HDF5 hyperslab of one column, and no full-size temporary)."""
+        ds = self._dataset(name, what)
+        shape = tuple(int(v) for v in (ds.shape or ()))
+        src = np.dtype(ds.dtype)
+        dst = src if dtype is None else np.dtype(dtype)
+        if (len(shape) != 2 or not self._lossless(src, dst) or not 0 <= lo <= hi <= shape[0]
+                or not 0 <= column < shape[1]):
+            arr = self.read(name, np.s_[lo:hi], dtype=dtype, what=what)
+            if arr.ndim != 2 or not 0 <= column < arr.shape[1]:
+                raise self._fail(f"dataset /{name} has shape {shape}, expected (n, k) with "
+                                 f"k > {column}; the file is not the expected product")
+            return np.ascontiguousarray(arr[:, column])
+        out = np.empty(hi - lo, dtype=dst)
+        step = max(1, (1 << 22) // max(1, shape[1] * dst.itemsize))
+        buf = np.empty((min(step, max(1, hi - lo)), shape[1]), dtype=dst)
+        try:
             for a in range(lo, hi, step):
                 b = min(hi, a + step)
                 ds.read_direct(buf, np.s_[a:b], np.s_[0:b - a])

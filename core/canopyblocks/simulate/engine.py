@@ -2,7 +2,9 @@
 
 The footprint contents and truth are computed once per shot; photons for all
 realisations are drawn at once from the same footprint PDFs (a chunk of shots at a
-time: bounded memory, no loop over photons).
+time: bounded memory, no loop over photons).  All random numbers of a run are drawn
+up front in shot order (counts, geolocation errors, one uniform and one normal per
+signal photon, then noise), so a seed gives the same photons whatever the chunking.
 """
 
 from __future__ import annotations
@@ -45,7 +47,7 @@ PHOTON_TRUTH_COLUMNS: tuple[str, ...] = ("shot", "realisation", "noise", "src_in
 
 #: Along-track length of one chunk of shots, metres (one footprint query each; chunks
 #: also end at the track's vertices, so each is straight).  Results do not depend on it.
-CHUNK_LENGTH = 45.0
+CHUNK_LENGTH = 100.0
 
 
 @dataclass(eq=False)
@@ -146,16 +148,20 @@ class Simulation:
         return gpd.GeoDataFrame(c, geometry=gpd.points_from_xy(c["x"], c["y"]), crs=self.crs)
 
 
-def _chunks(track: SimTrack, s: np.ndarray, spacing: float) -> list[tuple[int, int]]:
-    """Runs ``[a, b)`` of shots at most ``CHUNK_LENGTH`` long, each on one track segment."""
+def _chunks(track: SimTrack, s: np.ndarray,
+            spacing: float) -> list[tuple[int, int, tuple[float, float, float, float]]]:
+    """Runs ``[a, b)`` of shots at most ``CHUNK_LENGTH`` long, each on one track segment
+    (given as ``(x0, y0, x1, y1)``)."""
     v = np.asarray(track.vertices, dtype=np.float64)
     cum = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(v, axis=0).T))])
     # first shot of each segment (a shot on a vertex starts the next segment)
-    bounds = np.unique(np.concatenate([np.searchsorted(s, cum[:-1], side="left"), [s.size]]))
+    first = np.searchsorted(s, cum[:-1], side="left")
     per = max(1, int(math.ceil(CHUNK_LENGTH / spacing)))
-    out: list[tuple[int, int]] = []
-    for a0, b0 in zip(bounds[:-1], bounds[1:]):
-        out.extend((int(a), int(min(a + per, b0))) for a in range(int(a0), int(b0), per))
+    out: list[tuple[int, int, tuple[float, float, float, float]]] = []
+    for i in range(len(v) - 1):
+        a0, b0 = int(first[i]), int(first[i + 1]) if i + 2 < len(v) else int(s.size)
+        seg = (float(v[i, 0]), float(v[i, 1]), float(v[i + 1, 0]), float(v[i + 1, 1]))
+        out.extend((a, min(a + per, b0), seg) for a in range(a0, b0, per))
     return out
 
 
@@ -238,8 +244,10 @@ def simulate_photons(
     src = np.full(total, -1, np.int64)  # source point: row in the index
     truth = {c: np.full(n, np.nan) for c in TRUTH_COLUMNS}
     truth["n_points"] = np.zeros(n, np.int64)
-    for a, b in _chunks(track, ss, float(params.shot_spacing)):  # type: ignore[arg-type]
-        pairs = index.pairs(sx[a:b], sy[a:b], radius)
+    chunks = _chunks(track, ss, float(params.shot_spacing))  # type: ignore[arg-type]
+    prog.update(0.0, f"{n:,} shots in {len(chunks)} chunks")
+    for a, b, segment in chunks:
+        pairs = index.pairs(sx[a:b], sy[a:b], radius, line=segment)
         t = footprint_truth(pairs, psf, params.truth, params.rh_floor)
         for c in TRUTH_COLUMNS:
             truth[c][a:b] = t[c]
@@ -248,7 +256,7 @@ def simulate_photons(
         ph = _ranges(offset[r0 + a], offset[r0 + b] - offset[r0 + a])
         pick = pick_sources(pairs, shot[ph] - a, u_pick[ph])
         got = pick >= 0
-        src[ph[got]] = pairs.point[pick[got]]
+        src[ph[got]] = pairs.point_of(pick[got])
         prog.update(b / n, f"{b:,} of {n:,} shots")
     if not np.any(truth["n_points"] > 0):
         raise NoUsableDataError(

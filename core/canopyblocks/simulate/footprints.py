@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import dataclass, field
+from typing import Literal
 
 import numpy as np
 
@@ -49,7 +49,6 @@ def footprint_weights(r2: np.ndarray, radius: float) -> np.ndarray:
     return np.exp(np.asarray(r2, dtype=np.float64) * (-2.0 / (radius * radius)))
 
 
-@dataclass(eq=False)
 class FootprintPairs:
     """The (shot, point) pairs of a run of shots, sorted by shot.
 
@@ -58,9 +57,11 @@ class FootprintPairs:
     n_shots : int
         Shots in the run (local ids 0..n_shots-1).
     shot : ndarray int64
-        Local shot id of each pair (non-decreasing).
+        Local shot id of each pair (non-decreasing; may be passed as None: derived
+        from ``indptr`` on first use).
     point : ndarray int64
-        Index of the airborne point in the cloud.
+        Index of the airborne point in the cloud (it may be passed as a pair
+        ``(rows, local)`` meaning ``rows[local]``, resolved on first use).
     z : ndarray float64
         The point's height, metres.
     weight : ndarray float64
@@ -73,14 +74,42 @@ class FootprintPairs:
         them otherwise.
     """
 
-    n_shots: int
-    shot: np.ndarray
-    point: np.ndarray
-    z: np.ndarray
-    weight: np.ndarray
-    indptr: np.ndarray
-    height_sorted: bool = False
-    _cw: np.ndarray | None = field(default=None, repr=False)
+    def __init__(self, n_shots: int, shot: np.ndarray | None,
+                 point: np.ndarray | tuple[np.ndarray, np.ndarray], z: np.ndarray,
+                 weight: np.ndarray, indptr: np.ndarray, height_sorted: bool = False) -> None:
+        self.n_shots = int(n_shots)
+        self._shot = shot
+        self.z, self.weight, self.indptr = z, weight, indptr
+        self.height_sorted = bool(height_sorted)
+        self._point = point
+        self._cw: np.ndarray | None = None
+        self._blocks: _Prefix | None = None
+
+    def __repr__(self) -> str:
+        return f"FootprintPairs(n_shots={self.n_shots}, n_pairs={self.z.size})"
+
+    @property
+    def shot(self) -> np.ndarray:
+        """Local shot id of each pair."""
+        if self._shot is None:
+            self._shot = np.repeat(np.arange(self.n_shots, dtype=np.int64), self.counts)
+        return self._shot
+
+    @property
+    def point(self) -> np.ndarray:
+        """Index of each pair's point in the cloud."""
+        if isinstance(self._point, tuple):
+            rows, local = self._point
+            self._point = rows[local]
+        assert not isinstance(self._point, tuple)
+        return self._point
+
+    def point_of(self, pair: np.ndarray) -> np.ndarray:
+        """``point[pair]``, without resolving all of ``point``."""
+        if isinstance(self._point, tuple):
+            rows, local = self._point
+            return rows[local[pair]]
+        return self._point[pair]
 
     @property
     def counts(self) -> np.ndarray:
@@ -94,6 +123,14 @@ class FootprintPairs:
             self._cw = np.cumsum(self.weight)
         return self._cw
 
+    def prefix(self, n_queries: int) -> _Prefix:
+        """Prefix sums of ``weight`` for about ``n_queries`` look-ups (see :class:`_Prefix`)."""
+        if self._cw is None and n_queries * _Prefix.BLOCK * 4 < self.weight.size:
+            if self._blocks is None:
+                self._blocks = _Prefix(self.weight)
+            return self._blocks
+        return _Prefix(self.weight, self.cumulative_weight)
+
     def sorted_by_height(self) -> FootprintPairs:
         """These pairs with each shot's pairs sorted by (height, point)."""
         if self.height_sorted:
@@ -101,6 +138,62 @@ class FootprintPairs:
         order = np.lexsort((self.point, self.z, self.shot))
         return FootprintPairs(self.n_shots, self.shot[order], self.point[order],
                               self.z[order], self.weight[order], self.indptr, True)
+
+
+class _Prefix:
+    """Inclusive prefix sums ``P(i) = sum(w[:i + 1])`` (``P(-1) = 0``) and searches in them.
+
+    With ``cw`` (a full ``cumsum``) they are read from it; otherwise from block sums
+    (``BLOCK`` pairs each) and a short running sum inside one block per look-up, which is
+    cheaper when there are few look-ups.  ``P`` is non-decreasing either way.
+    """
+
+    BLOCK = 16
+
+    def __init__(self, w: np.ndarray, cw: np.ndarray | None = None) -> None:
+        self.w, self.cw = w, cw
+        if cw is None:
+            n = w.size
+            bs = np.add.reduceat(w, np.arange(0, n, self.BLOCK)) if n else np.empty(0)
+            self.off = np.zeros(bs.size + 1)
+            np.cumsum(bs, out=self.off[1:])
+
+    def _window(self, b: np.ndarray) -> np.ndarray:
+        """Rows ``P(b L + j)``, ``j < L``, for blocks ``b`` (0 beyond the end)."""
+        L = self.BLOCK
+        idx = b[:, None] * L + np.arange(L)
+        out = self.w[np.minimum(idx, self.w.size - 1)]
+        out[idx >= self.w.size] = 0.0
+        np.cumsum(out, axis=1, out=out)
+        out += self.off[b][:, None]
+        return out
+
+    def at(self, i: np.ndarray) -> np.ndarray:
+        """``P(i)`` for indices ``i >= -1``."""
+        i = np.asarray(i, dtype=np.int64)
+        if self.cw is not None:
+            return np.where(i >= 0, self.cw[np.maximum(i, 0)], 0.0)
+        ok = i >= 0
+        b = np.maximum(i, 0) // self.BLOCK
+        vals = self._window(b)[np.arange(i.size), np.maximum(i, 0) - b * self.BLOCK]
+        return np.where(ok, vals, 0.0)
+
+    def search(self, t: np.ndarray, right: bool) -> np.ndarray:
+        """First ``i`` with ``P(i) > t`` (``right``) or ``P(i) >= t``; ``len(w)`` if none."""
+        t = np.asarray(t, dtype=np.float64)
+        side: Literal["left", "right"] = "right" if right else "left"
+        if self.cw is not None:
+            return np.searchsorted(self.cw, t, side=side)
+        n = self.w.size
+        if n == 0:
+            return np.zeros(t.shape, np.int64)
+        flat = t.ravel()
+        b = np.minimum(np.searchsorted(self.off[1:], flat, side=side), self.off.size - 2)
+        win = self._window(b)
+        hit = win > flat[:, None] if right else win >= flat[:, None]
+        found = hit.any(axis=1)
+        i = np.where(found, b * self.BLOCK + np.argmax(hit, axis=1), (b + 1) * self.BLOCK)
+        return np.minimum(i, n).reshape(t.shape)
 
 
 def _empty_pairs(k: int) -> FootprintPairs:
@@ -116,6 +209,15 @@ def _ranges(starts: np.ndarray, counts: np.ndarray) -> np.ndarray:
         return np.empty(0, np.int64)
     first = np.cumsum(counts) - counts
     return np.arange(total, dtype=np.int64) + np.repeat(starts - first, counts)
+
+
+def _argsort_ranks(rank: np.ndarray) -> np.ndarray:
+    """Stable ``argsort`` of non-negative integers (an LSD radix sort below 2**32)."""
+    if rank.size and int(rank.max()) < 2**32:
+        p1 = np.argsort((rank & 0xFFFF).astype(np.uint16), kind="stable")
+        p2 = np.argsort((rank[p1] >> 16).astype(np.uint16), kind="stable")
+        return p1[p2]
+    return np.argsort(rank, kind="stable")
 
 
 def _sorted_index(edges: np.ndarray, t: np.ndarray, right: bool) -> np.ndarray:
@@ -149,13 +251,13 @@ def _by_shot(k: int, m: int, shot: np.ndarray, pt: np.ndarray,
              w: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Stable counting sort of pairs by shot: (indptr int64, point, weight)."""
     total = shot.size
-    if _coo_tocsr is not None and total < 2**31 - 1 and m < 2**31 - 1:
-        bp = np.empty(k + 1, np.int32)
-        bj = np.empty(total, np.int32)
+    if _coo_tocsr is not None:
+        bp = np.empty(k + 1, shot.dtype)
+        bj = np.empty(total, pt.dtype)
         bx = np.empty(total, np.float64)
         try:
             _coo_tocsr(k, m, total, shot, pt, w, bp, bj, bx)
-            return bp.astype(np.int64), bj, bx
+            return bp.astype(np.int64, copy=False), bj, bx
         except (TypeError, ValueError):  # pragma: no cover - a changed private API
             pass
     perm = np.argsort(shot.astype(np.uint16) if k <= 65536 else shot, kind="stable")
@@ -205,7 +307,7 @@ class CloudIndex:
         ix = np.minimum(((lx - self._x0) / cell).astype(np.int64), nx - 1)
         iy = np.minimum(((ly - self._y0) / cell).astype(np.int64), ny - 1)
         cid = iy * nx + ix
-        order = np.argsort(cid, kind="stable")  # points of a cell in cloud order
+        order = _argsort_ranks(cid)  # stable: points of a cell in cloud order
         self._ptr = np.zeros(nx * ny + 1, np.int64)
         np.cumsum(np.bincount(cid, minlength=nx * ny), out=self._ptr[1:])
         self._gx, self._gy, self._gz = lx[order], ly[order], self.z[order]
@@ -238,12 +340,24 @@ class CloudIndex:
         return _ranges(self._ptr[cid], self._ptr[cid + 1] - self._ptr[cid])
 
     # ------------------------------------------------------------------ queries
-    def pairs(self, sx: np.ndarray, sy: np.ndarray, radius: float) -> FootprintPairs:
+    def pairs(self, sx: np.ndarray, sy: np.ndarray, radius: float,
+              line: tuple[float, float, float, float] | None = None) -> FootprintPairs:
         """Points within ``radius`` (metres) of each shot centre ``(sx, sy)``.
 
         Pairs are sorted by shot, then by height (ties in cloud order).  The shots
         should be a short run along the track (tens to a few hundred metres); runs on
         a straight line, in order along it, are answered fastest.
+
+        Parameters
+        ----------
+        sx, sy : ndarray
+            Shot centres, metres, in the cloud's CRS.
+        radius : float
+            Footprint radius, metres.
+        line : (x0, y0, x1, y1), optional
+            The track segment the shots lie on (cloud CRS, metres).  Distances are then
+            measured in the segment's own frame, so a shot's pairs and weights do not
+            depend on which other shots are queried with it.
         """
         sx = np.asarray(sx, dtype=np.float64)
         sy = np.asarray(sy, dtype=np.float64)
@@ -251,21 +365,27 @@ class CloudIndex:
         if k == 0 or self.x.size == 0:
             return _empty_pairs(k)
         lx, ly = sx - self._ox, sy - self._oy
-        dx, dy = lx[-1] - lx[0], ly[-1] - ly[0]
+        if line is not None:
+            ax, ay = line[0] - self._ox, line[1] - self._oy
+            dx, dy = line[2] - line[0], line[3] - line[1]
+        else:
+            ax, ay = float(lx[0]), float(ly[0])
+            dx, dy = lx[-1] - lx[0], ly[-1] - ly[0]
         norm = float(math.hypot(dx, dy))
         ux, uy = (dx / norm, dy / norm) if norm > 0 else (1.0, 0.0)
-        u_shot = (lx - lx[0]) * ux + (ly - ly[0]) * uy
-        v_shot = -(lx - lx[0]) * uy + (ly - ly[0]) * ux
+        u_shot = (lx - ax) * ux + (ly - ay) * uy
+        v_shot = -(lx - ax) * uy + (ly - ay) * ux
         if float(np.max(np.abs(v_shot))) <= _LINE_TOL and bool(np.all(np.diff(u_shot) >= 0)):
-            return self._pairs_line(lx, ly, u_shot, ux, uy, radius)
+            return self._pairs_line(lx, ly, (ax, ay), u_shot, ux, uy, radius)
+        if line is not None:
+            return self.pairs(sx, sy, radius)
         return self._pairs_general(lx, ly, radius)
 
-    def _pairs_line(self, lx: np.ndarray, ly: np.ndarray, u_shot: np.ndarray, ux: float,
-                    uy: float, radius: float) -> FootprintPairs:
+    def _pairs_line(self, lx: np.ndarray, ly: np.ndarray, origin: tuple[float, float],
+                    u_shot: np.ndarray, ux: float, uy: float, radius: float) -> FootprintPairs:
         k = lx.size
-        ax, ay = float(lx[0]), float(ly[0])
-        pos = self._cells_near(ax, ay, float(lx[-1]), float(ly[-1]), radius)
-        px, py = self._gx[pos] - ax, self._gy[pos] - ay
+        pos = self._cells_near(float(lx[0]), float(ly[0]), float(lx[-1]), float(ly[-1]), radius)
+        px, py = self._gx[pos] - origin[0], self._gy[pos] - origin[1]
         u = px * ux + py * uy
         v = py * ux - px * uy
         c2 = radius * radius - v * v
@@ -274,10 +394,7 @@ class CloudIndex:
         m = pos.size
         if m == 0:
             return _empty_pairs(k)
-        # candidates by (height, cloud order): one sort of packed integer keys
-        bits = int(m).bit_length()
-        order = np.sort((self._grank[pos] << bits) | np.arange(m, dtype=np.int64))
-        order &= (1 << bits) - 1
+        order = _argsort_ranks(self._grank[pos])  # by (height, cloud order)
         pos, u, c2 = pos[order], u[order], c2[order]
         c = np.sqrt(c2)
         # shot k holds the point when |u_k - u| <= sqrt(R^2 - v^2)
@@ -287,17 +404,20 @@ class CloudIndex:
         if total == 0:
             return _empty_pairs(k)
         # pairs point by point (heights ascending), each point's run of shots
-        pt = np.repeat(np.arange(m, dtype=np.int32), cnt)
-        shot = np.arange(total, dtype=np.int32)
-        shot -= np.repeat((np.cumsum(cnt) - cnt - lo).astype(np.int32), cnt)
-        du = u_shot[shot] - np.repeat(u, cnt)
-        du *= du
-        du += np.repeat(radius * radius - c2, cnt)  # r^2 = du^2 + v^2
-        w = footprint_weights(du, radius)
+        pt = np.repeat(np.arange(m, dtype=np.int64), cnt)
+        shot = np.arange(total, dtype=np.int64)
+        shot -= np.repeat(np.cumsum(cnt) - cnt - lo, cnt)
+        # weight exp(-2 (du^2 + v^2) / R^2) with du, v scaled by sqrt(2) / R
+        scale = math.sqrt(2.0) / radius
+        e = np.take(u_shot * scale, shot, mode="clip")  # indices are valid: no checks
+        e -= np.repeat(u * scale, cnt)
+        e *= e
+        np.subtract(np.repeat((c2 - radius * radius) * (scale * scale), cnt), e, out=e)
+        w = np.exp(e, out=e)
         # to shot order, keeping the height order within each shot (a counting sort)
         indptr, pt, w = _by_shot(k, m, shot, pt, w)
-        shot = np.repeat(np.arange(k, dtype=np.int64), np.diff(indptr))
-        return FootprintPairs(k, shot, self._grow[pos][pt], self._gz[pos][pt], w, indptr, True)
+        z = np.take(self._gz[pos], pt, mode="clip")
+        return FootprintPairs(k, None, (self._grow[pos], pt), z, w, indptr, True)
 
     def _pairs_general(self, lx: np.ndarray, ly: np.ndarray, radius: float) -> FootprintPairs:
         k = lx.size

@@ -32,14 +32,13 @@ def pick_sources(pairs: FootprintPairs, shot: np.ndarray, u: np.ndarray) -> np.n
     shot = np.asarray(shot, dtype=np.int64)
     if shot.size == 0:
         return np.empty(0, np.int64)
-    cw = pairs.cumulative_weight
+    if pairs.weight.size == 0:
+        return np.full(shot.size, -1, np.int64)
     start, end = pairs.indptr[shot], pairs.indptr[shot + 1]
     ok = end > start
-    if cw.size == 0:
-        return np.full(shot.size, -1, np.int64)
-    before = np.where(start > 0, cw[np.maximum(start - 1, 0)], 0.0)
-    total = cw[np.maximum(end - 1, 0)] - before
-    idx = np.searchsorted(cw, before + u * total, side="right")
+    cw = pairs.prefix(3 * shot.size)
+    before, last = cw.at(np.concatenate([start - 1, end - 1])).reshape(2, -1)
+    idx = cw.search(before + u * (last - before), right=True)
     idx = np.minimum(np.maximum(idx, start), end - 1)
     return np.where(ok, idx, -1)
 

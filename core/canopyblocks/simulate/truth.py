@@ -7,9 +7,10 @@ Definitions (all heights in metres, in the point cloud's vertical datum):
   ``f(z) = sum_j w_j N(z; z_j, PSF) / sum_j w_j``.  It is the PDF the photons are
   drawn from.
 * **Ground**: the lowest peak of ``f``.  Peaks are found on ``f`` sampled in bins of
-  ``TruthParams.bin_size`` (0.1 m, on a fixed grid of multiples of the bin size, so
-  the result does not depend on which shots are processed together): a bin is a peak when it is higher than the bin below,
-  not lower than the bin above, and at least ``peak_fraction`` (5 %) of the highest bin.
+  ``TruthParams.bin_size`` (0.1 m; bins ``[i b, (i + 1) b)`` for integer ``i``, so the
+  result does not depend on which shots are processed together): a bin is a peak when
+  it is higher than the bin below, not lower than the bin above, and at least
+  ``peak_fraction`` (5 %) of the highest bin.
   The lowest such peak (refined by a parabola through three bins) is then climbed to
   the exact mode of ``f`` by Newton/mean-shift iterations on the Gaussian mixture
   (each footprint until its step is below 2e-4 m, leaving an error below ~1e-6 m), so
@@ -83,34 +84,35 @@ def footprint_truth(pairs: FootprintPairs, psf: float, tp: TruthParams,
     has = counts > 0
     if not has.any():
         return out
-    shot, z, w = pairs.shot, pairs.z, pairs.weight
+    z, w = pairs.z, pairs.weight
     ids = np.flatnonzero(has)
     starts, ends = pairs.indptr[:-1][has], pairs.indptr[1:][has]
-    find = _HeightSearch(z, shot, n, ids, starts, ends)
+    find = _HeightSearch(z, counts, ids, starts, ends)
     out["weight_sum"][has] = np.add.reduceat(w, starts)
     # ---- top: highest point per footprint (pairs are sorted by height in a shot)
     out["top"][has] = z[ends - 1]
     # ---- ground: lowest peak of the broadened weighted histogram, then mean-shift
-    ground = _lowest_peak(shot, z, w, pairs.indptr, has, psf, tp)
+    ground = _lowest_peak(z, w, pairs.indptr, has, psf, tp)
     g = _mean_shift(find, z, w, ground[has], psf)
     ground[~has] = np.nan
     ground[has] = g
     out["ground"] = ground
     # heights above ground z - ground increase within each shot: the points above a
     # threshold are the last ones of each shot
+    c_cover, c0 = find.first(g, (tp.cover_threshold, rh_floor), True)
     # ---- canopy cover: unweighted share of points above ground + threshold
-    out["cover"][has] = (ends - find.first(g, tp.cover_threshold, True)) / counts[has]
+    out["cover"][has] = (ends - c_cover) / counts[has]
     # ---- RH: weighted inverse-CDF percentiles of canopy heights
-    c0 = find.first(g, rh_floor, True)
-    cw = pairs.cumulative_weight
-    cbefore = np.where(c0 > 0, cw[np.maximum(c0 - 1, 0)], 0.0)
-    ctot = cw[ends - 1] - cbefore
-    can = c0 < ends
-    for q in RH_LEVELS:
-        idx = np.searchsorted(cw, cbefore + ctot * (q / 100.0 * (1 - 1e-12)), side="left")
-        idx = np.clip(idx, c0, ends - 1)
+    qs = np.asarray(RH_LEVELS, dtype=np.float64) / 100.0 * (1 - 1e-12)
+    cw = pairs.prefix((2 + qs.size) * c0.size)
+    cbefore, clast = cw.at(np.concatenate([c0 - 1, ends - 1])).reshape(2, -1)
+    ctot = clast - cbefore
+    idx = cw.search(cbefore + ctot * qs[:, None], right=False)
+    idx = np.minimum(np.maximum(idx, c0), ends - 1)
+    rh = np.where(c0 < ends, z[idx] - g, 0.0)
+    for i, q in enumerate(RH_LEVELS):
         col = np.full(n, np.nan)
-        col[has] = np.where(can, z[idx] - g, 0.0)
+        col[has] = rh[i]
         out[f"rh{q}"] = col
     return out
 
@@ -123,69 +125,86 @@ class _HeightSearch:
     key increasing over all pairs, then corrected by the exact comparison.
     """
 
-    def __init__(self, z: np.ndarray, shot: np.ndarray, n: int, ids: np.ndarray,
+    def __init__(self, z: np.ndarray, counts: np.ndarray, ids: np.ndarray,
                  starts: np.ndarray, ends: np.ndarray) -> None:
-        zlo = float(z.min())
-        span = 2.0 * (float(z.max()) - zlo) + 2.0
+        n = counts.size
+        zlo = float(z[starts].min())  # pairs are sorted by height within each shot
+        span = 2.0 * (float(z[ends - 1].max()) - zlo) + 2.0
         base = np.arange(n, dtype=np.float64) * span - zlo
-        self.key = z + base[shot]  # increasing: shot, then height
+        self.key = z + np.repeat(base, counts)  # increasing: shot, then height
         self.base = base[ids]
         self.z, self.ids, self.starts, self.ends = z, ids, starts, ends
 
-    def first(self, g: np.ndarray, t: float, strict: bool) -> np.ndarray:
-        z, starts, ends = self.z, self.starts, self.ends
-        i = np.searchsorted(self.key, (g + t) + self.base, side="right" if strict else "left")
+    def first(self, g: np.ndarray, t: float | tuple[float, ...],
+              strict: bool) -> np.ndarray:
+        """First pair of each shot with ``z - g > t`` (``>=``); one row per ``t`` of a tuple."""
+        z = self.z
+        ts = np.asarray(t, dtype=np.float64).ravel()
+        r = ts.size
+        if r == 1:
+            starts, ends, gg, base, tt = self.starts, self.ends, g, self.base, ts
+        else:
+            starts, ends, gg, base = (np.tile(a, r) for a in (self.starts, self.ends, g,
+                                                               self.base))
+            tt = np.repeat(ts, g.size)
+        i = np.searchsorted(self.key, (gg + tt) + base, side="right" if strict else "left")
         i = np.minimum(np.maximum(i, starts), ends)
         last = z.size - 1
         for _ in range(64):
-            prev = z[np.maximum(i - 1, 0)] - g
-            cur = z[np.minimum(i, last)] - g
+            prev = z[np.maximum(i - 1, 0)] - gg
+            cur = z[np.minimum(i, last)] - gg
             if strict:
-                left = (i > starts) & (prev > t)
-                right = (i < ends) & ~(cur > t)
+                left = (i > starts) & (prev > tt)
+                right = (i < ends) & ~(cur > tt)
             else:
-                left = (i > starts) & (prev >= t)
-                right = (i < ends) & ~(cur >= t)
+                left = (i > starts) & (prev >= tt)
+                right = (i < ends) & ~(cur >= tt)
             if not (left.any() or right.any()):
-                return i
+                return i.reshape(r, -1) if isinstance(t, tuple) else i
             i = i - left + right
         raise AssertionError("height search did not converge")  # pragma: no cover
 
 
-def _lowest_peak(shot: np.ndarray, z: np.ndarray, w: np.ndarray, indptr: np.ndarray,
+def _lowest_peak(z: np.ndarray, w: np.ndarray, indptr: np.ndarray,
                  has: np.ndarray, psf: float, tp: TruthParams) -> np.ndarray:
     """Start of the ground climb: the lowest peak of each shot's binned waveform.
 
     Bins are ``[i b, (i + 1) b)`` for integer ``i`` (a fixed grid); each shot's
-    histogram covers its own height range plus the filter's reach.
+    histogram covers its own height range plus more than the filter's reach, so the
+    histograms of all shots are laid end to end and smoothed at once without mixing.
+    NaN for shots without points.
     """
     n = has.size
     b = tp.bin_size
-    pad = int(math.ceil((4.0 * psf + 2.0 * b) / b))
+    pad = int(math.ceil((4.0 * psf + 2.0 * b) / b))  # > the filter's radius of 4 PSF
     ab = np.floor(z / b).astype(np.int64)
-    lo = np.zeros(n, np.int64)
-    hi = np.zeros(n, np.int64)
-    lo[has] = ab[indptr[:-1][has]] - pad
-    hi[has] = ab[indptr[1:][has] - 1] + pad
-    nb = int((hi - lo).max()) + 1
-    if nb > MAX_BINS:
+    starts, ends = indptr[:-1][has], indptr[1:][has]
+    lo = ab[starts] - pad
+    size = ab[ends - 1] + pad + 1 - lo
+    if int(size.max()) > MAX_BINS:
         raise InputError(
-            f"airborne point heights span {(nb - 2 * pad) * b:.0f} m inside one footprint; "
-            "the cloud holds outliers (birds, noise): drop them (ASPRS classes 7/18 are "
-            "excluded by default) or crop the cloud")
-    base = np.arange(n, dtype=np.int64) * nb - lo
-    hist = np.bincount(base[shot] + ab, weights=w, minlength=n * nb).reshape(n, nb)
-    wave = gaussian_filter1d(hist, psf / b, axis=1, mode="constant", truncate=4.0)
-    mid = wave[:, 1:-1]
-    peak = (mid > wave[:, :-2]) & (mid >= wave[:, 2:]) & (
-        mid >= tp.peak_fraction * wave.max(axis=1, keepdims=True)) & (mid > 0)
-    first = np.argmax(peak, axis=1) + 1  # bin of the lowest peak (1 when none: empty)
+            f"airborne point heights span {(int(size.max()) - 2 * pad) * b:.0f} m inside "
+            "one footprint; the cloud holds outliers (birds, noise): drop them (ASPRS "
+            "classes 7/18 are excluded by default) or crop the cloud")
+    first_bin = np.cumsum(size) - size  # each shot's first bin in the flat histogram
+    ab += np.repeat(first_bin - lo, ends - starts)
+    hist = np.bincount(ab, weights=w, minlength=int(size.sum()))
+    wave = gaussian_filter1d(hist, psf / b, mode="constant", truncate=4.0)
+    top = np.maximum.reduceat(wave, first_bin)
+    # a bin is a peak when higher than the bin below, not lower than the bin above and
+    # at least peak_fraction of its shot's highest bin; the shots' edge bins are zero
+    mid = wave[1:-1]
+    peak = (mid > wave[:-2]) & (mid >= wave[2:]) & (mid > 0)
+    peak &= mid >= tp.peak_fraction * np.repeat(top, size)[1:-1]
+    pos = np.flatnonzero(peak) + 1
+    at = pos[np.minimum(np.searchsorted(pos, first_bin), pos.size - 1)]
     # parabolic vertex through the peak bin and its neighbours: the mean-shift start
-    rows = np.arange(n)
-    y0, y1, y2 = wave[rows, first - 1], wave[rows, first], wave[rows, first + 1]
+    y0, y1, y2 = wave[at - 1], wave[at], wave[at + 1]
     den = y0 - 2.0 * y1 + y2
     off = np.where(den < 0, 0.5 * (y0 - y2) / np.where(den < 0, den, -1.0), 0.0)
-    return (lo + first + 0.5 + np.clip(off, -0.5, 0.5)) * b
+    out = np.full(n, np.nan)
+    out[has] = (lo + (at - first_bin) + 0.5 + np.clip(off, -0.5, 0.5)) * b
+    return out
 
 
 def _mean_shift(find: _HeightSearch, z: np.ndarray, w: np.ndarray, start: np.ndarray,
@@ -199,7 +218,6 @@ def _mean_shift(find: _HeightSearch, z: np.ndarray, w: np.ndarray, start: np.nda
     2e-4 m (Newton converges quadratically: the remaining error is ~(2e-4)^2 / PSF, far
     below a millimetre).
     """
-    m = start.size
     g = start.copy()
     reach = 5.0 * psf
     lo = find.first(g, -reach, False)
@@ -207,8 +225,7 @@ def _mean_shift(find: _HeightSearch, z: np.ndarray, w: np.ndarray, start: np.nda
     live = np.flatnonzero(cnt > 0)  # shots still climbing (index into start)
     lo, cnt = lo[live], cnt[live]
     sel = _ranges(lo, cnt)
-    zz, ww = z[sel], w[sel]
-    s = np.repeat(np.arange(live.size), cnt)
+    zz, ww = np.take(z, sel, mode="clip"), np.take(w, sel, mode="clip")
     inv = -0.5 / (psf * psf)
     inv_var = 1.0 / (psf * psf)
     limit = 0.5 * psf
@@ -216,12 +233,16 @@ def _mean_shift(find: _HeightSearch, z: np.ndarray, w: np.ndarray, start: np.nda
         if not live.size:
             break
         first = np.cumsum(cnt) - cnt
-        d = zz - g[live][s]
-        k = ww * np.exp(inv * d * d)
-        kd = k * d
+        d = zz - np.repeat(g[live], cnt)
+        k = d * d
+        k *= inv
+        np.exp(k, out=k)
+        k *= ww
         den = np.add.reduceat(k, first)
-        d1 = np.add.reduceat(kd, first)
-        d2 = np.add.reduceat(kd * d, first)
+        k *= d
+        d1 = np.add.reduceat(k, first)
+        k *= d
+        d2 = np.add.reduceat(k, first)
         curv = den - d2 * inv_var
         safe_den = np.where(den > 0, den, 1.0)
         step = np.where(curv > 1e-12 * safe_den, d1 / np.where(curv > 0, curv, 1.0),
@@ -232,8 +253,7 @@ def _mean_shift(find: _HeightSearch, z: np.ndarray, w: np.ndarray, start: np.nda
         if done.all():
             break
         if done.any():
-            keep = ~done[s]
+            keep = np.repeat(~done, cnt)
             zz, ww = zz[keep], ww[keep]
             live, cnt = live[~done], cnt[~done]
-            s = np.repeat(np.arange(live.size), cnt)
     return g

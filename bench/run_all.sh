@@ -1,0 +1,10 @@
+#!/usr/bin/env bash
+# Run every benchmark and print its figures: bash bench/run_all.sh
+# (one core each; the machines are shared, so quote medians of several runs).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+PY=${PYTHON:-.venv/bin/python}
+echo "== block engine and ATL03 file path (bench/bench_blocks.py)"
+"$PY" bench/bench_blocks.py "$@"
+echo "== simulator (bench/bench_simulate.py)"
+"$PY" bench/bench_simulate.py
