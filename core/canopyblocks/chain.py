@@ -7,6 +7,7 @@ This is what ``canopyblocks run`` and the README's demo execute.
 from __future__ import annotations
 
 import logging
+import math
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -16,6 +17,8 @@ from typing import Any
 import pandas as pd
 
 from .blocks import BlockParams
+from .errors import FileFormatError, InputError
+from .outputs.atomic import check_writable, new_files_removed_on_failure
 from .outputs.report import ReportSection, write_report
 from .outputs.tables import write_layers, write_table
 from .pipeline import blocks_from_file
@@ -52,7 +55,11 @@ def _simulate(las_paths: Sequence[Path], out: Path, *, azimuth: float, diameter:
     from .simulate.plots import plot_cover_residuals
     from .simulate.writers import write_simulation_atl03
 
-    points = read_las(list(las_paths), progress=progress.sub(0.0, 0.2))
+    try:
+        points = read_las(list(las_paths), progress=progress.sub(0.0, 0.2))
+    except FileFormatError:
+        progress.check()  # read_las reports a cancellation as a read error
+        raise
     params = SimParams(diameter=diameter, preset=preset)  # type: ignore[arg-type]
     track = line_through(points.bounds, azimuth, inset=max(diameter, 17.0) / 2.0)
     sim = simulate_photons(points, track, params, realisations=1, seed=seed,
@@ -131,72 +138,78 @@ def run_chain(
     from .validation.pipeline import validate_atl08, validate_blocks
 
     prog = as_progress(progress)
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    tiles = [Path(p) for p in las_paths]
-    params = params or BlockParams(lengths=(10.0, 25.0, 50.0))
-    simulated = photons is None
-    crs: Any = None
-    photon_vcrs = None
-    seed002: pd.DataFrame | None = None
-    seed002_png: Path | None = None
-    if photons is None:
-        photons, crs, seed002, seed002_png = _simulate(
-            tiles, out, azimuth=azimuth, diameter=diameter, preset=preset, seed=seed,
-            realisations=realisations, progress=prog.sub(0.0, 0.25))
-        # simulated heights are the tiles' own heights: same vertical datum by construction
-        offset, geoid, photon_vcrs = 0.0, None, crs
-        width = diameter if width is None else width
-    width = 2.0 if width is None else width
-    plots_dir = out / "plots"
-    prog.update(0.25, "block heights")
-    res = blocks_from_file(photons, params, beams=beams, channel=channel, atl08=atl08,
-                           crs=crs, output=out / "blocks.gpkg", with_photons=True,
-                           profile=plots_dir / "profile.png", progress=prog.sub(0.25, 0.4))
-    blocks = res.blocks
-    prog.update(0.4, "reference rasters (PDAL)")
-    rasters = make_reference_rasters(tiles, out / "rasters", resolution=resolution,
-                                     crs=blocks.crs, ground=ground,  # type: ignore[arg-type]
-                                     progress=prog.sub(0.4, 0.75))
-    prog.update(0.75, "validation")
-    val = validate_blocks(blocks, dtm=rasters.dtm, dsm_max=rasters.dsm_max,
-                          dsm_p90=rasters.dsm_p90, width=width, geoid=geoid, offset=offset,
-                          photon_vertical_crs=photon_vcrs, progress=prog.sub(0.75, 0.9))
-    layers = {LAYER_RESIDUALS: val.residuals, LAYER_STATS: val.stats}
-    calibration = None
-    if calibrate:
-        from .pipeline import run_blocks
-        from .validation.calibration import calibrate_against_reference
+    out = check_writable(out_dir, folder=True)
+    for name, value in (("width", width), ("resolution", resolution),
+                        ("diameter", diameter)):
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise InputError(f"{name} must be a positive number of metres; got {value!r}")
+    with new_files_removed_on_failure(out):
+        out.mkdir(parents=True, exist_ok=True)
+        tiles = [Path(p) for p in las_paths]
+        params = params or BlockParams(lengths=(10.0, 25.0, 50.0))
+        simulated = photons is None
+        crs: Any = None
+        photon_vcrs = None
+        seed002: pd.DataFrame | None = None
+        seed002_png: Path | None = None
+        if photons is None:
+            photons, crs, seed002, seed002_png = _simulate(
+                tiles, out, azimuth=azimuth, diameter=diameter, preset=preset, seed=seed,
+                realisations=realisations, progress=prog.sub(0.0, 0.25))
+            # simulated heights are the tiles' own heights: same vertical datum by construction
+            offset, geoid, photon_vcrs = 0.0, None, crs
+            width = diameter if width is None else width
+        width = 2.0 if width is None else width
+        plots_dir = out / "plots"
+        prog.update(0.25, "block heights")
+        res = blocks_from_file(photons, params, beams=beams, channel=channel, atl08=atl08,
+                               crs=crs, output=out / "blocks.gpkg", with_photons=True,
+                               profile=plots_dir / "profile.png", progress=prog.sub(0.25, 0.4))
+        blocks = res.blocks
+        prog.update(0.4, "reference rasters (PDAL)")
+        rasters = make_reference_rasters(tiles, out / "rasters", resolution=resolution,
+                                         crs=blocks.crs, ground=ground,  # type: ignore[arg-type]
+                                         progress=prog.sub(0.4, 0.75))
+        prog.update(0.75, "validation")
+        val = validate_blocks(blocks, dtm=rasters.dtm, dsm_max=rasters.dsm_max,
+                              dsm_p90=rasters.dsm_p90, width=width, geoid=geoid, offset=offset,
+                              photon_vertical_crs=photon_vcrs, progress=prog.sub(0.75, 0.9))
+        layers = {LAYER_RESIDUALS: val.residuals, LAYER_STATS: val.stats}
+        calibration = None
+        if calibrate:
+            from .pipeline import run_blocks
+            from .validation.calibration import calibrate_against_reference
 
-        prog.update(0.9, "calibrating cut-offs")
-        calibration = calibrate_against_reference(res.tracks[0], val.residuals, params)
-        blocks_c, _ = run_blocks(res.tracks, calibration.params)
-        val_c = validate_blocks(blocks_c, dtm=rasters.dtm, dsm_max=rasters.dsm_max,
-                                dsm_p90=rasters.dsm_p90, width=width, geoid=geoid,
-                                offset=offset, photon_vertical_crs=photon_vcrs)
-        layers.update({f"{LAYER_RESIDUALS}_calibrated": val_c.residuals,
-                       f"{LAYER_STATS}_calibrated": val_c.stats})
-        write_table(calibration.table, out / "calibration.csv", layer="calibration")
-    if atl08 is not None:
-        v8 = validate_atl08(blocks, atl08, width=width)
-        layers.update({f"{LAYER_RESIDUALS}_atl08": v8.residuals, f"{LAYER_STATS}_atl08": v8.stats})
-    validation = write_layers(layers, out / "validation.gpkg")
-    write_table(val.stats, out / "stats.csv", layer=LAYER_STATS)
-    plots = [plots_dir / "profile.png", *write_validation_plots(val.residuals, val.stats,
-                                                                 plots_dir)]
-    prog.update(0.95, "report")
-    report = _report(out, tiles=tiles, photons=Path(photons), simulated=simulated,
-                     params=params, width=width, resolution=resolution, blocks=blocks,
-                     stats=val.stats, datum=val.datum, plots=plots, azimuth=azimuth,
-                     diameter=diameter, preset=preset, seed=seed,
-                     calibration=None if calibration is None else calibration.table,
-                     seed002=seed002, seed002_png=seed002_png)
-    prog.update(1.0, "done")
-    return ChainResult(out_dir=out, photons=Path(photons), blocks=out / "blocks.gpkg",
-                       rasters={"dtm": rasters.dtm, "dsm_max": rasters.dsm_max,
-                                "dsm_p90": rasters.dsm_p90},
-                       validation=validation, report=report, plots=plots, stats=val.stats,
-                       simulated=simulated)
+            prog.update(0.9, "calibrating cut-offs")
+            calibration = calibrate_against_reference(res.tracks[0], val.residuals, params)
+            blocks_c, _ = run_blocks(res.tracks, calibration.params)
+            val_c = validate_blocks(blocks_c, dtm=rasters.dtm, dsm_max=rasters.dsm_max,
+                                    dsm_p90=rasters.dsm_p90, width=width, geoid=geoid,
+                                    offset=offset, photon_vertical_crs=photon_vcrs)
+            layers.update({f"{LAYER_RESIDUALS}_calibrated": val_c.residuals,
+                           f"{LAYER_STATS}_calibrated": val_c.stats})
+            write_table(calibration.table, out / "calibration.csv", layer="calibration")
+        if atl08 is not None:
+            v8 = validate_atl08(blocks, atl08, width=width)
+            layers.update({f"{LAYER_RESIDUALS}_atl08": v8.residuals,
+                           f"{LAYER_STATS}_atl08": v8.stats})
+        validation = write_layers(layers, out / "validation.gpkg")
+        write_table(val.stats, out / "stats.csv", layer=LAYER_STATS)
+        plots = [plots_dir / "profile.png", *write_validation_plots(val.residuals, val.stats,
+                                                                     plots_dir)]
+        prog.update(0.95, "report")
+        report = _report(out, tiles=tiles, photons=Path(photons), simulated=simulated,
+                         params=params, width=width, resolution=resolution, blocks=blocks,
+                         stats=val.stats, datum=val.datum, plots=plots, azimuth=azimuth,
+                         diameter=diameter, preset=preset, seed=seed,
+                         calibration=None if calibration is None else calibration.table,
+                         seed002=seed002, seed002_png=seed002_png)
+        prog.update(1.0, "done")
+        return ChainResult(out_dir=out, photons=Path(photons), blocks=out / "blocks.gpkg",
+                           rasters={"dtm": rasters.dtm, "dsm_max": rasters.dsm_max,
+                                    "dsm_p90": rasters.dsm_p90},
+                           validation=validation, report=report, plots=plots, stats=val.stats,
+                           simulated=simulated)
 
 
 def _report(out: Path, *, tiles: list[Path], photons: Path, simulated: bool,
@@ -219,7 +232,9 @@ def _report(out: Path, *, tiles: list[Path], photons: Path, simulated: bool,
             "Airborne tiles: " + ", ".join(t.name for t in tiles) + ".",
             f"Block lengths {', '.join(f'{v:g}' for v in params.lengths)} m; noise filter "
             f"'{params.noise}' (k = {params.k_sigma:g}); corridor width {width:g} m; "
-            f"reference rasters at {resolution:g} m from PDAL; vertical datums: {datum}.",
+            f"reference rasters at {resolution:g} m from PDAL; vertical datums: "
+            + ("the tiles' own (the photons were simulated from them)." if simulated
+               else f"{datum}."),
         ]),
         ReportSection("Block heights", [
             f"{len(blocks)} blocks, {int((blocks['flag'] == FLAG_OK).sum())} flagged ok "

@@ -208,30 +208,39 @@ def blocks_from_file(
     -------
     BlocksResult
     """
+    from .outputs.atomic import check_writable
     from .outputs.tables import check_output_path, write_layers
 
     if output is not None:
         check_output_path(output)  # fail before reading, not after an hour of work
+    if profile is not None:
+        check_writable(profile)
     prog = as_progress(progress)
     tracks = read_tracks(path, beams=beams, channel=channel, atl08=atl08, bbox=bbox, crs=crs,
                          min_signal_conf=params.min_signal_conf, progress=prog.sub(0.0, 0.3))
     want_labels = with_photons or profile is not None
     blocks, labels = run_blocks(tracks, params, labels=want_labels, progress=prog.sub(0.3, 0.85))
     result = BlocksResult(tracks=tracks, blocks=blocks, labels=labels)
-    if output is not None:
-        layers: dict[str, pd.DataFrame] = {LAYER_BLOCKS: blocks}
-        if with_photons:
-            if Path(output).suffix.lower() == ".gpkg":
-                layers[LAYER_PHOTONS] = photon_layer(tracks, labels)
-            else:
-                warnings.warn("--photons needs a .gpkg output; photon layer not written",
-                              CanopyBlocksWarning, stacklevel=2)
-        prog.update(0.9, "writing")
-        result.outputs.append(write_layers(layers, output))
-    if profile is not None:
-        from .outputs.profile_plot import plot_profile
+    layers: dict[str, pd.DataFrame] = {LAYER_BLOCKS: blocks}
+    if output is not None and with_photons:
+        if Path(output).suffix.lower() == ".gpkg":
+            layers[LAYER_PHOTONS] = photon_layer(tracks, labels)
+        else:
+            warnings.warn("--photons needs a .gpkg output; photon layer not written",
+                          CanopyBlocksWarning, stacklevel=2)
+    prog.update(0.9, "writing")  # the last point where cancelling stops the run
+    new = [Path(p) for p in (output, profile) if p is not None and not Path(p).exists()]
+    try:
+        if output is not None:
+            result.outputs.append(write_layers(layers, output))
+        if profile is not None:
+            from .outputs.profile_plot import plot_profile
 
-        t = tracks[0]
-        result.outputs.append(plot_profile(t, blocks, profile, labels=labels.get(t.track)))
-    prog.update(1.0, "done")
+            t = tracks[0]
+            result.outputs.append(plot_profile(t, blocks, profile, labels=labels.get(t.track)))
+    except BaseException:  # e.g. Ctrl-C while plotting: no half set of outputs
+        for p in new:
+            p.unlink(missing_ok=True)
+        raise
+    prog.report(1.0, "done")  # outputs written: too late to cancel
     return result

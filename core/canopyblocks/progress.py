@@ -43,6 +43,14 @@ class Progress:
     def update(self, fraction: float, message: str = "") -> None:
         """Report ``fraction`` (0..1) of this object's range done; raise if cancelled."""
         self.check()
+        self.report(fraction, message)
+
+    def report(self, fraction: float, message: str = "") -> None:
+        """Report ``fraction`` (0..1) done without checking for cancellation.
+
+        For the end of an operation whose outputs are already written: cancelling
+        then would have nothing left to stop.
+        """
         if self.callback is not None:
             f = min(max(float(fraction), 0.0), 1.0)
             self.callback(self.start + self.span * f, message)

@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
-from typing import Literal
+from typing import Literal, TypeGuard, cast
 
 import numpy as np
 
@@ -42,6 +42,12 @@ DEFAULT_CUTOFFS: dict[float, tuple[float, float]] = {
 #: A cut-off given by the user: one fraction for every length, or length -> fraction.
 CutoffSpec = float | Mapping[float, float] | tuple[tuple[float, float], ...] | None
 
+#: A cut-off after validation (what ``BlockParams.__post_init__`` stores).
+_NormalCutoff = float | tuple[tuple[float, float], ...] | None
+
+#: A real number as accepted for a parameter (bools excluded by :func:`_is_number`).
+_Number = int | float | np.integer | np.floating
+
 
 def default_cutoffs(length: float) -> tuple[float, float]:
     """Paper (top, ground) cut-off fractions for a block ``length`` in metres.
@@ -56,20 +62,20 @@ def default_cutoffs(length: float) -> tuple[float, float]:
     return float(np.interp(length, ls, tops)), float(np.interp(length, ls, grounds))
 
 
-def _is_number(v: object) -> bool:
+def _is_number(v: object) -> TypeGuard[_Number]:
     return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
 
 
 def _fraction(v: object, what: str) -> float:
-    if not _is_number(v) or not (0.0 < float(v) < 1.0):  # type: ignore[arg-type]
-        raise InputError(f"{what} must be a fraction in (0, 1) (e.g. 0.1 for 10 %); got {v!r}")
-    return float(v)  # type: ignore[arg-type]
+    if _is_number(v) and 0.0 < float(v) < 1.0:
+        return float(v)
+    raise InputError(f"{what} must be a fraction in (0, 1) (e.g. 0.1 for 10 %); got {v!r}")
 
 
 def _positive(v: object, what: str, unit: str = "m") -> float:
-    if not _is_number(v) or not math.isfinite(float(v)) or float(v) <= 0:  # type: ignore[arg-type]
-        raise InputError(f"{what} must be a positive finite number ({unit}); got {v!r}")
-    return float(v)  # type: ignore[arg-type]
+    if _is_number(v) and math.isfinite(float(v)) and float(v) > 0:
+        return float(v)
+    raise InputError(f"{what} must be a positive finite number ({unit}); got {v!r}")
 
 
 def _same_length(a: float, b: float) -> bool:
@@ -128,11 +134,13 @@ class BlockParams:
     def __post_init__(self) -> None:
         set_ = object.__setattr__
         # lengths
-        raw = self.lengths
+        raw: object = self.lengths
         if _is_number(raw):
-            raw = (raw,)  # type: ignore[assignment]
+            raw = (raw,)
         try:
-            seq = tuple(raw)  # type: ignore[arg-type]
+            if not isinstance(raw, Iterable):
+                raise TypeError
+            seq = tuple(raw)
         except TypeError:
             raise InputError(
                 f"lengths must be a positive number or a sequence of them (m); got {raw!r}"
@@ -213,16 +221,19 @@ class BlockParams:
     def cutoffs_for(self, length: float) -> tuple[float, float]:
         """The (top, ground) cut-off fractions used for block ``length`` (m)."""
         top_d, ground_d = default_cutoffs(length)
-        return (self._lookup(self.top_cutoff, length, top_d, "top_cutoff"),
-                self._lookup(self.ground_cutoff, length, ground_d, "ground_cutoff"))
+        # __post_init__ has normalised both specs (_cutoff_spec): no mapping is left.
+        top = cast(_NormalCutoff, self.top_cutoff)
+        ground = cast(_NormalCutoff, self.ground_cutoff)
+        return (self._lookup(top, length, top_d, "top_cutoff"),
+                self._lookup(ground, length, ground_d, "ground_cutoff"))
 
     @staticmethod
-    def _lookup(spec: object, length: float, default: float, what: str) -> float:
+    def _lookup(spec: _NormalCutoff, length: float, default: float, what: str) -> float:
         if spec is None:
             return default
         if isinstance(spec, float):
             return spec
-        for k, v in spec:  # type: ignore[union-attr]
+        for k, v in spec:
             if _same_length(k, length):
                 return float(v)
         raise InputError(f"{what} gives no value for block length {length} m")

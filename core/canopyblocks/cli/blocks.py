@@ -77,7 +77,7 @@ def blocks_cmd(ctx: click.Context, path: str, output: str, beams: tuple[str, ...
     with progress_bar("blocks", quiet=quiet) as progress:
         result = blocks_from_file(
             path, params, beams=beams, channel=parse_channel(channel), atl08=atl08,
-            bbox=parse_floats(bbox, 4, "lon_min,lat_min,lon_max,lat_max"),  # type: ignore[arg-type]
+            bbox=parse_floats(bbox, 4, "lon_min,lat_min,lon_max,lat_max", "--bbox"),  # type: ignore[arg-type]
             crs=crs, output=output, with_photons=with_photons,
             profile=profile, progress=progress,
         )

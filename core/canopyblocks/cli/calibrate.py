@@ -43,6 +43,10 @@ def calibrate_cmd(ctx: click.Context, photons: str, dtm: str, dsm_max: str, dsm_
     from ..blocks import BlockParams
     from ..validation.calibration import calibrate_reference_rasters
 
+    if output is not None:
+        from ..outputs.tables import check_output_path
+
+        check_output_path(output)  # fail before the work, not after it
     params = BlockParams(lengths=tuple(lengths) or (10.0, 25.0, 50.0),
                          min_signal_conf=min_signal_conf)
     quiet = bool(ctx.obj and ctx.obj.get("quiet"))

@@ -3,14 +3,17 @@
 from __future__ import annotations
 
 import logging
+import math
+import signal
 import sys
+import threading
 import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 
 import click
 
-from ..errors import CancelledError, CanopyBlocksError, CanopyBlocksWarning
+from ..errors import CanopyBlocksError, CanopyBlocksWarning
 from ..progress import Progress
 
 __all__ = ["parse_floats", "parse_channel", "run_main", "setup_logging", "progress_bar", "EXIT_OK", "EXIT_BAD_INPUT", "EXIT_BUG"]
@@ -20,16 +23,21 @@ EXIT_BUG = 1
 EXIT_BAD_INPUT = 2
 
 
-def parse_floats(value: str | None, n: int, what: str) -> tuple[float, ...] | None:
-    """Parse ``"a,b,..."`` into ``n`` floats (None stays None); a usage error otherwise."""
+def parse_floats(value: str | None, n: int, what: str,
+                 option: str | None = None) -> tuple[float, ...] | None:
+    """Parse ``"a,b,..."`` into ``n`` finite floats (None stays None); a usage error otherwise.
+
+    ``option`` (e.g. ``"--bbox"``) is named in the message.
+    """
     if value is None:
         return None
     try:
         parts = tuple(float(v) for v in value.split(","))
     except ValueError:
         parts = ()
-    if len(parts) != n:
-        raise click.BadParameter(f"expected {what}; got {value!r}")
+    if len(parts) != n or not all(math.isfinite(v) for v in parts):
+        raise click.BadParameter(f"expected {what} (finite numbers); got {value!r}",
+                                 param_hint=option)
     return parts
 
 
@@ -40,7 +48,8 @@ def parse_channel(value: str | None) -> int | str | None:
     try:
         return int(value)
     except ValueError:
-        raise click.BadParameter(f"expected a channel number or 'most'; got {value!r}") from None
+        raise click.BadParameter(f"expected a channel number or 'most'; got {value!r}",
+                                 param_hint="--channel") from None
 
 
 class _CliFormatter(logging.Formatter):
@@ -70,12 +79,51 @@ def setup_logging(verbose: int, quiet: bool) -> None:
     warnings.simplefilter("default", CanopyBlocksWarning)
 
 
+_INTERRUPTED = threading.Event()
+
+
+@contextmanager
+def _ctrl_c_cancels() -> Iterator[None]:
+    """While inside: the first Ctrl-C (SIGINT) asks the running operation to cancel.
+
+    A KeyboardInterrupt raised at an arbitrary byte code can land in a garbage-collector
+    callback, where Python ignores it and the run goes on to "succeed".  Instead the
+    signal sets a flag that :class:`Progress` checks; the operation then stops at its
+    next check (at most a fraction of a second away: PDAL runs are polled), removing
+    its partial outputs.  A second Ctrl-C interrupts at once.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum: int, frame: object) -> None:
+        if _INTERRUPTED.is_set():
+            raise KeyboardInterrupt
+        _INTERRUPTED.set()
+
+    previous = signal.signal(signal.SIGINT, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 @contextmanager
 def progress_bar(label: str, *, quiet: bool = False) -> Iterator[Progress]:
-    """A :class:`Progress` that drives a tqdm bar on stderr (nothing when quiet/not a tty)."""
-    if quiet:
-        yield Progress()
-        return
+    """A :class:`Progress` that drives a tqdm bar on stderr (nothing when quiet/not a tty).
+
+    Ctrl-C inside the block cancels the operation through the Progress.
+    """
+    with _ctrl_c_cancels():
+        if quiet:
+            yield Progress(cancelled=_INTERRUPTED.is_set)
+            return
+        with _tqdm_progress(label) as progress:
+            yield progress
+
+
+@contextmanager
+def _tqdm_progress(label: str) -> Iterator[Progress]:
     from tqdm import tqdm
 
     bar = tqdm(total=1000, desc=label, unit="", leave=False, file=sys.stderr,
@@ -90,29 +138,48 @@ def progress_bar(label: str, *, quiet: bool = False) -> Iterator[Progress]:
             bar.set_postfix_str(message, refresh=False)
 
     try:
-        yield Progress(callback=cb)
+        yield Progress(callback=cb, cancelled=_INTERRUPTED.is_set)
     finally:
         bar.close()
 
 
+def _one_line(text: str) -> str:
+    return " ".join(str(text).split())
+
+
+def _error(message: object) -> None:
+    """The single ``canopyblocks: error: ...`` line of a failed run."""
+    click.echo(f"canopyblocks: error: {_one_line(str(message))}", err=True)
+
+
 def run_main(group: click.Group, argv: list[str] | None) -> int:
-    """Run ``group``; map the project's errors to exit 2 with a one-line message."""
+    """Run ``group``; map the project's errors to exit 2 with a one-line message.
+
+    Usage errors, bad input, cancellation and Ctrl-C all end with exactly one line
+    ``canopyblocks: error: ...`` on stderr (warnings may precede it) and exit status 2;
+    anything else is a bug and keeps its traceback (exit status 1).
+    """
+    _INTERRUPTED.clear()
     try:
         group.main(args=argv, prog_name="canopyblocks", standalone_mode=False)
     except click.exceptions.Abort:
-        click.echo("canopyblocks: aborted", err=True)
+        _error("aborted; no output was written")
         return EXIT_BAD_INPUT
-    except click.ClickException as exc:  # usage errors: click's own message
-        exc.show()
+    except click.UsageError as exc:  # usage errors: click's message, on one line
+        path = exc.ctx.command_path if exc.ctx is not None else "canopyblocks"
+        _error(f"{exc.format_message()} (see '{path} --help')")
         return EXIT_BAD_INPUT
-    except CancelledError as exc:
-        click.echo(f"canopyblocks: {exc}", err=True)
+    except click.ClickException as exc:
+        _error(exc.format_message())
         return EXIT_BAD_INPUT
     except CanopyBlocksError as exc:
-        click.echo(f"canopyblocks: error: {exc}", err=True)
+        if _INTERRUPTED.is_set():  # e.g. PDAL, which got the Ctrl-C too, failed first
+            _error("interrupted (Ctrl-C); no output was written")
+        else:
+            _error(exc)
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:
-        click.echo("canopyblocks: interrupted; no output was written", err=True)
+        _error("interrupted (Ctrl-C); no output was written")
         return EXIT_BAD_INPUT
     except click.exceptions.Exit as exc:
         return int(exc.exit_code)

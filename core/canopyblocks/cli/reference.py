@@ -40,10 +40,12 @@ def rasters_cmd(ctx: click.Context, las: tuple[str, ...], out_dir: str, resoluti
     A cell's value uses the points within resolution*sqrt(2)/2 of its centre: mean of
     ground points (DTM), max and 90th percentile of all non-noise points (DSMs).
     """
+    from ..outputs.atomic import check_writable, new_files_removed_on_failure
     from ..reference.rasters import make_reference_rasters
 
+    check_writable(out_dir, folder=True)
     quiet = bool((ctx.obj or {}).get("quiet", False))
-    with progress_bar("rasters", quiet=quiet) as progress:
+    with new_files_removed_on_failure(out_dir), progress_bar("rasters", quiet=quiet) as progress:
         result = make_reference_rasters(
             [Path(p) for p in las], Path(out_dir), resolution=resolution, crs=crs,
             bounds=bounds or None, ground="smrf" if smrf else "class2", pdal=pdal_exe,

@@ -4,11 +4,17 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
+from typing import TYPE_CHECKING, cast
 
 import click
 
 from .common import parse_floats as _floats
 from .common import progress_bar
+
+if TYPE_CHECKING:
+    from ..simulate import SimTrack
+    from ..simulate.analysis import Seed002Result
+    from ..simulate.params import Beam, Ecosystem, Instrument
 
 log = logging.getLogger(__name__)
 
@@ -61,7 +67,8 @@ log = logging.getLogger(__name__)
 def simulate_cmd(ctx: click.Context, las: tuple[str, ...], azimuth: float | None,
                  line: str | None, polyline: str | None, centre: str | None,
                  diameters: tuple[float, ...],
-                 instrument: str, shot_spacing: float | None, preset: str, beam: str,
+                 instrument: Instrument, shot_spacing: float | None, preset: Ecosystem,
+                 beam: Beam,
                  mean_photons: float | None, noise_rate: float, geolocation_sigma: float,
                  realisations: int, seed: int, crs: str | None, output: str, fmt: str | None,
                  photon_table: str | None, report: str | None) -> None:
@@ -83,12 +90,13 @@ def simulate_cmd(ctx: click.Context, las: tuple[str, ...], azimuth: float | None
     if sum(v is not None for v in (azimuth, line, polyline)) != 1:
         raise click.UsageError(
             "give exactly one of --azimuth DEG, --line x0,y0,x1,y1 or --polyline 'x,y;x,y;...'")
-    params = SimParams(instrument=instrument,  # type: ignore[arg-type]
+    params = SimParams(instrument=instrument,
                        diameter=diameters[0] if diameters else None,
-                       shot_spacing=shot_spacing, preset=preset,  # type: ignore[arg-type]
-                       beam=beam, mean_photons=mean_photons,  # type: ignore[arg-type]
+                       shot_spacing=shot_spacing, preset=preset,
+                       beam=beam, mean_photons=mean_photons,
                        noise_rate=noise_rate, geolocation_sigma=geolocation_sigma)
-    diams = tuple(diameters) or (float(params.diameter),)  # type: ignore[arg-type]
+    # SimParams.__post_init__ fills diameter from the instrument when it is None.
+    diams = tuple(diameters) or (float(cast(float, params.diameter)),)
     out = Path(output)
     suffix = out.suffix.lower()
     if suffix not in (".h5", ".hdf5", ".parquet", ".geoparquet", ".gpkg", ".csv"):
@@ -96,14 +104,16 @@ def simulate_cmd(ctx: click.Context, las: tuple[str, ...], azimuth: float | None
     quiet = bool(ctx.obj and ctx.obj.get("quiet"))
     with progress_bar("simulate", quiet=quiet) as progress:
         if line is not None:
-            x0, y0, x1, y1 = _floats(line, 4, "x0,y0,x1,y1")  # type: ignore[misc]
+            x0, y0, x1, y1 = _parse(line, 4, "x0,y0,x1,y1")
             track = SimTrack.line(x0, y0, x1, y1)
         elif polyline is not None:
             track = _polyline(polyline)
-        else:
-            c = _floats(centre, 2, "x,y")
-            track = line_through(las_bounds(list(las)), float(azimuth),  # type: ignore[arg-type]
-                                 inset=max(diams) / 2.0, centre=c)  # type: ignore[arg-type]
+        elif azimuth is not None:
+            c = None if centre is None else _pair(centre, "x,y")
+            track = line_through(las_bounds(list(las)), float(azimuth),
+                                 inset=max(diams) / 2.0, centre=c)
+        else:  # excluded by the check above
+            raise click.UsageError("give one of --azimuth, --line or --polyline")
         # read only the corridor the footprints can reach
         reach = max(diams) / 2.0 + 1.0
         vx, vy = zip(*track.vertices)
@@ -137,27 +147,40 @@ def simulate_cmd(ctx: click.Context, las: tuple[str, ...], azimuth: float | None
                f"{sim.length:.0f} m -> {out}", err=True)
 
 
-def _polyline(value: str) -> object:
+def _parse(value: str, n: int, what: str) -> tuple[float, ...]:
+    """:func:`parse_floats` of a given (not None) option value: ``n`` floats."""
+    parts = _floats(value, n, what)
+    if parts is None:  # parse_floats returns None only for None
+        raise click.BadParameter(f"expected {what}; got {value!r}")
+    return parts
+
+
+def _pair(value: str, what: str) -> tuple[float, float]:
+    """An ``x,y`` option value as two floats (metres)."""
+    x, y = _parse(value, 2, what)
+    return x, y
+
+
+def _polyline(value: str) -> SimTrack:
     from ..simulate import SimTrack
 
-    verts = []
+    verts: list[tuple[float, float]] = []
     for part in value.split(";"):
-        xy = _floats(part, 2, "'x0,y0;x1,y1;...'")
-        verts.append(xy)
+        verts.append(_pair(part, "'x0,y0;x1,y1;...'"))
     if len(verts) < 2:
         raise click.BadParameter(f"a polyline needs at least two vertices; got {value!r}")
-    return SimTrack(tuple(verts))  # type: ignore[arg-type]
+    return SimTrack(tuple(verts))
 
 
-def _write_report(folder: Path, result: object) -> None:
+def _write_report(folder: Path, result: Seed002Result) -> None:
     from ..outputs.tables import write_table
     from ..simulate.plots import plot_cover_residuals
 
     folder.mkdir(parents=True, exist_ok=True)
-    write_table(result.table, folder / "seed002_table.csv")  # type: ignore[attr-defined]
-    write_table(result.cover, folder / "residuals_by_cover.csv")  # type: ignore[attr-defined]
-    plot_cover_residuals(result, folder / "residuals_by_cover.png")  # type: ignore[arg-type]
-    for d, sim in result.simulations.items():  # type: ignore[attr-defined]
+    write_table(result.table, folder / "seed002_table.csv")
+    write_table(result.cover, folder / "residuals_by_cover.csv")
+    plot_cover_residuals(result, folder / "residuals_by_cover.png")
+    for d, sim in result.simulations.items():
         frame = sim.truth_frame().drop(columns="geometry")
         write_table(frame, folder / f"truth_{d:g}m.csv")
 

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import contextlib
 import logging
 from pathlib import Path
 
 import click
 
-from ..errors import CRSError, InputError
+from ..errors import CRSError, InputError, NoUsableDataError
 
 log = logging.getLogger(__name__)
 
@@ -53,7 +54,8 @@ def validate(ctx: click.Context, blocks_path: str, dtm: str | None, dsm_max: str
     metric, aspect and slope class.
     """
     from ..geo import as_crs
-    from ..outputs.tables import read_blocks, write_layers
+    from ..outputs.atomic import check_writable, new_files_removed_on_failure
+    from ..outputs.tables import check_output_path, read_blocks, write_layers
     from ..schema import LAYER_RESIDUALS, LAYER_STATS
     from ..validation.pipeline import validate_atl08, validate_blocks
     from .common import progress_bar
@@ -65,7 +67,13 @@ def validate(ctx: click.Context, blocks_path: str, dtm: str | None, dsm_max: str
         raise InputError("give --dtm, --dsm-max and --dsm-p90 (or --atl08 FILE)")
     if atl08 is not None and any(r is not None for r in rasters):
         raise InputError("give either the rasters (--dtm ...) or --atl08, not both")
+    check_output_path(output)  # fail before the work, not after it
+    if plots is not None:
+        check_writable(plots, folder=True)
     blocks = read_blocks(blocks_path)
+    if len(blocks) == 0:
+        raise NoUsableDataError(f"{blocks_path} holds no blocks; nothing to validate "
+                                "(check the photons and block lengths that made it)")
     if blocks.crs is None:
         if blocks_crs is None:
             raise CRSError(f"{blocks_path} carries no CRS (CSV); give --crs EPSG:...")
@@ -81,10 +89,12 @@ def validate(ctx: click.Context, blocks_path: str, dtm: str | None, dsm_max: str
                                      reference_vertical_crs=reference_vcrs,
                                      photon_vertical_crs=photon_vcrs,
                                      slope_threshold=slope_threshold, progress=prog)
-    write_layers({LAYER_RESIDUALS: result.residuals, LAYER_STATS: result.stats}, output)
-    if plots is not None:
-        from ..outputs.validation_plots import write_validation_plots
+    with (new_files_removed_on_failure(plots) if plots is not None
+          else contextlib.nullcontext()):
+        if plots is not None:
+            from ..outputs.validation_plots import write_validation_plots
 
-        write_validation_plots(result.residuals, result.stats, Path(plots))
+            write_validation_plots(result.residuals, result.stats, Path(plots))
+        write_layers({LAYER_RESIDUALS: result.residuals, LAYER_STATS: result.stats}, output)
     used = int(result.residuals["use"].sum())
     click.echo(f"validated {used} of {len(result.residuals)} blocks -> {output}", err=True)

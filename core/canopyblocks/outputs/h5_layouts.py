@@ -34,11 +34,16 @@ import os
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import DTypeLike
 
 from ..errors import InputError
 from .atomic import atomic_output
+
+if TYPE_CHECKING:
+    import h5py  # untyped: its classes are Any to mypy
 
 __all__ = [
     "Atl03BeamData",
@@ -60,7 +65,8 @@ ATLAS_SDP_GPS_EPOCH = 1198800018.0
 _BEAMS = ("gt1l", "gt1r", "gt2l", "gt2r", "gt3l", "gt3r")
 
 
-def _column(name: str, values: object, n: int | None, dtype: object = np.float64) -> np.ndarray:
+def _column(name: str, values: object, n: int | None,
+            dtype: DTypeLike = np.float64) -> np.ndarray:
     arr = np.asarray(values, dtype=dtype)
     if arr.ndim != 1:
         raise InputError(f"{name} must be one-dimensional, got shape {arr.shape}")
@@ -211,9 +217,9 @@ class MabelChannelData:
         return int(self.delta_time.size)
 
 
-def _ds(group: object, name: str, data: np.ndarray, units: str, long_name: str,
+def _ds(group: h5py.Group, name: str, data: np.ndarray, units: str, long_name: str,
         **attrs: str) -> None:
-    d = group.create_dataset(name, data=data)  # type: ignore[attr-defined]
+    d = group.create_dataset(name, data=data)
     d.attrs["units"] = units
     d.attrs["long_name"] = long_name
     for k, v in attrs.items():
@@ -298,7 +304,7 @@ def write_atl03(
     return out
 
 
-def _write_beam(f: object, beam: str, d: Atl03BeamData, sc_orient: int, extra_group: str,
+def _write_beam(f: h5py.File, beam: str, d: Atl03BeamData, sc_orient: int, extra_group: str,
                 dist_x0: float) -> None:
     n = len(d)
     seg = np.floor(d.s / SEGMENT_LENGTH).astype(np.int64)
@@ -318,7 +324,7 @@ def _write_beam(f: object, beam: str, d: Atl03BeamData, sc_orient: int, extra_gr
 
     strength = d.strength or {0: "strong" if beam.endswith("l") else "weak",
                               1: "strong" if beam.endswith("r") else "weak"}.get(sc_orient)
-    g = f.create_group(beam)  # type: ignore[attr-defined]
+    g = f.create_group(beam)
     g.attrs["groundtrack_id"] = beam
     if strength:
         g.attrs["atlas_beam_type"] = strength

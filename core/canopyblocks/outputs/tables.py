@@ -11,7 +11,7 @@ import pandas as pd
 
 from ..errors import DependencyError, FileFormatError, InputError
 from ..schema import LAYER_BLOCKS
-from .atomic import atomic_output
+from .atomic import atomic_output, check_writable
 
 __all__ = ["check_output_path", "write_table", "write_layers", "read_layer", "read_blocks", "SUFFIXES"]
 
@@ -20,11 +20,11 @@ log = logging.getLogger(__name__)
 SUFFIXES = (".gpkg", ".parquet", ".geoparquet", ".csv")
 
 
-def _suffix(path: Path) -> str:
+def _suffix(path: Path, verb: str = "write") -> str:
     suf = path.suffix.lower()
     if suf not in SUFFIXES:
         raise InputError(
-            f"cannot write {path}: unknown suffix {suf!r}; use one of {', '.join(SUFFIXES)}"
+            f"cannot {verb} {path}: unknown suffix {suf!r}; use one of {', '.join(SUFFIXES)}"
         )
     return suf
 
@@ -33,6 +33,7 @@ def check_output_path(path: str | os.PathLike[str]) -> Path:
     """Check an output table path's suffix before any work is done; return it as a Path."""
     p = Path(path)
     _suffix(p)
+    check_writable(p)
     return p
 
 
@@ -109,7 +110,7 @@ def read_layer(path: str | os.PathLike[str], layer: str | None = None) -> pd.Dat
     p = Path(path)
     if not p.exists():
         raise FileFormatError(f"{p}: no such file")
-    suf = _suffix(p)
+    suf = _suffix(p, "read")
     try:
         if suf == ".gpkg":
             import pyogrio

@@ -22,9 +22,11 @@ import logging
 import os
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import pyproj
+from numpy.typing import DTypeLike
 
 from ..errors import FileFormatError, InputError, NoUsableDataError
 from ..geo import as_crs, to_metric_local_affine
@@ -91,9 +93,9 @@ def beam_spot(beam: str, sc_orient: int | None) -> int | None:
 
 
 def _sc_orient(f: H5File) -> int | None:
-    v = f.scalar("orbit_info/sc_orient")
+    v: Any = f.scalar("orbit_info/sc_orient")  # an untyped HDF5 value; int() may refuse it
     try:
-        return None if v is None else int(v)  # type: ignore[call-overload]
+        return None if v is None else int(v)
     except (TypeError, ValueError):
         return None
 
@@ -118,9 +120,9 @@ def _beam_info(f: H5File, beam: str, sc_orient: int | None) -> BeamInfo:
     kind = f.attr(beam, "atlas_beam_type")
     strength = str(kind).lower() if kind in ("strong", "weak", b"strong", b"weak") else \
         beam_strength(beam, sc_orient)
-    spot_attr = f.attr(beam, "atlas_spot_number")
+    spot_attr: Any = f.attr(beam, "atlas_spot_number")  # untyped HDF5 attribute
     try:
-        spot: int | None = int(spot_attr)  # type: ignore[call-overload]
+        spot: int | None = int(spot_attr)
     except (TypeError, ValueError):
         spot = beam_spot(beam, sc_orient)
     n = f.shape(f"{beam}/heights/h_ph")[0] if f.is_dataset(f"{beam}/heights/h_ph") else 0
@@ -181,7 +183,8 @@ def _read_segments(f: H5File, beam: str, n_photons: int) -> _Segments:
             f"{f.path}: {g}: segment_id, ph_index_beg, segment_ph_cnt, segment_dist_x and "
             "segment_length have different shapes; the geolocation group is corrupt"
         )
-    if ref_lat is not None and (ref_lat.shape != seg_id.shape or ref_lon.shape != seg_id.shape):
+    if ref_lat is not None and ref_lon is not None and (
+            ref_lat.shape != seg_id.shape or ref_lon.shape != seg_id.shape):
         ref_lat = ref_lon = None
     nonempty = (cnt > 0) & (beg > 0)
     end = beg + cnt - 1  # 1-based last photon row
@@ -375,7 +378,7 @@ def read_atl03(
             del rows
         prog.update(0.2, f"reading {total} photons of {beam}")
 
-        def col(name: str, dtype: object = None, column: int | None = None) -> np.ndarray:
+        def col(name: str, dtype: DTypeLike = None, column: int | None = None) -> np.ndarray:
             if take is None and column is not None:
                 return f.read_column(f"{hg}/{name}", lo, hi, column, dtype)
             arr = f.read(f"{hg}/{name}", np.s_[lo:hi], dtype=dtype)
@@ -492,11 +495,12 @@ def _sort_by_s(cols: dict[str, np.ndarray], extra: dict[str, np.ndarray]) -> Non
             d[k] = d[k][order]
 
 
-def _check_same_granule(a03: str, rc03: tuple[object, object], a08: str,
-                        rc08: tuple[object, object]) -> None:
+def _check_same_granule(a03: str, rc03: tuple[Any, Any], a08: str,
+                        rc08: tuple[Any, Any]) -> None:
+    """(RGT, cycle) pairs are untyped HDF5 scalars (or None when a file lacks them)."""
     if None in rc03 or None in rc08:
         return
-    if tuple(int(v) for v in rc03) != tuple(int(v) for v in rc08):  # type: ignore[call-overload]
+    if tuple(int(v) for v in rc03) != tuple(int(v) for v in rc08):
         raise InputError(
             f"ATL08 file {a08} is from RGT {rc08[0]} cycle {rc08[1]} but ATL03 file {a03} is "
             f"from RGT {rc03[0]} cycle {rc03[1]}; pass the matching ATL08 granule"
@@ -507,7 +511,7 @@ def _empty_message(f: H5File, beam: str, bbox: object, s_range: object) -> str:
     cover = ""
     try:
         segs = _read_segments(f, beam, f.shape(f"{beam}/heights/h_ph")[0])
-        if segs.ref_lat is not None and segs.ref_lat.size:
+        if segs.ref_lat is not None and segs.ref_lon is not None and segs.ref_lat.size:
             lon, lat = segs.ref_lon, segs.ref_lat
             cover = (f"; the beam covers lon {np.nanmin(lon):.5f}..{np.nanmax(lon):.5f}, "
                      f"lat {np.nanmin(lat):.5f}..{np.nanmax(lat):.5f}")

@@ -12,11 +12,19 @@ import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyproj
 
-from ..errors import CRSError, DependencyError, FileFormatError, InputError, NoUsableDataError
+from ..errors import (
+    CancelledError,
+    CRSError,
+    DependencyError,
+    FileFormatError,
+    InputError,
+    NoUsableDataError,
+)
 from ..geo import as_crs, require_metric_crs
 from ..progress import Progress, as_progress
 
@@ -147,12 +155,18 @@ def las_bounds(paths: str | os.PathLike[str] | Sequence[str | os.PathLike[str]]
         try:
             with laspy.open(path) as reader:
                 mins, maxs = reader.header.mins, reader.header.maxs
+                count = int(reader.header.point_count)
         except FileNotFoundError:
             raise FileFormatError(f"{path}: no such file") from None
         except Exception as exc:  # laspy raises several types for corrupt headers
             raise FileFormatError(f"{path}: not a readable LAS/LAZ file ({exc})") from None
+        if count == 0:
+            continue  # an empty tile has no extent (its header says 0, 0, 0, 0)
         lo = np.minimum(lo, np.asarray(mins[:2], dtype=float))
         hi = np.maximum(hi, np.asarray(maxs[:2], dtype=float))
+    if not np.all(np.isfinite(lo)):
+        raise NoUsableDataError(
+            f"no points in {', '.join(str(p) for p in paths)}; give tiles that hold points")
     return float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])
 
 
@@ -226,9 +240,10 @@ def read_las(
     if not files:
         raise InputError("no LAS/LAZ file given")
     if bbox is not None:
-        bbox = tuple(float(v) for v in bbox)  # type: ignore[assignment]
-        if len(bbox) != 4 or not (bbox[0] <= bbox[2] and bbox[1] <= bbox[3]):
-            raise InputError(f"bbox must be (xmin, ymin, xmax, ymax) with min <= max; got {bbox}")
+        box = tuple(float(v) for v in bbox)
+        if len(box) != 4 or not (box[0] <= box[2] and box[1] <= box[3]):
+            raise InputError(f"bbox must be (xmin, ymin, xmax, ymax) with min <= max; got {box}")
+        bbox = (box[0], box[1], box[2], box[3])
     given = None if crs is None else as_crs(crs, "point cloud CRS")
     excl = np.asarray(list(exclude_classes), dtype=np.int64)
     used_crs: pyproj.CRS | None = None
@@ -282,6 +297,8 @@ def read_las(
                     _append_chunk(chunk, parts, bbox, excl, offset + done)
                     done += len(chunk)
                     sub.update(done / total, f"{path.name}: {done:,} points")
+            except CancelledError:
+                raise
             except Exception as exc:
                 raise FileFormatError(
                     f"{path}: truncated or corrupt point data after {done:,} points ({exc})"
@@ -298,24 +315,27 @@ def read_las(
         classification=np.concatenate(parts["c"]), return_number=np.concatenate(parts["r"]),
         number_of_returns=np.concatenate(parts["n"]), crs=used_crs, vertical_datum=vdatum,
         sources=tuple(str(f) for f in files), row=np.concatenate(parts["row"]))
+    prog.update(1.0, f"{len(pts):,} points read")
     log.info("read %d points from %d file(s)", len(pts), len(files))
     return pts
 
 
-def _append_chunk(chunk: object, parts: dict[str, list[np.ndarray]],
+def _append_chunk(chunk: Any, parts: dict[str, list[np.ndarray]],
                   bbox: tuple[float, float, float, float] | None, excl: np.ndarray,
                   first_row: int) -> None:
-    x = np.asarray(chunk.x, dtype=np.float64)  # type: ignore[attr-defined]
-    y = np.asarray(chunk.y, dtype=np.float64)  # type: ignore[attr-defined]
-    z = np.asarray(chunk.z, dtype=np.float64)  # type: ignore[attr-defined]
-    c = np.asarray(chunk.classification, dtype=np.uint8)  # type: ignore[attr-defined]
-    r = np.asarray(chunk.return_number, dtype=np.uint8)  # type: ignore[attr-defined]
-    n = np.asarray(chunk.number_of_returns, dtype=np.uint8)  # type: ignore[attr-defined]
+    """Append the kept points of one laspy point record (untyped: ``Any``) to ``parts``."""
+    x = np.asarray(chunk.x, dtype=np.float64)
+    y = np.asarray(chunk.y, dtype=np.float64)
+    z = np.asarray(chunk.z, dtype=np.float64)
+    c = np.asarray(chunk.classification, dtype=np.uint8)
+    r = np.asarray(chunk.return_number, dtype=np.uint8)
+    n = np.asarray(chunk.number_of_returns, dtype=np.uint8)
     keep = np.isfinite(x) & np.isfinite(y) & np.isfinite(z)
     if bbox is not None:
         keep &= (x >= bbox[0]) & (x <= bbox[2]) & (y >= bbox[1]) & (y <= bbox[3])
     if excl.size:
         keep &= ~np.isin(c, excl)
     row = np.arange(first_row, first_row + x.size, dtype=np.int64)
-    for key, arr in zip(("x", "y", "z", "c", "r", "n", "row"), (x, y, z, c, r, n, row)):
+    arrays: tuple[np.ndarray, ...] = (x, y, z, c, r, n, row)
+    for key, arr in zip(("x", "y", "z", "c", "r", "n", "row"), arrays):
         parts[key].append(arr[keep])

@@ -206,7 +206,7 @@ def file_info(path: str | os.PathLike[str]) -> dict[str, Any]:
                 if b.n_photons == 0:
                     continue
                 segs = _read_segments(f, b.name, b.n_photons)
-                if segs.ref_lat is not None:
+                if segs.ref_lat is not None and segs.ref_lon is not None:
                     ok = (np.abs(segs.ref_lat) <= 90) & (np.abs(segs.ref_lon) <= 360)
                     lats.append(segs.ref_lat[ok])
                     lons.append(segs.ref_lon[ok])
@@ -246,9 +246,10 @@ def file_info(path: str | os.PathLike[str]) -> dict[str, Any]:
     return info
 
 
-def _int(v: object) -> int | None:
+def _int(v: Any) -> int | None:
+    """``int(v)`` of an untyped HDF5 value; None if it is missing or not a number."""
     try:
-        return None if v is None else int(v)  # type: ignore[call-overload]
+        return None if v is None else int(v)
     except (TypeError, ValueError):
         return None
 

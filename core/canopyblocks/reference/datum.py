@@ -225,18 +225,20 @@ def apply_vertical_offset(blocks: pd.DataFrame, *, geoid: str | os.PathLike[str]
     if geoid is not None and offset is not None:
         raise InputError("give either a geoid raster or a constant offset, not both")
     out = blocks.copy()
-    if geoid is None and offset is None:
-        return out
+    n: float | np.ndarray  # metres, one constant or one value per block
     if offset is not None:
         n = float(offset)
         if not np.isfinite(n):
             raise InputError(f"vertical offset must be a finite number of metres, got {offset!r}")
-    else:
+    elif geoid is not None:
         ok = np.isfinite(out["lon"].to_numpy(float)) & np.isfinite(out["lat"].to_numpy(float))
-        n = np.full(len(out), np.nan)
+        per_block = np.full(len(out), np.nan)
         if ok.any():
-            n[ok] = sample_geoid(geoid, out["lon"].to_numpy(float)[ok],
-                                 out["lat"].to_numpy(float)[ok])
+            per_block[ok] = sample_geoid(geoid, out["lon"].to_numpy(float)[ok],
+                                         out["lat"].to_numpy(float)[ok])
+        n = per_block
+    else:
+        return out
     for c in columns:
         if c in out.columns:
             out[c] = out[c].to_numpy(float) - n

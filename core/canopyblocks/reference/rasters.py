@@ -36,7 +36,7 @@ import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, cast
 
 import numpy as np
 import pyproj
@@ -343,8 +343,9 @@ def make_reference_rasters(
         No ground point in the grid (try ``ground="smrf"``).
     PdalError, DependencyError, FileFormatError
     """
-    params = RasterParams(resolution=float(resolution), ground=ground,
-                          bounds=None if bounds is None else tuple(bounds))  # type: ignore[arg-type]
+    # RasterParams.__post_init__ checks that bounds holds four finite, ordered numbers.
+    box = None if bounds is None else cast("tuple[float, float, float, float]", tuple(bounds))
+    params = RasterParams(resolution=float(resolution), ground=ground, bounds=box)
     prog = as_progress(progress)
     paths = [Path(p) for p in las_paths]
     if not paths:
@@ -391,7 +392,8 @@ def make_reference_rasters(
     log.info("grid %d x %d cells of %g m at (%.2f, %.2f)", grid.width, grid.height,
              grid.resolution, grid.origin_x, grid.origin_y)
 
-    tiles = [(p, c.to_wkt() if override else None) for p, (c, override) in zip(paths, checked)]
+    tiles: list[tuple[str | os.PathLike[str], str | None]] = [
+        (p, c.to_wkt() if override else None) for p, (c, override) in zip(paths, checked)]
     reproj_stage = {"type": "filters.reprojection", "out_srs": out_wkt}
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -456,7 +458,7 @@ def make_reference_rasters(
         dsm_crs = _write_p90(p90_path, p90, grid, max_path)
         stats.update(_check_outputs(dtm_path, max_path, grid, params, paths))
     log.info("reference rasters in %s: %s", out, stats)
-    prog.update(1.0, "done")
+    prog.report(1.0, "done")  # outputs are committed: too late to cancel
     return ReferenceRasters(dtm=out / "dtm.tif", dsm_max=out / "dsm_max.tif",
                             dsm_p90=out / "dsm_p90.tif", grid=grid, crs=dsm_crs,
                             tiles=tuple(paths), ground=params.ground,

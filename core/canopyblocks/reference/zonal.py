@@ -34,6 +34,7 @@ import logging
 import os
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import geopandas as gpd
 import numpy as np
@@ -42,6 +43,9 @@ import pyproj
 
 from ..errors import CoverageError, CRSError, DependencyError, FileFormatError, InputError
 from ..progress import Progress, as_progress
+
+if TYPE_CHECKING:
+    from affine import Affine
 
 __all__ = [
     "block_reference_values",
@@ -88,7 +92,7 @@ def _rasterio():  # noqa: ANN202
 class RasterGrid:
     """The common grid of a set of rasters (read from the first; checked on all)."""
 
-    transform: object  # affine.Affine
+    transform: Affine  # pixel (col, row) -> map (x, y), metres
     width: int
     height: int
     crs: pyproj.CRS  # horizontal CRS (the horizontal part of a compound CRS)
@@ -132,18 +136,22 @@ def open_grid(paths: Mapping[str, str | os.PathLike[str]]) -> RasterGrid:
         if t.b != 0 or t.d != 0:
             raise InputError(f"{name} raster {p} has a rotated grid; warp it north-up first")
     for name, p, t, w, h, c in grids[1:]:
-        same_crs = pyproj.CRS.from_user_input(c.to_wkt()) == pyproj.CRS.from_user_input(
-            c0.to_wkt())
+        # compare horizontal parts: GDAL may rename an unknown vertical datum on a round trip
+        same_crs = _horizontal_crs(c) == _horizontal_crs(c0)
         if not (same_crs and (w, h) == (w0, h0) and t.almost_equals(t0, precision=1e-6)):
             raise InputError(
                 f"rasters are on different grids: {name} ({p}: {w}x{h}, {tuple(t)[:6]}) vs "
                 f"{name0} ({p0}: {w0}x{h0}, {tuple(t0)[:6]}); make them on one grid (same "
                 "origin, cell size and size, e.g. with `canopyblocks rasters`) or resample"
             )
-    crs = pyproj.CRS.from_user_input(c0.to_wkt())
-    if crs.is_compound:  # heights' vertical CRS is checked in reference.datum
-        crs = crs.sub_crs_list[0]
-    return RasterGrid(t0, w0, h0, crs, tuple(str(p) for p in paths.values()))
+    # heights' vertical CRS is checked in reference.datum
+    return RasterGrid(t0, w0, h0, _horizontal_crs(c0), tuple(str(p) for p in paths.values()))
+
+
+def _horizontal_crs(crs: Any) -> pyproj.CRS:
+    """The horizontal part of a rasterio CRS (the first sub-CRS of a compound one)."""
+    c = pyproj.CRS.from_user_input(crs.to_wkt())
+    return c.sub_crs_list[0] if c.is_compound and c.sub_crs_list else c
 
 
 def _to_raster_crs(corridors: gpd.GeoDataFrame, grid: RasterGrid) -> gpd.GeoDataFrame:
@@ -162,7 +170,7 @@ def _to_raster_crs(corridors: gpd.GeoDataFrame, grid: RasterGrid) -> gpd.GeoData
         ) from None
 
 
-def _read_window(srcs: dict[str, object], r0: int, r1: int, c0: int, c1: int,
+def _read_window(srcs: dict[str, Any], r0: int, r1: int, c0: int, c1: int,
                  grid: RasterGrid) -> dict[str, np.ndarray]:
     """Rows r0:r1, cols c0:c1 of each raster as float64 with NaN outside/nodata."""
     rasterio = _rasterio()
@@ -291,7 +299,7 @@ def zonal_reduce(corridors: gpd.GeoDataFrame, rasters: Mapping[str, str | os.Pat
         )
     rows: list[dict[str, float]] = [{} for _ in range(n)]
     outside = np.zeros(n, dtype=bool)
-    srcs = {}
+    srcs: dict[str, Any] = {}  # open rasterio datasets (untyped), by name
     try:
         for name, p in rasters.items():
             srcs[name] = rasterio.open(p)

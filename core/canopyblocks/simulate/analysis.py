@@ -16,6 +16,7 @@ from __future__ import annotations
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
+from typing import cast
 
 import numpy as np
 import pandas as pd
@@ -139,7 +140,8 @@ def summarise(sim: Simulation, *, step: int = 20) -> tuple[dict[str, object],
     res = photon_residuals(sim, step=step)
     g, t = residual_stats(res["ground_res"]), residual_stats(res["top_res"])
     cover = sim.truth["cover"]
-    row = {"diameter": float(sim.params.diameter),  # type: ignore[arg-type]
+    # SimParams.__post_init__ fills diameter from the instrument when it is None.
+    row: dict[str, object] = {"diameter": float(cast(float, sim.params.diameter)),
            "realisations": sim.n_realisations, "n_shots": sim.n_shots,
            "n_photons": int(sim.photons["h"].size),
            "mean_cover": float(np.nanmean(cover)) if np.isfinite(cover).any() else np.nan,

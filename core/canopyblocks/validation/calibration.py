@@ -205,15 +205,13 @@ def calibrate_reference_rasters(
     crs : CRS-like, optional
         Metric CRS for the photons; default the DTM's horizontal CRS.
     """
-    import rasterio
-
     from ..pipeline import read_tracks, run_blocks
-    from .pipeline import validate_blocks
+    from .pipeline import raster_horizontal_crs, validate_blocks
 
     prog = as_progress(progress)
-    if crs is None:
-        with rasterio.open(dtm) as src:
-            crs = src.crs.to_wkt() if src.crs else None
+    if crs is None:  # the DTM's (refused with a clear message when missing or unreadable)
+        horizontal = raster_horizontal_crs(dtm)
+        crs = None if horizontal is None else horizontal.to_wkt()
     tracks = read_tracks(photons, beams=() if beam is None else (beam,), channel=channel,
                          crs=crs, min_signal_conf=params.min_signal_conf,
                          progress=prog.sub(0.0, 0.1))

@@ -12,10 +12,12 @@ import os
 from dataclasses import dataclass
 
 import geopandas as gpd
+import numpy as np
 import pandas as pd
 import pyproj
 
-from ..errors import FileFormatError, InputError
+from ..errors import CoverageError, FileFormatError, InputError
+from ..geo import require_metric_crs
 from ..progress import Progress, as_progress
 from ..reference.atl08 import atl08_reference_values, read_atl08_segments
 from ..reference.corridor import block_corridors
@@ -56,9 +58,42 @@ def _raster_crs(path: str | os.PathLike[str]) -> pyproj.CRS | None:
         raise FileFormatError(f"DTM raster {path}: cannot read ({exc})") from None
 
 
+def raster_horizontal_crs(dtm: str | os.PathLike[str]) -> pyproj.CRS | None:
+    """The horizontal CRS of the DTM (None when it has none), checked to be metric.
+
+    Raises
+    ------
+    FileFormatError
+        The DTM is missing or unreadable.
+    CRSError
+        Its CRS is geographic or not in metres (slope, aspect and corridors need metres).
+    """
+    crs = _raster_crs(dtm)
+    if crs is None:
+        return None
+    horizontal = crs.sub_crs_list[0] if crs.is_compound and crs.sub_crs_list else crs
+    return require_metric_crs(horizontal, f"the rasters' CRS (DTM {dtm}):")
+
+
 def _check_blocks(blocks: pd.DataFrame) -> None:
     if not isinstance(blocks, pd.DataFrame) or len(blocks) == 0:
         raise InputError("the block table is empty; nothing to validate")
+
+
+def _require_reference(ref: pd.DataFrame,
+                       rasters: dict[str, tuple[str, str | os.PathLike[str]]]) -> None:
+    """Refuse a raster that gives no block a value (all nodata under the corridors).
+
+    A result with every block unusable would look like a validation with nothing to
+    say; the user must learn that the raster (not the photons) is the problem.
+    """
+    for col, (what, path) in rasters.items():
+        if col in ref.columns and len(ref) and not np.isfinite(
+                ref[col].to_numpy(dtype=float)).any():
+            raise CoverageError(
+                f"{what} raster {path} holds only nodata under all {len(ref)} block "
+                "corridors; give a raster with values along the track (check its nodata "
+                "value, extent and the tiles' ground classes)")
 
 
 def validate_blocks(blocks: gpd.GeoDataFrame, *, dtm: str | os.PathLike[str],
@@ -95,7 +130,9 @@ def validate_blocks(blocks: gpd.GeoDataFrame, *, dtm: str | os.PathLike[str],
     """
     _check_blocks(blocks)
     prog = as_progress(progress)
-    ref_crs = reference_vertical_crs if reference_vertical_crs is not None else _raster_crs(dtm)
+    dtm_crs = _raster_crs(dtm)
+    raster_horizontal_crs(dtm)  # slope and aspect need cell sizes in metres
+    ref_crs = reference_vertical_crs if reference_vertical_crs is not None else dtm_crs
     pv = photon_vertical_crs or blocks.attrs.get("vertical_datum") or PHOTON_VERTICAL_CRS
     decision = check_vertical_datums(pv, ref_crs, geoid=geoid, offset=offset)
     prog.update(0.0, "corridors")
@@ -105,6 +142,8 @@ def validate_blocks(blocks: gpd.GeoDataFrame, *, dtm: str | os.PathLike[str],
                                  ground_stat=ground_stat, top_stat=top_stat,
                                  top90_stat=top90_stat, all_touched=all_touched,
                                  progress=prog.sub(0.02, 0.6))
+    _require_reference(ref, {"ref_ground": ("DTM", dtm), "ref_top": ("DSM max", dsm_max),
+                             "ref_top90": ("DSM p90", dsm_p90)})
     terrain = block_terrain(corridors, dtm, slope_threshold=slope_threshold,
                             all_touched=all_touched, progress=prog.sub(0.6, 0.95))
     residuals = compute_residuals(work, ref, terrain, corridors=corridors)
