@@ -9,12 +9,17 @@ from qgis.core import (
     QgsProcessingContext,
     QgsProcessingException,
     QgsProcessingFeedback,
+    QgsProcessingParameterFile,
+    QgsProcessingParameterNumber,
+    QgsProcessingParameterRasterLayer,
+    QgsProcessingParameterString,
 )
 from qgis.PyQt.QtGui import QIcon
 
 from ..core_bridge import core_errors, feedback_logging, progress_for
 
-__all__ = ["CanopyBlocksAlgorithm", "SEED_001", "SEED_002", "parse_lengths"]
+__all__ = ["CanopyBlocksAlgorithm", "SEED_001", "SEED_002", "parse_lengths",
+           "optional_number"]
 
 SEED_001 = (
     "Gwenzi, D. & Lefsky, M.A.: Prospects of photon counting lidar for savanna ecosystem "
@@ -41,6 +46,15 @@ def parse_lengths(text: str) -> tuple[float, ...]:
             f"block lengths must be positive metres (e.g. '25, 10'), got {text!r}"
         )
     return values
+
+
+def optional_number(alg: Any, parameters: dict[str, Any], name: str,
+                    context: QgsProcessingContext) -> float | None:
+    """An optional number parameter: None when left empty."""
+    value = parameters.get(name)
+    if value is None or (isinstance(value, str) and not value.strip()):
+        return None
+    return float(alg.parameterAsDouble(parameters, name, context))
 
 
 class CanopyBlocksAlgorithm(QgsProcessingAlgorithm):
@@ -101,3 +115,40 @@ class CanopyBlocksAlgorithm(QgsProcessingAlgorithm):
         if source is None:
             raise QgsProcessingException(self.invalidSourceError(parameters, name))
         return source_to_frame(source, feedback)
+
+    # ---- parameter groups shared by several algorithms (names are the class constants)
+    def add_photon_parameters(self, default_lengths: str) -> None:
+        """INPUT (photon file), TRACK (beam/channel) and LENGTHS (block lengths, m)."""
+        self.addParameter(QgsProcessingParameterFile(
+            "INPUT", "Photon file (ATL03 / MABEL HDF5, CSV, Parquet)",
+            behavior=QgsProcessingParameterFile.File,
+            fileFilter="Photon files (*.h5 *.hdf5 *.he5 *.csv *.parquet);;All files (*.*)"))
+        self.addParameter(QgsProcessingParameterString(
+            "TRACK", "Beam (gt1l..gt3r) or MABEL channel (number or 'most')",
+            defaultValue="", optional=True))
+        self.addParameter(QgsProcessingParameterString(
+            "LENGTHS", "Block lengths (m, comma separated)", defaultValue=default_lengths))
+
+    def add_signal_conf_parameter(self) -> None:
+        """MIN_SIGNAL_CONF: ATL03 land confidence threshold (optional)."""
+        self.addParameter(QgsProcessingParameterNumber(
+            "MIN_SIGNAL_CONF", "ATL03: minimum land signal_conf_ph (-2..4; empty = no filter)",
+            type=QgsProcessingParameterNumber.Integer, optional=True, minValue=-2, maxValue=4))
+
+    def min_signal_conf(self, parameters: dict[str, Any],
+                        context: QgsProcessingContext) -> int | None:
+        """The MIN_SIGNAL_CONF value, None when empty."""
+        value = optional_number(self, parameters, "MIN_SIGNAL_CONF", context)
+        return None if value is None else int(value)
+
+    def add_reference_parameters(self) -> None:
+        """DTM, DSM_MAX, DSM_P90 rasters, corridor WIDTH (m) and vertical OFFSET (m)."""
+        self.addParameter(QgsProcessingParameterRasterLayer("DTM", "DTM"))
+        self.addParameter(QgsProcessingParameterRasterLayer("DSM_MAX", "DSM (maximum)"))
+        self.addParameter(QgsProcessingParameterRasterLayer("DSM_P90", "DSM (90th percentile)"))
+        self.addParameter(QgsProcessingParameterNumber(
+            "WIDTH", "Corridor width (m)", type=QgsProcessingParameterNumber.Double,
+            defaultValue=2.0, minValue=0.001))
+        self.addParameter(QgsProcessingParameterNumber(
+            "OFFSET", "Vertical offset N = h_photon - H_reference (m; empty = none)",
+            type=QgsProcessingParameterNumber.Double, optional=True))

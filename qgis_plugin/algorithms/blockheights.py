@@ -14,25 +14,16 @@ from qgis.core import (
     QgsProcessingParameterFile,
     QgsProcessingParameterFileDestination,
     QgsProcessingParameterNumber,
-    QgsProcessingParameterString,
 )
 
 from ..core_bridge import import_core
 from ..layers import write_frame
 from ..styles import style_on_load
-from .base import SEED_001, CanopyBlocksAlgorithm, parse_lengths
+from .base import SEED_001, CanopyBlocksAlgorithm, optional_number, parse_lengths
 
 __all__ = ["BlockHeightsAlgorithm"]
 
 NOISE_OPTIONS = ("sigma", "none")
-
-
-def _optional_number(alg: Any, parameters: dict[str, Any], name: str,
-                     context: QgsProcessingContext) -> float | None:
-    value = parameters.get(name)
-    if value is None or (isinstance(value, str) and not value.strip()):
-        return None
-    return alg.parameterAsDouble(parameters, name, context)
 
 
 def parse_track(text: str) -> dict[str, Any]:
@@ -86,15 +77,7 @@ class BlockHeightsAlgorithm(CanopyBlocksAlgorithm):
     PROFILE = "PROFILE"
 
     def initAlgorithm(self, config: dict[str, Any] | None = None) -> None:  # noqa: N802
-        self.addParameter(QgsProcessingParameterFile(
-            self.INPUT, "Photon file (ATL03 / MABEL HDF5, CSV, Parquet)",
-            behavior=QgsProcessingParameterFile.File,
-            fileFilter="Photon files (*.h5 *.hdf5 *.he5 *.csv *.parquet);;All files (*.*)"))
-        self.addParameter(QgsProcessingParameterString(
-            self.TRACK, "Beam (gt1l..gt3r) or MABEL channel (number or 'most')",
-            defaultValue="", optional=True))
-        self.addParameter(QgsProcessingParameterString(
-            self.LENGTHS, "Block lengths (m, comma separated)", defaultValue="25"))
+        self.add_photon_parameters(default_lengths="25")
         self.addParameter(QgsProcessingParameterNumber(
             self.S0, "Block origin along track s0 (m; empty = track start)",
             type=QgsProcessingParameterNumber.Double, optional=True))
@@ -115,11 +98,7 @@ class BlockHeightsAlgorithm(CanopyBlocksAlgorithm):
         self.addParameter(QgsProcessingParameterNumber(
             self.MIN_PHOTONS, "Minimum kept photons per block (else flagged sparse)",
             type=QgsProcessingParameterNumber.Integer, defaultValue=10, minValue=1))
-        self.addParameter(QgsProcessingParameterNumber(
-            self.MIN_SIGNAL_CONF,
-            "ATL03: minimum land signal_conf_ph (-2..4; empty = no filter)",
-            type=QgsProcessingParameterNumber.Integer, optional=True,
-            minValue=-2, maxValue=4))
+        self.add_signal_conf_parameter()
         self.addParameter(QgsProcessingParameterFile(
             self.ATL08, "Matching ATL08 file (adds photon classes; optional)",
             behavior=QgsProcessingParameterFile.File, optional=True,
@@ -140,18 +119,15 @@ class BlockHeightsAlgorithm(CanopyBlocksAlgorithm):
         path = self.parameterAsFile(parameters, self.INPUT, context)
         track_kw = parse_track(self.parameterAsString(parameters, self.TRACK, context))
         lengths = parse_lengths(self.parameterAsString(parameters, self.LENGTHS, context))
-        conf = parameters.get(self.MIN_SIGNAL_CONF)
-        min_conf = None if conf in (None, "") else self.parameterAsInt(
-            parameters, self.MIN_SIGNAL_CONF, context)
         params = blocks_mod.BlockParams(
             lengths=lengths,
-            s0=_optional_number(self, parameters, self.S0, context),
+            s0=optional_number(self, parameters, self.S0, context),
             k_sigma=self.parameterAsDouble(parameters, self.K_SIGMA, context),
             noise=NOISE_OPTIONS[self.parameterAsEnum(parameters, self.NOISE, context)],
-            top_cutoff=_optional_number(self, parameters, self.TOP_CUTOFF, context),
-            ground_cutoff=_optional_number(self, parameters, self.GROUND_CUTOFF, context),
+            top_cutoff=optional_number(self, parameters, self.TOP_CUTOFF, context),
+            ground_cutoff=optional_number(self, parameters, self.GROUND_CUTOFF, context),
             min_photons=self.parameterAsInt(parameters, self.MIN_PHOTONS, context),
-            min_signal_conf=min_conf,
+            min_signal_conf=self.min_signal_conf(parameters, context),
         )
         atl08 = self.parameterAsFile(parameters, self.ATL08, context) or None
         if atl08:

@@ -9,15 +9,11 @@ from qgis.core import (
     QgsProcessingContext,
     QgsProcessingFeedback,
     QgsProcessingParameterFeatureSink,
-    QgsProcessingParameterFile,
-    QgsProcessingParameterNumber,
-    QgsProcessingParameterRasterLayer,
-    QgsProcessingParameterString,
 )
 
 from ..core_bridge import import_core
 from ..layers import write_frame
-from .base import SEED_001, CanopyBlocksAlgorithm, parse_lengths
+from .base import SEED_001, CanopyBlocksAlgorithm, optional_number, parse_lengths
 from .blockheights import parse_track
 from .validate import raster_path
 
@@ -55,30 +51,9 @@ class CalibrateAlgorithm(CanopyBlocksAlgorithm):
     OUTPUT = "OUTPUT"
 
     def initAlgorithm(self, config: dict[str, Any] | None = None) -> None:  # noqa: N802
-        self.addParameter(QgsProcessingParameterFile(
-            self.INPUT, "Photon file (ATL03 / MABEL HDF5, CSV, Parquet)",
-            behavior=QgsProcessingParameterFile.File,
-            fileFilter="Photon files (*.h5 *.hdf5 *.he5 *.csv *.parquet);;All files (*.*)"))
-        self.addParameter(QgsProcessingParameterString(
-            self.TRACK, "Beam (gt1l..gt3r) or MABEL channel (number or 'most')",
-            defaultValue="", optional=True))
-        self.addParameter(QgsProcessingParameterString(
-            self.LENGTHS, "Block lengths (m, comma separated)", defaultValue="10, 25, 50"))
-        self.addParameter(QgsProcessingParameterNumber(
-            self.MIN_SIGNAL_CONF,
-            "ATL03: minimum land signal_conf_ph (-2..4; empty = no filter)",
-            type=QgsProcessingParameterNumber.Integer, optional=True,
-            minValue=-2, maxValue=4))
-        self.addParameter(QgsProcessingParameterRasterLayer(self.DTM, "DTM"))
-        self.addParameter(QgsProcessingParameterRasterLayer(self.DSM_MAX, "DSM (maximum)"))
-        self.addParameter(QgsProcessingParameterRasterLayer(self.DSM_P90,
-                                                            "DSM (90th percentile)"))
-        self.addParameter(QgsProcessingParameterNumber(
-            self.WIDTH, "Corridor width (m)", type=QgsProcessingParameterNumber.Double,
-            defaultValue=2.0, minValue=0.001))
-        self.addParameter(QgsProcessingParameterNumber(
-            self.OFFSET, "Vertical offset N = h_photon - H_reference (m; empty = none)",
-            type=QgsProcessingParameterNumber.Double, optional=True))
+        self.add_photon_parameters(default_lengths="10, 25, 50")
+        self.add_signal_conf_parameter()
+        self.add_reference_parameters()
         self.addParameter(QgsProcessingParameterFeatureSink(
             self.OUTPUT, "Calibrated cut-offs", type=QgsProcessing.TypeVector))
 
@@ -86,15 +61,11 @@ class CalibrateAlgorithm(CanopyBlocksAlgorithm):
                 feedback: QgsProcessingFeedback, progress: Any) -> dict[str, Any]:
         blocks_mod = import_core("canopyblocks.blocks")
         calibration = import_core("canopyblocks.validation.calibration")
-        conf = parameters.get(self.MIN_SIGNAL_CONF)
         params = blocks_mod.BlockParams(
             lengths=parse_lengths(self.parameterAsString(parameters, self.LENGTHS, context)),
-            min_signal_conf=None if conf in (None, "") else self.parameterAsInt(
-                parameters, self.MIN_SIGNAL_CONF, context))
+            min_signal_conf=self.min_signal_conf(parameters, context))
         track = parse_track(self.parameterAsString(parameters, self.TRACK, context))
-        offset = None
-        if parameters.get(self.OFFSET) not in (None, ""):
-            offset = self.parameterAsDouble(parameters, self.OFFSET, context)
+        offset = optional_number(self, parameters, self.OFFSET, context)
         cal = calibration.calibrate_reference_rasters(
             self.parameterAsFile(parameters, self.INPUT, context), params,
             dtm=raster_path(self, parameters, self.DTM, context),

@@ -18,7 +18,7 @@ from qgis.core import (
 from ..core_bridge import import_core
 from ..layers import write_frame
 from ..styles import style_on_load
-from .base import SEED_001, CanopyBlocksAlgorithm
+from .base import SEED_001, CanopyBlocksAlgorithm, optional_number
 
 __all__ = ["ValidateAlgorithm", "raster_path"]
 
@@ -67,16 +67,7 @@ class ValidateAlgorithm(CanopyBlocksAlgorithm):
     def initAlgorithm(self, config: dict[str, Any] | None = None) -> None:  # noqa: N802
         self.addParameter(QgsProcessingParameterFeatureSource(
             self.INPUT, "Blocks", [QgsProcessing.TypeVectorPoint]))
-        self.addParameter(QgsProcessingParameterRasterLayer(self.DTM, "DTM"))
-        self.addParameter(QgsProcessingParameterRasterLayer(self.DSM_MAX, "DSM (maximum)"))
-        self.addParameter(QgsProcessingParameterRasterLayer(self.DSM_P90,
-                                                            "DSM (90th percentile)"))
-        self.addParameter(QgsProcessingParameterNumber(
-            self.WIDTH, "Corridor width (m)", type=QgsProcessingParameterNumber.Double,
-            defaultValue=2.0, minValue=0.001))
-        self.addParameter(QgsProcessingParameterNumber(
-            self.OFFSET, "Vertical offset N = h_photon - H_reference (m; empty = none)",
-            type=QgsProcessingParameterNumber.Double, optional=True))
+        self.add_reference_parameters()
         self.addParameter(QgsProcessingParameterRasterLayer(
             self.GEOID, "Geoid undulation raster (optional)", optional=True))
         self.addParameter(QgsProcessingParameterNumber(
@@ -93,10 +84,10 @@ class ValidateAlgorithm(CanopyBlocksAlgorithm):
         pipeline = import_core("canopyblocks.validation.pipeline")
         blocks = self.source_frame(parameters, self.INPUT, context, feedback)
         progress.update(0.1, f"{len(blocks)} blocks read")
-        offset = parameters.get(self.OFFSET)
         kwargs: dict[str, Any] = {}
-        if offset not in (None, ""):
-            kwargs["offset"] = self.parameterAsDouble(parameters, self.OFFSET, context)
+        offset = optional_number(self, parameters, self.OFFSET, context)
+        if offset is not None:
+            kwargs["offset"] = offset
         if parameters.get(self.GEOID) not in (None, ""):
             kwargs["geoid"] = raster_path(self, parameters, self.GEOID, context)
         result = pipeline.validate_blocks(
