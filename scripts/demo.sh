@@ -7,5 +7,5 @@ cd "$(dirname "$0")/.."
 bash scripts/install_pdal.sh
 bash scripts/setup_env.sh all
 .venv/bin/canopyblocks run tests/data/als/lasR_bcts_1.laz tests/data/als/lasR_bcts_2.laz \
-    --simulate --seed 1 -o demo_out "$@"
+    --simulate --seed 1 --calibrate -o demo_out "$@"
 echo "canopyblocks: open demo_out/report.html" >&2
