@@ -19,7 +19,10 @@ fi
 .venv/bin/python -m pip install -q --upgrade pip >/dev/null
 # numpy<2: Debian's GDAL/scipy/matplotlib (seen by QGIS) are built on numpy 1.x;
 # attrs>=23.2: Debian's attrs 22.2 breaks rasterio's affine.
-.venv/bin/python -m pip install -q -c scripts/constraints.txt -e ".[${extras}]"
+# --ignore-installed: take every dependency from PyPI into the venv, even where Debian's copy
+# (pulled in by QGIS: scipy, rasterio, matplotlib, ...) would satisfy the range, so the
+# environment is the same with and without QGIS on the machine.
+.venv/bin/python -m pip install -q --ignore-installed -c scripts/constraints.txt -e ".[${extras}]"
 
 # Debian's python3-matplotlib (pulled in by QGIS) ships mpl_toolkits as a *regular* package,
 # which shadows the pip matplotlib's namespace package and breaks its 3-D axes (a warning on
