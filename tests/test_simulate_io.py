@@ -101,7 +101,6 @@ def test_photon_table_round_trip(sim, tmp_path):
     assert {"src_z", "truth_ground", "truth_cover", "noise"} <= set(df.columns)
 
 
-@pytest.mark.filterwarnings("ignore:Unable to import Axes3D:UserWarning")
 def test_cli_simulate(sample, tmp_path):
     from canopyblocks.cli import main
 

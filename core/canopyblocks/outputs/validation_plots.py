@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import logging
 import os
-import warnings
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -34,22 +33,6 @@ log = logging.getLogger(__name__)
 _TITLES = {"ground": "Ground (m)", "top": "Canopy top (m)", "hmax": "Hmax (m)",
            "h90": "H90 (m)"}
 _ASPECTS = ("N", "NE", "E", "SE", "S", "SW", "W", "NW")
-
-
-def _import_matplotlib() -> None:
-    """Import matplotlib's figure module once, silencing one known environment warning.
-
-    With Debian's python3-matplotlib beside a pip matplotlib (the QGIS venv), the
-    system ``mpl_toolkits`` namespace shadows the pip one and matplotlib warns
-    "Unable to import Axes3D" on import; 3-D axes are not used here.
-    """
-    with warnings.catch_warnings():
-        warnings.filterwarnings("ignore", message="Unable to import Axes3D",
-                                category=UserWarning)
-        try:
-            import matplotlib.figure  # noqa: F401
-        except ImportError:
-            pass  # new_figure raises DependencyError with what to install
 
 
 def _length_rows(df: pd.DataFrame, length: float) -> pd.DataFrame:
@@ -72,7 +55,6 @@ def plot_validation_scatter(residuals: pd.DataFrame, path: str | os.PathLike[str
     length : float
         Block length, metres.
     """
-    _import_matplotlib()
     sub = _length_rows(residuals, length)
     fig, axes = new_figure(figsize=(3.6 * len(metrics), 3.8), ncols=len(metrics), squeeze=False)
     for ax, m in zip(axes[0], metrics):
@@ -119,7 +101,6 @@ def plot_aspect_errors(stats: pd.DataFrame, path: str | os.PathLike[str], *, len
     """
     if value not in ("rmse", "bias", "mae"):
         raise InputError(f"value must be rmse, bias or mae, got {value!r}")
-    _import_matplotlib()
     st = stats[np.isclose(stats["length"].to_numpy(float), float(length))]
     fig, axes = new_figure(figsize=(3.4 * len(metrics), 3.8), ncols=len(metrics), squeeze=False,
                            subplot_kw={"projection": "polar"})
