@@ -11,13 +11,14 @@ cut-offs returned for use are fitted on all blocks.
 from __future__ import annotations
 
 import logging
+import warnings
 from dataclasses import dataclass, replace
 
 import numpy as np
 import pandas as pd
 
 from ..blocks import BlockParams, CalibrationResult, calibrate_cutoffs, compute_blocks
-from ..errors import InputError
+from ..errors import InputError, SparseBlockWarning
 from ..photons import PhotonTrack
 from ..progress import Progress, as_progress
 from ..schema import FLAG_OK
@@ -61,23 +62,18 @@ def _rmse(a: pd.Series) -> float:
     return float(np.sqrt(np.mean(v**2))) if v.size else float("nan")
 
 
-def _holdout_errors(track: PhotonTrack, params: BlockParams, length: float,
-                    ref: pd.DataFrame) -> dict[str, float]:
-    """RMSE of top/ground/hmax of blocks ``ref`` (flag ok only) under ``params``."""
-    import warnings
-
-    from ..errors import SparseBlockWarning
-
+def _holdout_residuals(track: PhotonTrack, params: BlockParams, length: float,
+                       ref: pd.DataFrame) -> pd.DataFrame:
+    """Residuals (m) of top, ground and Hmax of the ok blocks listed in ``ref`` under ``params``."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", SparseBlockWarning)
         b = compute_blocks(track, replace(params, lengths=(length,)))
     j = b[b["flag"] == FLAG_OK].merge(ref, on="block")
-    return {
-        "n": float(len(j)),
-        "top": _rmse(j["top"] - j["ref_top"]),
-        "ground": _rmse(j["ground"] - j["ref_ground"]),
-        "hmax": _rmse(j["hmax"] - (j["ref_top"] - j["ref_ground"])),
-    }
+    return pd.DataFrame({
+        "top": j["top"] - j["ref_top"],
+        "ground": j["ground"] - j["ref_ground"],
+        "hmax": j["hmax"] - (j["ref_top"] - j["ref_ground"]),
+    })
 
 
 def _with_cutoffs(params: BlockParams, cut: dict[float, tuple[float, float]]) -> BlockParams:
@@ -136,9 +132,8 @@ def calibrate_against_reference(
                              f"{track.track}; validate blocks of this length first")
         fits[length] = calibrate_cutoffs(track, ref, length, params=params,
                                          progress=sub.sub(0.0, 0.5))
-        err_d = {"n": 0.0, "top": 0.0, "ground": 0.0, "hmax": 0.0}
-        err_c = dict(err_d)
-        sq = {k: [0.0, 0.0] for k in ("top", "ground", "hmax")}  # sums of squares: d, c
+        held_d: list[pd.DataFrame] = []  # held-out residuals, paper's cut-offs
+        held_c: list[pd.DataFrame] = []  # held-out residuals, calibrated cut-offs
         for part in (0, 1):  # fit on one parity, score on the other
             train = ref[ref["block"] % 2 == part]
             test = ref[ref["block"] % 2 != part]
@@ -149,26 +144,17 @@ def calibrate_against_reference(
             except InputError:
                 continue
             cal = _with_cutoffs(params, {length: (fit.top_cutoff, fit.ground_cutoff)})
-            ed = _holdout_errors(track, params, length, test)
-            ec = _holdout_errors(track, cal, length, test)
-            for k in sq:
-                if np.isfinite(ed[k]):
-                    sq[k][0] += ed[k] ** 2 * ed["n"]
-                if np.isfinite(ec[k]):
-                    sq[k][1] += ec[k] ** 2 * ec["n"]
-            err_d["n"] += ed["n"]
-            err_c["n"] += ec["n"]
+            held_d.append(_holdout_residuals(track, params, length, test))
+            held_c.append(_holdout_residuals(track, cal, length, test))
         sub.update(1.0, f"{length:g} m calibrated")
+        empty = pd.DataFrame({k: pd.Series(dtype=float) for k in ("top", "ground", "hmax")})
+        rd = pd.concat(held_d, ignore_index=True) if held_d else empty
+        rc = pd.concat(held_c, ignore_index=True) if held_c else empty
         td, gd = params.cutoffs_for(length)
         f = fits[length]
-
-        def _mean(total: float, n: float) -> float:
-            return float(np.sqrt(total / n)) if n else float("nan")
-
-        rows.append((length, f.top_cutoff, f.ground_cutoff, td, gd, int(err_c["n"]),
-                     _mean(sq["top"][0], err_d["n"]), _mean(sq["top"][1], err_c["n"]),
-                     _mean(sq["ground"][0], err_d["n"]), _mean(sq["ground"][1], err_c["n"]),
-                     _mean(sq["hmax"][0], err_d["n"]), _mean(sq["hmax"][1], err_c["n"])))
+        rows.append((length, f.top_cutoff, f.ground_cutoff, td, gd, len(rc),
+                     _rmse(rd["top"]), _rmse(rc["top"]), _rmse(rd["ground"]),
+                     _rmse(rc["ground"]), _rmse(rd["hmax"]), _rmse(rc["hmax"])))
     table = pd.DataFrame(rows, columns=list(HOLDOUT_COLUMNS))
     calibrated = _with_cutoffs(params, {L: (f.top_cutoff, f.ground_cutoff)
                                         for L, f in fits.items()})
