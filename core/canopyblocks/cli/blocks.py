@@ -8,7 +8,14 @@ from pathlib import Path
 
 import click
 
-from .common import parse_channel, parse_floats, progress_bar
+from .common import (
+    channel_option,
+    lengths_option,
+    min_signal_conf_option,
+    parse_channel,
+    parse_floats,
+    progress_bar,
+)
 
 log = logging.getLogger(__name__)
 
@@ -33,16 +40,14 @@ def info_cmd(path: str, as_json: bool) -> None:
               help="Block table: .gpkg (layer 'blocks'), .parquet or .csv.")
 @click.option("--beam", "beams", multiple=True,
               help="ATL03 beam (gt1l..gt3r); repeat for several. Default: every beam with photons.")
-@click.option("--channel", default=None, help="MABEL channel number, or 'most' (default).")
-@click.option("--length", "lengths", multiple=True, type=float,
-              help="Block length in metres; repeat for several (default 25).")
+@channel_option
+@lengths_option(default="25")
 @click.option("--s0", type=float, default=None,
               help="Block origin along track, m (default: the track start).")
 @click.option("--k", "k_sigma", type=float, default=2.5, show_default=True,
               help="Noise filter: keep |z - mean| <= k * std per block.")
 @click.option("--noise", type=click.Choice(["sigma", "none"]), default="sigma", show_default=True)
-@click.option("--min-signal-conf", type=click.IntRange(-2, 4), default=None,
-              help="ATL03: keep photons with land signal_conf_ph >= this before the noise filter.")
+@min_signal_conf_option
 @click.option("--top-cutoff", type=float, default=None,
               help="Canopy-top window fraction (default by block length, DESIGN 1.7).")
 @click.option("--ground-cutoff", type=float, default=None,

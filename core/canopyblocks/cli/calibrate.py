@@ -4,7 +4,14 @@ from __future__ import annotations
 
 import click
 
-from .common import parse_channel, progress_bar
+from .common import (
+    channel_option,
+    lengths_option,
+    min_signal_conf_option,
+    parse_channel,
+    progress_bar,
+    vertical_options,
+)
 
 
 @click.command("calibrate")
@@ -15,17 +22,13 @@ from .common import parse_channel, progress_bar
 @click.option("--dsm-p90", required=True, type=click.Path(dir_okay=False),
               help="90th-percentile surface GeoTIFF.")
 @click.option("--beam", default=None, help="ATL03 beam (default: the file's default beam).")
-@click.option("--channel", default=None, help="MABEL channel number or 'most'.")
-@click.option("--length", "lengths", multiple=True, type=float,
-              help="Block length, m; repeat (default 10, 25, 50).")
-@click.option("--min-signal-conf", type=click.IntRange(-2, 4), default=None,
-              help="ATL03: keep photons with land signal_conf_ph >= this first.")
+@channel_option
+@lengths_option(default="10, 25, 50")
+@min_signal_conf_option
 @click.option("--width", type=float, default=2.0, show_default=True,
               help="Corridor width, m (the footprint, 13-17 m, for ICESat-2).")
 @click.option("--crs", default=None, help="Metric CRS for the photons (default: the DTM's).")
-@click.option("--geoid", type=click.Path(dir_okay=False), default=None,
-              help="Geoid height raster for ellipsoidal photons.")
-@click.option("--offset", type=float, default=None, help="Constant h_photon - H_reference, m.")
+@vertical_options
 @click.option("-o", "--output", type=click.Path(dir_okay=False), default=None,
               help="Write the calibration table (.csv, .parquet or .gpkg).")
 @click.pass_context

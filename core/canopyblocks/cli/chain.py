@@ -5,7 +5,14 @@ from __future__ import annotations
 
 import click
 
-from .common import parse_channel, progress_bar
+from .common import (
+    channel_option,
+    lengths_option,
+    min_signal_conf_option,
+    parse_channel,
+    progress_bar,
+    vertical_options,
+)
 
 
 @click.command("run")
@@ -18,7 +25,7 @@ from .common import parse_channel, progress_bar
 @click.option("--simulate", is_flag=True, help="Simulate the photons (the default without "
               "--photons).")
 @click.option("--beam", "beams", multiple=True, help="ATL03 beam(s) to use.")
-@click.option("--channel", default=None, help="MABEL channel number or 'most'.")
+@channel_option
 @click.option("--atl08", type=click.Path(dir_okay=False), default=None,
               help="Matching ATL08 file: also validate against its land segments.")
 @click.option("--azimuth", type=float, default=0.0, show_default=True,
@@ -31,19 +38,14 @@ from .common import parse_channel, progress_bar
 @click.option("--realisations", type=click.IntRange(min=0), default=100, show_default=True,
               help="Simulated runs: photon draws per footprint diameter for the seed 002 "
                    "analysis against truth (0 skips it).")
-@click.option("--length", "lengths", multiple=True, type=float,
-              help="Block length, m; repeat (default 10, 25, 50).")
-@click.option("--min-signal-conf", type=click.IntRange(-2, 4), default=None,
-              help="ATL03: keep photons with land signal_conf_ph >= this first.")
+@lengths_option(default="10, 25, 50")
+@min_signal_conf_option
 @click.option("--width", type=float, default=None,
               help="Corridor width, m (default 2; the footprint diameter when simulated).")
 @click.option("--resolution", type=float, default=2.0, show_default=True,
               help="Reference raster cell size, m.")
 @click.option("--smrf", is_flag=True, help="Classify ground with PDAL's SMRF (unclassified tiles).")
-@click.option("--geoid", type=click.Path(dir_okay=False), default=None,
-              help="Geoid height raster (m above the ellipsoid) for real photons.")
-@click.option("--offset", type=float, default=None,
-              help="Constant h_photon - H_reference, m, for real photons.")
+@vertical_options
 @click.option("--calibrate", is_flag=True,
               help="Also fit the cut-offs to the reference and validate again with them.")
 @click.pass_context

@@ -8,19 +8,47 @@ import signal
 import sys
 import threading
 import warnings
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from typing import Any, TypeVar
 
 import click
 
 from ..errors import CanopyBlocksError, CanopyBlocksWarning
 from ..progress import Progress
 
-__all__ = ["parse_floats", "parse_channel", "run_main", "setup_logging", "progress_bar", "EXIT_OK", "EXIT_BAD_INPUT", "EXIT_BUG"]
+__all__ = ["lengths_option", "channel_option", "min_signal_conf_option", "vertical_options",
+           "parse_floats", "parse_channel", "run_main", "setup_logging", "progress_bar", "EXIT_OK", "EXIT_BAD_INPUT", "EXIT_BUG"]
+
+F = TypeVar("F", bound=Callable[..., Any])
 
 EXIT_OK = 0
 EXIT_BUG = 1
 EXIT_BAD_INPUT = 2
+
+
+# ---- option definitions shared by several commands (rasterio's rio keeps them in one place too)
+def lengths_option(default: str) -> Callable[[F], F]:
+    """``--length`` (repeatable, metres) -> ``lengths: tuple[float, ...]``."""
+    return click.option("--length", "lengths", multiple=True, type=float,
+                        help=f"Block length, m; repeat for several (default {default}).")
+
+
+channel_option = click.option("--channel", default=None,
+                              help="MABEL channel number, or 'most' (the default).")
+min_signal_conf_option = click.option(
+    "--min-signal-conf", type=click.IntRange(-2, 4), default=None,
+    help="ATL03: keep photons with land signal_conf_ph >= this before the noise filter.")
+
+
+def vertical_options(f: F) -> F:
+    """``--geoid`` and ``--offset``: how ellipsoidal photon heights meet the reference datum."""
+    f = click.option("--offset", type=float, default=None,
+                     help="Constant N = h_photon - H_reference, m (0 when they share a "
+                          "datum), instead of a geoid raster.")(f)
+    return click.option("--geoid", type=click.Path(dir_okay=False), default=None,
+                        help="Geoid height raster N (m above the ellipsoid): "
+                             "H = h_photon - N.")(f)
 
 
 def parse_floats(value: str | None, n: int, what: str,

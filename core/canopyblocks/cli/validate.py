@@ -9,6 +9,7 @@ from pathlib import Path
 import click
 
 from ..errors import CRSError, InputError, NoUsableDataError
+from .common import vertical_options
 
 log = logging.getLogger(__name__)
 
@@ -30,9 +31,7 @@ def register(group: click.Group) -> None:
               help="Output .gpkg (layers residuals, stats), or .csv/.parquet.")
 @click.option("--width", type=float, default=2.0, show_default=True,
               help="Corridor width, m (use the footprint, 13-17 m, for ICESat-2).")
-@click.option("--geoid", type=click.Path(dir_okay=False),
-              help="Geoid-height raster N (m): photon h - N = orthometric H.")
-@click.option("--offset", type=float, help="Constant N (m) instead of a geoid raster.")
+@vertical_options
 @click.option("--reference-vcrs", help="Vertical/compound CRS of the rasters, e.g. "
               "EPSG:32612+5703 (default: the DTM's CRS).")
 @click.option("--photon-vcrs", default="EPSG:4979", show_default=True,
