@@ -57,14 +57,14 @@ def select_tracks(path: str, beams: tuple[str, ...], channel: int | str | None) 
     ATL03 without ``--beam``: every beam that holds photons.  MABEL without
     ``--channel``: the channel with the most photons (as seed 001 picked channel 49).
     """
-    from .readers import file_info
+    from .readers import atl03_beams, detect_product
 
-    info = file_info(path)
-    product = str(info.get("product", "")).upper()
-    if product.startswith("ATL03"):
-        names = list(beams) or [b["name"] for b in info.get("beams", []) if b.get("n_photons", 0)]
+    # only the product and the beam list: reading the tracks is open_track's job
+    product = detect_product(path)
+    if product == "ATL03":
+        names = list(beams) or [b.name for b in atl03_beams(path) if b.n_photons]
         return [{"beam": b} for b in names]
-    if product.startswith("MABEL"):
+    if product == "MABEL":
         return [{"channel": channel if channel is not None else "most"}]
     return [{}]
 
