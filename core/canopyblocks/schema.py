@@ -21,6 +21,9 @@ __all__ = [
     "LAYER_STATS",
     "LAYER_PHOTONS",
     "LAYER_CORRIDOR",
+    "LAYER_FOOTPRINTS",
+    "FOOTPRINT_COLUMNS",
+    "FOOTPRINT_FLAGS",
     "LABEL_NOISE",
     "LABEL_GROUND",
     "LABEL_CANOPY",
@@ -78,6 +81,28 @@ LAYER_RESIDUALS = "residuals"
 LAYER_STATS = "stats"
 LAYER_PHOTONS = "photons"
 LAYER_CORRIDOR = "corridor"
+LAYER_FOOTPRINTS = "footprints"
+
+#: Footprint table columns (waveforms, DESIGN section 5), in order (plus the point
+#: ``geometry`` at the footprint's position at the ground elevation, in a metric CRS).
+FOOTPRINT_COLUMNS: tuple[str, ...] = (
+    "beam",         # e.g. BEAM0101
+    "shot_number",  # int64, exact
+    "time",         # delta_time, s
+    "lon",          # degrees WGS84, at the ground
+    "lat",
+    "ground",       # m, elevation of the lowest mode (L2A elev_lowestmode)
+    "top",          # m, elevation of the signal top (L2A elev_highestreturn)
+    "rh25", "rh50", "rh75", "rh90", "rh95", "rh98", "rh100",  # m above ground
+    "cover",        # canopy cover fraction 0..1
+    "penetration",  # share of the energy within 2 m above the ground
+    "n_modes",      # modes detected
+    "setting",      # a1..a6
+    "flag",         # see FOOTPRINT_FLAGS
+)
+FOOTPRINT_FLAGS: tuple[str, ...] = (
+    "ok", "no_signal", "too_many_modes", "degraded", "stale", "terrain_outlier",
+)
 
 #: Per-photon labels (``compute_blocks(..., labels=True)``).
 LABEL_NOISE = 0      # removed by the noise filter (or by the signal-confidence threshold)
