@@ -181,7 +181,7 @@ def test_bad_table_paths(tmp_path) -> None:
 # ------------------------------------------------------------------------- package
 def test_core_imports_no_qgis_and_logs_silently() -> None:
     code = (
-        "import sys, canopyblocks, canopyblocks.pipeline, canopyblocks.cli;"
+        "import sys, canopyblocks, canopyblocks.track_blocks, canopyblocks.cli;"
         "bad=[m for m in sys.modules if m == 'qgis' or m.startswith('qgis.')];"
         "assert not bad, bad"
     )

@@ -15,7 +15,6 @@ from .blocks import (
     compute_blocks,
     default_cutoffs,
 )
-from .chain import ChainResult, run_chain
 from .errors import (
     CancelledError,
     CanopyBlocksError,
@@ -35,7 +34,6 @@ from .outputs.atomic import atomic_output
 from .outputs.h5_layouts import Atl03BeamData, MabelChannelData, write_atl03, write_mabel
 from .outputs.tables import read_blocks, read_layer, write_layers, write_table
 from .photons import PhotonTrack, along_track_distance
-from .pipeline import BlocksResult, blocks_from_file, read_tracks
 from .progress import Progress
 from .readers import (
     BeamInfo,
@@ -70,6 +68,7 @@ from .simulate import (
     seed002_experiment,
     simulate_photons,
 )
+from .track_blocks import BlocksResult, blocks_from_file, read_tracks
 from .validation import (
     ValidationResult,
     block_stats,
@@ -78,6 +77,7 @@ from .validation import (
     validate_atl08,
     validate_blocks,
 )
+from .whole_chain import ChainResult, run_chain
 
 __version__ = "0.1.0"
 

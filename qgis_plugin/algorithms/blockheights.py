@@ -150,7 +150,7 @@ class BlockHeightsAlgorithm(CanopyBlocksAlgorithm):
         results[self.OUTPUT] = dest
         style_on_load(context, dest, "height", "hmax")
         if want_photons and labels is not None:
-            pipeline = import_core("canopyblocks.pipeline")
+            pipeline = import_core("canopyblocks.track_blocks")
             photons = pipeline.photon_layer([track], {track.track: labels})
             pdest = write_frame(self, parameters, self.PHOTONS, context, photons, feedback)
             results[self.PHOTONS] = pdest

@@ -81,7 +81,7 @@ class ValidateAlgorithm(CanopyBlocksAlgorithm):
 
     def execute(self, parameters: dict[str, Any], context: QgsProcessingContext,
                 feedback: QgsProcessingFeedback, progress: Any) -> dict[str, Any]:
-        pipeline = import_core("canopyblocks.validation.pipeline")
+        pipeline = import_core("canopyblocks.validation.block_validation")
         blocks = self.source_frame(parameters, self.INPUT, context, feedback)
         progress.update(0.1, f"{len(blocks)} blocks read")
         kwargs: dict[str, Any] = {}

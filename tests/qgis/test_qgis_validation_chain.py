@@ -103,7 +103,7 @@ def test_reference_rasters_grid(chain, open_layer):
 
 def test_validate_matches_core_and_own_arithmetic(chain, open_layer, layer_rows):
     from canopyblocks import read_blocks
-    from canopyblocks.validation.pipeline import validate_blocks
+    from canopyblocks.validation.block_validation import validate_blocks
 
     res = open_layer(chain["validate"]["OUTPUT"])
     rows = layer_rows(res)

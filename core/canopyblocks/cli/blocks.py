@@ -71,7 +71,7 @@ def blocks_cmd(ctx: click.Context, path: str, output: str, beams: tuple[str, ...
                profile: str | None) -> None:
     """Canopy top, mean ground, Hmax and H90 per along-track block (seed 001 method)."""
     from ..blocks import BlockParams
-    from ..pipeline import blocks_from_file
+    from ..track_blocks import blocks_from_file
 
     params = BlockParams(
         lengths=tuple(lengths) or (25.0,), s0=s0, k_sigma=k_sigma, noise=noise,  # type: ignore[arg-type]

@@ -57,7 +57,7 @@ def run_cmd(ctx: click.Context, tiles: tuple[str, ...], out_dir: str, photons: s
             calibrate: bool, realisations: int) -> None:
     """Photons + airborne TILES -> blocks, reference rasters, validation, plots, report."""
     from ..blocks import BlockParams
-    from ..chain import run_chain
+    from ..whole_chain import run_chain
 
     if simulate and photons:
         raise click.UsageError("give either --photons or --simulate, not both")

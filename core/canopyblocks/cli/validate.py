@@ -56,7 +56,7 @@ def validate(ctx: click.Context, blocks_path: str, dtm: str | None, dsm_max: str
     from ..outputs.atomic import check_writable, new_files_removed_on_failure
     from ..outputs.tables import check_output_path, read_blocks, write_layers
     from ..schema import LAYER_RESIDUALS, LAYER_STATS
-    from ..validation.pipeline import validate_atl08, validate_blocks
+    from ..validation.block_validation import validate_atl08, validate_blocks
     from .common import progress_bar
 
     if geoid is not None and offset is not None:

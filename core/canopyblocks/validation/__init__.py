@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from .pipeline import ValidationResult, validate_atl08, validate_blocks
+from .block_validation import ValidationResult, validate_atl08, validate_blocks
 from .residuals import compute_residuals
 from .stats import block_stats, error_stats
 

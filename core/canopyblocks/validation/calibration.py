@@ -191,8 +191,8 @@ def calibrate_reference_rasters(
     crs : CRS-like, optional
         Metric CRS for the photons; default the DTM's horizontal CRS.
     """
-    from ..pipeline import read_tracks, run_blocks
-    from .pipeline import raster_horizontal_crs, validate_blocks
+    from ..track_blocks import read_tracks, run_blocks
+    from .block_validation import raster_horizontal_crs, validate_blocks
 
     prog = as_progress(progress)
     if crs is None:  # the DTM's (refused with a clear message when missing or unreadable)

@@ -21,9 +21,9 @@ from .errors import FileFormatError, InputError
 from .outputs.atomic import check_writable, new_files_removed_on_failure
 from .outputs.report import ReportSection, write_report
 from .outputs.tables import write_layers, write_table
-from .pipeline import blocks_from_file
 from .progress import Progress, as_progress
 from .schema import FLAG_OK, LAYER_BLOCKS, LAYER_RESIDUALS, LAYER_STATS
+from .track_blocks import blocks_from_file
 
 __all__ = ["ChainResult", "run_chain"]
 
@@ -135,7 +135,7 @@ def run_chain(
     from .outputs.profile_plot import plot_profile  # noqa: F401  (fails early without matplotlib)
     from .outputs.validation_plots import write_validation_plots
     from .reference.rasters import make_reference_rasters
-    from .validation.pipeline import validate_atl08, validate_blocks
+    from .validation.block_validation import validate_atl08, validate_blocks
 
     prog = as_progress(progress)
     out = check_writable(out_dir, folder=True)
@@ -177,7 +177,7 @@ def run_chain(
         layers = {LAYER_RESIDUALS: val.residuals, LAYER_STATS: val.stats}
         calibration = None
         if calibrate:
-            from .pipeline import run_blocks
+            from .track_blocks import run_blocks
             from .validation.calibration import calibrate_against_reference
 
             prog.update(0.9, "calibrating cut-offs")
