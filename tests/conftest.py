@@ -89,3 +89,27 @@ def pdal_bin() -> str:
     exe = pdal_executable()
     require(exe is not None, "the pdal command line", "run: bash scripts/install_pdal.sh")
     return str(exe)
+
+
+def _unzipped(relpath: str, dest: Path) -> Path:
+    """Extract the one HDF5 file of the zip ``relpath`` (see :func:`data_file`) into ``dest``."""
+    import zipfile
+
+    with zipfile.ZipFile(data_file(relpath)) as zf:
+        names = [n for n in zf.namelist() if n.endswith(".h5")]
+        assert len(names) == 1, f"{relpath}: expected one .h5 inside, got {names}"
+        return Path(zf.extract(names[0], dest))
+
+
+@pytest.fixture(scope="session")
+def gedi_l1b(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The real GEDI L1B subset (7 beams, ~300 shots; tests/data/gedi, unzipped once)."""
+    return _unzipped("gedi/GEDI01_B_2019108080338_O01964_T05337_02_003_01_sub.zip",
+                     tmp_path_factory.mktemp("gedi_l1b"))
+
+
+@pytest.fixture(scope="session")
+def gedi_l2a(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The real GEDI L2A subset of the same shots as :func:`gedi_l1b` (unzipped once)."""
+    return _unzipped("gedi/GEDI02_A_2019108080338_O01964_T05337_02_001_01_sub.zip",
+                     tmp_path_factory.mktemp("gedi_l2a"))
