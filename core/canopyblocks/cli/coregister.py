@@ -1,0 +1,85 @@
+"""CLI command ``coregister``: a track's geolocation offset against the airborne rasters."""
+
+from __future__ import annotations
+
+import logging
+
+import click
+
+from ..errors import InputError
+from .common import min_signal_conf_option, vertical_options
+
+log = logging.getLogger(__name__)
+
+
+def register(group: click.Group) -> None:
+    """Add this module's commands to ``group``."""
+    group.add_command(coregister)
+
+
+@click.command("coregister")
+@click.argument("source", metavar="PHOTONS_OR_BLOCKS", type=click.Path(dir_okay=False))
+@click.option("--dtm", required=True, type=click.Path(dir_okay=False),
+              help="Terrain GeoTIFF (reference), m.")
+@click.option("--dsm-max", type=click.Path(dir_okay=False),
+              help="Maximum-surface GeoTIFF: also align the canopy top.")
+@click.option("--beam", "beams", multiple=True, help="Beam/track to use (repeatable; "
+              "default all).")
+@click.option("--crs", help="Metric CRS for photons (default UTM), or the CRS of a CSV table.")
+@vertical_options
+@click.option("--photon-vcrs", default="EPSG:4979", show_default=True,
+              help="Vertical datum of the heights (ATL03/MABEL/GEDI: WGS84 ellipsoid).")
+@click.option("--reference-vcrs", help="Vertical/compound CRS of the rasters (default: the "
+              "DTM's CRS).")
+@min_signal_conf_option
+@click.option("--range", "search_range", type=float, default=15.0, show_default=True,
+              help="Search +- this many metres along and across the track.")
+@click.option("--step", type=float, default=1.0, show_default=True,
+              help="Coarse grid step, m (then refined by 0.25 m).")
+@click.option("--use-top", type=click.Choice(["auto", "yes", "no"]), default="auto",
+              show_default=True, help="Also match the canopy top to --dsm-max.")
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="offsets.json (one entry per track and 'all').")
+@click.option("--plot", type=click.Path(dir_okay=False), help="Cost-surface PNG.")
+@click.pass_context
+def coregister(ctx: click.Context, source: str, dtm: str, dsm_max: str | None,
+               beams: tuple[str, ...], crs: str | None, geoid: str | None,
+               offset: float | None, photon_vcrs: str, reference_vcrs: str | None,
+               min_signal_conf: int | None, search_range: float, step: float, use_top: str,
+               output: str, plot: str | None) -> None:
+    """Find the along-track, cross-track and vertical shift that aligns a track
+    (photons, blocks or GEDI footprints) with the airborne DTM (and DSM).
+
+    Prints the offsets: the shift to ADD to the reported positions and heights.
+    """
+    from ..outputs.atomic import check_writable
+    from ..validation.coregistration import CoregParams
+    from ..validation.coregistration_files import coregister_file, write_offsets
+    from .common import progress_bar
+
+    if not output.lower().endswith(".json"):
+        raise InputError(f"-o {output}: the offsets are written as JSON; name it *.json")
+    check_writable(output)
+    if plot is not None:
+        check_writable(plot)
+    params = CoregParams(search_range=search_range, step=step, use_top=use_top)  # type: ignore[arg-type]
+    quiet = bool(ctx.obj.get("quiet")) if ctx.obj else False
+    with progress_bar("coregister", quiet=quiet) as prog:
+        result = coregister_file(source, dtm, dsm_max, beams=beams, crs=crs, geoid=geoid,
+                                 offset=offset, photon_vertical_crs=photon_vcrs,
+                                 reference_vertical_crs=reference_vcrs,
+                                 min_signal_conf=min_signal_conf, params=params, progress=prog)
+    if plot is not None:
+        from ..outputs.coregistration_plot import write_cost_surfaces
+
+        write_cost_surfaces(result, plot)
+    write_offsets(result, output)
+    if not quiet:
+        click.echo(f"{'track':<10} {'along':>7} {'cross':>7} {'east':>7} {'north':>7} "
+                   f"{'vert':>7} {'rmse before':>11} {'after':>6}  status")
+        for name, o in result.offsets.items():
+            status = "ok" if o.determined else f"undetermined: {o.reason}"
+            click.echo(f"{name:<10} {o.along_track:+7.2f} {o.cross_track:+7.2f} "
+                       f"{o.east:+7.2f} {o.north:+7.2f} {o.vertical:+7.2f} "
+                       f"{o.rmse_before:11.2f} {o.rmse_after:6.2f}  {status}")
+    click.echo(f"offsets -> {output}", err=True)
