@@ -88,9 +88,9 @@ class CoregTargets:
         """Targets of several tracks in one set (same CRS)."""
         if not parts:
             raise NoUsableDataError("no targets to co-register")
-        return CoregTargets(*(np.concatenate([getattr(p, f) for p in parts])
-                              for f in ("x", "y", "z", "s", "kind", "track", "group")),
-                            crs=parts[0].crs)
+        cols = {f: np.concatenate([getattr(p, f) for p in parts])
+                for f in ("x", "y", "z", "s", "kind", "track", "group")}
+        return CoregTargets(**cols, crs=parts[0].crs)
 
 
 def _to_crs(x: np.ndarray, y: np.ndarray, src: pyproj.CRS, dst: pyproj.CRS
