@@ -80,12 +80,10 @@ def test_curved_track() -> None:
                       "x": 1000 + R * np.sin(ang), "y": 2000 + R * (1 - np.cos(ang))})
     blocks = gpd.GeoDataFrame(d, geometry=gpd.points_from_xy(d.x, d.y), crs=32633)
     cor = block_corridors(blocks, width=w).geometry.to_numpy()
-    # the polyline's own length (chords between centres + extrapolated halves)
-    xy = d[["x", "y"]].to_numpy()
-    chord = np.hypot(*np.diff(xy, axis=0).T)
-    total = chord.sum() * (1 + 1 / (n - 1))  # end halves extrapolate with the end chords
+    # the polyline is parametrised by its own arc length (chords between centres), so the
+    # blocks' pieces add up to n * L of it (the end halves extrapolate the end chords);
     # a mitred strip of constant width along a polyline has area width * length
-    assert sum(p.area for p in cor) == pytest.approx(w * total, rel=1e-9)
+    assert sum(p.area for p in cor) == pytest.approx(w * n * L, rel=1e-9)
     union = shapely.union_all(cor)
     assert union.area == pytest.approx(sum(p.area for p in cor), rel=1e-9)  # no overlaps
     assert isinstance(union, shapely.Polygon) and len(union.interiors) == 0  # no gaps
@@ -135,3 +133,48 @@ def test_bad_input() -> None:
         block_corridors(blocks.drop(columns="s_start"))
     with pytest.raises(CRSError, match="not projected"):
         block_corridors(blocks.set_crs(4326, allow_override=True))
+
+
+def test_bunched_photons_do_not_move_the_corridor() -> None:
+    """A block whose photons bunch at its start has its centre 4 m back along the track:
+    its corridor (and its neighbours') must still span its own s range, 10 m long."""
+    n, L = 20, 10.0
+    blocks = line_blocks(n, L, 30.0)
+    th = np.radians(30.0)
+    bunched = blocks.copy()
+    bunched.loc[5, "x"] -= 4.0 * np.cos(th)
+    bunched.loc[5, "y"] -= 4.0 * np.sin(th)
+    cor = block_corridors(bunched, width=2.0)
+    ref = block_corridors(blocks, width=2.0)
+    u = np.array([np.cos(th), np.sin(th)])
+    for k in range(n):
+        a, b = cor.geometry.iloc[k], ref.geometry.iloc[k]
+        # the whole track's parameter shifts by the mean of one 4 m displacement: 0.2 m
+        assert a.area == pytest.approx(2.0 * L, rel=1e-9)
+        ca = np.array(a.centroid.coords[0])
+        cb = np.array(b.centroid.coords[0])
+        assert abs(np.dot(ca - cb, u)) <= 4.0 / n + 1e-6
+        along = np.array(a.exterior.coords) @ u
+        assert along.max() - along.min() == pytest.approx(L, abs=1e-6)
+
+
+@pytest.mark.parametrize("L", [10.0, 25.0])
+def test_corridors_are_as_long_as_their_blocks_with_scattered_centres(L: float) -> None:
+    """Centres at random positions within their blocks (sparse photons): lengths stay L."""
+    rng = np.random.default_rng(5)
+    n = 60
+    blocks = line_blocks(n, L, 75.0)
+    th = np.radians(75.0)
+    jitter = rng.uniform(-0.45 * L, 0.45 * L, n)
+    blocks["x"] += jitter * np.cos(th)
+    blocks["y"] += jitter * np.sin(th)
+    cor = block_corridors(blocks, width=13.0)
+    u = np.array([np.cos(th), np.sin(th)])
+    lengths = [np.ptp(np.array(p.exterior.coords) @ u) for p in cor.geometry]
+    np.testing.assert_allclose(lengths, L, atol=1e-6)
+    # and they sit where their blocks are, up to the mean jitter (a metre or two at most)
+    true_mid = (np.array(blocks["s_start"]) + L / 2)
+    got_mid = np.array([np.array(p.centroid.coords[0]) @ u for p in cor.geometry])
+    offset = got_mid - true_mid - (np.array([500_000.0, 4_600_000.0]) @ u)
+    assert np.ptp(offset) < 1e-6
+    assert abs(offset.mean()) <= 3 * 0.45 * L / np.sqrt(3 * n)

@@ -4,9 +4,14 @@ A block's corridor is the piece of the track line between the block's ``s_start`
 ``s_end``, buffered by ``width / 2`` on each side with flat ends.  The track line is
 either given (a LineString whose arc length is ``s``, offset by ``line_s0``) or built
 from the block centres themselves: per ``(track, length)``, the centres ordered by
-``s_mid = (s_start + s_end) / 2`` form a polyline parametrised by ``s_mid``; positions
-at any ``s`` are interpolated linearly between centres and extrapolated linearly
-beyond the first/last centre.
+``s_mid = (s_start + s_end) / 2`` form a polyline. A block centre is the mean position
+of its photons, which lies at the photons' mean along-track distance, not at ``s_mid``
+(photons bunched at one end of a block move it by up to half a block). So each node is
+parametrised by its true along-track position: the arc length along the polyline, plus
+one constant per track fitted so that the nodes' ``s`` match ``s_mid`` on average. A
+bunched block then no longer drags its corridor (nor its neighbours'), and corridors are
+as long as their blocks. Positions at any ``s`` are interpolated linearly between nodes
+and extrapolated linearly beyond the first/last node.
 
 Geometry facts (tested):
 
@@ -66,7 +71,9 @@ def track_polyline(blocks: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
     Returns
     -------
     s : ndarray (n,)
-        Strictly increasing node parameters ``(s_start + s_end) / 2``, metres.
+        Strictly increasing node parameters, metres: the arc length along the polyline
+        through the centres (in ``s_mid`` order) plus the constant that makes their mean
+        equal the mean ``s_mid`` (see the module notes).
     xy : ndarray (n, 2)
         Node positions, metres.
 
@@ -86,7 +93,17 @@ def track_polyline(blocks: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
             f"cannot draw corridors: {s_u.size} usable block centre(s) in this track/length; "
             "at least 2 are needed to follow the track, or pass track_line="
         )
-    return s_u, np.column_stack([x[first], y[first]])
+    xy = np.column_stack([x[first], y[first]])
+    chord = np.hypot(*np.diff(xy, axis=0).T)
+    keep = np.concatenate([[True], chord > 0])  # two blocks with one centre: keep the first
+    xy, s_u = xy[keep], s_u[keep]
+    if s_u.size < 2:
+        raise InputError(
+            "cannot draw corridors: all usable block centres of this track/length coincide; "
+            "at least 2 distinct ones are needed to follow the track, or pass track_line="
+        )
+    arc = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(xy, axis=0).T))])
+    return arc + float(np.mean(s_u - arc)), xy
 
 
 def positions_at(s_nodes: np.ndarray, xy_nodes: np.ndarray, s: np.ndarray) -> np.ndarray:
