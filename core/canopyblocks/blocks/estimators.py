@@ -1,0 +1,296 @@
+"""Block estimators beyond the paper (DESIGN 1.10): named options and presets.
+
+The paper's method (seed 001, DESIGN 1.1-1.8) stays the default, bit for bit. These
+options replace its parts where sparse ICESat-2 photons defeat it:
+
+- ``noise``: ``sigma`` (the paper's per-block 2.5-sigma filter), ``conf`` (ATL03
+  ``signal_conf_ph >= min_signal_conf``), ``density`` (DRAGANN-like,
+  :mod:`.density_filter`, for data without a confidence flag), ``none``;
+- ``ground``: ``paper`` (upper edge of the expansion window) or ``surface`` (mean of a
+  robust along-track ground surface over the block, :mod:`.ground_surface`);
+- ``top``: ``paper`` (lower edge of the top window) or ``p95``/``p98``/``p99``/``p100``
+  (percentile of the kept photons' heights in the block, numpy's linear interpolation;
+  p100 = the highest kept photon).
+
+``hmax = top - ground``; ``z90`` is the paper's 90th percentile (index
+``floor(0.9 (n - 1))``) of the kept photons with ``ground <= z <= top``; ``h90 = z90 -
+ground``. Flags as in the paper: ``sparse`` (fewer than ``min_photons`` kept),
+``inverted`` (top <= ground or nothing between).
+
+Presets name combinations (:data:`PRESETS`): ``paper``; ``icesat2`` (density filter,
+surface ground, p98 top: measured best for ICESat-2 strong and weak beams, with and
+without background); ``mabel`` (the same for dense airborne photons).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING, Literal
+
+import numpy as np
+
+from ..errors import InputError
+from ..schema import LABEL_BETWEEN, LABEL_CANOPY, LABEL_GROUND, LABEL_NOISE
+from .density_filter import DensityParams, density_filter
+from .ground_surface import GroundSurfaceParams, block_mean_ground, fit_ground_surface
+from .params import BlockParams
+
+if TYPE_CHECKING:
+    import geopandas as gpd
+
+    from ..photons import PhotonTrack
+    from ..progress import Progress
+
+__all__ = ["Estimators", "PRESETS", "preset", "estimate_blocks", "percentile_by_block",
+           "GROUND_ESTIMATORS", "TOP_ESTIMATORS", "NOISE_ESTIMATORS"]
+
+log = logging.getLogger(__name__)
+
+GroundEstimator = Literal["paper", "surface"]
+TopEstimator = Literal["paper", "p95", "p98", "p99", "p100"]
+NoiseEstimator = Literal["sigma", "conf", "density", "none"]
+GROUND_ESTIMATORS: tuple[str, ...] = ("paper", "surface")
+TOP_ESTIMATORS: tuple[str, ...] = ("paper", "p95", "p98", "p99", "p100")
+NOISE_ESTIMATORS: tuple[str, ...] = ("sigma", "conf", "density", "none")
+
+
+@dataclass(frozen=True)
+class Estimators:
+    """Which estimator computes each part of a block (DESIGN 1.10).
+
+    Attributes
+    ----------
+    noise : "sigma", "conf", "density" or "none"
+    ground : "paper" or "surface"
+    top : "paper", "p95", "p98", "p99" or "p100"
+    min_signal_conf : int
+        ATL03 land confidence kept by ``noise="conf"`` (default 2, "low" and above).
+    surface : GroundSurfaceParams
+    density : DensityParams
+    name : str
+        The preset name these came from, or "custom".
+    """
+
+    noise: NoiseEstimator = "sigma"
+    ground: GroundEstimator = "paper"
+    top: TopEstimator = "paper"
+    min_signal_conf: int = 2
+    surface: GroundSurfaceParams = field(default_factory=GroundSurfaceParams)
+    density: DensityParams = field(default_factory=DensityParams)
+    name: str = "custom"
+
+    def __post_init__(self) -> None:
+        for what, value, allowed in (("noise", self.noise, NOISE_ESTIMATORS),
+                                     ("ground", self.ground, GROUND_ESTIMATORS),
+                                     ("top", self.top, TOP_ESTIMATORS)):
+            if value not in allowed:
+                raise InputError(f"{what} estimator must be one of {', '.join(allowed)}; "
+                                 f"got {value!r}")
+        if not (isinstance(self.min_signal_conf, int) and -2 <= self.min_signal_conf <= 4):
+            raise InputError(f"min_signal_conf must be an integer -2..4, got "
+                             f"{self.min_signal_conf!r}")
+
+    @property
+    def is_paper(self) -> bool:
+        """True when every part is the paper's."""
+        return (self.noise, self.ground, self.top) == ("sigma", "paper", "paper")
+
+    def label(self) -> str:
+        """Short description recorded with results, e.g. ``noise=density,ground=surface,top=p98``."""
+        return f"noise={self.noise},ground={self.ground},top={self.top}"
+
+    def percentile(self) -> float:
+        """The top percentile (0-100) of a ``pNN`` top estimator."""
+        if not self.top.startswith("p"):
+            raise InputError(f"top estimator {self.top!r} is not a percentile")
+        return float(self.top[1:])
+
+
+PRESETS: dict[str, Estimators] = {
+    "paper": Estimators(name="paper"),
+    "icesat2": Estimators(noise="density", ground="surface", top="p98", name="icesat2"),
+    "mabel": Estimators(noise="density", ground="surface", top="p98", name="mabel"),
+}
+
+
+def preset(name: str) -> Estimators:
+    """The named preset (``paper``, ``icesat2``, ``mabel``)."""
+    try:
+        return PRESETS[name]
+    except KeyError:
+        raise InputError(f"unknown preset {name!r}; use one of {', '.join(PRESETS)}") from None
+
+
+def percentile_by_block(block: np.ndarray, z: np.ndarray, q: float,
+                        n_blocks: int) -> np.ndarray:
+    """Per block, the ``q``-th percentile (0-100) of ``z`` (numpy's linear method).
+
+    ``block`` holds integer indices 0..n_blocks-1; blocks without values give NaN.
+    """
+    order = np.lexsort((z, block))
+    bs, zs = block[order], z[order]
+    counts = np.bincount(bs, minlength=n_blocks)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    out = np.full(n_blocks, np.nan)
+    has = counts > 0
+    pos = q / 100.0 * (counts[has] - 1)
+    lo = np.floor(pos).astype(np.int64)
+    hi = np.minimum(lo + 1, counts[has] - 1)
+    frac = pos - lo
+    a = zs[starts[has] + lo]
+    b = zs[starts[has] + hi]
+    out[has] = a + (b - a) * frac
+    return out
+
+
+def _paper_params(params: BlockParams, est: Estimators) -> BlockParams:
+    if est.noise == "sigma":
+        return params
+    if est.noise == "conf":
+        return replace(params, noise="none", min_signal_conf=est.min_signal_conf)
+    return replace(params, noise="none")
+
+
+def estimate_blocks(track: PhotonTrack, params: BlockParams | None = None,
+                    estimators: Estimators | None = None, *, labels: bool = False,
+                    progress: Progress | None = None
+                    ) -> gpd.GeoDataFrame | tuple[gpd.GeoDataFrame, dict[float, np.ndarray]]:
+    """Block table with the chosen estimators (the paper's engine when all are ``paper``).
+
+    Parameters
+    ----------
+    track : PhotonTrack
+    params : BlockParams, optional
+        Lengths, ``s0``, ``min_photons`` and the paper's settings (used by its parts).
+    estimators : Estimators, optional
+        Default: the paper's.
+    labels : bool
+        Also return per-photon labels per length (noise / ground / canopy / between;
+        with ``ground="surface"``, ground = the photons the surface was fitted to).
+    progress : Progress, optional
+
+    Returns
+    -------
+    GeoDataFrame (and labels)
+        The DESIGN 5 block columns plus ``estimators`` (the :meth:`Estimators.label`).
+    """
+    from .engine import compute_blocks
+
+    params = BlockParams() if params is None else params
+    est = Estimators() if estimators is None else estimators
+    if not isinstance(est, Estimators):
+        raise InputError(f"estimators must be an Estimators (or a preset name via preset()); "
+                         f"got {type(est).__name__}")
+    work = track
+    removed = None
+    if est.noise == "conf" and track.signal_conf is None:
+        raise InputError(f"noise='conf' needs ATL03 signal_conf_ph, which track {track.track} "
+                         "lacks; use noise='density' for MABEL, simulated or table photons")
+    if est.noise == "density":
+        res = density_filter(track.s, track.h, est.density)
+        removed = ~res.keep
+        log.info("track %s: density filter removed %.1f %% of %d photons (background %.3g "
+                 "photons/m^2)", track.track, 100 * res.background_share, len(track),
+                 float(np.median(res.rate)) if res.rate.size else 0.0)
+        work = track.subset(res.keep)
+    bp = _paper_params(params, est)
+    blocks, lab = compute_blocks(work, bp, labels=True, progress=progress)
+    if est.ground == "paper" and est.top == "paper":
+        blocks["estimators"] = est.label()
+        if labels:
+            return blocks, {k: _expand(v, removed) for k, v in lab.items()}
+        return blocks
+    blocks = blocks.copy()
+    out_labels: dict[float, np.ndarray] = {}
+    surface = None
+    if est.ground == "surface":
+        any_kept = np.zeros(len(work), bool)
+        for v in lab.values():
+            any_kept |= (v != LABEL_NOISE) & (v >= 0)
+        surface = fit_ground_surface(work.s[any_kept], work.h[any_kept], est.surface)
+    for length, lv in lab.items():
+        rows = np.flatnonzero(blocks["length"].to_numpy() == length)
+        sub = blocks.iloc[rows]
+        kept = (lv != LABEL_NOISE) & (lv >= 0)
+        s0 = float(sub["s_start"].iloc[0] - sub["block"].iloc[0] * length) if len(sub) else 0.0
+        bidx = np.floor((work.s - s0) / length)
+        # map block numbers to table rows
+        nums = sub["block"].to_numpy()
+        pos = np.searchsorted(nums, bidx)
+        inrow = kept & (pos < len(nums)) & (nums[np.minimum(pos, len(nums) - 1)] == bidx)
+        prow = pos[inrow]
+        z = work.h[inrow]
+        if surface is not None:
+            ground = block_mean_ground(surface, sub["s_start"].to_numpy(float),
+                                       sub["s_end"].to_numpy(float))
+        else:
+            ground = sub["ground"].to_numpy(float)
+        if est.top != "paper":
+            top = percentile_by_block(prow, z, est.percentile(), len(sub))
+        else:
+            top = sub["top"].to_numpy(float)
+        z90, n_between = _z90(prow, z, ground, top, len(sub))
+        n_kept = np.bincount(prow, minlength=len(sub))
+        sparse = n_kept < params.min_photons
+        inverted = ~sparse & ((top <= ground) | (n_between == 0))
+        top = np.where(sparse, np.nan, top)
+        ground = np.where(sparse, np.nan, ground)
+        z90 = np.where(sparse, np.nan, z90)
+        idx = blocks.index[rows]
+        blocks.loc[idx, "n_kept"] = n_kept
+        blocks.loc[idx, "n_between"] = np.where(sparse, 0, n_between)
+        blocks.loc[idx, "top"] = top
+        blocks.loc[idx, "ground"] = ground
+        blocks.loc[idx, "hmax"] = top - ground
+        blocks.loc[idx, "z90"] = z90
+        blocks.loc[idx, "h90"] = z90 - ground
+        blocks.loc[idx, "flag"] = np.where(sparse, "sparse",
+                                           np.where(inverted, "inverted", "ok"))
+        if labels:
+            new = np.where(kept, LABEL_BETWEEN, lv).astype(np.int8)
+            full_top = np.full(len(work), np.inf)
+            full_ground = np.full(len(work), -np.inf)
+            full_top[np.flatnonzero(inrow)] = top[prow]
+            full_ground[np.flatnonzero(inrow)] = ground[prow]
+            if surface is not None:
+                near = kept & (np.abs(work.h - surface(work.s)) <= est.surface.band)
+            else:
+                near = kept & (work.h <= full_ground)
+            new[kept & (work.h >= full_top)] = LABEL_CANOPY
+            new[near] = LABEL_GROUND
+            out_labels[length] = _expand(new, removed)
+    blocks["estimators"] = est.label()
+    if labels:
+        return blocks, out_labels
+    return blocks
+
+
+def _expand(lab: np.ndarray, removed: np.ndarray | None) -> np.ndarray:
+    """Labels of a density-filtered track back onto every photon (removed = noise)."""
+    if removed is None:
+        return lab
+    out = np.full(removed.size, LABEL_NOISE, np.int8)
+    out[~removed] = lab
+    return out
+
+
+def _z90(prow: np.ndarray, z: np.ndarray, ground: np.ndarray, top: np.ndarray,
+         n_blocks: int) -> tuple[np.ndarray, np.ndarray]:
+    """Paper's z90 of the photons with ground <= z <= top, per block; and their count."""
+    g = ground[prow]
+    t = top[prow]
+    with np.errstate(invalid="ignore"):
+        between = (z >= g) & (z <= t)
+    pb, zb = prow[between], z[between]
+    order = np.lexsort((zb, pb))
+    pb, zb = pb[order], zb[order]
+    counts = np.bincount(pb, minlength=n_blocks)
+    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    out = np.full(n_blocks, np.nan)
+    has = counts > 0
+    k = np.floor(0.9 * (counts[has] - 1)).astype(np.int64)
+    out[has] = zb[starts[has] + k]
+    return out, counts
+
+
