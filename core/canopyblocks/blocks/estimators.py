@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING, Literal, overload
 
 import numpy as np
 
@@ -150,6 +150,19 @@ def _paper_params(params: BlockParams, est: Estimators) -> BlockParams:
     if est.noise == "conf":
         return replace(params, noise="none", min_signal_conf=est.min_signal_conf)
     return replace(params, noise="none")
+
+
+@overload
+def estimate_blocks(track: PhotonTrack, params: BlockParams | None = ...,
+                    estimators: Estimators | None = ..., *, labels: Literal[False] = ...,
+                    progress: Progress | None = ...) -> gpd.GeoDataFrame: ...
+
+
+@overload
+def estimate_blocks(track: PhotonTrack, params: BlockParams | None = ...,
+                    estimators: Estimators | None = ..., *, labels: Literal[True],
+                    progress: Progress | None = ...
+                    ) -> tuple[gpd.GeoDataFrame, dict[float, np.ndarray]]: ...
 
 
 def estimate_blocks(track: PhotonTrack, params: BlockParams | None = None,

@@ -1,0 +1,207 @@
+"""Many granules against many tiles (DESIGN 6): the one function behind ``canopyblocks
+batch``.
+
+1. Tile index (headers) and units (granule, beam, tiles crossed).
+2. Reference rasters once per tile (``out/rasters/<tile>/``), reused by every unit and
+   every rerun.
+3. Units run serially, in local processes or on Dask; each writes its partition
+   ``out/parts/<granule>/<beam>/{blocks,residuals}.parquet``; the manifest
+   ``out/manifest.json`` records every unit's status, counts, warnings and error.
+   A rerun skips units whose partition is complete; a failed unit is reported and the
+   others go on.
+4. A reduce reads the partitions in unit order and writes ``out/stats.csv`` and
+   ``out/report.html``. The same inputs give byte-identical outputs on every backend.
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+import logging
+import os
+import warnings
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import pandas as pd
+
+from ..errors import CanopyBlocksWarning, NoUsableDataError
+from ..outputs.atomic import atomic_output
+from ..progress import Progress, as_progress
+from .backends import Backend, run_items
+from .units import Unit, find_units, list_inputs, tile_index
+from .work import BatchConfig, build_tile_rasters, run_unit
+
+__all__ = ["BatchResult", "run_batch", "MANIFEST"]
+
+log = logging.getLogger(__name__)
+
+MANIFEST = "manifest.json"
+
+
+@dataclass
+class BatchResult:
+    """What :func:`run_batch` did: units by status, the statistics and the files."""
+
+    out_dir: Path
+    units: list[dict] = field(default_factory=list)
+    stats: pd.DataFrame | None = None
+    skipped: int = 0
+
+    @property
+    def failed(self) -> list[dict]:
+        """Units that failed (their ``error`` says why)."""
+        return [u for u in self.units if u["status"] == "failed"]
+
+
+def _load_manifest(out: Path) -> dict[str, dict]:
+    p = out / MANIFEST
+    if not p.exists():
+        return {}
+    try:
+        doc = json.loads(p.read_text(encoding="utf-8"))
+        return {u["key"]: u for u in doc.get("units", [])}
+    except (OSError, ValueError, KeyError, TypeError):
+        log.warning("%s is unreadable; every unit is run again", p)
+        return {}
+
+
+def _write_manifest(out: Path, units: dict[str, dict], config: BatchConfig) -> None:
+    doc = {"config": asdict(config),
+           "units": [units[k] for k in sorted(units)]}
+    with atomic_output(out / MANIFEST) as tmp:
+        Path(tmp).write_text(json.dumps(doc, indent=2, sort_keys=True), encoding="utf-8")
+
+
+def _complete(out: Path, entry: dict | None) -> bool:
+    return bool(entry and entry.get("status") in ("ok", "empty")
+                and all((out / f).exists() for f in entry.get("files", [])))
+
+
+def run_batch(granules: Sequence[str | os.PathLike[str]],
+              tiles: Sequence[str | os.PathLike[str]], out_dir: str | os.PathLike[str],
+              config: BatchConfig | None = None, *, beams: Sequence[str] = (),
+              backend: Backend = "serial", workers: int | None = None,
+              scheduler: str | None = None, progress: Progress | None = None) -> BatchResult:
+    """Validate many ATL03 granules against many airborne tiles.
+
+    Parameters
+    ----------
+    granules : sequence of path
+        ATL03 files, or folders of them (``*.h5``).
+    tiles : sequence of path
+        LAS/LAZ tiles, or folders of them, in one CRS.
+    out_dir : path
+        Output folder (created; reused by a rerun).
+    config : BatchConfig, optional
+    beams : sequence of str
+        Beams to use (default every beam with photons).
+    backend : "serial", "processes" or "dask"
+    workers : int, optional
+        Default: the machine's cores.
+    scheduler : str, optional
+        A running Dask scheduler's address (with ``backend="dask"``).
+    progress : Progress, optional
+        One step per unit; cancellation stops scheduling new units.
+
+    Returns
+    -------
+    BatchResult
+
+    Raises
+    ------
+    NoUsableDataError
+        No granule crosses any tile, or no unit produced validated blocks.
+    """
+    cfg = config or BatchConfig()
+    prog = as_progress(progress)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    g_paths = list_inputs(granules, (".h5",))
+    t_paths = list_inputs(tiles, (".las", ".laz"))
+    prog.update(0.0, "indexing tiles and tracks")
+    index = tile_index(t_paths)
+    problems: dict[str, str] = {}
+    units = find_units(g_paths, index, beams=beams, problems=problems)
+    if not units:
+        detail = "; ".join(f"{k}: {v}" for k, v in problems.items())
+        raise NoUsableDataError(f"none of the {len(g_paths)} granule(s) crosses any of the "
+                                f"{len(index)} tile(s); check that they cover the same place"
+                                + (f" ({detail})" if detail else ""))
+    manifest = _load_manifest(out)
+    for g, msg in problems.items():  # unreadable granules: reported, the rest go on
+        key = f"{Path(g).name}:*"
+        manifest[key] = {"key": key, "granule": g, "beam": "*", "tiles": [],
+                         "status": "failed", "error": msg, "n_blocks": 0, "n_validated": 0,
+                         "files": [], "warnings": []}
+        warnings.warn(f"{key} failed: {msg}", CanopyBlocksWarning, stacklevel=2)
+    todo = [u for u in units if not _complete(out, manifest.get(u.key))]
+    skipped = len(units) - len(todo)
+    if skipped:
+        log.info("%d of %d units already complete: skipped", skipped, len(units))
+    raster_root = out / "rasters"
+    needed = sorted({t for u in todo for t in u.tiles}, key=lambda t: t.path)
+    prog.update(0.05, f"reference rasters for {len(needed)} tile(s)")
+    run_items(functools.partial(build_tile_rasters, raster_root=str(raster_root),
+                                resolution=cfg.resolution), needed, backend=backend,
+              workers=workers, scheduler=scheduler)
+    done_count = [0]
+    unit_prog = prog.sub(0.2, 0.9)
+
+    def done(summary: dict) -> None:
+        manifest[summary["key"]] = summary
+        _write_manifest(out, manifest, cfg)
+        done_count[0] += 1
+        for w in summary["warnings"]:
+            warnings.warn(f"{summary['key']}: {w}", CanopyBlocksWarning, stacklevel=2)
+        unit_prog.report(done_count[0] / max(1, len(todo)),
+                         f"{summary['key']}: {summary['status']}")
+
+    fn = functools.partial(run_unit, config=cfg, out_dir=str(out),
+                           raster_root=str(raster_root))
+    run_items(fn, todo, backend=backend, workers=workers, scheduler=scheduler, done=done,
+              cancelled=lambda: _cancel_requested(prog))
+    prog.check()
+    _write_manifest(out, manifest, cfg)
+    result = BatchResult(out, [manifest[k] for k in sorted(manifest)], skipped=skipped)
+    result.stats = _reduce(out, units, manifest, cfg)
+    prog.report(1.0, "batch done")
+    return result
+
+
+def _cancel_requested(prog: Progress) -> bool:
+    return bool(prog.cancelled is not None and prog.cancelled())
+
+
+def _reduce(out: Path, units: list[Unit], manifest: dict[str, dict], cfg: BatchConfig
+            ) -> pd.DataFrame:
+    from ..outputs.report import ReportSection, write_report
+    from ..outputs.tables import read_layer
+    from ..validation.stats import block_stats
+
+    frames = []
+    for u in units:
+        e = manifest.get(u.key)
+        if e and e["status"] == "ok":
+            frames.append(pd.DataFrame(read_layer(out / e["files"][1])))
+    if not frames:
+        raise NoUsableDataError(
+            "no unit produced validated blocks: " + "; ".join(
+                f"{k}: {v['error']}" for k, v in sorted(manifest.items()) if v.get("error")))
+    residuals = pd.concat(frames, ignore_index=True)
+    stats = block_stats(residuals)
+    with atomic_output(out / "stats.csv") as tmp:
+        stats.to_csv(tmp, index=False, float_format="%.6f")
+    table = pd.DataFrame([{k: e[k] for k in ("key", "status", "n_blocks", "n_validated",
+                                             "error")}
+                          for e in (manifest[u.key] for u in units if u.key in manifest)])
+    write_report(out / "report.html", "canopyblocks batch validation", [
+        ReportSection("Units", [f"{len(units)} units (granule, beam, tiles); block lengths "
+                                f"{', '.join(f'{v:g}' for v in cfg.lengths)} m, corridor "
+                                f"{cfg.width:g} m, preset {cfg.preset}."],
+                      {"units": table}),
+        ReportSection("Statistics (photon minus reference, m)", [],
+                      {"all units pooled": stats}),
+    ])
+    return stats

@@ -1,0 +1,147 @@
+"""Units of work for many granules (DESIGN 6): tile index and track-tile intersection.
+
+A unit is one (granule, beam, tiles it crosses). The tile index holds each LAS/LAZ
+tile's header extent (no points read); a beam's track line comes from its geolocation
+segments (ATL03 ``geolocation/reference_photon_lat|lon``), cheap to read.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pyproj
+import shapely
+
+from ..errors import CRSError, FileFormatError, InputError
+
+__all__ = ["Tile", "Unit", "tile_index", "track_line", "find_units", "list_inputs"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Tile:
+    """One airborne tile: its path, header extent (m, in ``crs``) and CRS (WKT)."""
+
+    path: str
+    bounds: tuple[float, float, float, float]
+    crs_wkt: str
+
+    @property
+    def name(self) -> str:
+        """File stem plus a short hash of the full path (unique within a batch)."""
+        h = hashlib.sha1(os.path.abspath(self.path).encode()).hexdigest()[:8]
+        return f"{Path(self.path).stem}-{h}"
+
+
+@dataclass(frozen=True)
+class Unit:
+    """One (granule, beam, tiles) piece of work."""
+
+    granule: str
+    beam: str
+    tiles: tuple[Tile, ...]
+
+    @property
+    def key(self) -> str:
+        """Stable id: granule file name and beam."""
+        return f"{Path(self.granule).name}:{self.beam}"
+
+    @property
+    def partition(self) -> str:
+        """Relative folder of its outputs: ``<granule stem>/<beam>`` (plain names, not
+        hive-style ``key=value``, so a reader does not invent a conflicting column)."""
+        return f"{Path(self.granule).stem}/{self.beam}"
+
+
+def list_inputs(items: Sequence[str | os.PathLike[str]], suffixes: tuple[str, ...]
+                ) -> list[str]:
+    """Files given directly, or found (sorted) in given folders, with one of ``suffixes``."""
+    out: list[str] = []
+    for it in items:
+        p = Path(it)
+        if p.is_dir():
+            out.extend(str(q) for q in sorted(p.iterdir()) if q.suffix.lower() in suffixes)
+        elif p.exists():
+            out.append(str(p))
+        else:
+            raise FileFormatError(f"{p}: no such file or folder")
+    if not out:
+        raise InputError(f"no input files with suffix {', '.join(suffixes)} in "
+                         f"{', '.join(map(str, items))}")
+    return sorted(dict.fromkeys(out))
+
+
+def tile_index(paths: Sequence[str | os.PathLike[str]]) -> list[Tile]:
+    """Header extents and CRSs of the tiles (all must share one CRS)."""
+    from ..readers.las import las_bounds, las_crs
+
+    tiles = []
+    crs0: pyproj.CRS | None = None
+    for p in paths:
+        crs = las_crs(p)
+        if crs is None:
+            raise CRSError(f"{p} states no CRS; batch needs tiles with a CRS in their header")
+        if crs0 is None:
+            crs0 = crs
+        elif crs != crs0:
+            raise CRSError(f"tiles in several CRSs ({crs0.name}, {crs.name} in {p}); "
+                           "reproject them to one CRS first")
+        tiles.append(Tile(str(p), tuple(float(v) for v in las_bounds(p)),  # type: ignore[arg-type]
+                          crs.to_wkt()))
+    return tiles
+
+
+def track_line(granule: str, beam: str) -> tuple[np.ndarray, np.ndarray]:
+    """Longitude and latitude (degrees) of a beam's geolocation segments (ATL03)."""
+    from ..readers._h5 import open_h5
+
+    with open_h5(granule, product="ATL03") as f:
+        lat = np.asarray(f.read(f"{beam}/geolocation/reference_photon_lat"), float)
+        lon = np.asarray(f.read(f"{beam}/geolocation/reference_photon_lon"), float)
+    ok = np.isfinite(lat) & np.isfinite(lon) & (np.abs(lat) <= 90) & (np.abs(lon) <= 180)
+    return lon[ok], lat[ok]
+
+
+def find_units(granules: Sequence[str], tiles: Sequence[Tile], *,
+               beams: Sequence[str] = (), buffer: float = 10.0,
+               problems: dict[str, str] | None = None) -> list[Unit]:
+    """Every (granule, beam) whose track line passes within ``buffer`` m of a tile.
+
+    Units are sorted by granule then beam, so a batch is deterministic. A granule that
+    cannot be read is left out; with ``problems`` given, its error is recorded there
+    (``{granule: message}``) instead of stopping the batch.
+    """
+    from ..errors import CanopyBlocksError
+    from ..readers.atl03 import atl03_beams
+
+    if not tiles:
+        raise InputError("no airborne tiles given")
+    crs = pyproj.CRS.from_wkt(tiles[0].crs_wkt)
+    to_tiles = pyproj.Transformer.from_crs("EPSG:4326", crs, always_xy=True)
+    boxes = shapely.box(*np.array([t.bounds for t in tiles]).T)
+    units = []
+    for g in granules:
+        try:
+            names = list(beams) or [b.name for b in atl03_beams(g) if b.n_photons]
+            lines = {beam: track_line(g, beam) for beam in names}
+        except CanopyBlocksError as exc:
+            if problems is None:
+                raise
+            problems[str(g)] = f"{type(exc).__name__}: {exc}"
+            continue
+        for beam, (lon, lat) in lines.items():
+            if lon.size < 2:
+                continue
+            x, y = to_tiles.transform(lon, lat)
+            line = shapely.LineString(np.column_stack([x, y])).buffer(buffer)
+            hit = [t for t, box in zip(tiles, boxes) if line.intersects(box)]
+            if hit:
+                units.append(Unit(str(g), beam, tuple(hit)))
+    return sorted(units, key=lambda u: (u.granule, u.beam))

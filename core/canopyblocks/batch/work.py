@@ -1,0 +1,177 @@
+"""One unit of batch work, run in any process: photons of one beam over its tiles ->
+blocks -> validation against each tile's rasters -> partition files.
+
+Pure function of its arguments (picklable, no shared state), so serial, process-pool
+and Dask runs write identical partitions.
+"""
+
+from __future__ import annotations
+
+import logging
+import traceback
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pyproj
+
+from ..errors import CanopyBlocksError, NoUsableDataError
+from .units import Tile, Unit
+
+__all__ = ["BatchConfig", "run_unit", "raster_paths", "build_tile_rasters"]
+
+log = logging.getLogger(__name__)
+
+RASTER_NAMES = ("dtm", "dsm_max", "dsm_p90")
+
+
+@dataclass(frozen=True)
+class BatchConfig:
+    """What every unit computes (metres unless stated).
+
+    Attributes
+    ----------
+    lengths : tuple of float
+        Block lengths.
+    width : float
+        Corridor width for the validation (the footprint for ICESat-2).
+    preset : str
+        Block estimators (``paper``, ``icesat2``, ``mabel``).
+    min_signal_conf : int or None
+        ATL03 confidence threshold applied when reading.
+    offset : float or None
+        Constant ``h_photon - H_reference`` (m); or ``geoid`` raster path.
+    photon_vcrs, reference_vcrs : str or None
+        Vertical datums (see ``reference.datum``).
+    resolution : float
+        Raster cell size.
+    """
+
+    lengths: tuple[float, ...] = (25.0,)
+    width: float = 13.0
+    preset: str = "paper"
+    min_signal_conf: int | None = None
+    offset: float | None = None
+    geoid: str | None = None
+    photon_vcrs: str = "EPSG:4979"
+    reference_vcrs: str | None = None
+    resolution: float = 2.0
+
+    def __post_init__(self) -> None:
+        from ..blocks import BlockParams
+        from ..blocks.estimators import preset
+        from ..errors import InputError
+
+        BlockParams(lengths=self.lengths)  # validates the lengths
+        preset(self.preset)
+        if not (np.isfinite(self.width) and self.width > 0):
+            raise InputError(f"corridor width must be a positive number of metres, got "
+                             f"{self.width!r}")
+        if self.offset is not None and self.geoid is not None:
+            raise InputError("give either a geoid raster or a constant offset, not both")
+
+
+def raster_paths(raster_root: Path, tile: Tile) -> dict[str, Path]:
+    """Where a tile's three reference rasters live."""
+    d = raster_root / tile.name
+    return {n: d / f"{n}.tif" for n in RASTER_NAMES}
+
+
+def build_tile_rasters(tile: Tile, raster_root: str, resolution: float) -> str:
+    """Build a tile's rasters once (skipped when all three exist); returns the tile name."""
+    from ..reference.rasters import make_reference_rasters
+
+    paths = raster_paths(Path(raster_root), tile)
+    if not all(p.exists() for p in paths.values()):
+        make_reference_rasters([tile.path], paths["dtm"].parent, resolution=resolution)
+    return tile.name
+
+
+def _block_tile(blocks: pd.DataFrame, tiles: tuple[Tile, ...], crs: pyproj.CRS) -> np.ndarray:
+    """Index of the tile holding each block centre (the first in order), -1 for none."""
+    x = blocks["x"].to_numpy(float)
+    y = blocks["y"].to_numpy(float)
+    tcrs = pyproj.CRS.from_wkt(tiles[0].crs_wkt)
+    if crs != tcrs:
+        x, y = pyproj.Transformer.from_crs(crs, tcrs, always_xy=True).transform(x, y)
+    out = np.full(len(blocks), -1)
+    for i, t in reversed(list(enumerate(tiles))):
+        inside = (x >= t.bounds[0]) & (x < t.bounds[2]) & (y >= t.bounds[1]) & (y < t.bounds[3])
+        out[inside] = i
+    return out
+
+
+def run_unit(unit: Unit, config: BatchConfig, out_dir: str, raster_root: str) -> dict:
+    """Compute and write one unit; never raises: failures come back in the summary.
+
+    Returns
+    -------
+    dict
+        ``key``, ``status`` (``ok``/``empty``/``failed``), ``error``, ``n_blocks``,
+        ``n_validated``, ``files`` (relative to ``out_dir``), ``warnings``.
+    """
+    summary: dict = {"key": unit.key, "granule": unit.granule, "beam": unit.beam,
+                     "tiles": [t.path for t in unit.tiles], "status": "failed", "error": "",
+                     "n_blocks": 0, "n_validated": 0, "files": [], "warnings": []}
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            _work(unit, config, Path(out_dir), Path(raster_root), summary)
+        except NoUsableDataError as exc:
+            summary.update(status="empty", error=str(exc))
+        except CanopyBlocksError as exc:
+            summary.update(status="failed", error=f"{type(exc).__name__}: {exc}")
+        except Exception as exc:  # noqa: BLE001 - a bug in one unit must not stop the batch
+            tb = traceback.format_exception_only(type(exc), exc)[-1].strip()
+            summary.update(status="failed", error=f"unexpected error (a bug): {tb}")
+    summary["warnings"] = sorted({str(w.message) for w in caught})
+    return summary
+
+
+def _work(unit: Unit, config: BatchConfig, out_dir: Path, raster_root: Path,
+          summary: dict) -> None:
+    from ..blocks import BlockParams
+    from ..blocks.estimators import estimate_blocks, preset
+    from ..outputs.tables import write_table
+    from ..track_blocks import read_tracks
+    from ..validation.block_validation import validate_blocks
+
+    tcrs = pyproj.CRS.from_wkt(unit.tiles[0].crs_wkt)
+    b = np.array([t.bounds for t in unit.tiles])
+    to_ll = pyproj.Transformer.from_crs(tcrs, "EPSG:4326", always_xy=True)
+    xs = np.array([b[:, 0].min(), b[:, 2].max(), b[:, 0].min(), b[:, 2].max()])
+    ys = np.array([b[:, 1].min(), b[:, 1].min(), b[:, 3].max(), b[:, 3].max()])
+    lon, lat = to_ll.transform(xs, ys)
+    bbox = (float(np.min(lon)), float(np.min(lat)), float(np.max(lon)), float(np.max(lat)))
+    tracks = read_tracks(unit.granule, beams=[unit.beam], bbox=bbox, crs=tcrs,
+                         min_signal_conf=config.min_signal_conf)
+    params = BlockParams(lengths=config.lengths)
+    blocks = estimate_blocks(tracks[0], params, preset(config.preset))
+    summary["n_blocks"] = int(len(blocks))
+    where = _block_tile(blocks, unit.tiles, blocks.crs)
+    parts = []
+    for i, tile in enumerate(unit.tiles):
+        sub = blocks[where == i]
+        if len(sub) < 2:
+            continue
+        r = raster_paths(raster_root, tile)
+        res = validate_blocks(sub, dtm=r["dtm"], dsm_max=r["dsm_max"], dsm_p90=r["dsm_p90"],
+                              width=config.width, offset=config.offset, geoid=config.geoid,
+                              photon_vertical_crs=config.photon_vcrs,
+                              reference_vertical_crs=config.reference_vcrs)
+        parts.append(res.residuals.assign(tile=Path(tile.path).name))
+    if not parts:
+        raise NoUsableDataError(f"{unit.key}: no block lies on its tiles")
+    residuals = pd.concat(parts, ignore_index=True)
+    residuals.insert(0, "granule", Path(unit.granule).name)
+    summary["n_validated"] = int(residuals["use"].sum()) if "use" in residuals else 0
+    folder = out_dir / "parts" / unit.partition
+    folder.mkdir(parents=True, exist_ok=True)
+    blocks = blocks.assign(granule=Path(unit.granule).name)
+    write_table(blocks, folder / "blocks.parquet", layer="blocks")
+    write_table(residuals, folder / "residuals.parquet", layer="residuals")
+    summary["files"] = [f"parts/{unit.partition}/blocks.parquet",
+                        f"parts/{unit.partition}/residuals.parquet"]
+    summary["status"] = "ok"

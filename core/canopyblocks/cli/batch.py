@@ -1,0 +1,75 @@
+"""CLI command ``batch``: many ATL03 granules against many airborne tiles (DESIGN 6)."""
+
+from __future__ import annotations
+
+import logging
+
+import click
+
+from .common import lengths_option, min_signal_conf_option, vertical_options
+
+log = logging.getLogger(__name__)
+
+
+def register(group: click.Group) -> None:
+    """Add this module's commands to ``group``."""
+    group.add_command(batch)
+
+
+@click.command("batch")
+@click.argument("granules", nargs=-1, required=True, type=click.Path(exists=True))
+@click.option("--tiles", "tiles", multiple=True, required=True, type=click.Path(exists=True),
+              help="LAS/LAZ tile, or a folder of tiles (repeatable); one CRS.")
+@click.option("-o", "--output", required=True, type=click.Path(file_okay=False),
+              help="Output folder: parts/, manifest.json, stats.csv, report.html.")
+@click.option("--beam", "beams", multiple=True, help="Beams to use (default all).")
+@lengths_option("25")
+@click.option("--width", type=float, default=13.0, show_default=True,
+              help="Corridor width, m (the footprint for ICESat-2).")
+@click.option("--preset", type=click.Choice(["paper", "icesat2", "mabel"]), default="paper",
+              show_default=True, help="Block estimators.")
+@min_signal_conf_option
+@vertical_options
+@click.option("--photon-vcrs", default="EPSG:4979", show_default=True,
+              help="Vertical datum of the photon heights.")
+@click.option("--reference-vcrs", help="Vertical/compound CRS of the tiles' heights.")
+@click.option("--resolution", type=float, default=2.0, show_default=True,
+              help="Reference raster cell size, m.")
+@click.option("--backend", type=click.Choice(["serial", "processes", "dask"]),
+              default="processes", show_default=True, help="Where units run.")
+@click.option("--workers", type=click.IntRange(1, 512), default=None,
+              help="Processes or local Dask workers (default: the machine's cores).")
+@click.option("--scheduler", default=None,
+              help="Address of a running Dask scheduler (tcp://host:8786) instead of a "
+                   "local cluster.")
+@click.pass_context
+def batch(ctx: click.Context, granules: tuple[str, ...], tiles: tuple[str, ...], output: str,
+          beams: tuple[str, ...], lengths: tuple[float, ...], width: float, preset: str,
+          min_signal_conf: int | None, geoid: str | None, offset: float | None,
+          photon_vcrs: str, reference_vcrs: str | None, resolution: float, backend: str,
+          workers: int | None, scheduler: str | None) -> None:
+    """Validate many ATL03 granules (files or folders) against airborne tiles.
+
+    One unit of work per (granule, beam, tiles it crosses); a rerun skips finished
+    units; a failed unit is reported and the others complete.
+    """
+    from ..batch import BatchConfig, run_batch
+    from .common import progress_bar
+
+    if scheduler is not None and backend != "dask":
+        backend = "dask"
+    cfg = BatchConfig(lengths=tuple(lengths) or (25.0,), width=width, preset=preset,
+                      min_signal_conf=min_signal_conf, offset=offset, geoid=geoid,
+                      photon_vcrs=photon_vcrs, reference_vcrs=reference_vcrs,
+                      resolution=resolution)
+    quiet = bool(ctx.obj.get("quiet")) if ctx.obj else False
+    with progress_bar("batch", quiet=quiet) as prog:
+        res = run_batch(list(granules), list(tiles), output, cfg, beams=beams,
+                        backend=backend, workers=workers, scheduler=scheduler,  # type: ignore[arg-type]
+                        progress=prog)
+    ok = sum(u["status"] == "ok" for u in res.units)
+    if not quiet:
+        for u in res.failed:
+            click.echo(f"failed: {u['key']}: {u['error']}", err=True)
+    click.echo(f"{ok} of {len(res.units)} units validated ({res.skipped} already done, "
+               f"{len(res.failed)} failed) -> {output}", err=True)

@@ -1,0 +1,139 @@
+"""Many granules (DESIGN 6): serial == processes == Dask byte for byte; reruns skip;
+a corrupt granule is reported and the rest complete; numbers equal a direct validation."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from canopyblocks.batch import BatchConfig, find_units, run_batch, tile_index
+from canopyblocks.errors import InputError, NoUsableDataError
+from canopyblocks.readers.las import read_las
+from canopyblocks.simulate import SimParams, line_through, simulate_photons
+from canopyblocks.simulate.writers import write_simulation_atl03
+
+pytestmark = [pytest.mark.pdal, pytest.mark.slow,
+              pytest.mark.filterwarnings("ignore::canopyblocks.errors.CanopyBlocksWarning")]
+
+CONFIG = BatchConfig(lengths=(25.0,), width=13.0, offset=0.0)
+
+
+@pytest.fixture(scope="module")
+def inputs(tmp_path_factory, sample, pdal_bin):
+    root = tmp_path_factory.mktemp("batch_in")
+    tiles = root / "tiles"
+    tiles.mkdir()
+    for name in ("lasR_bcts_1.laz", "lasR_bcts_2.laz"):
+        shutil.copy(sample(f"als/{name}"), tiles / name)
+    pts = read_las(sorted(str(p) for p in tiles.iterdir()))
+    b = pts.bounds
+    cx, cy = (b[0] + b[2]) / 2, (b[1] + b[3]) / 2
+    granules = root / "granules"
+    granules.mkdir()
+    for i, (az, dx) in enumerate(((10.0, -40.0), (10.0, 30.0), (5.0, 0.0))):
+        tr = line_through(b, az, centre=(cx + dx, cy), inset=7, name="gt1r")
+        sim = simulate_photons(pts, tr, SimParams(), realisations=2, seed=20 + i)
+        write_simulation_atl03(sim, granules / f"ATL03_sim{i}.h5", realisations=(0, 1))
+    # a corrupt granule among good ones: a truncated copy
+    good = (granules / "ATL03_sim0.h5").read_bytes()
+    (granules / "ATL03_sim9_truncated.h5").write_bytes(good[: len(good) // 3])
+    return {"granules": granules, "tiles": tiles}
+
+
+def _files(out: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(out)): p.read_bytes() for p in sorted(out.rglob("*"))
+            if p.is_file() and "rasters" not in p.parts and p.name != "report.html"}
+
+
+def test_units_from_tracks_and_tiles(inputs):
+    idx = tile_index(sorted(str(p) for p in inputs["tiles"].iterdir()))
+    good = sorted(str(p) for p in inputs["granules"].iterdir() if "truncated" not in p.name)
+    units = find_units(good, idx)
+    # each simulated granule has 2 beams, each crossing both tiles (north-south tracks)
+    assert len(units) == 6
+    assert all(len(u.tiles) == 2 for u in units)
+    assert [u.key for u in units] == sorted(u.key for u in units)
+
+
+def test_serial_processes_and_dask_agree(inputs, tmp_path):
+    pytest.importorskip("distributed")
+    good = sorted(str(p) for p in inputs["granules"].iterdir() if "truncated" not in p.name)
+    outs = {}
+    for backend in ("serial", "processes", "dask"):
+        out = tmp_path / backend
+        res = run_batch(good, [inputs["tiles"]], out, CONFIG, backend=backend, workers=2)
+        assert not res.failed, res.failed
+        outs[backend] = _files(out)
+    assert outs["serial"].keys() == outs["processes"].keys() == outs["dask"].keys()
+    for name in outs["serial"]:
+        assert outs["serial"][name] == outs["processes"][name], name
+        assert outs["serial"][name] == outs["dask"][name], name
+
+
+def test_rerun_skips_and_corrupt_granule_is_reported(inputs, tmp_path):
+    out = tmp_path / "run"
+    res = run_batch([inputs["granules"]], [inputs["tiles"]], out, CONFIG)
+    bad = [u for u in res.units if "truncated" in u["key"]]
+    assert res.failed == bad and len(bad) == 1  # the corrupt granule, reported
+    assert "truncated or corrupt" in bad[0]["error"]
+    ok = [u for u in res.units if u["status"] == "ok"]
+    assert len(ok) == 6
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert {u["key"] for u in manifest["units"]} >= {u["key"] for u in ok}
+    stats = (out / "stats.csv").read_text()
+    assert "hmax" in stats
+    before = {p: p.stat().st_mtime_ns for p in (out / "parts").rglob("*.parquet")}
+    again = run_batch([inputs["granules"]], [inputs["tiles"]], out, CONFIG)
+    assert again.skipped == 6
+    after = {p: p.stat().st_mtime_ns for p in (out / "parts").rglob("*.parquet")}
+    assert before == after  # nothing recomputed
+    assert (out / "stats.csv").read_text() == stats
+
+
+def test_batch_numbers_equal_a_direct_validation(inputs, tmp_path):
+    """One unit's residuals equal blocks validated directly against the same rasters."""
+    from canopyblocks.blocks import BlockParams, compute_blocks
+    from canopyblocks.outputs.tables import read_layer
+    from canopyblocks.readers import read_atl03
+    from canopyblocks.validation.block_validation import validate_blocks
+
+    g = str(inputs["granules"] / "ATL03_sim1.h5")
+    out = tmp_path / "one"
+    run_batch([g], [inputs["tiles"]], out, CONFIG, beams=["gt1r"])
+    got = read_layer(next((out / "parts").rglob("residuals.parquet")))
+    tile = sorted(inputs["tiles"].iterdir())[0]
+    rasters = next(p for p in (out / "rasters").iterdir() if p.name.startswith(tile.stem))
+    idx = tile_index([str(tile)])[0]
+    track = read_atl03(g, "gt1r", crs=got.crs)
+    blocks = compute_blocks(track, BlockParams(lengths=(25.0,)))
+    inside = ((blocks.x >= idx.bounds[0]) & (blocks.x < idx.bounds[2])
+              & (blocks.y >= idx.bounds[1]) & (blocks.y < idx.bounds[3]))
+    direct = validate_blocks(blocks[inside], dtm=rasters / "dtm.tif",
+                             dsm_max=rasters / "dsm_max.tif", dsm_p90=rasters / "dsm_p90.tif",
+                             width=13.0, offset=0.0).residuals
+    mine = got[got["tile"] == tile.name].sort_values("block")
+    direct = direct.sort_values("block")
+    np.testing.assert_array_equal(mine["block"].to_numpy(), direct["block"].to_numpy())
+    for c in ("res_ground", "res_hmax", "ref_top"):
+        np.testing.assert_allclose(mine[c].to_numpy(float), direct[c].to_numpy(float),
+                                   equal_nan=True)
+
+
+def test_bad_batch_arguments(inputs, tmp_path, sample):
+    with pytest.raises(InputError, match="backend"):
+        run_batch([inputs["granules"]], [inputs["tiles"]], tmp_path, CONFIG,
+                  backend="spark")  # type: ignore[arg-type]
+    with pytest.raises(InputError, match="no input files"):
+        run_batch([tmp_path], [inputs["tiles"]], tmp_path / "o", CONFIG)
+    with pytest.raises(InputError, match="width"):
+        BatchConfig(width=0)
+    far = tmp_path / "far"
+    far.mkdir()
+    with pytest.raises(NoUsableDataError, match="crosses"):
+        # the harmony granule is sea ice elsewhere on Earth
+        shutil.copy(sample("icesat2/harmony_ATL03_gt1l.h5"), far / "ATL03_far.h5")
+        run_batch([far], [inputs["tiles"]], tmp_path / "o2", CONFIG)
