@@ -1,0 +1,97 @@
+"""ESFL flash-array cubes (seed 003, DESIGN 4.7): pixel aggregation and the threshold study."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from canopyblocks.errors import InputError
+from canopyblocks.readers.las import LasPoints, read_las
+from canopyblocks.simulate import SimTrack, line_through
+from canopyblocks.simulate.flash_cubes import (
+    FlashSimParams,
+    simulate_flash_cubes,
+    threshold_study,
+)
+from canopyblocks.waveforms.flash import aggregate_footprints, footprint_mask
+
+
+def _flat_scene(z: float = 100.0) -> LasPoints:
+    g = np.arange(0.0, 200.0, 0.25)
+    gx, gy = np.meshgrid(g, np.arange(0.0, 40.0, 0.25))
+    x, y = 500_000 + gx.ravel(), 5_000_000 + gy.ravel()
+    return LasPoints.from_arrays(x, y, np.full(x.size, z), crs=32610,
+                                 classification=np.full(x.size, 2, np.uint8))
+
+
+def test_mask_recovers_the_illuminated_pixels():
+    """Noise-free flat scene: the pixels kept at fraction f are exactly those whose
+    Gaussian illumination (at the pixel centre) is >= f of the brightest pixel's."""
+    p = FlashSimParams(noise_sd=0.0)
+    track = SimTrack.line(500_010, 5_000_020, 500_190, 5_000_020)
+    sim = simulate_flash_cubes(_flat_scene(), track, p, seed=0)
+    c = (np.arange(p.pixels) + 0.5) * p.pixel_size - p.pixels * p.pixel_size / 2
+    cu, cv = np.meshgrid(c, c)
+    illum = np.exp(-2.0 * (cu ** 2 + cv ** 2) / (p.footprint / 2) ** 2)
+    want_ratio = illum / illum.max()
+    for f in (0.1, 0.25, 0.5, 0.7, 0.9):
+        mask, ratio = footprint_mask(sim.cubes, f)
+        np.testing.assert_allclose(ratio, want_ratio, rtol=1e-9)
+        np.testing.assert_array_equal(mask, want_ratio >= f - 1e-12)
+    # 12 x 12 pixels of 0.7 m image the 8.4 m footprint: 4 central pixels are brightest
+    assert footprint_mask(sim.cubes, 0.99)[0].sum() == 4
+
+
+def test_footprint_waveform_is_the_mean_of_its_pixels():
+    rng = np.random.default_rng(0)
+    cubes = rng.random((3, 12, 12, 20))
+    cubes[:, 5:7, 5:7, :] += 5.0
+    agg = aggregate_footprints(cubes, 0.5)
+    for k in range(3):
+        pix = [cubes[k, i, j] for i in range(12) for j in range(12) if agg.mask[i, j]]
+        np.testing.assert_allclose(agg.waveforms[k], np.mean(pix, axis=0))
+    assert agg.n_pixels == int(agg.mask.sum())
+
+
+def test_flat_scene_waveform_peaks_at_the_ground():
+    p = FlashSimParams(noise_sd=0.0)
+    track = SimTrack.line(500_010, 5_000_020, 500_190, 5_000_020)
+    sim = simulate_flash_cubes(_flat_scene(100.0), track, p)
+    agg = aggregate_footprints(sim.cubes, 0.5)
+    peak_z = sim.top - (np.argmax(agg.waveforms, axis=1) + 0.5) * p.bin_size
+    assert np.all(np.abs(peak_z - 100.0) <= p.bin_size / 2 + 1e-9)
+    np.testing.assert_allclose(sim.truth["truth_ground"], 100.0)
+
+
+def test_bad_parameters():
+    with pytest.raises(InputError, match="fraction"):
+        footprint_mask(np.ones((1, 2, 2, 3)), 0.0)
+    with pytest.raises(InputError, match="pixels"):
+        FlashSimParams(pixels=1)
+    with pytest.raises(InputError, match="shape"):
+        footprint_mask(np.ones((2, 3)), 0.5)
+
+
+@pytest.mark.slow
+def test_threshold_study_reproduces_seed_003(sample):
+    """Over a real tile: ground and canopy height are better at 50 % than at 10 % (noisy
+    marginal pixels) and at 90 % (too few pixels) -- seed 003's finding."""
+    pts = read_las([sample("als/lasR_bcts_1.laz"), sample("als/lasR_bcts_2.laz")])
+    b = pts.bounds
+    cx, cy = (b[0] + b[2]) / 2, (b[1] + b[3]) / 2
+    sims = [simulate_flash_cubes(pts, line_through(b, 10.0, centre=(cx + dx, cy), inset=6),
+                                 FlashSimParams(noise_sd=0.08), seed=i)
+            for i, dx in enumerate((-60, -30, 0, 30, 60))]
+    import pandas as pd
+
+    from canopyblocks.simulate.flash_cubes import FlashSimulation
+
+    sim = FlashSimulation(np.concatenate([s.cubes[..., :min(x.cubes.shape[3] for x in sims)]
+                                          for s in sims]),
+                          np.concatenate([s.top for s in sims]), sims[0].bin_size,
+                          np.concatenate([s.x for s in sims]), np.concatenate([s.y for s in sims]),
+                          pd.concat([s.truth for s in sims], ignore_index=True), 0.08)
+    table = threshold_study(sim, (0.1, 0.5, 0.9)).set_index("fraction")
+    for col in ("ground_rmse", "height_rmse"):
+        assert table.loc[0.5, col] < table.loc[0.1, col], table
+        assert table.loc[0.5, col] < table.loc[0.9, col], table
