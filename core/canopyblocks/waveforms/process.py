@@ -1,0 +1,380 @@
+"""GEDI L2A-style processing of a batch of waveforms into the footprint table (DESIGN 4.3-4.6).
+
+Steps, each vectorised over the shots of a chunk (one module each):
+
+1. residual = waveform - noise mean (``noise_mean_corrected``); search window from the
+   raw samples above ``mean + 4 sd`` (:mod:`.extent`);
+2. linear interpolation to the 0.25-sample grid and Gaussian smoothing, once for the
+   signal locations (6.5 samples) and once for the mode search (:mod:`.smoothing`);
+3. signal top / bottom from the front / back thresholds (:mod:`.extent`);
+4. modes, ground = lowest mode (:mod:`.modes`);
+5. cumulative energy -> RH0..RH100 (:mod:`.rh`), cover and penetration (:mod:`.cover`);
+6. flags, and the seed-003 terrain filter along the beam (:mod:`.terrain_filter`).
+
+Shots are processed in chunks of similar length (sorted by sample count), so a few
+long waveforms do not widen every row; the only Python loop is over chunks.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+import pandas as pd
+
+from ..errors import DependencyError, InputError
+from ..progress import Progress, as_progress
+from ..schema import FOOTPRINT_COLUMNS
+from .batch import WaveformBatch
+from .cover import cover_and_penetration
+from .details import ShotDetails
+from .extent import search_window, signal_extent
+from .modes import lowest_mode, mode_mask
+from .rh import energy_positions, signal_energy, truncate_cm
+from .settings import WaveformParams
+from .smoothing import smooth_subsampled
+from .terrain_filter import terrain_outliers
+
+__all__ = ["process_waveforms", "shot_details", "RH_TABLE", "FLAG_CODES", "CHUNK_SHOTS"]
+
+log = logging.getLogger(__name__)
+
+#: RH percentiles of the footprint table (all of 0..100 with ``all_rh``).
+RH_TABLE: tuple[int, ...] = (25, 50, 75, 90, 95, 98, 100)
+ALL_RH: tuple[int, ...] = tuple(range(101))
+#: Footprint flags in order of precedence (the first that applies is reported).
+FLAG_CODES: tuple[str, ...] = ("ok", "stale", "degraded", "no_signal", "too_many_modes",
+                               "terrain_outlier")
+_OK, _STALE, _DEGRADED, _NO_SIGNAL, _TOO_MANY, _TERRAIN = range(6)
+#: Shots per chunk: bounds memory (about 30 MB per 1,000-sample shot-chunk array).
+CHUNK_SHOTS = 256
+
+
+@dataclass
+class _Chunk:
+    """Per-shot results of one chunk (positions in sub-samples, -1 where none)."""
+
+    found: npt.NDArray[np.bool_]
+    top: npt.NDArray[np.int64]
+    bottom: npt.NDArray[np.int64]
+    ground: npt.NDArray[np.int64]
+    n_modes: npt.NDArray[np.int64]
+    rh_pos: npt.NDArray[np.int64]
+    cover: npt.NDArray[np.float64]
+    penetration: npt.NDArray[np.float64]
+
+
+@dataclass
+class _Intermediate:
+    """Smoothed arrays and modes of one chunk (for :func:`shot_details`)."""
+
+    located: npt.NDArray[np.float64]
+    searched: npt.NDArray[np.float64]
+    modes: npt.NDArray[np.bool_]
+    offset: int  # sub-sample index of the whole waveform at column 0
+
+
+def _reach(params: WaveformParams) -> int:
+    """Samples of raw waveform the smoothing kernels reach on either side."""
+    halves = [params.kernel_shape(params.location_smoothing)[1],
+              params.kernel_shape(params.group.mode_smoothing)[1]]
+    f = params.subsamples
+    return -(-(max(halves) + f) // f) + 1
+
+
+def _windows(batch: WaveformBatch, params: WaveformParams
+             ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64], npt.NDArray[np.bool_]]:
+    """Search window (samples, inclusive) of every shot, in blocks of shots."""
+    n = len(batch)
+    start = np.zeros(n, dtype=np.int64)
+    end = np.zeros(n, dtype=np.int64)
+    found = np.zeros(n, dtype=bool)
+    block = 4 * CHUNK_SHOTS
+    valid_all = batch.sample_mask()
+    for a in range(0, n, block):
+        sl = slice(a, min(a + block, n))
+        resid = batch.waveforms[sl].astype(np.float64) - batch.noise_mean[sl][:, None]
+        start[sl], end[sl], found[sl] = search_window(
+            resid, valid_all[sl], batch.noise_sd[sl].astype(np.float64),
+            params.preprocessor_threshold, params.search_size,
+            batch.n_samples[sl].astype(np.int64))
+    found &= batch.n_samples >= 2
+    return start, end, found
+
+
+def _cropped_residuals(batch: WaveformBatch, rows: npt.NDArray[np.intp],
+                       first: npt.NDArray[np.int64], width: int) -> npt.NDArray[np.float64]:
+    """Residual waveforms of ``rows`` from sample ``first`` on, ``width`` samples, 0 outside."""
+    idx = first[:, None] + np.arange(width)[None, :]
+    inside = (idx >= 0) & (idx < batch.n_samples[rows][:, None])
+    values = batch.waveforms[rows[:, None], np.clip(idx, 0, batch.waveforms.shape[1] - 1)]
+    resid = values.astype(np.float64) - batch.noise_mean[rows][:, None]
+    return np.where(inside, resid, 0.0)
+
+
+def _process_chunk(batch: WaveformBatch, rows: npt.NDArray[np.intp], window_start:
+                   npt.NDArray[np.int64], window_end: npt.NDArray[np.int64],
+                   params: WaveformParams, percents: tuple[int, ...], keep: bool = False
+                   ) -> tuple[_Chunk, _Intermediate | None]:
+    """Process the shots ``rows`` (all with a search window) on their cropped windows.
+
+    Only the search window plus the kernels' reach is smoothed: the results inside the
+    window are the same as smoothing the whole waveform. Positions returned are
+    sub-sample indices of the whole waveform.
+    """
+    f = params.subsamples
+    group = params.group
+    reach = _reach(params)
+    first = window_start - reach
+    width = int((window_end - window_start).max(initial=0)) + 1 + 2 * reach
+    resid = _cropped_residuals(batch, rows, first, width)
+    sd = batch.noise_sd[rows].astype(np.float64)
+    loc_kernel = params.kernel_shape(params.location_smoothing)
+    mode_kernel = params.kernel_shape(group.mode_smoothing)
+    if loc_kernel == mode_kernel:
+        located = smooth_subsampled(resid, f, [loc_kernel])[0]
+        searched = located
+    else:
+        located, searched = smooth_subsampled(resid, f, [loc_kernel, mode_kernel])
+
+    front = group.front_threshold * sd
+    back = group.back_threshold * sd
+    lo = np.full(len(rows), reach * f, dtype=np.int64)
+    hi = (window_end - first) * f
+    top, bottom, found = signal_extent(located, lo, hi, front, back)
+    top = np.where(found, top, -1)
+    bottom = np.where(found, bottom, -1)
+
+    modes = mode_mask(searched, top, bottom, back)
+    modes &= found[:, None]
+    ground, n_modes = lowest_mode(modes)
+    from_bottom, total = signal_energy(searched, top, bottom)
+    found &= (ground >= 0) & (total > 0)
+    total = np.where(found, total, 0.0)
+    ground = np.where(found, ground, -1)
+    rh_pos = energy_positions(from_bottom, total, top, bottom, percents)
+    spacing = batch.sample_spacing()[rows] / f
+    cover, penetration = cover_and_penetration(
+        from_bottom, total, ground, spacing, params.rho_ratio, params.penetration_height)
+    shift = (first * f)[:, None]
+    chunk = _Chunk(found, np.where(found, top + shift[:, 0], -1),
+                   np.where(found, bottom + shift[:, 0], -1),
+                   np.where(found, ground + shift[:, 0], -1), n_modes,
+                   np.where(found[:, None] & (rh_pos >= 0), rh_pos + shift, -1),
+                   cover, penetration)
+    inter = _Intermediate(located, searched, modes, int(first[0] * f)) if keep else None
+    return chunk, inter
+
+
+def _chunks(widths: npt.NDArray[np.int64], size: int) -> list[npt.NDArray[np.intp]]:
+    order = np.argsort(widths, kind="stable")
+    return [order[i:i + size] for i in range(0, len(order), size)]
+
+
+def _shot_numbers(batch: WaveformBatch) -> npt.NDArray[np.int64]:
+    sn = np.asarray(batch.shot_number)
+    if sn.dtype.kind == "u" and len(sn) and sn.max() > np.iinfo(np.int64).max:
+        raise InputError(f"{batch.source or 'batch'}: shot_number {int(sn.max())} does not fit "
+                         "in int64; the footprint table stores shot numbers as int64")
+    return sn.astype(np.int64)
+
+
+def _ground_gauss(batch: WaveformBatch, progress: Progress) -> npt.NDArray[np.float64]:
+    try:
+        from .decompose import decompose_waveforms  # noqa: PLC0415 (optional step)
+    except ImportError as exc:
+        raise DependencyError(
+            "decompose=True needs canopyblocks.waveforms.decompose (Gaussian "
+            "decomposition), which this installation lacks; run without decomposition "
+            "or update canopyblocks") from exc
+    result = decompose_waveforms(batch, progress=progress)
+    if isinstance(result, pd.DataFrame):
+        values = result["ground_gauss"].to_numpy()
+    elif hasattr(result, "ground_gauss"):
+        values = np.asarray(result.ground_gauss)
+    else:
+        values = np.asarray(result)
+    values = np.asarray(values, dtype=np.float64)
+    if values.shape != (len(batch),):
+        raise InputError(f"decompose_waveforms returned {values.shape} values for "
+                         f"{len(batch)} shots")
+    return values
+
+
+def process_waveforms(batch: WaveformBatch, params: WaveformParams | None = None, *,
+                      progress: Progress | None = None) -> pd.DataFrame:
+    """Ground, top, RH, cover and flags of every shot of a batch (one beam).
+
+    Parameters
+    ----------
+    batch : WaveformBatch
+        Waveforms of one beam (GEDI L1B or the simulator), with noise statistics.
+    params : WaveformParams, optional
+        Setting group and options (default: a1).
+    progress : Progress, optional
+        Progress and cancellation.
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per shot in the batch's order, the columns of
+        :data:`canopyblocks.schema.FOOTPRINT_COLUMNS` (without geometry): ``lon``/``lat``
+        (degrees WGS84) of the footprint at the ground elevation (at the last bin where
+        there is no ground), ``ground``/``top`` (m, the batch's vertical datum),
+        ``rh*`` (m above ground, truncated to cm as L2A), ``cover``, ``penetration``
+        (0..1), ``n_modes``, ``setting``, ``flag``; ``rh0`` .. ``rh100`` with
+        ``params.all_rh``; ``ground_gauss`` (m) with ``params.decompose``. Values of
+        ``no_signal`` shots are NaN; ``stale``/``degraded`` shots keep their values.
+    """
+    params = params if params is not None else WaveformParams()
+    prog = as_progress(progress)
+    n = len(batch)
+    f = params.subsamples
+    percents = ALL_RH if params.all_rh else RH_TABLE
+    found = np.zeros(n, dtype=bool)
+    top = np.full(n, -1, dtype=np.int64)
+    ground = np.full(n, -1, dtype=np.int64)
+    n_modes = np.zeros(n, dtype=np.int64)
+    rh_pos = np.full((n, len(percents)), -1, dtype=np.int64)
+    cover = np.full(n, np.nan)
+    penetration = np.full(n, np.nan)
+    span = 0.8 if params.decompose else 1.0
+    w_start, w_end, has_window = _windows(batch, params)
+    candidates = np.nonzero(has_window)[0]
+    chunks = [candidates[c] for c in _chunks((w_end - w_start)[candidates], CHUNK_SHOTS)]
+    done = 0
+    for rows in chunks:
+        prog.update(span * done / max(n, 1), f"waveforms {batch.beam}: {done}/{n} shots")
+        res, _ = _process_chunk(batch, rows, w_start[rows], w_end[rows], params, percents)
+        found[rows] = res.found
+        top[rows] = res.top
+        ground[rows] = res.ground
+        n_modes[rows] = res.n_modes
+        rh_pos[rows] = res.rh_pos
+        cover[rows] = res.cover
+        penetration[rows] = res.penetration
+        done += len(rows)
+
+    g_samples = np.where(found, ground / f, np.maximum(batch.n_samples - 1, 0))
+    ground_elev = np.where(found, batch.elevation(g_samples), np.nan)
+    top_elev = np.where(found, batch.elevation(np.where(found, top / f, 0.0)), np.nan)
+    lon, lat = batch.lonlat(g_samples)
+    rh_elev = batch.elevation(np.where(rh_pos >= 0, rh_pos / f, 0.0).T).T
+    rh = np.where(found[:, None], truncate_cm(rh_elev - ground_elev[:, None]), np.nan)
+
+    code = np.full(n, _OK, dtype=np.int8)
+    code[~found] = _NO_SIGNAL
+    code[found & (n_modes > params.max_modes)] = _TOO_MANY
+    code[batch.degraded] = _DEGRADED
+    code[batch.stale] = _STALE
+    if params.terrain_filter and n:
+        order = np.argsort(batch.time, kind="stable")
+        usable = (code == _OK) | (code == _TOO_MANY)
+        z = np.where(usable, ground_elev, np.nan)[order]
+        height = np.where(usable, top_elev - ground_elev, np.nan)[order]
+        outlier = np.zeros(n, dtype=bool)
+        outlier[order] = terrain_outliers(z, height)
+        code[outlier & (code == _OK)] = _TERRAIN
+
+    table: dict[str, object] = {
+        "beam": np.full(n, batch.beam, dtype=object),
+        "shot_number": _shot_numbers(batch),
+        "time": np.asarray(batch.time, dtype=np.float64),
+        "lon": lon, "lat": lat,
+        "ground": ground_elev, "top": top_elev,
+    }
+    rh_names = [f"rh{p}" for p in percents]
+    for j, name in enumerate(rh_names):
+        table[name] = rh[:, j]
+    table["cover"] = cover
+    table["penetration"] = penetration
+    table["n_modes"] = n_modes
+    table["setting"] = np.full(n, params.setting, dtype=object)
+    if params.decompose:
+        table["ground_gauss"] = _ground_gauss(batch, prog.sub(span, 1.0))
+    table["flag"] = np.asarray(FLAG_CODES, dtype=object)[code]
+    columns = [c for c in FOOTPRINT_COLUMNS if not c.startswith("rh") and c != "flag"]
+    first_rh = columns.index("cover")
+    columns[first_rh:first_rh] = rh_names
+    if params.decompose:
+        columns.append("ground_gauss")
+    columns.append("flag")
+    prog.update(1.0, f"waveforms {batch.beam}: {n} shots")
+    return pd.DataFrame({c: table[c] for c in columns})
+
+
+def shot_details(batch: WaveformBatch, index: int, params: WaveformParams | None = None
+                 ) -> ShotDetails:
+    """Everything a waveform plot draws for shot ``index`` of ``batch``.
+
+    ``smoothed`` is the mode-search smoothing (the one the modes, RH and cover use) of
+    the whole waveform, in counts, on the sub-sample grid. The flag ignores the terrain
+    filter (which needs the neighbours).
+    """
+    params = params if params is not None else WaveformParams()
+    n = len(batch)
+    if not (isinstance(index, (int, np.integer)) and -n <= index < n):
+        raise InputError(f"shot index {index!r} is outside the batch of {n} shots")
+    i = int(index) % n
+    f = params.subsamples
+    rows = np.array([i], dtype=np.intp)
+    one = batch.subset(rows)
+    w_start, w_end, has_window = _windows(one, params)
+    if not has_window[0]:
+        w_start = w_end = np.zeros(1, dtype=np.int64)
+    res, inter = _process_chunk(batch, rows, w_start, w_end, params, ALL_RH, keep=True)
+    if inter is None:  # pragma: no cover - keep=True always returns them
+        raise RuntimeError("internal: intermediates missing")
+    res.found &= has_window
+    m = int(batch.n_samples[i])
+    mean = float(batch.noise_mean[i])
+    sd = float(batch.noise_sd[i])
+    raw_elev = one.elevation(np.arange(m)[None, :].astype(np.float64).T).T[0]
+    k = f * (m - 1) + 1 if m else 0
+    sub_elev = one.elevation((np.arange(k) / f)[None, :].T).T[0]
+    found = bool(res.found[0])
+    mode_idx = np.nonzero(inter.modes[0])[0] + inter.offset
+
+    def elev(pos: float) -> float:
+        return float(one.elevation(np.array([pos / f]))[0])
+
+    ground = elev(res.ground[0]) if found else float("nan")
+    rh: dict[int, float] = {}
+    if found:
+        rh_elev = one.elevation((res.rh_pos[0] / f)[None, :].T).T[0]
+        rh = {p: float(v) for p, v in zip(ALL_RH, truncate_cm(rh_elev - ground))}
+    if batch.stale[i]:
+        flag = "stale"
+    elif batch.degraded[i]:
+        flag = "degraded"
+    elif not found:
+        flag = "no_signal"
+    elif res.n_modes[0] > params.max_modes:
+        flag = "too_many_modes"
+    else:
+        flag = "ok"
+    group = params.group
+    return ShotDetails(
+        beam=batch.beam,
+        shot_number=int(batch.shot_number[i]),
+        setting=params.setting,
+        elevation=raw_elev,
+        raw=np.asarray(batch.waveforms[i, :m], dtype=np.float64),
+        smoothed_elevation=sub_elev,
+        smoothed=smooth_subsampled(
+            _cropped_residuals(batch, rows, np.zeros(1, dtype=np.int64), max(m, 1)), f,
+            [params.kernel_shape(group.mode_smoothing)])[0][0, :k] + mean,
+        noise_mean=mean,
+        noise_sd=sd,
+        front_threshold=mean + group.front_threshold * sd,
+        back_threshold=mean + group.back_threshold * sd,
+        top=elev(res.top[0]) if found else float("nan"),
+        bottom=elev(res.bottom[0]) if found else float("nan"),
+        ground=ground,
+        modes=(one.elevation((mode_idx / f)[:, None]).ravel() if found
+               else np.array([], dtype=np.float64)),
+        rh=rh,
+        flag=flag,
+    )
