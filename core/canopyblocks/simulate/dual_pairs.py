@@ -20,11 +20,12 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
-from scipy.ndimage import gaussian_filter1d
 
 from ..errors import InputError
+from .waveform_binning import bin_returns
 
-__all__ = ["DualSimParams", "DualPairs", "simulate_dual_pairs", "dual_cover_study"]
+__all__ = ["DualSimParams", "DualPairs", "simulate_dual_pairs", "dual_cover_study",
+           "lowest_mode_ground"]
 
 log = logging.getLogger(__name__)
 
@@ -88,13 +89,14 @@ class DualSimParams:
 
 @dataclass(frozen=True)
 class DualPairs:
-    """``n`` simulated pairs on one elevation grid (sample 0 highest).
+    """``n`` simulated pairs; sample ``k`` of shot ``i`` lies at ``top[i] - k * bin_size``.
 
-    ``elevation`` (m, per sample), ``visible``/``nir`` (n, m), per-band noise mean and sd
-    (n,), and truth per shot: ``ground_centre``, ``ground_high``, ``ground_low`` (m).
+    ``visible``/``nir`` (n, m), per-band noise mean and sd (n,), and truth per shot:
+    ``ground_centre``, ``ground_high``, ``ground_low`` (m) and ``cover`` (0..1).
     """
 
-    elevation: np.ndarray
+    top: np.ndarray
+    bin_size: float
     visible: np.ndarray
     nir: np.ndarray
     noise_mean: tuple[np.ndarray, np.ndarray]
@@ -102,15 +104,11 @@ class DualPairs:
     ground_centre: np.ndarray
     ground_high: np.ndarray
     ground_low: np.ndarray
+    cover: np.ndarray
 
     def position_to_elevation(self, pos: np.ndarray) -> np.ndarray:
-        """Elevation (m) at fractional sample positions."""
-        return self.elevation[0] - np.asarray(pos, float) * self.bin_size
-
-    @property
-    def bin_size(self) -> float:
-        """Sample spacing (m)."""
-        return float(self.elevation[0] - self.elevation[1])
+        """Elevation (m) at fractional sample positions (one per shot)."""
+        return self.top - np.asarray(pos, float) * self.bin_size
 
 
 def simulate_dual_pairs(n: int, params: DualSimParams | None = None, *, seed: int = 0
@@ -143,15 +141,15 @@ def simulate_dual_pairs(n: int, params: DualSimParams | None = None, *, seed: in
     under = covered[:, cell_id]  # (n, points)
     canopy_z = ground[None, :] + crown_h
     bands = []
+    shot = np.repeat(np.arange(n), gx.size)
+    tops = np.full(n, top + 0.5 * p.bin_size)  # bin k is centred on elevation[k]
+    zz = np.concatenate([np.broadcast_to(ground, (n, gx.size)).ravel(), canopy_z.ravel()])
+    ss = np.concatenate([shot, shot])
     for band in (0, 1):
-        wf = np.zeros((n, m))
         g_int = weight[None, :] * p.soil[band] * np.where(under, 1 - p.interception, 1.0)
         c_int = weight[None, :] * p.leaf[band] * p.interception * under
-        for z, w in ((np.broadcast_to(ground, (n, gx.size)), g_int), (canopy_z, c_int)):
-            j = np.clip(np.rint((top - z) / p.bin_size).astype(np.int64), 0, m - 1)
-            np.add.at(wf, (np.repeat(np.arange(n), gx.size), j.ravel()), w.ravel())
-        wf = gaussian_filter1d(wf, p.pulse_sigma / p.bin_size, axis=1, mode="constant")
-        bands.append(wf)
+        bands.append(bin_returns(ss, zz, np.concatenate([g_int.ravel(), c_int.ravel()]), tops,
+                                 p.bin_size, m, p.pulse_sigma))
     vis, nir = bands
     peak = nir.max(axis=1)
     sd = p.noise * peak
@@ -167,8 +165,10 @@ def simulate_dual_pairs(n: int, params: DualSimParams | None = None, *, seed: in
         # noise-free: a floor of 1 % of the band's peak stands for the receiver's floor
         sds.append(sd if p.noise > 0 else 0.0025 * wf.max(axis=1))
     g_in = ground[in_fp]
-    return DualPairs(elevation, out[0], out[1], (means[0], means[1]), (sds[0], sds[1]),
-                     np.zeros(n), np.full(n, g_in.max()), np.full(n, g_in.min()))
+    return DualPairs(np.full(n, elevation[0]), p.bin_size, out[0], out[1],
+                     (means[0], means[1]), (sds[0], sds[1]), np.zeros(n),
+                     np.full(n, g_in.max()), np.full(n, g_in.min()),
+                     covered[:, cell_id][:, in_fp].mean(axis=1))
 
 
 def dual_cover_study(covers: tuple[float, ...] = (0.1, 0.3, 0.5, 0.7, 0.9), *,
@@ -190,7 +190,7 @@ def dual_cover_study(covers: tuple[float, ...] = (0.1, 0.3, 0.5, 0.7, 0.9), *,
         g = dual_wavelength_ground(d.visible, d.nir, noise_mean=d.noise_mean,
                                    noise_sd=d.noise_sd)
         err = d.position_to_elevation(g.centre) - d.ground_centre
-        mode_err = _lowest_mode(d) - d.ground_centre
+        mode_err = lowest_mode_ground(d) - d.ground_centre
         row: dict[str, float] = {"cover": cover, "n": n, "found": float(g.found.mean())}
         for name, e in (("dual", err), ("mode", mode_err)):
             e = e[np.isfinite(e)]
@@ -201,7 +201,7 @@ def dual_cover_study(covers: tuple[float, ...] = (0.1, 0.3, 0.5, 0.7, 0.9), *,
     return pd.DataFrame(rows)
 
 
-def _lowest_mode(d: DualPairs) -> np.ndarray:
+def lowest_mode_ground(d: DualPairs) -> np.ndarray:
     """Lowest-mode ground elevation (m) of the near-infrared waveforms, through the GEDI
     L2A-style processing (NaN where it finds no signal)."""
     from ..waveforms.batch import WaveformBatch
@@ -212,7 +212,7 @@ def _lowest_mode(d: DualPairs) -> np.ndarray:
     batch = WaveformBatch(
         beam="NIR", shot_number=np.arange(n, dtype=np.uint64), time=z.copy(),
         waveforms=d.nir.astype(np.float32), n_samples=np.full(n, m, np.int64),
-        elev_bin0=np.full(n, d.elevation[0]), elev_lastbin=np.full(n, d.elevation[-1]),
+        elev_bin0=d.top.astype(float), elev_lastbin=d.top - (m - 1) * d.bin_size,
         lat_bin0=z.copy(), lat_lastbin=z.copy(), lon_bin0=z.copy(), lon_lastbin=z.copy(),
         noise_mean=np.asarray(d.noise_mean[1], float) + z,
         noise_sd=np.maximum(np.asarray(d.noise_sd[1], float) + z, 1e-12),

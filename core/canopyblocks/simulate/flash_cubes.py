@@ -20,12 +20,12 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
-from scipy.ndimage import gaussian_filter1d
 
 from ..errors import InputError, NoUsableDataError
 from ..readers.las import LasPoints
 from .footprints import CloudIndex
 from .tracks import SimTrack, shots_along
+from .waveform_binning import bin_returns
 
 __all__ = ["FlashSimParams", "FlashSimulation", "simulate_flash_cubes", "threshold_study"]
 
@@ -151,10 +151,9 @@ def simulate_flash_cubes(points: LasPoints, track: SimTrack,
     extent = np.where(has, zmax - zmin + 2 * pad, 0.0)
     gates = np.maximum(1, np.ceil(extent / (p.gate_bins * p.bin_size))).astype(np.int64)
     m = int(gates.max()) * p.gate_bins
-    b = np.clip(np.floor((top[shot] - z) / p.bin_size).astype(np.int64), 0, m - 1)
-    cubes = np.zeros((n, p.pixels, p.pixels, m))
-    np.add.at(cubes, (shot, row, col, b), w)
-    cubes = gaussian_filter1d(cubes, p.pulse_sigma / p.bin_size, axis=3, mode="constant")
+    pix_top = np.repeat(top, p.pixels * p.pixels)
+    cubes = bin_returns(pix, z, w, pix_top, p.bin_size, m, p.pulse_sigma
+                        ).reshape(n, p.pixels, p.pixels, m)
     peak = cubes.reshape(n, -1).max(axis=1)
     scale = float(np.mean(peak[peak > 0])) if (peak > 0).any() else 1.0
     cubes /= scale
