@@ -87,7 +87,8 @@ def _bars(name: str, diff: np.ndarray) -> list[str]:
 
 
 @pytest.mark.parametrize(("setting", "kernel"), [
-    ("a1", "l2a"), ("a1", "nominal"), ("a3", "l2a"), ("a5", "l2a"), ("a6", "l2a"),
+    ("a1", "l2a"), ("a1", "nominal"), ("a2", "l2a"), ("a3", "l2a"), ("a4", "l2a"),
+    ("a5", "l2a"), ("a6", "l2a"),
 ])
 def test_reproduces_l2a_per_beam(l1b_batches: dict[str, WaveformBatch], gedi_l2a: Path,
                                  setting: str, kernel: str) -> None:

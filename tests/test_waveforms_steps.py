@@ -98,8 +98,12 @@ def plain_l2a(w: np.ndarray, params: WaveformParams) -> dict[str, object] | None
              if srch[i] - srch[i - 1] > 0 and srch[i + 1] - srch[i] <= 0 and srch[i] > back]
     if not modes:
         return None
-    ground = modes[-1]
     total = sum(srch[top:bottom + 1])
+    ground = modes[-1]
+    if g.ground_min_energy > 0:     # a2: the lowest mode with enough energy below it
+        strong = [i for i in modes
+                  if sum(srch[i:bottom + 1]) >= g.ground_min_energy / 100 * total]
+        ground = strong[-1] if strong else modes[-1]
     pos = {0: bottom, 100: top}
     for k in range(1, 100):
         acc = 0.0
@@ -331,3 +335,20 @@ def test_table_columns_and_types() -> None:
     assert (table["setting"] == "a1").all()
     wide = process_waveforms(make_batch([w]), WaveformParams(all_rh=True))
     assert [c for c in wide.columns if c.startswith("rh")] == [f"rh{k}" for k in range(101)]
+
+
+def test_unusable_noise_or_samples_flagged_with_a_warning() -> None:
+    from canopyblocks.waveforms.process import UnusableWaveformWarning
+    w = MEAN + pulse(400, 200.0, 150.0, 5.0)
+    nan_sample = w.copy()
+    nan_sample[50] = np.nan
+    batch = make_batch([w, w, w, nan_sample, w])
+    sd = batch.noise_sd.copy()
+    sd[0], sd[1] = np.nan, 0.0
+    mean = batch.noise_mean.copy()
+    mean[2] = np.inf
+    batch = WaveformBatch(**{**batch.__dict__, "noise_sd": sd, "noise_mean": mean})
+    with pytest.warns(UnusableWaveformWarning, match="4 of 5 shots of BEAM0101"):
+        table = process_waveforms(batch, WaveformParams(terrain_filter=False))
+    assert list(table["flag"]) == ["no_signal"] * 4 + ["ok"]
+    assert table["ground"].iloc[:4].isna().all()

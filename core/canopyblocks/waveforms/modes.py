@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-__all__ = ["mode_mask", "lowest_mode"]
+__all__ = ["mode_mask", "lowest_mode", "energetic_modes"]
 
 IntArray = npt.NDArray[np.int64]
 BoolArray = npt.NDArray[np.bool_]
@@ -48,3 +48,14 @@ def lowest_mode(mask: BoolArray) -> tuple[IntArray, IntArray]:
     count = mask.sum(axis=1).astype(np.int64)
     idx = mask.shape[1] - 1 - np.argmax(mask[:, ::-1], axis=1)
     return np.where(count > 0, idx, -1).astype(np.int64), count
+
+
+def energetic_modes(mask: BoolArray, from_bottom: npt.NDArray[np.float64],
+                    total: npt.NDArray[np.float64], min_percent: float) -> BoolArray:
+    """The modes with at least ``min_percent`` % of the energy between them and the bottom.
+
+    L2A's mode selection (setting group a2): a weak last mode -- a noise bump near the
+    signal bottom -- is not taken as the ground. ``from_bottom`` and ``total`` come from
+    :func:`canopyblocks.waveforms.rh.signal_energy`.
+    """
+    return mask & (from_bottom >= (min_percent / 100.0) * total[:, None])

@@ -18,26 +18,28 @@ long waveforms do not widen every row; the only Python loop is over chunks.
 from __future__ import annotations
 
 import logging
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 import numpy.typing as npt
 import pandas as pd
 
-from ..errors import DependencyError, InputError
+from ..errors import CanopyBlocksWarning, DependencyError, InputError
 from ..progress import Progress, as_progress
 from ..schema import FOOTPRINT_COLUMNS
 from .batch import WaveformBatch
 from .cover import cover_and_penetration
 from .details import ShotDetails
 from .extent import search_window, signal_extent
-from .modes import lowest_mode, mode_mask
+from .modes import energetic_modes, lowest_mode, mode_mask
 from .rh import energy_positions, signal_energy, truncate_cm
 from .settings import WaveformParams
 from .smoothing import smooth_subsampled
 from .terrain_filter import terrain_outliers
 
-__all__ = ["process_waveforms", "shot_details", "RH_TABLE", "FLAG_CODES", "CHUNK_SHOTS"]
+__all__ = ["process_waveforms", "shot_details", "RH_TABLE", "FLAG_CODES", "CHUNK_SHOTS",
+           "UnusableWaveformWarning"]
 
 log = logging.getLogger(__name__)
 
@@ -50,6 +52,22 @@ FLAG_CODES: tuple[str, ...] = ("ok", "stale", "degraded", "no_signal", "too_many
 _OK, _STALE, _DEGRADED, _NO_SIGNAL, _TOO_MANY, _TERRAIN = range(6)
 #: Shots per chunk: bounds memory (about 30 MB per 1,000-sample shot-chunk array).
 CHUNK_SHOTS = 256
+
+
+class UnusableWaveformWarning(CanopyBlocksWarning):
+    """Some shots had unusable noise statistics (non-finite, sd <= 0) or non-finite
+    samples; they are flagged ``no_signal``."""
+
+
+def _unusable(batch: WaveformBatch) -> npt.NDArray[np.bool_]:
+    """Shots whose noise statistics or samples make the thresholds meaningless."""
+    mean = np.asarray(batch.noise_mean, dtype=np.float64)
+    sd = np.asarray(batch.noise_sd, dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        bad = ~np.isfinite(mean) | ~np.isfinite(sd) | ~(sd > 0)
+    if len(batch):
+        bad |= (~np.isfinite(batch.waveforms) & batch.sample_mask()).any(axis=1)
+    return bad
 
 
 @dataclass
@@ -95,12 +113,13 @@ def _windows(batch: WaveformBatch, params: WaveformParams
     valid_all = batch.sample_mask()
     for a in range(0, n, block):
         sl = slice(a, min(a + block, n))
-        resid = batch.waveforms[sl].astype(np.float64) - batch.noise_mean[sl][:, None]
-        start[sl], end[sl], found[sl] = search_window(
-            resid, valid_all[sl], batch.noise_sd[sl].astype(np.float64),
-            params.preprocessor_threshold, params.search_size,
-            batch.n_samples[sl].astype(np.int64))
-    found &= batch.n_samples >= 2
+        with np.errstate(invalid="ignore", over="ignore"):
+            resid = batch.waveforms[sl].astype(np.float64) - batch.noise_mean[sl][:, None]
+            start[sl], end[sl], found[sl] = search_window(
+                resid, valid_all[sl], batch.noise_sd[sl].astype(np.float64),
+                params.preprocessor_threshold, params.search_size,
+                batch.n_samples[sl].astype(np.int64))
+    found &= (batch.n_samples >= 2) & ~_unusable(batch)
     return start, end, found
 
 
@@ -151,6 +170,9 @@ def _process_chunk(batch: WaveformBatch, rows: npt.NDArray[np.intp], window_star
     modes &= found[:, None]
     ground, n_modes = lowest_mode(modes)
     from_bottom, total = signal_energy(searched, top, bottom)
+    if group.ground_min_energy > 0:
+        ground, _ = lowest_mode(energetic_modes(modes, from_bottom, total,
+                                                group.ground_min_energy))
     found &= (ground >= 0) & (total > 0)
     total = np.where(found, total, 0.0)
     ground = np.where(found, ground, -1)
@@ -241,6 +263,12 @@ def process_waveforms(batch: WaveformBatch, params: WaveformParams | None = None
     cover = np.full(n, np.nan)
     penetration = np.full(n, np.nan)
     span = 0.8 if params.decompose else 1.0
+    unusable = _unusable(batch)
+    if unusable.any():
+        warnings.warn(
+            f"{batch.source or batch.beam}: {int(unusable.sum())} of {n} shots of "
+            f"{batch.beam} have non-finite or non-positive noise statistics or non-finite "
+            "samples; they are flagged no_signal", UnusableWaveformWarning, stacklevel=2)
     w_start, w_end, has_window = _windows(batch, params)
     candidates = np.nonzero(has_window)[0]
     chunks = [candidates[c] for c in _chunks((w_end - w_start)[candidates], CHUNK_SHOTS)]

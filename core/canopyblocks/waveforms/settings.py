@@ -4,7 +4,11 @@ The six L2A setting groups ``a1`` .. ``a6`` differ in three numbers, recorded by
 itself in ``rx_processing_aN/ancillary``: the front threshold ``k_f``
 (``rx_front_threshold``), the back threshold ``k_b`` (``rx_back_threshold``), both in
 noise standard deviations above the noise mean, and the smoothing width of the mode
-search (``rx_smoothing_width_zcross``, samples). Everything else is shared.
+search (``rx_smoothing_width_zcross``, samples). Everything else is shared, except that
+a2 (``enable_select_mode`` = 1) does not take a weak last mode as the ground: its ground
+is the lowest mode with at least ``cumulative_energy_thresh`` = 2.5 % of the signal
+energy between it and the signal bottom (L2A's ``selected_mode``; found to reproduce
+every a2 shot of the sample granule).
 
 Smoothing kernels
 -----------------
@@ -18,7 +22,7 @@ samples reproduces them, for width 3.5 a Gaussian of sd 3.125 truncated at 7.5 s
 With the nominal kernel a1 still agrees with L2A to ~0.03 m RMSE, but about 30 % of
 the modes move by a quarter sample and the 3.5-sample groups (a2, a3, a5, a6) lose
 weak modes that L2A keeps (ground errors of metres in a5); with the calibrated kernel
-every group but a2 reproduces L2A to ~0.01 m. ``kernel="l2a"`` (default) uses the
+every group reproduces L2A to ~0.01 m RMSE. ``kernel="l2a"`` (default) uses the
 calibrated kernel for the widths L2A uses; ``kernel="nominal"`` uses the DESIGN 4.3
 kernel for any width.
 """
@@ -58,17 +62,23 @@ class SettingGroup:
     mode_smoothing : float
         Gaussian smoothing width of the mode search and of the cumulative energy
         (samples).
+    ground_min_energy : float
+        Percent. When > 0, the ground is the lowest mode with at least this share of
+        the signal energy between it and the signal bottom (L2A's mode selection,
+        ``enable_select_mode`` with ``cumulative_energy_thresh``; a2: 2.5); when 0,
+        the lowest mode.
     """
 
     front_threshold: float
     back_threshold: float
     mode_smoothing: float
+    ground_min_energy: float = 0.0
 
 
 #: The six L2A setting groups (values as L2A records them in ``rx_processing_aN/ancillary``).
 SETTINGS: dict[str, SettingGroup] = {
     "a1": SettingGroup(3.0, 6.0, 6.5),
-    "a2": SettingGroup(3.0, 3.0, 3.5),
+    "a2": SettingGroup(3.0, 3.0, 3.5, 2.5),
     "a3": SettingGroup(3.0, 6.0, 3.5),
     "a4": SettingGroup(6.0, 6.0, 6.5),
     "a5": SettingGroup(3.0, 2.0, 3.5),
@@ -184,6 +194,7 @@ class WaveformParams:
             else base.back_threshold,
             float(self.mode_smoothing) if self.mode_smoothing is not None
             else base.mode_smoothing,
+            base.ground_min_energy,
         )
 
     def kernel_shape(self, width: float) -> tuple[float, int]:
