@@ -352,3 +352,17 @@ def test_unusable_noise_or_samples_flagged_with_a_warning() -> None:
         table = process_waveforms(batch, WaveformParams(terrain_filter=False))
     assert list(table["flag"]) == ["no_signal"] * 4 + ["ok"]
     assert table["ground"].iloc[:4].isna().all()
+
+
+def test_empty_batch_and_progress_cancellation() -> None:
+    from canopyblocks.errors import CancelledError
+    from canopyblocks.progress import Progress
+    w = MEAN + pulse(400, 200.0, 150.0, 5.0)
+    batch = make_batch([w] * 3)
+    empty = process_waveforms(batch.subset(np.array([], dtype=np.intp)))
+    assert empty.shape == (0, 19) and empty["shot_number"].dtype == np.int64
+    seen: list[float] = []
+    process_waveforms(batch, progress=Progress(callback=lambda f, msg: seen.append(f)))
+    assert seen and seen[-1] == 1.0
+    with pytest.raises(CancelledError):
+        process_waveforms(batch, progress=Progress(cancelled=lambda: True))
