@@ -65,8 +65,12 @@ def _unusable(batch: WaveformBatch) -> npt.NDArray[np.bool_]:
     sd = np.asarray(batch.noise_sd, dtype=np.float64)
     with np.errstate(invalid="ignore"):
         bad = ~np.isfinite(mean) | ~np.isfinite(sd) | ~(sd > 0)
-    if len(batch):
-        bad |= (~np.isfinite(batch.waveforms) & batch.sample_mask()).any(axis=1)
+    m = batch.waveforms.shape[1]
+    block = 4 * CHUNK_SHOTS
+    for a in range(0, len(batch), block):
+        sl = slice(a, min(a + block, len(batch)))
+        valid = np.arange(m)[None, :] < batch.n_samples[sl][:, None]
+        bad[sl] |= (~np.isfinite(batch.waveforms[sl]) & valid).any(axis=1)
     return bad
 
 
@@ -110,16 +114,17 @@ def _windows(batch: WaveformBatch, params: WaveformParams
     end = np.zeros(n, dtype=np.int64)
     found = np.zeros(n, dtype=bool)
     block = 4 * CHUNK_SHOTS
-    valid_all = batch.sample_mask()
+    m = batch.waveforms.shape[1]
     for a in range(0, n, block):
         sl = slice(a, min(a + block, n))
+        valid = np.arange(m)[None, :] < batch.n_samples[sl][:, None]
         with np.errstate(invalid="ignore", over="ignore"):
             resid = batch.waveforms[sl].astype(np.float64) - batch.noise_mean[sl][:, None]
             start[sl], end[sl], found[sl] = search_window(
-                resid, valid_all[sl], batch.noise_sd[sl].astype(np.float64),
+                resid, valid, batch.noise_sd[sl].astype(np.float64),
                 params.preprocessor_threshold, params.search_size,
                 batch.n_samples[sl].astype(np.int64))
-    found &= (batch.n_samples >= 2) & ~_unusable(batch)
+    found &= batch.n_samples >= 2
     return start, end, found
 
 
@@ -270,6 +275,7 @@ def process_waveforms(batch: WaveformBatch, params: WaveformParams | None = None
             f"{batch.beam} have non-finite or non-positive noise statistics or non-finite "
             "samples; they are flagged no_signal", UnusableWaveformWarning, stacklevel=2)
     w_start, w_end, has_window = _windows(batch, params)
+    has_window &= ~unusable
     candidates = np.nonzero(has_window)[0]
     chunks = [candidates[c] for c in _chunks((w_end - w_start)[candidates], CHUNK_SHOTS)]
     done = 0
@@ -350,6 +356,7 @@ def shot_details(batch: WaveformBatch, index: int, params: WaveformParams | None
     rows = np.array([i], dtype=np.intp)
     one = batch.subset(rows)
     w_start, w_end, has_window = _windows(one, params)
+    has_window &= ~_unusable(one)
     if not has_window[0]:
         w_start = w_end = np.zeros(1, dtype=np.int64)
     res, inter = _process_chunk(batch, rows, w_start, w_end, params, ALL_RH, keep=True)
