@@ -237,7 +237,7 @@ def test_no_target_on_the_raster_is_an_error():
 @pytest.mark.slow
 def test_cli_coregister_writes_offsets(scene, tmp_path):
     import rasterio
-    from rasterio.transform import from_origin
+    from rasterio.transform import Affine
 
     from canopyblocks.simulate.writers import write_simulation_atl03
 
@@ -246,7 +246,7 @@ def test_cli_coregister_writes_offsets(scene, tmp_path):
     with rasterio.open(tif, "w", driver="GTiff", width=dtm.values.shape[1],
                        height=dtm.values.shape[0], count=1, dtype="float32",
                        crs=scene["crs"].to_wkt(), nodata=-9999,
-                       transform=from_origin(dtm.x0, dtm.y0, RES, RES)) as dst:
+                       transform=Affine(RES, 0.0, dtm.x0, 0.0, -RES, dtm.y0)) as dst:
         dst.write(dtm.values.astype("float32"), 1)
     assert np.allclose(read_surface(tif).values, dtm.values, atol=1e-3)
     bounds = scene["bounds"]
