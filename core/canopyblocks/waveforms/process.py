@@ -11,8 +11,10 @@ Steps, each vectorised over the shots of a chunk (one module each):
 5. cumulative energy -> RH0..RH100 (:mod:`.rh`), cover and penetration (:mod:`.cover`);
 6. flags, and the seed-003 terrain filter along the beam (:mod:`.terrain_filter`).
 
-Shots are processed in chunks of similar length (sorted by sample count), so a few
-long waveforms do not widen every row; the only Python loop is over chunks.
+Only each shot's search window (plus the kernels' reach) is smoothed -- results inside
+the window are those of smoothing the whole waveform -- and shots are processed in
+chunks of similar window width, so a few tall or long waveforms do not widen every
+row. The only Python loop is over chunks of ``CHUNK_SHOTS`` shots.
 """
 
 from __future__ import annotations
@@ -46,7 +48,8 @@ log = logging.getLogger(__name__)
 #: RH percentiles of the footprint table (all of 0..100 with ``all_rh``).
 RH_TABLE: tuple[int, ...] = (25, 50, 75, 90, 95, 98, 100)
 ALL_RH: tuple[int, ...] = tuple(range(101))
-#: Footprint flags in order of precedence (the first that applies is reported).
+#: Footprint flag codes. One flag per footprint, by precedence: stale, degraded,
+#: no_signal, too_many_modes, terrain_outlier, else ok.
 FLAG_CODES: tuple[str, ...] = ("ok", "stale", "degraded", "no_signal", "too_many_modes",
                                "terrain_outlier")
 _OK, _STALE, _DEGRADED, _NO_SIGNAL, _TOO_MANY, _TERRAIN = range(6)
@@ -329,6 +332,8 @@ def process_waveforms(batch: WaveformBatch, params: WaveformParams | None = None
     if params.decompose:
         table["ground_gauss"] = _ground_gauss(batch, prog.sub(span, 1.0))
     table["flag"] = np.asarray(FLAG_CODES, dtype=object)[code]
+    log.debug("%s: %d shots, setting %s, %d ok", batch.beam, n, params.setting,
+              int((code == _OK).sum()))
     columns = [c for c in FOOTPRINT_COLUMNS if not c.startswith("rh") and c != "flag"]
     first_rh = columns.index("cover")
     columns[first_rh:first_rh] = rh_names
