@@ -1,0 +1,193 @@
+"""Footprint figures for the report: maps of RH98 and residuals, footprint vs reference.
+
+* :func:`plot_footprint_map`: footprint circles coloured by a column (sequential for
+  RH98, diverging and centred on 0 for residuals) over a hillshade of the DTM when a DTM
+  GeoTIFF is given, else over the footprints' own extent; axes in metres of the
+  residuals' CRS (the airborne points' CRS).
+* :func:`plot_footprint_scatter`: footprint vs reference per metric (ground, RH98) with
+  the 1:1 line and n / RMSE / bias (footprints with ``use`` only).
+* :func:`write_footprint_plots`: all of them into a folder.
+
+All PNGs are written atomically (Agg backend, no display).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from ..errors import DependencyError, FileFormatError, InputError
+from ..validation.stats import error_stats
+from .plotting import new_figure, save_figure
+
+__all__ = ["plot_footprint_map", "plot_footprint_scatter", "write_footprint_plots",
+           "hillshade"]
+
+log = logging.getLogger(__name__)
+
+_LABELS = {"rh98": "RH98 (m)", "ground": "ground (m)", "rh50": "RH50 (m)", "cover": "cover",
+           "res_rh98": "RH98 residual (m)", "res_ground": "ground residual (m)",
+           "res_rh50": "RH50 residual (m)", "res_cover": "cover residual"}
+
+
+def hillshade(dem: np.ndarray, xres: float, yres: float, azimuth: float = 315.0,
+              altitude: float = 45.0) -> np.ndarray:
+    """Hillshade 0..1 of a north-up DEM (Horn slope/aspect; NaN where undefined)."""
+    from ..reference.terrain import horn_slope_aspect
+
+    slope, aspect = horn_slope_aspect(dem, xres, yres)
+    s, a = np.radians(slope), np.radians(np.nan_to_num(aspect))
+    az, alt = np.radians(azimuth), np.radians(altitude)
+    hs = np.sin(alt) * np.cos(s) + np.cos(alt) * np.sin(s) * np.cos(az - a)
+    return np.clip(hs, 0.0, 1.0)
+
+
+def _dtm_window(dtm: str | os.PathLike[str], bounds: tuple[float, float, float, float]
+                ) -> tuple[np.ndarray, tuple[float, float, float, float], float, float] | None:
+    try:
+        import rasterio
+        from rasterio.windows import from_bounds
+    except ImportError:
+        raise DependencyError("a DTM hillshade needs rasterio: pip install "
+                              "'canopyblocks[raster]'") from None
+    if not os.path.exists(dtm):
+        raise FileFormatError(f"DTM raster {dtm}: no such file")
+    try:
+        with rasterio.open(dtm) as src:
+            win = from_bounds(*bounds, transform=src.transform).round_offsets().round_lengths()
+            win = win.intersection(rasterio.windows.Window(0, 0, src.width, src.height))
+            data = src.read(1, window=win, masked=True).astype(float).filled(np.nan)
+            t = src.window_transform(win)
+    except rasterio.errors.WindowError:
+        return None  # the DTM does not reach the footprints
+    except rasterio.errors.RasterioIOError as exc:
+        raise FileFormatError(f"DTM raster {dtm}: cannot read ({exc})") from None
+    if data.size == 0:
+        return None
+    extent = (t.c, t.c + t.a * data.shape[1], t.f + t.e * data.shape[0], t.f)
+    return data, extent, abs(t.a), abs(t.e)
+
+
+def plot_footprint_map(residuals: Any, column: str, path: str | os.PathLike[str], *,
+                       dtm: str | os.PathLike[str] | None = None, only_used: bool = True,
+                       title: str | None = None) -> Path:
+    """Footprint circles coloured by ``column`` (residuals ``res_*`` diverging around 0).
+
+    Parameters
+    ----------
+    residuals : GeoDataFrame
+        From :func:`~canopyblocks.validation.footprints.validate_footprints` (polygons in
+        a metric CRS).
+    column : str
+        Column to colour by.
+    path : path
+        PNG to write (atomically).
+    dtm : path, optional
+        DTM GeoTIFF in the same CRS, drawn as a hillshade underneath.
+    only_used : bool
+        Colour only footprints with ``use``; the others are drawn as grey outlines.
+    """
+    if column not in residuals.columns:
+        raise InputError(f"no column {column!r} in the footprint residuals")
+    from matplotlib.collections import PatchCollection
+    from matplotlib.colors import TwoSlopeNorm
+    from matplotlib.patches import Polygon as MplPolygon
+
+    gdf = residuals
+    use = gdf["use"].to_numpy(bool) if (only_used and "use" in gdf.columns) else \
+        np.ones(len(gdf), bool)
+    vals = gdf[column].to_numpy(float)
+    col = use & np.isfinite(vals)
+    x0, y0, x1, y1 = (float(v) for v in gdf.total_bounds)
+    pad = 0.05 * max(x1 - x0, y1 - y0, 1.0)
+    bounds = (x0 - pad, y0 - pad, x1 + pad, y1 + pad)
+    fig, ax = new_figure(figsize=(7.0, 6.0))
+    if dtm is not None:
+        got = _dtm_window(dtm, bounds)
+        if got is not None:
+            data, extent, xr, yr = got
+            ax.imshow(hillshade(data, xr, yr), extent=extent, cmap="gray", vmin=0, vmax=1,
+                      origin="upper", interpolation="nearest")
+        else:
+            log.warning("the DTM %s does not reach the footprints; map without hillshade", dtm)
+    patches = [MplPolygon(np.asarray(g.exterior.coords), closed=True) for g in gdf.geometry]
+    diverging = column.startswith("res_")
+    if col.any():
+        v = vals[col]
+        if diverging:
+            lim = float(np.nanmax(np.abs(v))) or 1.0
+            norm: Any = TwoSlopeNorm(vcenter=0.0, vmin=-lim, vmax=lim)
+            cmap = "RdBu_r"
+        else:
+            from matplotlib.colors import Normalize
+
+            norm = Normalize(vmin=float(v.min()), vmax=float(v.max()) if v.max() > v.min()
+                             else float(v.min()) + 1.0)
+            cmap = "viridis"
+        pc = PatchCollection([p for p, c in zip(patches, col) if c], cmap=cmap, norm=norm,
+                             edgecolor="k", linewidth=0.3, alpha=0.9)
+        pc.set_array(v)
+        ax.add_collection(pc)
+        fig.colorbar(pc, ax=ax, shrink=0.8, label=_LABELS.get(column, column))
+    if (~col).any():
+        ax.add_collection(PatchCollection([p for p, c in zip(patches, col) if not c],
+                                          facecolor="none", edgecolor="0.5", linewidth=0.5))
+    ax.set_xlim(bounds[0], bounds[2])
+    ax.set_ylim(bounds[1], bounds[3])
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.ticklabel_format(useOffset=False, style="plain")
+    ax.set_title(title or f"Footprints: {_LABELS.get(column, column)} "
+                 f"({int(col.sum())} of {len(gdf)})")
+    return save_figure(fig, path)
+
+
+def plot_footprint_scatter(residuals: pd.DataFrame, path: str | os.PathLike[str], *,
+                           metrics: Sequence[str] = ("ground", "rh98")) -> Path:
+    """Footprint value vs footprint-matched reference, one panel per metric."""
+    sub = residuals[residuals["use"].to_numpy(bool)] if "use" in residuals else residuals
+    fig, axes = new_figure(figsize=(3.8 * len(metrics), 3.9), ncols=len(metrics),
+                           squeeze=False)
+    for ax, m in zip(axes[0], metrics):
+        if m not in residuals.columns or f"ref_{m}" not in residuals.columns:
+            raise InputError(f"no columns {m!r}/'ref_{m}' in the footprint residuals")
+        x = sub[f"ref_{m}"].to_numpy(float)
+        y = sub[m].to_numpy(float)
+        ok = np.isfinite(x) & np.isfinite(y)
+        x, y = x[ok], y[ok]
+        st = error_stats(y, x)
+        ax.scatter(x, y, s=12, alpha=0.7, color="tab:blue", edgecolor="none")
+        if x.size:
+            lo, hi = float(min(x.min(), y.min())), float(max(x.max(), y.max()))
+            p = 0.05 * (hi - lo if hi > lo else 1.0)
+            lim = (lo - p, hi + p)
+            ax.plot(lim, lim, color="0.4", lw=1, ls="--")
+            ax.set_xlim(lim)
+            ax.set_ylim(lim)
+            ax.set_aspect("equal")
+        ax.set_xlabel(f"ALS reference {_LABELS.get(m, m)}")
+        ax.set_ylabel(f"footprint {_LABELS.get(m, m)}")
+        ax.text(0.03, 0.97, f"n = {st['n']}\nRMSE = {st['rmse']:.2f}\nbias = {st['bias']:+.2f}",
+                transform=ax.transAxes, va="top", ha="left", fontsize=8,
+                bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "0.8"})
+    fig.suptitle("Footprints vs footprint-matched ALS reference")
+    return save_figure(fig, path)
+
+
+def write_footprint_plots(residuals: Any, folder: str | os.PathLike[str], *,
+                          dtm: str | os.PathLike[str] | None = None) -> list[Path]:
+    """``footprints_scatter.png``, ``footprints_rh98.png``, ``footprints_res_rh98.png``,
+    ``footprints_res_ground.png`` into ``folder``."""
+    out = Path(folder)
+    paths = [plot_footprint_scatter(residuals, out / "footprints_scatter.png")]
+    for c in ("rh98", "res_rh98", "res_ground"):
+        paths.append(plot_footprint_map(residuals, c, out / f"footprints_{c}.png", dtm=dtm))
+    log.info("wrote %d footprint figures to %s", len(paths), out)
+    return paths

@@ -1,0 +1,432 @@
+"""Validation of waveform footprints (GEDI) against airborne lidar points (DESIGN 4.10).
+
+Each footprint is compared with the footprint-matched reference of DESIGN 2.7
+(:mod:`canopyblocks.reference.footprint`): residuals footprint minus reference of
+``ground`` (m, absolute, after the vertical-datum conversion), ``rh98``, ``rh50`` (m above
+ground) and ``cover`` (0..1), and statistics (``validation.stats.error_stats``) per
+metric and group: ``all``, ``beam:<beam>``, ``aspect:<class>``, ``slope:<class>`` and
+``cover:<class>`` (classes of the reference cover: ``0-25``, ``25-50``, ``50-75``,
+``75-100`` per cent).  Slope and aspect are the reference ground plane's.
+
+A footprint enters the statistics (``use``) when its own ``flag`` is ``ok`` and the
+reference's is ``ok``; ``flag`` in the residuals is the footprint's flag when it is not
+``ok``, else the reference's (``ok``, ``outside``, ``no_ground``).  The statistics
+table has the block statistics' columns (``schema.STATS_COLUMNS``) with ``length`` =
+the footprint diameter (m).
+
+Heights: GEDI elevations are WGS84 ellipsoidal (EPSG:4979); airborne lidar is often
+orthometric.  The rule of :mod:`canopyblocks.reference.datum` applies: a known
+difference without ``geoid``/``offset`` is refused; the footprint ``ground`` (and
+``top``) are converted, ``H = h - N``.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import geopandas as gpd
+import numpy as np
+import pandas as pd
+import pyproj
+import shapely
+
+from ..errors import CanopyBlocksWarning, CRSError, InputError, NoUsableDataError
+from ..geo import as_crs
+from ..progress import Progress, as_progress
+from ..readers.las import LasPoints, las_crs, read_las
+from ..reference.datum import apply_vertical_offset, check_vertical_datums
+from ..reference.footprint import (
+    REFERENCE_FLAG_OK,
+    REFERENCE_FLAG_OUTSIDE,
+    FootprintCloud,
+    FootprintReferenceParams,
+    block_footprint_reference,
+    footprint_reference,
+)
+from ..reference.terrain import aspect_class, slope_class
+from ..schema import FLAG_OK, LAYER_FOOTPRINTS, STATS_COLUMNS
+from .block_validation import ValidationResult
+from .residuals import compute_residuals
+from .stats import GROUP_ALL, _sorted_classes, block_stats, error_stats
+
+__all__ = [
+    "FootprintValidation",
+    "FootprintOutsideWarning",
+    "validate_footprints",
+    "validate_footprints_file",
+    "validate_blocks_footprint",
+    "footprint_stats",
+    "cover_class",
+    "FOOTPRINT_METRICS",
+    "LAYER_RESIDUALS_FOOTPRINTS",
+    "LAYER_STATS_FOOTPRINTS",
+    "GEDI_VERTICAL_CRS",
+]
+
+log = logging.getLogger(__name__)
+
+#: Validated footprint metrics: footprint column -> reference column.
+FOOTPRINT_METRICS: dict[str, str] = {"ground": "ref_ground", "rh98": "ref_rh98",
+                                     "rh50": "ref_rh50", "cover": "ref_cover"}
+LAYER_RESIDUALS_FOOTPRINTS = "residuals_footprints"
+LAYER_STATS_FOOTPRINTS = "stats_footprints"
+#: GEDI elevations: WGS84 ellipsoidal heights.
+GEDI_VERTICAL_CRS = "EPSG:4979"
+COVER_CLASSES: tuple[str, ...] = ("0-25", "25-50", "50-75", "75-100")
+_ABSOLUTE = ("ground", "top")
+
+
+class FootprintOutsideWarning(CanopyBlocksWarning):
+    """Footprints outside the airborne tiles were excluded from the statistics."""
+
+
+@dataclass(frozen=True, eq=False)
+class FootprintValidation:
+    """Residuals per footprint (circles in the points' CRS) and statistics."""
+
+    residuals: gpd.GeoDataFrame
+    stats: pd.DataFrame
+    datum: str = "unknown"
+
+
+def cover_class(cover: np.ndarray | float) -> np.ndarray:
+    """Cover classes ``0-25``, ``25-50``, ``50-75``, ``75-100`` (per cent; ``unknown`` NaN)."""
+    c = np.atleast_1d(np.asarray(cover, dtype=float))
+    k = np.clip(np.floor(np.nan_to_num(c) * 4.0).astype(int), 0, 3)
+    out = np.asarray(COVER_CLASSES, dtype=object)[k]
+    out[~np.isfinite(c)] = "unknown"
+    return out
+
+
+def _positions(fp: pd.DataFrame, crs: pyproj.CRS, table_crs: object
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Footprint centres in ``crs`` (metres) and lon/lat (degrees WGS84)."""
+    if {"lon", "lat"} <= set(fp.columns):
+        lon, lat = fp["lon"].to_numpy(float), fp["lat"].to_numpy(float)
+        tr = pyproj.Transformer.from_crs("EPSG:4326", crs, always_xy=True)
+        x, y = tr.transform(lon, lat)
+        return np.asarray(x, float), np.asarray(y, float), lon, lat
+    geom = getattr(fp, "geometry", None) if isinstance(fp, gpd.GeoDataFrame) else None
+    gcrs = getattr(fp, "crs", None) or (as_crs(table_crs, "footprint CRS")
+                                        if table_crs is not None else None)
+    if geom is None or gcrs is None:
+        raise CRSError("the footprint table has no lon/lat columns and no geometry with a "
+                       "CRS; give lon/lat or the table's CRS")
+    pts = gpd.GeoSeries(geom, crs=gcrs)
+    xy = pts.to_crs(crs)
+    ll = pts.to_crs("EPSG:4326")
+    return (xy.x.to_numpy(float), xy.y.to_numpy(float), ll.x.to_numpy(float),
+            ll.y.to_numpy(float))
+
+
+def _read_points(points: LasPoints | str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
+                 fp: pd.DataFrame, params: FootprintReferenceParams, table_crs: object,
+                 points_crs: object, prog: Progress
+                 ) -> tuple[LasPoints, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    if isinstance(points, LasPoints):
+        x, y, lon, lat = _positions(fp, points.crs, table_crs)
+        return points, x, y, lon, lat
+    paths = [points] if isinstance(points, (str, os.PathLike)) else list(points)
+    if not paths:
+        raise InputError("no LAS/LAZ tile given; pass --points TILE.laz")
+    crs = las_crs(paths[0])
+    if crs is None:
+        if points_crs is None:
+            raise CRSError(f"{paths[0]}: the file states no CRS; give the points' CRS")
+        crs = as_crs(points_crs, "points CRS")
+    x, y, lon, lat = _positions(fp, crs, table_crs)
+    fin = np.isfinite(x) & np.isfinite(y)
+    if not fin.any():
+        raise NoUsableDataError("no footprint has a finite position; nothing to validate")
+    m = params.cut_radius + 5.0
+    bbox = (float(x[fin].min() - m), float(y[fin].min() - m), float(x[fin].max() + m),
+            float(y[fin].max() + m))
+    try:
+        pts = read_las(paths, bbox=bbox, crs=crs if points_crs is not None else None,
+                       exclude_classes=params.exclude_classes, progress=prog)
+    except NoUsableDataError:
+        raise NoUsableDataError(
+            f"none of the {len(fp)} footprints lies over the airborne tiles "
+            f"({', '.join(str(p) for p in paths)}): footprints span {tuple(round(v) for v in bbox)} "
+            f"in {crs.to_string()}; give tiles under the footprints") from None
+    return pts, x, y, lon, lat
+
+
+def _tiles_vertical(pts: LasPoints) -> str | None:
+    """The tiles' vertical CRS when the files state an EPSG code, else None (unknown)."""
+    return pts.vertical_datum if pts.vertical_datum.startswith("EPSG:") else None
+
+
+def validate_footprints(
+    footprints: pd.DataFrame,
+    points: LasPoints | str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
+    *,
+    params: FootprintReferenceParams | None = None,
+    photon_vertical_crs: object = GEDI_VERTICAL_CRS,
+    reference_vertical_crs: object = None,
+    geoid: str | os.PathLike[str] | None = None,
+    offset: float | None = None,
+    table_crs: object = None,
+    points_crs: object = None,
+    slope_threshold: float = 2.0,
+    progress: Progress | None = None,
+) -> FootprintValidation:
+    """Validate waveform footprints against the footprint-matched airborne reference.
+
+    Parameters
+    ----------
+    footprints : DataFrame or GeoDataFrame
+        Footprint table (``schema.FOOTPRINT_COLUMNS``): at least ``ground``, ``rh98``,
+        ``rh50`` and positions (``lon``/``lat`` degrees, or a point geometry with a CRS).
+        ``cover``, ``beam``, ``shot_number`` and ``flag`` are used when present.
+    points : LasPoints or path(s) of LAS/LAZ tiles
+        Airborne points (metric CRS); tiles are read only around the footprints.
+    params : FootprintReferenceParams, optional
+        Default :meth:`FootprintReferenceParams.gedi` (22 m, points within 1.5 R,
+        density weights).
+    photon_vertical_crs : CRS-like
+        Datum of the footprint elevations (GEDI: EPSG:4979, WGS84 ellipsoid).
+    reference_vertical_crs : CRS-like, optional
+        Datum of the airborne heights; default the tiles' vertical CRS (unknown ->
+        warned, compared as they are).
+    geoid, offset
+        Conversion ``H = h - N`` (geoid raster of N, or constant N in metres).
+    table_crs : CRS-like, optional
+        CRS of the footprints' geometry when the table carries none (CSV without lon/lat).
+    points_crs : CRS-like, optional
+        CRS of tiles that state none.
+    slope_threshold : float
+        Degrees below which the aspect class is ``flat``.
+
+    Returns
+    -------
+    FootprintValidation
+
+    Raises
+    ------
+    DatumError
+        Known-different vertical datums without ``geoid``/``offset``.
+    NoUsableDataError
+        No footprint usable (all outside the tiles, flagged, or without ground points).
+    """
+    prog = as_progress(progress)
+    params = params or FootprintReferenceParams.gedi()
+    if not isinstance(footprints, pd.DataFrame) or len(footprints) == 0:
+        raise NoUsableDataError("the footprint table is empty; nothing to validate")
+    missing = [c for c in ("ground", "rh98", "rh50") if c not in footprints.columns]
+    if missing:
+        raise InputError(f"the footprint table lacks column(s) {', '.join(missing)}; pass "
+                         "the footprints layer written by `canopyblocks waveforms`")
+    fp = footprints.reset_index(drop=True)
+    prog.update(0.0, "reading airborne points")
+    pts, x, y, lon, lat = _read_points(points, fp, params, table_crs, points_crs,
+                                       prog.sub(0.0, 0.3))
+    ref_v = reference_vertical_crs if reference_vertical_crs is not None \
+        else _tiles_vertical(pts)
+    decision = check_vertical_datums(photon_vertical_crs, ref_v, geoid=geoid, offset=offset)
+    heights = pd.DataFrame({"lon": lon, "lat": lat,
+                            **{c: fp[c].to_numpy(float) for c in _ABSOLUTE if c in fp}})
+    if geoid is not None or offset is not None:
+        heights = apply_vertical_offset(heights, geoid=geoid, offset=offset,
+                                        columns=_ABSOLUTE)
+    cloud = FootprintCloud(pts, params)
+    ref = footprint_reference(cloud, x, y, progress=prog.sub(0.3, 0.95))
+    n = len(fp)
+    out = pd.DataFrame({
+        "beam": fp["beam"].astype(str).to_numpy() if "beam" in fp else np.full(n, ""),
+        "shot_number": (fp["shot_number"].to_numpy() if "shot_number" in fp
+                        else np.arange(n, dtype=np.int64)),
+    })
+    values = {"ground": heights["ground"].to_numpy(float),
+              "rh98": fp["rh98"].to_numpy(float), "rh50": fp["rh50"].to_numpy(float),
+              "cover": fp["cover"].to_numpy(float) if "cover" in fp else np.full(n, np.nan)}
+    for m, r in FOOTPRINT_METRICS.items():
+        out[m] = values[m]
+        out[r] = ref[r].to_numpy(float)
+        out[f"res_{m}"] = values[m] - out[r].to_numpy(float)
+    out["slope"] = ref["ref_slope"].to_numpy(float)
+    out["aspect"] = ref["ref_aspect"].to_numpy(float)
+    out["aspect_class"] = aspect_class(out["aspect"].to_numpy(), out["slope"].to_numpy(),
+                                       slope_threshold)
+    out["slope_class"] = slope_class(out["slope"].to_numpy())
+    out["cover_class"] = cover_class(out["ref_cover"].to_numpy())
+    own = fp["flag"].astype(str).to_numpy(object) if "flag" in fp else np.full(n, FLAG_OK,
+                                                                                  object)
+    rflag = ref["ref_flag"].to_numpy(object)
+    out["flag"] = np.where(own != FLAG_OK, own, rflag)
+    out["ref_flag"] = rflag
+    out["ref_n_points"] = ref["ref_n_points"].to_numpy()
+    out["ref_coverage"] = ref["ref_coverage"].to_numpy(float)
+    out["use"] = (own == FLAG_OK) & (rflag == REFERENCE_FLAG_OK)
+    n_out = int((rflag == REFERENCE_FLAG_OUTSIDE).sum())
+    if n_out:
+        warnings.warn(f"{n_out} of {n} footprints lie (partly) outside the airborne tiles "
+                      f"(less than {params.min_coverage:.0%} of their circle covered); they "
+                      "are flagged 'outside' and excluded", FootprintOutsideWarning,
+                      stacklevel=2)
+    if not out["use"].any():
+        counts = pd.Series(out["flag"]).value_counts().to_dict()
+        raise NoUsableDataError(
+            f"none of the {n} footprints is usable (flags: {counts}); give tiles that cover "
+            "footprints flagged ok")
+    geom = shapely.buffer(shapely.points(x, y), params.radius, quad_segs=8)
+    residuals = gpd.GeoDataFrame(out, geometry=geom, crs=pts.crs)
+    stats = footprint_stats(residuals, length=params.diameter)
+    prog.update(1.0, "footprint validation done")
+    return FootprintValidation(residuals, stats, decision)
+
+
+def footprint_stats(residuals: pd.DataFrame, *, length: float,
+                    metrics: Sequence[str] = tuple(FOOTPRINT_METRICS),
+                    groups: Sequence[tuple[str, str]] = (("beam", "beam"),
+                                                         ("aspect", "aspect_class"),
+                                                         ("slope", "slope_class"),
+                                                         ("cover", "cover_class")),
+                    only_used: bool = True) -> pd.DataFrame:
+    """Statistics (``schema.STATS_COLUMNS``) per metric and group of footprint residuals.
+
+    ``length`` fills the ``length`` column (the footprint diameter, m).
+    """
+    for m in metrics:
+        if m not in FOOTPRINT_METRICS:
+            raise InputError(f"unknown metric {m!r}; use {', '.join(FOOTPRINT_METRICS)}")
+    df = residuals
+    if only_used and "use" in df.columns:
+        df = df[df["use"].to_numpy(bool)]
+    subsets: list[tuple[str, pd.DataFrame]] = [(GROUP_ALL, df)]
+    for prefix, col in groups:
+        if col not in df.columns:
+            continue
+        labels = df[col].astype(str)
+        for cls in _sorted_classes(labels.tolist()):
+            subsets.append((f"{prefix}:{cls}", df[(labels == cls).to_numpy()]))
+    rows = []
+    for m in metrics:
+        for name, sub in subsets:
+            st = error_stats(sub[m].to_numpy(float), sub[FOOTPRINT_METRICS[m]].to_numpy(float))
+            rows.append({"length": float(length), "metric": m, "group": name, **st})
+    out = pd.DataFrame(rows, columns=list(STATS_COLUMNS))
+    out["n"] = out["n"].astype(np.int64)
+    return out
+
+
+def validate_footprints_file(
+    footprints_path: str | os.PathLike[str],
+    las_paths: Sequence[str | os.PathLike[str]],
+    output: str | os.PathLike[str],
+    *,
+    layer: str = LAYER_FOOTPRINTS,
+    plots: str | os.PathLike[str] | None = None,
+    dtm: str | os.PathLike[str] | None = None,
+    progress: Progress | None = None,
+    **kwargs: object,
+) -> FootprintValidation:
+    """Read a footprints layer, validate it, write ``residuals_footprints`` and
+    ``stats_footprints`` to ``output`` (a new file; atomically), optionally plots.
+
+    Parameters
+    ----------
+    footprints_path : path
+        GeoPackage (layer ``layer``), GeoParquet or CSV footprint table.
+    las_paths : sequence of path
+        Airborne LAS/LAZ tiles.
+    output : path
+        .gpkg (two layers), or .csv/.parquet (``<stem>_<layer><suffix>`` each).  Must
+        differ from ``footprints_path``.
+    plots : folder, optional
+        Scatter (footprint vs reference, ground and RH98) and maps (RH98, residuals).
+    dtm : path, optional
+        DTM GeoTIFF for the maps' hillshade.
+    **kwargs
+        Passed to :func:`validate_footprints` (params, geoid, offset, ...).
+    """
+    from ..outputs.atomic import check_writable, new_files_removed_on_failure
+    from ..outputs.tables import check_output_path, read_layer, write_layers
+
+    src, dst = Path(footprints_path), Path(output)
+    if dst.exists() and src.exists() and dst.resolve() == src.resolve():
+        raise InputError(f"-o {dst} is the footprints file itself; write the validation to "
+                         "a new file")
+    check_output_path(dst)
+    if plots is not None:
+        check_writable(plots, folder=True)
+    table = read_layer(src, layer if src.suffix.lower() == ".gpkg" else None)
+    result = validate_footprints(table, las_paths, progress=progress, **kwargs)  # type: ignore[arg-type]
+    ctx = new_files_removed_on_failure(plots) if plots is not None else None
+    if ctx is not None:
+        with ctx:
+            from ..outputs.footprint_maps import write_footprint_plots
+
+            write_footprint_plots(result.residuals, Path(plots),  # type: ignore[arg-type]
+                                  dtm=dtm)
+            write_layers({LAYER_RESIDUALS_FOOTPRINTS: result.residuals,
+                          LAYER_STATS_FOOTPRINTS: result.stats}, dst)
+    else:
+        write_layers({LAYER_RESIDUALS_FOOTPRINTS: result.residuals,
+                      LAYER_STATS_FOOTPRINTS: result.stats}, dst)
+    return result
+
+
+def validate_blocks_footprint(
+    blocks: gpd.GeoDataFrame,
+    points: LasPoints | str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
+    *,
+    params: FootprintReferenceParams | None = None,
+    spacing: float = 0.7,
+    statistic: str = "mean",
+    top_level: int = 98,
+    geoid: str | os.PathLike[str] | None = None,
+    offset: float | None = None,
+    photon_vertical_crs: object = None,
+    reference_vertical_crs: object = None,
+    slope_threshold: float = 2.0,
+    progress: Progress | None = None,
+) -> ValidationResult:
+    """Validate photon blocks against the footprint-matched reference (``validate
+    --reference footprint``): like :func:`~.block_validation.validate_blocks`, with
+    the reference of :func:`~canopyblocks.reference.footprint.block_footprint_reference`
+    (ground = mean footprint ground, top = mean ground + RH98) and slope/aspect from the
+    footprints' ground planes; residual polygons are corridors one diameter wide.
+    """
+    from ..reference.corridor import block_corridors
+
+    prog = as_progress(progress)
+    params = params or FootprintReferenceParams()
+    if not isinstance(blocks, pd.DataFrame) or len(blocks) == 0:
+        raise InputError("the block table is empty; nothing to validate")
+    if blocks.crs is None:
+        raise CRSError("the block table has no CRS; set it first")
+    if isinstance(points, LasPoints):
+        pts = points
+    else:
+        paths = [points] if isinstance(points, (str, os.PathLike)) else list(points)
+        m = params.cut_radius + float(blocks["length"].max()) + 5.0
+        xb, yb = blocks["x"].to_numpy(float), blocks["y"].to_numpy(float)
+        bbox = (float(np.nanmin(xb) - m), float(np.nanmin(yb) - m), float(np.nanmax(xb) + m),
+                float(np.nanmax(yb) + m))
+        pts = read_las(paths, bbox=bbox, exclude_classes=params.exclude_classes,
+                       progress=prog.sub(0.0, 0.3))
+    if not pts.crs.equals(blocks.crs, ignore_axis_order=True):
+        blocks = blocks.to_crs(pts.crs)
+        blocks = blocks.assign(x=blocks.geometry.x, y=blocks.geometry.y)
+    ref_v = reference_vertical_crs if reference_vertical_crs is not None \
+        else _tiles_vertical(pts)
+    pv = photon_vertical_crs or blocks.attrs.get("vertical_datum") or GEDI_VERTICAL_CRS
+    decision = check_vertical_datums(pv, ref_v, geoid=geoid, offset=offset)
+    work = apply_vertical_offset(blocks, geoid=geoid, offset=offset)
+    ref = block_footprint_reference(blocks, pts, params, spacing=spacing,
+                                    statistic=statistic,  # type: ignore[arg-type]
+                                    top_level=top_level, slope_threshold=slope_threshold,
+                                    progress=prog.sub(0.3, 0.95))
+    corridors = block_corridors(blocks, width=params.diameter)
+    residuals = compute_residuals(work, ref, ref, corridors=corridors)
+    residuals["ref_rh98"] = ref["ref_rh98"].to_numpy(float)
+    residuals["ref_cover"] = ref["ref_cover"].to_numpy(float)
+    stats = block_stats(residuals)
+    prog.update(1.0, "validation done")
+    return ValidationResult(residuals, stats, decision)

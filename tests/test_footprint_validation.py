@@ -1,0 +1,195 @@
+"""Footprint validation (DESIGN 4.10) on a real tile with footprints made from the ALS."""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import click
+import geopandas as gpd
+import numpy as np
+import pandas as pd
+import pyproj
+import pytest
+
+from canopyblocks.errors import DatumError, InputError, NoUsableDataError
+from canopyblocks.readers.las import LasPoints, read_las
+from canopyblocks.reference.footprint import FootprintReferenceParams
+from canopyblocks.validation.footprints import (
+    FootprintOutsideWarning,
+    validate_blocks_footprint,
+    validate_footprints,
+    validate_footprints_file,
+)
+
+N_GEOID = 17.25  # a constant "geoid height": ellipsoidal = orthometric + N
+OFFSETS = {"ground": 0.3, "rh98": 1.0, "rh50": -0.5, "cover": 0.05}
+PARAMS = FootprintReferenceParams(diameter=22.0, cut=1.5, weighting="gaussian")
+
+
+@pytest.fixture(scope="module")
+def tile_path(sample):  # noqa: ANN001, ANN201
+    return sample("als/lasR_bcts_1.laz")
+
+
+@pytest.fixture(scope="module")
+def tile(tile_path) -> LasPoints:  # noqa: ANN001
+    return read_las(tile_path)
+
+
+def brute(pts: LasPoints, cx: float, cy: float) -> dict[str, float]:
+    """Ground, RH98, RH50, cover of one footprint, plainly (22 m, points within 16.5 m)."""
+    R = 11.0
+    r2 = (pts.x - cx) ** 2 + (pts.y - cy) ** 2
+    sel = r2 <= (1.5 * R) ** 2
+    w = np.exp(-2 * r2[sel] / R**2)
+    dx, dy, z = pts.x[sel] - cx, pts.y[sel] - cy, pts.z[sel]
+    g = pts.classification[sel] == 2
+    sw = np.sqrt(w[g])
+    A = np.column_stack([np.ones(g.sum()), dx[g], dy[g]]) * sw[:, None]
+    (a, b, c), *_ = np.linalg.lstsq(A, z[g] * sw, rcond=None)
+    h = z - (a + b * dx + c * dy)
+    o = np.argsort(h)
+    cum = np.cumsum(w[o]) / w.sum()
+    return {"ground": float(np.sum(w[g] * z[g]) / w[g].sum()),
+            "rh98": float(h[o][np.argmax(cum >= 0.98 - 1e-12)]),
+            "rh50": float(h[o][np.argmax(cum >= 0.50 - 1e-12)]),
+            "cover": float(w[h > 2.0].sum() / w.sum())}
+
+
+@pytest.fixture(scope="module")
+def footprints(tile: LasPoints) -> pd.DataFrame:
+    """12 footprints along a diagonal of the tile (values = brute force + offsets), plus 2
+    beyond the tile's edge; lon/lat in WGS84, elevations ellipsoidal (+ N)."""
+    x0, y0, x1, y1 = tile.bounds
+    t = np.linspace(0.0, 1.0, 12)
+    cx = np.concatenate([x0 + 25 + t * (x1 - x0 - 50), [x1 + 40.0, x1 + 80.0]])
+    cy = np.concatenate([y0 + 25 + t * (y1 - y0 - 50), [y1 + 40.0, y1 + 80.0]])
+    rows = []
+    for i, (x, y) in enumerate(zip(cx, cy)):
+        v = brute(tile, x, y) if i < 12 else {k: 10.0 for k in OFFSETS}
+        rows.append({k: v[k] + OFFSETS[k] for k in OFFSETS})
+    df = pd.DataFrame(rows)
+    df["ground"] += N_GEOID
+    tr = pyproj.Transformer.from_crs(tile.crs, "EPSG:4326", always_xy=True)
+    lon, lat = tr.transform(cx, cy)
+    df.insert(0, "beam", np.where(np.arange(cx.size) % 2 == 0, "BEAM0101", "BEAM1000"))
+    df.insert(1, "shot_number", np.int64(196400200300400000) + np.arange(cx.size))
+    df["lon"], df["lat"] = lon, lat
+    df["top"] = df["ground"] + df["rh98"]
+    df["flag"] = "ok"
+    df.loc[3, "flag"] = "degraded"
+    return df
+
+
+def test_residuals_equal_the_known_offsets(tile: LasPoints, footprints: pd.DataFrame) -> None:
+    with pytest.warns(FootprintOutsideWarning, match="2 of 14 footprints"):
+        res = validate_footprints(footprints, tile, params=PARAMS, offset=N_GEOID)
+    r = res.residuals
+    assert r.crs.equals(tile.crs)
+    assert r["shot_number"].tolist() == footprints["shot_number"].tolist()
+    assert r["flag"].tolist()[-2:] == ["outside", "outside"]
+    assert r["flag"].iloc[3] == "degraded"
+    use = r["use"].to_numpy(bool)
+    assert use.sum() == 11
+    for m, off in OFFSETS.items():
+        np.testing.assert_allclose(r.loc[use, f"res_{m}"], off, atol=1e-6)
+    # circles of radius R = 11 m around the centres
+    np.testing.assert_allclose(r.geometry.area.iloc[:3], math.pi * 121, rtol=0.02)
+    st = res.stats
+    allg = st[st["group"] == "all"].set_index("metric")
+    for m, off in OFFSETS.items():
+        assert allg.loc[m, "n"] == 11
+        assert allg.loc[m, "bias"] == pytest.approx(off, abs=1e-6)
+        assert allg.loc[m, "rmse"] == pytest.approx(abs(off), abs=1e-6)
+    assert {"beam:BEAM0101", "beam:BEAM1000"} <= set(st["group"])
+    assert any(g.startswith("cover:") for g in st["group"])
+    assert any(g.startswith("slope:") for g in st["group"])
+    assert (st["length"] == 22.0).all()
+    n_beam = st[(st["metric"] == "ground") & st["group"].str.startswith("beam:")]["n"].sum()
+    assert n_beam == 11
+
+
+def test_datum_rule_and_no_usable(tile: LasPoints, tile_path, footprints) -> None:  # noqa: ANN001
+    # the tile states CGVD28 heights (EPSG:5713); GEDI elevations are ellipsoidal
+    with pytest.raises(DatumError, match="geoid"):
+        validate_footprints(footprints, [tile_path], params=PARAMS)
+    far = footprints.iloc[-2:]
+    with pytest.raises(NoUsableDataError, match="footprints"):
+        validate_footprints(far, [tile_path], params=PARAMS, offset=N_GEOID)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FootprintOutsideWarning)
+        with pytest.raises(NoUsableDataError, match="none of the 2 footprints is usable"):
+            validate_footprints(far, tile, params=PARAMS, offset=N_GEOID)
+    with pytest.raises(InputError, match="rh98"):
+        validate_footprints(footprints.drop(columns="rh98"), tile, offset=N_GEOID)
+
+
+def test_file_round_trip_and_cli(tile: LasPoints, tile_path, footprints, tmp_path) -> None:  # noqa: ANN001
+    from canopyblocks.cli.common import run_main
+    from canopyblocks.cli.footprint_validation import register
+    from canopyblocks.outputs.tables import read_layer, write_table
+
+    gdf = gpd.GeoDataFrame(footprints, geometry=gpd.points_from_xy(
+        footprints["lon"], footprints["lat"]), crs="EPSG:4326").to_crs(tile.crs)
+    src = tmp_path / "fp.gpkg"
+    write_table(gdf, src, layer="footprints")
+    out = tmp_path / "val.gpkg"
+    with pytest.raises(InputError, match="new file"):
+        validate_footprints_file(src, [tile_path], src, params=PARAMS, offset=N_GEOID)
+    with pytest.warns(FootprintOutsideWarning):
+        validate_footprints_file(src, [tile_path], out, params=PARAMS, offset=N_GEOID,
+                                 plots=tmp_path / "plots")
+    back = read_layer(out, "residuals_footprints")
+    assert int(back["use"].sum()) == 11
+    np.testing.assert_allclose(back.loc[back["use"], "res_rh98"], 1.0, atol=1e-6)
+    assert len(read_layer(out, "stats_footprints")) > 0
+    pngs = sorted(p.name for p in (tmp_path / "plots").glob("*.png"))
+    assert pngs == ["footprints_res_ground.png", "footprints_res_rh98.png",
+                    "footprints_rh98.png", "footprints_scatter.png"]
+
+    @click.group()
+    def cli() -> None:
+        pass
+
+    register(cli)
+    out2 = tmp_path / "val2.gpkg"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FootprintOutsideWarning)
+        code = run_main(cli, ["validate-footprints", str(src), "--points", str(tile_path),
+                              "--weighting", "gaussian", "--offset", str(N_GEOID),
+                              "-o", str(out2)])
+    assert code == 0 and out2.exists()
+    code = run_main(cli, ["validate-footprints", str(src), "--points", str(tile_path),
+                          "-o", str(tmp_path / "val3.gpkg")])
+    assert code == 2 and not (tmp_path / "val3.gpkg").exists()
+
+
+def test_blocks_against_footprint_reference(tile: LasPoints) -> None:
+    from canopyblocks.reference.footprint import block_footprint_reference
+
+    x0, y0, x1, y1 = tile.bounds
+    ang = math.atan2(y1 - y0, x1 - x0)
+    n = 6
+    s0 = np.arange(n) * 25.0
+    mid = s0 + 12.5
+    blocks = gpd.GeoDataFrame(
+        {"track": "gt2l", "length": 25.0, "block": np.arange(n), "s_start": s0,
+         "s_end": s0 + 25.0, "x": x0 + 20 + mid * math.cos(ang),
+         "y": y0 + 20 + mid * math.sin(ang), "flag": "ok"},
+        geometry=gpd.points_from_xy(x0 + 20 + mid * math.cos(ang),
+                                    y0 + 20 + mid * math.sin(ang)), crs=tile.crs)
+    ref = block_footprint_reference(blocks, tile)
+    blocks["ground"] = ref["ref_ground"].to_numpy() + 1.5 + N_GEOID
+    blocks["top"] = ref["ref_top"].to_numpy() - 2.0 + N_GEOID
+    blocks["z90"] = ref["ref_top90"].to_numpy() + N_GEOID
+    blocks["hmax"] = blocks["top"] - blocks["ground"]
+    blocks["h90"] = blocks["z90"] - blocks["ground"]
+    res = validate_blocks_footprint(blocks, tile, offset=N_GEOID)
+    r = res.residuals
+    assert r["use"].all()
+    np.testing.assert_allclose(r["res_ground"], 1.5, atol=1e-9)
+    np.testing.assert_allclose(r["res_top"], -2.0, atol=1e-9)
+    np.testing.assert_allclose(r["res_hmax"], -3.5, atol=1e-9)
+    np.testing.assert_allclose(r.geometry.area, 25.0 * 13.0, rtol=1e-6)
+    assert set(res.stats["metric"]) == {"ground", "top", "hmax", "h90"}
