@@ -67,8 +67,9 @@ def brute_force(pts: LasPoints, cx: float, cy: float, diameter: float, cut: floa
     hc, wc = hag[can], w[can]
     oc = np.argsort(hc, kind="stable")
     cumc = np.cumsum(wc[oc]) / wc.sum()
-    for q in LEVELS:
-        out[f"ref_canopy_rh{q}"] = float(hc[oc][int(np.argmax(cumc >= q / 100.0 - 1e-12))])
+    for q in LEVELS:  # 0 without canopy points
+        out[f"ref_canopy_rh{q}"] = (float(hc[oc][int(np.argmax(cumc >= q / 100.0 - 1e-12))])
+                                    if hc.size else 0.0)
     first = pts.return_number[sel] <= 1
     out["ref_cover_first"] = float(np.sum(w[first & (hag > 2.0)]) / np.sum(w[first]))
     return out

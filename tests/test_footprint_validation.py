@@ -125,6 +125,26 @@ def test_datum_rule_and_no_usable(tile: LasPoints, tile_path, footprints) -> Non
         validate_footprints(footprints.drop(columns="rh98"), tile, offset=N_GEOID)
 
 
+def _dtm(tile: LasPoints, path):  # noqa: ANN001, ANN202
+    """A 2 m GeoTIFF of the tile's mean ground per cell (for the maps' hillshade)."""
+    import rasterio
+    from affine import Affine
+
+    x0, y0, x1, y1 = tile.bounds
+    nx, ny = int((x1 - x0) // 2) + 1, int((y1 - y0) // 2) + 1
+    g = tile.classification == 2
+    col = ((tile.x[g] - x0) // 2).astype(int)
+    row = ((y1 - tile.y[g]) // 2).astype(int)
+    s = np.bincount(row * nx + col, tile.z[g], minlength=nx * ny)
+    c = np.bincount(row * nx + col, minlength=nx * ny)
+    z = np.where(c > 0, s / np.maximum(c, 1), -9999.0).reshape(ny, nx)
+    with rasterio.open(path, "w", driver="GTiff", width=nx, height=ny, count=1,
+                       dtype="float64", crs=tile.crs.to_wkt(), nodata=-9999.0,
+                       transform=Affine(2.0, 0.0, x0, 0.0, -2.0, y1)) as dst:
+        dst.write(z, 1)
+    return path
+
+
 def test_file_round_trip_and_cli(tile: LasPoints, tile_path, footprints, tmp_path) -> None:  # noqa: ANN001
     from canopyblocks.cli.common import run_main
     from canopyblocks.cli.footprint_validation import register
@@ -137,9 +157,10 @@ def test_file_round_trip_and_cli(tile: LasPoints, tile_path, footprints, tmp_pat
     out = tmp_path / "val.gpkg"
     with pytest.raises(InputError, match="new file"):
         validate_footprints_file(src, [tile_path], src, params=PARAMS, offset=N_GEOID)
+    dtm = _dtm(tile, tmp_path / "dtm.tif")
     with pytest.warns(FootprintOutsideWarning):
         validate_footprints_file(src, [tile_path], out, params=PARAMS, offset=N_GEOID,
-                                 plots=tmp_path / "plots")
+                                 plots=tmp_path / "plots", dtm=dtm)
     back = read_layer(out, "residuals_footprints")
     assert int(back["use"].sum()) == 11
     np.testing.assert_allclose(back.loc[back["use"], "res_rh98"], 1.0, atol=1e-6)

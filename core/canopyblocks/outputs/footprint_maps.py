@@ -52,7 +52,7 @@ def _dtm_window(dtm: str | os.PathLike[str], bounds: tuple[float, float, float, 
                 ) -> tuple[np.ndarray, tuple[float, float, float, float], float, float] | None:
     try:
         import rasterio
-        from rasterio.windows import from_bounds
+        from rasterio.windows import Window
     except ImportError:
         raise DependencyError("a DTM hillshade needs rasterio: pip install "
                               "'canopyblocks[raster]'") from None
@@ -60,17 +60,21 @@ def _dtm_window(dtm: str | os.PathLike[str], bounds: tuple[float, float, float, 
         raise FileFormatError(f"DTM raster {dtm}: no such file")
     try:
         with rasterio.open(dtm) as src:
-            win = from_bounds(*bounds, transform=src.transform).round_offsets().round_lengths()
-            win = win.intersection(rasterio.windows.Window(0, 0, src.width, src.height))
-            data = src.read(1, window=win, masked=True).astype(float).filled(np.nan)
-            t = src.window_transform(win)
-    except rasterio.errors.WindowError:
-        return None  # the DTM does not reach the footprints
+            t = src.transform
+            if t.b != 0 or t.d != 0 or t.a <= 0 or t.e >= 0:
+                log.warning("the DTM %s is not a north-up grid; map without hillshade", dtm)
+                return None
+            c0 = max(int(np.floor((bounds[0] - t.c) / t.a)), 0)
+            c1 = min(int(np.ceil((bounds[2] - t.c) / t.a)), src.width)
+            r0 = max(int(np.floor((bounds[3] - t.f) / t.e)), 0)
+            r1 = min(int(np.ceil((bounds[1] - t.f) / t.e)), src.height)
+            if c1 <= c0 or r1 <= r0:
+                return None  # the DTM does not reach the footprints
+            data = src.read(1, window=Window(c0, r0, c1 - c0, r1 - r0),
+                            masked=True).astype(float).filled(np.nan)
     except rasterio.errors.RasterioIOError as exc:
         raise FileFormatError(f"DTM raster {dtm}: cannot read ({exc})") from None
-    if data.size == 0:
-        return None
-    extent = (t.c, t.c + t.a * data.shape[1], t.f + t.e * data.shape[0], t.f)
+    extent = (t.c + c0 * t.a, t.c + c1 * t.a, t.f + r1 * t.e, t.f + r0 * t.e)
     return data, extent, abs(t.a), abs(t.e)
 
 
