@@ -244,3 +244,25 @@ def test_block_reference_synthetic_and_outside() -> None:
     assert set(got.loc[inside, "aspect_class"]) == {"SW"}
     with pytest.raises(InputError, match="statistic"):
         block_footprint_reference(blocks, pts, statistic="median")  # type: ignore[arg-type]
+
+
+def test_density_weights_remove_survey_density() -> None:
+    """Ground-only west half, canopy-only east half sampled 4x as densely: the Gaussian
+    cover counts the extra points (~0.8), the density-weighted cover does not (0.5)."""
+    gw = np.arange(-30.0, 0.0, 0.2)
+    ge = np.arange(0.05, 30.0, 0.1)
+    yy = np.arange(-30.0, 30.0, 0.2)
+    xw, yw = np.meshgrid(gw, yy)
+    xe, ye = np.meshgrid(ge, np.arange(-30.0, 30.0, 0.1))
+    x = np.concatenate([xw.ravel(), xe.ravel()]) + 600_000.0
+    y = np.concatenate([yw.ravel(), ye.ravel()]) + 5_000_000.0
+    z = np.concatenate([np.full(xw.size, 50.0), np.full(xe.size, 65.0)])
+    cls = np.concatenate([np.full(xw.size, 2), np.full(xe.size, 5)])
+    pts = LasPoints.from_arrays(x, y, z, crs="EPSG:32610", classification=cls)
+    cx, cy = np.array([600_000.0]), np.array([5_000_000.0])
+    plain = footprint_reference(pts, cx, cy, FootprintReferenceParams(diameter=13.0))
+    dens = footprint_reference(pts, cx, cy, FootprintReferenceParams(
+        diameter=13.0, weighting="gaussian_density"))
+    assert plain["ref_cover"].iloc[0] == pytest.approx(0.8, abs=0.01)
+    assert dens["ref_cover"].iloc[0] == pytest.approx(0.5, abs=0.01)
+    assert dens["ref_ground"].iloc[0] == pytest.approx(50.0, abs=1e-9)

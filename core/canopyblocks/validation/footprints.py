@@ -18,6 +18,12 @@ Heights: GEDI elevations are WGS84 ellipsoidal (EPSG:4979); airborne lidar is of
 orthometric.  The rule of :mod:`canopyblocks.reference.datum` applies: a known
 difference without ``geoid``/``offset`` is refused; the footprint ``ground`` (and
 ``top``) are converted, ``H = h - N``.
+
+:func:`validate_blocks_footprint` is the photon-block counterpart (``validate
+--reference footprint``): the block table against
+:func:`~canopyblocks.reference.footprint.block_footprint_reference` instead of the
+raster corridor values, with the same residual and statistics layers as
+:func:`~.block_validation.validate_blocks`.
 """
 
 from __future__ import annotations
