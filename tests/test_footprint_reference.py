@@ -266,3 +266,20 @@ def test_density_weights_remove_survey_density() -> None:
     assert plain["ref_cover"].iloc[0] == pytest.approx(0.8, abs=0.01)
     assert dens["ref_cover"].iloc[0] == pytest.approx(0.5, abs=0.01)
     assert dens["ref_ground"].iloc[0] == pytest.approx(50.0, abs=1e-9)
+
+
+def test_same_points_as_the_photon_simulator(tile: LasPoints) -> None:
+    """ICESat-2 defaults weigh exactly the simulator's point set (DESIGN 3.1): per shot
+    the same number of points and the same highest point as its truth."""
+    from canopyblocks.simulate.engine import simulate_photons
+    from canopyblocks.simulate.params import SimParams
+    from canopyblocks.simulate.tracks import SimTrack
+
+    x0, y0, x1, y1 = tile.bounds
+    sp = SimParams()
+    sim = simulate_photons(tile, SimTrack(vertices=((x0 + 20, y0 + 20), (x1 - 20, y0 + 90))),
+                           sp)
+    ref = footprint_reference(tile, sim.shot_x, sim.shot_y,
+                              FootprintReferenceParams(diameter=2 * sp.radius))
+    np.testing.assert_array_equal(ref["ref_n_points"].to_numpy(), sim.truth["n_points"])
+    np.testing.assert_array_equal(ref["ref_top"].to_numpy(), sim.truth["top"])
