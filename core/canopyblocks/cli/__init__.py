@@ -8,7 +8,17 @@ from __future__ import annotations
 import click
 
 from .. import __version__
-from . import blocks, calibrate, chain, reference, simulate, validate
+from . import (
+    batch,
+    blocks,
+    calibrate,
+    chain,
+    coregister,
+    footprint_validation,
+    reference,
+    simulate,
+    validate,
+)
 from .common import run_main
 
 
@@ -27,7 +37,8 @@ def cli(ctx: click.Context, verbose: int, quiet: bool) -> None:
     setup_logging(verbose, quiet)
 
 
-for _module in (blocks, reference, validate, calibrate, simulate, chain):
+for _module in (blocks, reference, validate, footprint_validation, coregister, calibrate,
+                simulate, chain, batch):
     _module.register(cli)
 
 
