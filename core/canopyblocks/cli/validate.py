@@ -1,15 +1,16 @@
-"""CLI command ``validate``: block table vs reference rasters (or ATL08) -> residuals, stats."""
+"""CLI command ``validate``: blocks or footprints vs reference lidar -> residuals, stats."""
 
 from __future__ import annotations
 
-import contextlib
 import logging
-from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
-from ..errors import CRSError, InputError, NoUsableDataError
 from .common import vertical_options
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 log = logging.getLogger(__name__)
 
@@ -20,13 +21,22 @@ def register(group: click.Group) -> None:
 
 
 @click.command("validate")
-@click.argument("blocks_path", metavar="BLOCKS", type=click.Path(dir_okay=False))
+@click.argument("blocks_path", metavar="BLOCKS_OR_FOOTPRINTS", type=click.Path(dir_okay=False))
 @click.option("--dtm", type=click.Path(dir_okay=False), help="Terrain GeoTIFF (reference).")
 @click.option("--dsm-max", type=click.Path(dir_okay=False), help="Maximum-surface GeoTIFF.")
 @click.option("--dsm-p90", type=click.Path(dir_okay=False),
               help="90th-percentile surface GeoTIFF.")
 @click.option("--atl08", type=click.Path(dir_okay=False),
               help="Validate against ATL08 land segments instead of rasters.")
+@click.option("--reference", "reference", type=click.Choice(["rasters", "atl08", "footprint"]),
+              default=None, help="Reference for blocks: corridor rasters (default), ATL08, "
+              "or the footprint-matched airborne points (--points). Footprint tables (GEDI) "
+              "always use the footprint reference.")
+@click.option("--points", "points", multiple=True, type=click.Path(dir_okay=False),
+              help="Airborne LAS/LAZ tile for the footprint reference (repeatable).")
+@click.option("--diameter", type=float, default=None,
+              help="Footprint diameter, m (default 13 for blocks, 22 for GEDI footprints).")
+@click.option("--points-crs", help="CRS of tiles that state none.")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Output .gpkg (layers residuals, stats), or .csv/.parquet.")
 @click.option("--width", type=float, default=2.0, show_default=True,
@@ -35,65 +45,81 @@ def register(group: click.Group) -> None:
 @click.option("--reference-vcrs", help="Vertical/compound CRS of the rasters, e.g. "
               "EPSG:32612+5703 (default: the DTM's CRS).")
 @click.option("--photon-vcrs", default="EPSG:4979", show_default=True,
-              help="Vertical datum of the block heights (ATL03/MABEL: WGS84 ellipsoid).")
+              help="Vertical datum of the block heights (ATL03/MABEL/GEDI: WGS84 ellipsoid).")
 @click.option("--slope-threshold", type=float, default=2.0, show_default=True,
               help="Degrees below which a block's aspect class is 'flat'.")
 @click.option("--crs", "blocks_crs", help="CRS of a CSV block table (CSV carries none).")
+@click.option("--coregister", is_flag=True,
+              help="First find the track's geolocation offset against --dtm (and --dsm-max) "
+                   "and validate the shifted table; offsets -> <output>_offsets.json, "
+                   "uncorrected statistics kept beside the corrected ones.")
+@click.option("--coregister-vertical", is_flag=True,
+              help="With --coregister: also apply the vertical offset (it then absorbs the "
+                   "ground bias, which is reported as zero).")
+@click.option("--coregister-range", type=float, default=15.0, show_default=True,
+              help="With --coregister: search +- this many metres.")
 @click.option("--plots", type=click.Path(file_okay=False),
               help="Folder for scatter and aspect PNGs.")
 @click.pass_context
 def validate(ctx: click.Context, blocks_path: str, dtm: str | None, dsm_max: str | None,
-             dsm_p90: str | None, atl08: str | None, output: str, width: float,
-             geoid: str | None, offset: float | None, reference_vcrs: str | None,
-             photon_vcrs: str,
-             slope_threshold: float, blocks_crs: str | None, plots: str | None) -> None:
-    """Validate a block table against reference lidar rasters (or ATL08).
+             dsm_p90: str | None, atl08: str | None, reference: str | None,
+             points: tuple[str, ...], diameter: float | None, points_crs: str | None,
+             output: str, width: float, geoid: str | None, offset: float | None,
+             reference_vcrs: str | None, photon_vcrs: str, slope_threshold: float,
+             blocks_crs: str | None, coregister: bool, coregister_vertical: bool,
+             coregister_range: float,
+             plots: str | None) -> None:
+    """Validate a block table (or GEDI footprints) against reference lidar.
 
-    Writes per-block residuals (corridor polygons) and statistics per block length,
-    metric, aspect and slope class.
+    Blocks: corridor rasters (DTM, DSM max, DSM p90), ATL08 land segments, or the
+    footprint-matched airborne points. Footprints: the footprint-matched airborne points.
+    Writes per-block residuals and statistics per block length, metric, aspect and slope
+    class (footprints: per beam, aspect, slope and cover class).
     """
-    from ..geo import as_crs
-    from ..outputs.atomic import check_writable, new_files_removed_on_failure
-    from ..outputs.tables import check_output_path, read_blocks, write_layers
-    from ..schema import LAYER_RESIDUALS, LAYER_STATS
-    from ..validation.block_validation import validate_atl08, validate_blocks
+    from ..reference.footprint import FootprintReferenceParams
+    from ..validation.coregistration import CoregParams
+    from ..validation.validation_files import is_footprint_table, validate_file
     from .common import progress_bar
 
-    if geoid is not None and offset is not None:
-        raise InputError("give either --geoid or --offset, not both")
-    rasters = (dtm, dsm_max, dsm_p90)
-    if atl08 is None and any(r is None for r in rasters):
-        raise InputError("give --dtm, --dsm-max and --dsm-p90 (or --atl08 FILE)")
-    if atl08 is not None and any(r is not None for r in rasters):
-        raise InputError("give either the rasters (--dtm ...) or --atl08, not both")
-    check_output_path(output)  # fail before the work, not after it
-    if plots is not None:
-        check_writable(plots, folder=True)
-    blocks = read_blocks(blocks_path)
-    if len(blocks) == 0:
-        raise NoUsableDataError(f"{blocks_path} holds no blocks; nothing to validate "
-                                "(check the photons and block lengths that made it)")
-    if blocks.crs is None:
-        if blocks_crs is None:
-            raise CRSError(f"{blocks_path} carries no CRS (CSV); give --crs EPSG:...")
-        blocks = blocks.set_crs(as_crs(blocks_crs, "--crs"))
+    if reference is None:
+        reference = "atl08" if atl08 is not None else ("footprint" if points and dtm is None
+                                                      else "rasters")
+    footprints = is_footprint_table(blocks_path)
+    fparams = None
+    if diameter is not None:
+        fparams = (FootprintReferenceParams(diameter=diameter) if footprints
+                   else FootprintReferenceParams.icesat2(diameter=diameter))
     quiet = bool(ctx.obj.get("quiet")) if ctx.obj else False
     with progress_bar("validate", quiet=quiet) as prog:
-        if atl08 is not None:
-            result = validate_atl08(blocks, atl08, width=width, progress=prog)
-        else:
-            result = validate_blocks(blocks, dtm=str(dtm), dsm_max=str(dsm_max),
-                                     dsm_p90=str(dsm_p90),
-                                     width=width, geoid=geoid, offset=offset,
-                                     reference_vertical_crs=reference_vcrs,
-                                     photon_vertical_crs=photon_vcrs,
-                                     slope_threshold=slope_threshold, progress=prog)
-    with (new_files_removed_on_failure(plots) if plots is not None
-          else contextlib.nullcontext()):
-        if plots is not None:
-            from ..outputs.validation_plots import write_validation_plots
+        result = validate_file(
+            blocks_path, output, reference=reference,  # type: ignore[arg-type]
+            dtm=dtm, dsm_max=dsm_max, dsm_p90=dsm_p90, atl08=atl08, points=points,
+            footprint_params=fparams, width=width, geoid=geoid, offset=offset,
+            reference_vertical_crs=reference_vcrs, photon_vertical_crs=photon_vcrs,
+            slope_threshold=slope_threshold, table_crs=blocks_crs, points_crs=points_crs,
+            plots=plots, coregister=coregister, coregister_vertical=coregister_vertical,
+            coreg_params=CoregParams(search_range=coregister_range) if coregister else None,
+            progress=prog)
+    if result.coregistration is not None and not quiet:
+        for name, o in result.coregistration.offsets.items():
+            status = "applied" if name == result.applied else (
+                "" if o.determined else f"undetermined: {o.reason}")
+            click.echo(f"offset {name}: along {o.along_track:+.2f} cross {o.cross_track:+.2f} "
+                       f"vertical {o.vertical:+.2f} m; ground RMSE {o.rmse_before:.2f} -> "
+                       f"{o.rmse_after:.2f} m {status}".rstrip(), err=True)
+        if result.stats_before is not None:
+            _print_before_after(result.stats_before, result.stats)
+    if not quiet:
+        click.echo(f"validated {result.n_used} of {len(result.residuals)} {result.kind} -> "
+                   f"{result.output}", err=True)
 
-            write_validation_plots(result.residuals, result.stats, Path(plots))
-        write_layers({LAYER_RESIDUALS: result.residuals, LAYER_STATS: result.stats}, output)
-    used = int(result.residuals["use"].sum())
-    click.echo(f"validated {used} of {len(result.residuals)} blocks -> {output}", err=True)
+
+def _print_before_after(before: pd.DataFrame, after: pd.DataFrame) -> None:
+    keys = [k for k in ("length", "metric") if k in after.columns]
+    b = before[before["group"] == "all"] if "group" in before.columns else before
+    a = after[after["group"] == "all"] if "group" in after.columns else after
+    m = b.merge(a, on=keys, suffixes=("_before", "_after"))
+    for row in m.itertuples():
+        label = " ".join(f"{getattr(row, k)}" for k in keys)
+        click.echo(f"  {label:<14} rmse {row.rmse_before:.2f} -> {row.rmse_after:.2f}  "
+                   f"bias {row.bias_before:+.2f} -> {row.bias_after:+.2f}", err=True)

@@ -25,7 +25,8 @@ from ..schema import LAYER_BLOCKS, LAYER_FOOTPRINTS
 from .coregistration import CoregParams, CoregResult, coregister
 from .coregistration_targets import CoregTargets, targets_from_photons, targets_from_table
 
-__all__ = ["coregister_file", "write_offsets", "read_table_for_coregistration"]
+__all__ = ["coregister_file", "coregister_table", "table_targets", "write_offsets",
+           "read_table_for_coregistration"]
 
 log = logging.getLogger(__name__)
 
@@ -117,29 +118,8 @@ def coregister_file(
     prog.update(0.02, "reading")
     table = read_table_for_coregistration(path)
     if table is not None:
-        tcrs = getattr(table, "crs", None)
-        if tcrs is None:
-            if crs is None:
-                raise CRSError(f"{path} carries no CRS (CSV); give its CRS (e.g. EPSG:32612)")
-            tcrs = as_crs(crs, "crs")
-        tcol = "track" if "track" in table.columns else "beam"
-        if beams:
-            table = table[table[tcol].astype(str).isin(beams)]
-            if table.empty:
-                raise InputError(f"{path}: none of the tracks {', '.join(beams)} is in the "
-                                 "table")
-        heights = table[["ground", "top"]].copy()
-        if geoid is not None or offset is not None:
-            if {"lon", "lat"} <= set(table.columns):
-                lon, lat = table["lon"].to_numpy(float), table["lat"].to_numpy(float)
-            else:
-                from ..geo import from_metric
-
-                lon, lat = from_metric(table.geometry.x.to_numpy(float),
-                                       table.geometry.y.to_numpy(float), as_crs(tcrs))
-            n = _vertical_shift(np.asarray(lon), np.asarray(lat), geoid, offset)
-            heights = heights.sub(n, axis=0) if isinstance(n, np.ndarray) else heights - n
-        targets = targets_from_table(table, tcrs, surface.crs, heights=heights)
+        targets = table_targets(table, surface.crs, beams=beams, crs=crs, geoid=geoid,
+                                offset=offset, source=path)
     else:
         from ..track_blocks import read_tracks
 
@@ -152,6 +132,61 @@ def coregister_file(
                                               min_signal_conf=min_signal_conf, track_index=i))
         targets = CoregTargets.concat(parts)
     return coregister(targets, surface, dsm, params, progress=prog.sub(0.2, 1.0))
+
+
+def table_targets(table: pd.DataFrame, raster_crs: Any, *, beams: tuple[str, ...] = (),
+                  crs: Any = None, geoid: str | os.PathLike[str] | None = None,
+                  offset: float | None = None, source: object = "table") -> CoregTargets:
+    """Co-registration targets from a block or footprint table (heights converted to the
+    rasters' datum with ``geoid``/``offset``; ``crs`` for a table that carries none)."""
+    tcrs = getattr(table, "crs", None)
+    if tcrs is None:
+        if crs is None:
+            raise CRSError(f"{source} carries no CRS (CSV); give its CRS (e.g. EPSG:32612)")
+        tcrs = as_crs(crs, "crs")
+    tcol = "track" if "track" in table.columns else "beam"
+    if beams:
+        table = table[table[tcol].astype(str).isin(beams)]
+        if table.empty:
+            raise InputError(f"{source}: none of the tracks {', '.join(beams)} is in the "
+                             "table")
+    heights = table[["ground", "top"]].copy()
+    if geoid is not None or offset is not None:
+        if {"lon", "lat"} <= set(table.columns):
+            lon, lat = table["lon"].to_numpy(float), table["lat"].to_numpy(float)
+        else:
+            from ..geo import from_metric
+
+            lon, lat = from_metric(table.geometry.x.to_numpy(float),
+                                   table.geometry.y.to_numpy(float), as_crs(tcrs))
+        n = _vertical_shift(np.asarray(lon), np.asarray(lat), geoid, offset)
+        heights = heights.sub(n, axis=0) if isinstance(n, np.ndarray) else heights - n
+    return targets_from_table(table, tcrs, raster_crs, heights=heights)
+
+
+def coregister_table(
+    table: pd.DataFrame,
+    dtm: str | os.PathLike[str],
+    dsm_max: str | os.PathLike[str] | None = None,
+    *,
+    beams: tuple[str, ...] = (),
+    crs: Any = None,
+    geoid: str | os.PathLike[str] | None = None,
+    offset: float | None = None,
+    photon_vertical_crs: Any = "EPSG:4979",
+    reference_vertical_crs: Any = None,
+    params: CoregParams | None = None,
+    progress: Progress | None = None,
+) -> CoregResult:
+    """Like :func:`coregister_file` for a block or footprint table already in memory."""
+    surface = read_surface(dtm, what="DTM")
+    dsm = read_surface(dsm_max, what="DSM") if dsm_max is not None else None
+    check_vertical_datums(photon_vertical_crs,
+                          reference_vertical_crs if reference_vertical_crs is not None
+                          else surface.crs, geoid=geoid, offset=offset)
+    targets = table_targets(table, surface.crs, beams=beams, crs=crs, geoid=geoid,
+                            offset=offset)
+    return coregister(targets, surface, dsm, params, progress=progress)
 
 
 def write_offsets(result: CoregResult, path: str | os.PathLike[str]) -> Path:

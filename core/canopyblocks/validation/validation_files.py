@@ -1,0 +1,362 @@
+"""Validation from files: the one core call behind ``canopyblocks validate``.
+
+A block table (photon blocks) or a footprint table (GEDI) is read, optionally
+co-registered against the DTM (DESIGN 2.8: the joint ``all`` offset is searched and applied
+before validating, the uncorrected statistics kept beside the corrected ones), validated
+against the chosen reference (corridor rasters, ATL08 land segments, or the
+footprint-matched ALS reference of DESIGN 2.7) and written atomically with its plots.
+
+Zero usable results is an error, never an empty table with exit 0.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any, Literal
+
+import pandas as pd
+
+from ..errors import CRSError, InputError, NoUsableDataError
+from ..progress import Progress, as_progress
+from ..schema import LAYER_FOOTPRINTS, LAYER_RESIDUALS, LAYER_STATS
+
+__all__ = ["FileValidation", "validate_file", "is_footprint_table", "REFERENCE_KINDS"]
+
+log = logging.getLogger(__name__)
+
+ReferenceKind = Literal["rasters", "atl08", "footprint"]
+#: The references a block table can be validated against.
+REFERENCE_KINDS: tuple[str, ...] = ("rasters", "atl08", "footprint")
+
+
+@dataclass(frozen=True, eq=False)
+class FileValidation:
+    """What :func:`validate_file` did.
+
+    Attributes
+    ----------
+    kind : str
+        ``"blocks"`` or ``"footprints"``.
+    residuals, stats : DataFrame
+        The (co-registered, when asked) validation.
+    stats_before : DataFrame or None
+        Statistics without the co-registration offset (with ``coregister``).
+    coregistration : CoregResult or None
+        Offsets found (with ``coregister``).
+    applied : str
+        Name of the offset applied (``"all"``), or ``""`` when none was (undetermined).
+    output : Path
+    offsets : Path or None
+        ``offsets.json`` written beside the output (with ``coregister``).
+    datum : str
+        How the vertical datums were reconciled.
+    """
+
+    kind: str
+    residuals: pd.DataFrame
+    stats: pd.DataFrame
+    stats_before: pd.DataFrame | None
+    coregistration: Any
+    applied: str
+    output: Path
+    offsets: Path | None
+    datum: str
+
+    @property
+    def n_used(self) -> int:
+        """Blocks or footprints that entered the statistics."""
+        return int(self.residuals["use"].sum()) if "use" in self.residuals else 0
+
+
+def is_footprint_table(path: str | os.PathLike[str]) -> bool:
+    """True when ``path`` holds a waveform footprint table (layer ``footprints`` or a
+    table with ``shot_number`` and ``rh98`` columns)."""
+    p = Path(path)
+    suffix = p.suffix.lower()
+    if suffix == ".gpkg":
+        import pyogrio
+
+        try:
+            layers = [str(row[0]) for row in pyogrio.list_layers(p)]
+        except Exception:  # noqa: BLE001 - unreadable: let the block reader say why
+            return False
+        return LAYER_FOOTPRINTS in layers and "blocks" not in layers
+    if suffix in (".parquet", ".csv"):
+        try:
+            if suffix == ".csv":
+                cols = pd.read_csv(p, nrows=0).columns
+            else:
+                import pyarrow.parquet as pq
+
+                cols = pq.read_schema(p).names
+        except Exception:  # noqa: BLE001
+            return False
+        return "shot_number" in cols and "rh98" in cols
+    return False
+
+
+def _no_results(what: str, path: object, residuals: pd.DataFrame) -> NoUsableDataError:
+    reasons = ""
+    for col in ("reason", "flag"):
+        if col in residuals.columns and len(residuals):
+            counts = residuals[col].astype(str).value_counts()
+            reasons = "; " + ", ".join(f"{k}: {v}" for k, v in counts.items())
+            break
+    return NoUsableDataError(
+        f"{path}: validated 0 of {len(residuals)} {what}{reasons}; check that the reference "
+        "covers the track (same place, CRS and datum) and that the inputs hold usable "
+        "results")
+
+
+def validate_file(
+    path: str | os.PathLike[str],
+    output: str | os.PathLike[str],
+    *,
+    reference: ReferenceKind = "rasters",
+    dtm: str | os.PathLike[str] | None = None,
+    dsm_max: str | os.PathLike[str] | None = None,
+    dsm_p90: str | os.PathLike[str] | None = None,
+    atl08: str | os.PathLike[str] | None = None,
+    points: Sequence[str | os.PathLike[str]] = (),
+    footprint_params: Any = None,
+    width: float = 2.0,
+    geoid: str | os.PathLike[str] | None = None,
+    offset: float | None = None,
+    reference_vertical_crs: Any = None,
+    photon_vertical_crs: Any = "EPSG:4979",
+    slope_threshold: float = 2.0,
+    table_crs: Any = None,
+    points_crs: Any = None,
+    plots: str | os.PathLike[str] | None = None,
+    coregister: bool = False,
+    coregister_vertical: bool = False,
+    coreg_params: Any = None,
+    progress: Progress | None = None,
+) -> FileValidation:
+    """Validate the block or footprint table in ``path`` and write ``output``.
+
+    Parameters
+    ----------
+    path : path
+        Block table (``canopyblocks blocks`` output: GeoPackage layer ``blocks``,
+        GeoParquet, CSV) or footprint table (``canopyblocks waveforms`` output).
+    output : path
+        ``.gpkg`` (layers ``residuals``/``stats``, plus ``stats_uncorrected`` with
+        ``coregister``; footprints: ``residuals_footprints``/``stats_footprints``) or
+        ``.csv``/``.parquet``.  Must differ from ``path``.
+    reference : {"rasters", "atl08", "footprint"}
+        Blocks only: the corridor rasters (``dtm``, ``dsm_max``, ``dsm_p90``), ATL08
+        land segments (``atl08``), or the footprint-matched ALS reference (``points``).
+        Footprint tables are always validated against the footprint reference.
+    points : sequence of path
+        Airborne LAS/LAZ tiles (``reference="footprint"`` and footprint tables).
+    footprint_params : FootprintReferenceParams, optional
+        Default: ICESat-2 (13 m) for blocks, GEDI (22 m) for footprints.
+    width : float
+        Corridor width (m) for the raster reference.
+    geoid, offset, reference_vertical_crs, photon_vertical_crs
+        The datum rule (DESIGN 2.6): known-different datums without a conversion are
+        refused.
+    table_crs : CRS-like
+        CRS of a CSV table (CSV carries none).
+    plots : folder, optional
+        Scatter, aspect and map PNGs.
+    coregister : bool
+        Search the joint geolocation offset against ``dtm`` (and ``dsm_max``) first and
+        validate the shifted table (DESIGN 2.8); ``offsets.json`` is written beside
+        ``output`` as ``<stem>_offsets.json``.
+    coreg_params : CoregParams, optional
+
+    Raises
+    ------
+    InputError, CRSError, DatumError, NoUsableDataError (nothing validated)
+    """
+    from ..outputs.atomic import check_writable, new_files_removed_on_failure
+    from ..outputs.tables import check_output_path, read_blocks, read_layer
+
+    prog = as_progress(progress)
+    if geoid is not None and offset is not None:
+        raise InputError("give either a geoid or a constant offset, not both")
+    if reference not in REFERENCE_KINDS:
+        raise InputError(f"reference must be one of {', '.join(REFERENCE_KINDS)}; "
+                         f"got {reference!r}")
+    if Path(path).resolve() == Path(output).resolve():
+        raise InputError(f"{output}: the output would overwrite the input {path}; give "
+                         "another output file")
+    check_output_path(output)
+    if plots is not None:
+        check_writable(plots, folder=True)
+    if coregister and dtm is None:
+        raise InputError("co-registration needs the DTM: give --dtm (and --dsm-max to use "
+                         "the canopy surface too)")
+    footprints = is_footprint_table(path)
+    if footprints:
+        table = read_layer(path, LAYER_FOOTPRINTS) if Path(path).suffix.lower() == ".gpkg" \
+            else read_layer(path)
+        kind = "footprints"
+        if not points:
+            raise InputError(f"{path} holds waveform footprints: validate them against the "
+                             "airborne tiles with --points TILE.laz")
+        if len(table) == 0:
+            raise NoUsableDataError(f"{path} holds no footprints; nothing to validate")
+    else:
+        table = read_blocks(path)
+        kind = "blocks"
+        if len(table) == 0:
+            raise NoUsableDataError(f"{path} holds no blocks; nothing to validate (check "
+                                    "the photons and block lengths that made it)")
+        _check_reference_inputs(reference, dtm, dsm_max, dsm_p90, atl08, points)
+    if getattr(table, "crs", None) is None and not (footprints and {"lon", "lat"}
+                                                     <= set(table.columns)):
+        if table_crs is None:
+            raise CRSError(f"{path} carries no CRS (CSV); give its CRS (--crs EPSG:...)")
+        from ..geo import as_crs
+
+        table = table.set_crs(as_crs(table_crs, "--crs"))
+
+    coreg = None
+    applied = ""
+    stats_before = None
+    if coregister:
+        from .coregistration_files import coregister_table
+        from .coregistration_targets import apply_offset
+
+        prog.update(0.0, "co-registration")
+        assert dtm is not None  # checked above
+        coreg = coregister_table(table, dtm, dsm_max,
+                                 crs=table_crs, geoid=geoid, offset=offset,
+                                 photon_vertical_crs=photon_vertical_crs,
+                                 reference_vertical_crs=reference_vertical_crs,
+                                 params=coreg_params, progress=prog.sub(0.0, 0.3))
+        joint = coreg.offsets.get("all") or next(iter(coreg.offsets.values()))
+        if joint.determined:
+            before = _validate(kind, table, reference, dtm, dsm_max, dsm_p90, atl08, points,
+                               footprint_params, width, geoid, offset,
+                               reference_vertical_crs, photon_vertical_crs,
+                               slope_threshold, points_crs, prog.sub(0.3, 0.6))
+            stats_before = before[1]
+            shift = joint if coregister_vertical else replace(joint, vertical=0.0)
+            table = apply_offset(table, shift, crs=table_crs)
+            applied = joint.name
+        else:
+            import warnings
+
+            from ..errors import CanopyBlocksWarning
+
+            warnings.warn(f"{path}: the geolocation offset is undetermined ({joint.reason}); "
+                          "validated without co-registration", CanopyBlocksWarning,
+                          stacklevel=2)
+    residuals, stats, datum = _validate(kind, table, reference, dtm, dsm_max, dsm_p90, atl08,
+                                        points, footprint_params, width, geoid, offset,
+                                        reference_vertical_crs, photon_vertical_crs,
+                                        slope_threshold, points_crs,
+                                        prog.sub(0.6 if coregister else 0.0, 0.9))
+    if "use" in residuals.columns and int(residuals["use"].sum()) == 0:
+        raise _no_results(kind, path, residuals)
+    prog.update(0.9, "writing")
+    offsets_path = None
+    out = Path(output)
+    with (new_files_removed_on_failure(plots) if plots is not None
+          else contextlib.nullcontext()):
+        if plots is not None:
+            _write_plots(kind, residuals, stats, Path(plots), dtm)
+        layers = _layer_names(kind)
+        tables: dict[str, pd.DataFrame] = {layers[0]: residuals, layers[1]: stats}
+        if stats_before is not None:
+            tables[f"{layers[1]}_uncorrected"] = stats_before
+        from ..outputs.tables import write_layers
+
+        if coreg is not None:
+            from .coregistration_files import write_offsets
+
+            offsets_path = write_offsets(coreg, out.with_name(out.stem + "_offsets.json"))
+        try:
+            write_layers(tables, out)
+        except BaseException:
+            if offsets_path is not None:
+                offsets_path.unlink(missing_ok=True)
+            raise
+    prog.update(1.0, "validated")
+    return FileValidation(kind=kind, residuals=residuals, stats=stats,
+                          stats_before=stats_before, coregistration=coreg, applied=applied,
+                          output=out, offsets=offsets_path, datum=datum)
+
+
+def _layer_names(kind: str) -> tuple[str, str]:
+    if kind == "footprints":
+        from .footprints import LAYER_RESIDUALS_FOOTPRINTS, LAYER_STATS_FOOTPRINTS
+
+        return LAYER_RESIDUALS_FOOTPRINTS, LAYER_STATS_FOOTPRINTS
+    return LAYER_RESIDUALS, LAYER_STATS
+
+
+def _check_reference_inputs(reference: str, dtm: object, dsm_max: object, dsm_p90: object,
+                            atl08: object, points: Sequence[object]) -> None:
+    rasters = (dtm, dsm_max, dsm_p90)
+    if reference == "rasters":
+        if atl08 is not None:
+            raise InputError("give either the rasters (--dtm ...) or --atl08, not both")
+        if any(r is None for r in rasters):
+            raise InputError("give --dtm, --dsm-max and --dsm-p90 (or --atl08 FILE, or "
+                             "--reference footprint --points TILE.laz)")
+    elif reference == "atl08" and atl08 is None:
+        raise InputError("--reference atl08 needs --atl08 FILE")
+    elif reference == "footprint" and not points:
+        raise InputError("--reference footprint needs the airborne tiles: --points TILE.laz")
+
+
+def _validate(kind: str, table: pd.DataFrame, reference: str, dtm: Any, dsm_max: Any,
+              dsm_p90: Any, atl08: Any, points: Sequence[Any], footprint_params: Any,
+              width: float, geoid: Any, offset: float | None, reference_vertical_crs: Any,
+              photon_vertical_crs: Any, slope_threshold: float, points_crs: Any,
+              prog: Progress) -> tuple[pd.DataFrame, pd.DataFrame, str]:
+    if kind == "footprints":
+        from .footprints import validate_footprints
+
+        v = validate_footprints(table, list(points), params=footprint_params,
+                                photon_vertical_crs=photon_vertical_crs,
+                                reference_vertical_crs=reference_vertical_crs, geoid=geoid,
+                                offset=offset, points_crs=points_crs,
+                                slope_threshold=slope_threshold, progress=prog)
+        return v.residuals, v.stats, v.datum
+    if reference == "atl08" or (atl08 is not None and reference != "footprint"):
+        from .block_validation import validate_atl08
+
+        r = validate_atl08(table, atl08, width=width, progress=prog)
+    elif reference == "footprint":
+        from ..reference.footprint import FootprintReferenceParams
+        from .footprints import validate_blocks_footprint
+
+        r = validate_blocks_footprint(table, list(points),
+                                      params=footprint_params or
+                                      FootprintReferenceParams.icesat2(),
+                                      geoid=geoid, offset=offset,
+                                      photon_vertical_crs=photon_vertical_crs,
+                                      reference_vertical_crs=reference_vertical_crs,
+                                      slope_threshold=slope_threshold, progress=prog)
+    else:
+        from .block_validation import validate_blocks
+
+        r = validate_blocks(table, dtm=dtm, dsm_max=dsm_max, dsm_p90=dsm_p90,
+                            width=width, geoid=geoid, offset=offset,
+                            reference_vertical_crs=reference_vertical_crs,
+                            photon_vertical_crs=photon_vertical_crs,
+                            slope_threshold=slope_threshold, progress=prog)
+    return r.residuals, r.stats, r.datum
+
+
+def _write_plots(kind: str, residuals: pd.DataFrame, stats: pd.DataFrame, folder: Path,
+                 dtm: Any) -> None:
+    if kind == "footprints":
+        from ..outputs.footprint_maps import write_footprint_plots
+
+        write_footprint_plots(residuals, folder, dtm=dtm)
+        return
+    from ..outputs.validation_plots import write_validation_plots
+
+    write_validation_plots(residuals, stats, folder)
