@@ -19,12 +19,14 @@ import numpy as np
 import pandas as pd
 
 from .blocks import BlockParams, compute_blocks
+from .blocks.estimators import Estimators
 from .errors import CanopyBlocksWarning, NoUsableDataError
 from .photons import PhotonTrack
 from .progress import Progress, as_progress
 from .schema import BLOCK_COLUMNS, LABEL_NAMES, LAYER_BLOCKS, LAYER_PHOTONS
 
-__all__ = ["BlocksResult", "select_tracks", "read_tracks", "run_blocks", "blocks_from_file", "photon_layer"]
+__all__ = ["BlocksResult", "select_tracks", "read_tracks", "run_blocks", "blocks_from_file",
+           "photon_layer", "track_strengths", "calibrate_blocks"]
 
 log = logging.getLogger(__name__)
 
@@ -140,15 +142,29 @@ def run_blocks(
     params: BlockParams,
     *,
     labels: bool = False,
+    estimators: Estimators | None = None,
     progress: Progress | None = None,
 ) -> tuple[gpd.GeoDataFrame, dict[str, dict[float, np.ndarray]]]:
-    """Block table of several tracks (concatenated) and, optionally, their labels."""
+    """Block table of several tracks (concatenated) and, optionally, their labels.
+
+    ``estimators`` (DESIGN 1.10; e.g. ``blocks.estimators.preset("icesat2")``) chooses
+    the noise filter, ground and top estimators; None runs the paper's engine as it is
+    (no ``estimators`` column), bit for bit.
+    """
     prog = as_progress(progress)
     frames: list[gpd.GeoDataFrame] = []
     all_labels: dict[str, dict[float, np.ndarray]] = {}
     for i, t in enumerate(tracks):
         sub = prog.sub(i / len(tracks), (i + 1) / len(tracks))
-        if labels:
+        if estimators is not None:
+            from .blocks.estimators import estimate_blocks
+
+            if labels:
+                b, lab = estimate_blocks(t, params, estimators, labels=True, progress=sub)
+                all_labels[t.track] = lab
+            else:
+                b = estimate_blocks(t, params, estimators, progress=sub)
+        elif labels:
             b, lab = compute_blocks(t, params, labels=True, progress=sub)
             all_labels[t.track] = lab
         else:
@@ -176,10 +192,40 @@ def photon_layer(tracks: Sequence[PhotonTrack],
                             crs=tracks[0].crs)
 
 
+def track_strengths(path: str | os.PathLike[str], tracks: Sequence[PhotonTrack]
+                    ) -> dict[str, str]:
+    """Beam strength (``strong``/``weak``) of each ATL03 track; ``{}`` for other files
+    (one calibration model for all their tracks)."""
+    from .readers import atl03_beams, detect_product
+
+    if detect_product(str(path)) != "ATL03":
+        return {}
+    info = {b.name: b.strength for b in atl03_beams(path)}
+    return {t.track: info[t.track] for t in tracks if t.track in info}
+
+
+def calibrate_blocks(blocks: gpd.GeoDataFrame, calibration: Any,
+                     strengths: dict[str, str]) -> gpd.GeoDataFrame:
+    """Blocks with a bias calibration (a BiasCalibration or its JSON file) applied."""
+    from .validation.bias_calibration import (
+        BiasCalibration,
+        apply_bias_calibration,
+        read_bias_calibration,
+    )
+
+    source = str(calibration)
+    cal = (calibration if isinstance(calibration, BiasCalibration)
+           else read_bias_calibration(calibration))
+    out = apply_bias_calibration(blocks, cal, strengths=strengths or None, source=source)
+    return gpd.GeoDataFrame(out, geometry="geometry", crs=blocks.crs)
+
+
 def blocks_from_file(
     path: str | os.PathLike[str],
     params: BlockParams,
     *,
+    estimators: Estimators | None = None,
+    calibration: Any = None,
     beams: Sequence[str] = (),
     channel: int | str | None = None,
     atl08: str | os.PathLike[str] | None = None,
@@ -198,6 +244,11 @@ def blocks_from_file(
         ATL03 granule, MABEL L2A file, or a CSV/Parquet photon table.
     params : BlockParams
         Block lengths, noise filter, cut-offs.
+    estimators : Estimators, optional
+        Estimators beyond the paper's (DESIGN 1.10), e.g. the ``icesat2`` preset.
+    calibration : BiasCalibration or path, optional
+        Bias calibration (``canopyblocks calibrate --method bias``) applied to hmax/h90
+        (and top/z90); refused when fitted with other estimators.
     output : path-like, optional
         ``.gpkg`` (layer ``blocks``, plus ``photons`` with ``with_photons``),
         ``.parquet`` or ``.csv``; written atomically.
@@ -219,7 +270,10 @@ def blocks_from_file(
     tracks = read_tracks(path, beams=beams, channel=channel, atl08=atl08, bbox=bbox, crs=crs,
                          min_signal_conf=params.min_signal_conf, progress=prog.sub(0.0, 0.3))
     want_labels = with_photons or profile is not None
-    blocks, labels = run_blocks(tracks, params, labels=want_labels, progress=prog.sub(0.3, 0.85))
+    blocks, labels = run_blocks(tracks, params, labels=want_labels, estimators=estimators,
+                                progress=prog.sub(0.3, 0.85))
+    if calibration is not None:
+        blocks = calibrate_blocks(blocks, calibration, track_strengths(path, tracks))
     result = BlocksResult(tracks=tracks, blocks=blocks, labels=labels)
     layers: dict[str, pd.DataFrame] = {LAYER_BLOCKS: blocks}
     if output is not None and with_photons:

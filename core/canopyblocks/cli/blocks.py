@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import logging
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import click
 
@@ -16,6 +17,9 @@ from .common import (
     parse_floats,
     progress_bar,
 )
+
+if TYPE_CHECKING:
+    from ..blocks.estimators import Estimators
 
 log = logging.getLogger(__name__)
 
@@ -46,7 +50,18 @@ def info_cmd(path: str, as_json: bool) -> None:
               help="Block origin along track, m (default: the track start).")
 @click.option("--k", "k_sigma", type=float, default=2.5, show_default=True,
               help="Noise filter: keep |z - mean| <= k * std per block.")
-@click.option("--noise", type=click.Choice(["sigma", "none"]), default="sigma", show_default=True)
+@click.option("--noise", type=click.Choice(["sigma", "conf", "density", "none"]), default=None,
+              help="Noise filter: sigma (paper, default), conf (ATL03 signal_conf_ph), "
+                   "density (DRAGANN-like: MABEL, simulated, tables), none.")
+@click.option("--preset", type=click.Choice(["paper", "icesat2", "mabel"]), default=None,
+              help="Named estimator set (DESIGN 1.10): paper (seed 001, the default), "
+                   "icesat2 (density filter, ground surface, 98th-percentile top), mabel.")
+@click.option("--ground-estimator", type=click.Choice(["paper", "surface"]), default=None,
+              help="Ground: the paper's window mean, or a robust along-track surface.")
+@click.option("--top-estimator", type=click.Choice(["paper", "p95", "p98", "p99", "p100"]),
+              default=None, help="Canopy top: the paper's window, or a height percentile.")
+@click.option("--calibration", type=click.Path(dir_okay=False), default=None,
+              help="Bias calibration JSON (canopyblocks calibrate --method bias) to apply.")
 @min_signal_conf_option
 @click.option("--top-cutoff", type=float, default=None,
               help="Canopy-top window fraction (default by block length, DESIGN 1.7).")
@@ -65,23 +80,30 @@ def info_cmd(path: str, as_json: bool) -> None:
 @click.pass_context
 def blocks_cmd(ctx: click.Context, path: str, output: str, beams: tuple[str, ...],
                channel: str | None, lengths: tuple[float, ...], s0: float | None, k_sigma: float,
-               noise: str, min_signal_conf: int | None, top_cutoff: float | None,
+               noise: str | None, preset: str | None, ground_estimator: str | None,
+               top_estimator: str | None, calibration: str | None,
+               min_signal_conf: int | None, top_cutoff: float | None,
                ground_cutoff: float | None, min_photons: int, atl08: str | None,
                bbox: str | None, crs: str | None, with_photons: bool,
                profile: str | None) -> None:
-    """Canopy top, mean ground, Hmax and H90 per along-track block (seed 001 method)."""
+    """Canopy top, mean ground, Hmax and H90 per along-track block (seed 001 method,
+    or the estimators of --preset)."""
     from ..blocks import BlockParams
     from ..track_blocks import blocks_from_file
 
+    estimators = estimators_from_options(preset, noise, ground_estimator, top_estimator,
+                                         min_signal_conf)
     params = BlockParams(
-        lengths=tuple(lengths) or (25.0,), s0=s0, k_sigma=k_sigma, noise=noise,  # type: ignore[arg-type]
+        lengths=tuple(lengths) or (25.0,), s0=s0, k_sigma=k_sigma,
+        noise="none" if noise == "none" and estimators is None else "sigma",
         min_signal_conf=min_signal_conf, top_cutoff=top_cutoff, ground_cutoff=ground_cutoff,
         min_photons=min_photons,
     )
     quiet = bool(ctx.obj and ctx.obj.get("quiet"))
     with progress_bar("blocks", quiet=quiet) as progress:
         result = blocks_from_file(
-            path, params, beams=beams, channel=parse_channel(channel), atl08=atl08,
+            path, params, estimators=estimators, calibration=calibration,
+            beams=beams, channel=parse_channel(channel), atl08=atl08,
             bbox=parse_floats(bbox, 4, "lon_min,lat_min,lon_max,lat_max", "--bbox"),  # type: ignore[arg-type]
             crs=crs, output=output, with_photons=with_photons,
             profile=profile, progress=progress,
@@ -92,6 +114,32 @@ def blocks_cmd(ctx: click.Context, path: str, output: str, beams: tuple[str, ...
         f"{', '.join(t.track for t in result.tracks)} -> {Path(output)}",
         err=True,
     )
+
+
+def estimators_from_options(preset: str | None, noise: str | None, ground: str | None,
+                            top: str | None, min_signal_conf: int | None = None
+                            ) -> Estimators | None:
+    """The Estimators the options name, or None for the paper's engine as it is."""
+    from dataclasses import replace
+
+    from ..blocks.estimators import preset as named_preset
+
+    if preset is None and noise in (None, "sigma", "none") and ground in (None, "paper") \
+            and top in (None, "paper"):
+        return None
+    est = named_preset(preset or "paper")
+    changes: dict[str, Any] = {}
+    if noise is not None:
+        changes["noise"] = noise
+    if ground is not None:
+        changes["ground"] = ground
+    if top is not None:
+        changes["top"] = top
+    if min_signal_conf is not None and (noise == "conf" or est.noise == "conf"):
+        changes["min_signal_conf"] = min_signal_conf
+    if changes:
+        est = replace(est, **changes, name="custom" if preset is None else f"{preset}+")
+    return est
 
 
 def register(group: click.Group) -> None:

@@ -1,6 +1,8 @@
-"""CLI command ``calibrate``: fit the expansion-window cut-offs to airborne-lidar rasters."""
+"""CLI command ``calibrate``: the paper's cut-offs, or a bias calibration of block heights."""
 
 from __future__ import annotations
+
+from typing import Any
 
 import click
 
@@ -16,47 +18,104 @@ from .common import (
 
 @click.command("calibrate")
 @click.argument("photons", type=click.Path(dir_okay=False))
-@click.option("--dtm", required=True, type=click.Path(dir_okay=False), help="Terrain GeoTIFF.")
-@click.option("--dsm-max", required=True, type=click.Path(dir_okay=False),
-              help="Maximum-surface GeoTIFF.")
-@click.option("--dsm-p90", required=True, type=click.Path(dir_okay=False),
+@click.option("--method", type=click.Choice(["cutoffs", "bias"]), default="cutoffs",
+              show_default=True, help="cutoffs: fit the paper's top/ground window cut-offs "
+              "(seed 001); bias: fit an additive (or linear) correction of Hmax/H90 per "
+              "length and beam strength for the chosen estimators (DESIGN 1.10).")
+@click.option("--dtm", type=click.Path(dir_okay=False), help="Terrain GeoTIFF.")
+@click.option("--dsm-max", type=click.Path(dir_okay=False), help="Maximum-surface GeoTIFF.")
+@click.option("--dsm-p90", type=click.Path(dir_okay=False),
               help="90th-percentile surface GeoTIFF.")
-@click.option("--beam", default=None, help="ATL03 beam (default: the file's default beam).")
+@click.option("--reference", type=click.Choice(["corridor", "footprint"]), default="corridor",
+              show_default=True, help="--method bias: corridor rasters or the "
+              "footprint-matched airborne points (--points).")
+@click.option("--points", multiple=True, type=click.Path(dir_okay=False),
+              help="Airborne LAS/LAZ tile for --reference footprint (repeatable).")
+@click.option("--beam", "beams", multiple=True,
+              help="ATL03 beam (repeatable; cutoffs: the first; bias: default every beam).")
 @channel_option
 @lengths_option(default="10, 25, 50")
 @min_signal_conf_option
-@click.option("--width", type=float, default=2.0, show_default=True,
-              help="Corridor width, m (the footprint, 13-17 m, for ICESat-2).")
+@click.option("--preset", type=click.Choice(["paper", "icesat2", "mabel"]), default=None,
+              help="--method bias: estimators the calibration is for (default paper).")
+@click.option("--noise", type=click.Choice(["sigma", "conf", "density", "none"]), default=None,
+              help="--method bias: noise filter overriding the preset's.")
+@click.option("--ground-estimator", type=click.Choice(["paper", "surface"]), default=None)
+@click.option("--top-estimator", type=click.Choice(["paper", "p95", "p98", "p99", "p100"]),
+              default=None)
+@click.option("--kind", type=click.Choice(["additive", "linear"]), default="additive",
+              show_default=True, help="--method bias: correction form.")
+@click.option("--width", type=float, default=None,
+              help="Corridor width, m (default 2 for cutoffs, 13 (the ICESat-2 footprint) "
+                   "for bias).")
 @click.option("--crs", default=None, help="Metric CRS for the photons (default: the DTM's).")
 @vertical_options
+@click.option("--photon-vcrs", default=None,
+              help="Vertical datum of the photon heights (default: the file's; ATL03/MABEL "
+                   "WGS84 ellipsoid).")
 @click.option("-o", "--output", type=click.Path(dir_okay=False), default=None,
-              help="Write the calibration table (.csv, .parquet or .gpkg).")
+              help="cutoffs: the calibration table (.csv, .parquet or .gpkg); bias: the "
+                   "calibration JSON (a CSV summary is written beside it).")
 @click.pass_context
-def calibrate_cmd(ctx: click.Context, photons: str, dtm: str, dsm_max: str, dsm_p90: str,
-                  beam: str | None, channel: str | None, lengths: tuple[float, ...],
-                  min_signal_conf: int | None, width: float, crs: str | None,
-                  geoid: str | None, offset: float | None, output: str | None) -> None:
-    """Fit the canopy-top and ground cut-offs of PHOTONS to the reference rasters.
+def calibrate_cmd(ctx: click.Context, photons: str, method: str, dtm: str | None,
+                  dsm_max: str | None, dsm_p90: str | None, reference: str,
+                  points: tuple[str, ...], beams: tuple[str, ...], channel: str | None,
+                  lengths: tuple[float, ...], min_signal_conf: int | None, preset: str | None,
+                  noise: str | None, ground_estimator: str | None,
+                  top_estimator: str | None, kind: str, width: float | None, crs: str | None,
+                  geoid: str | None, offset: float | None, photon_vcrs: str | None,
+                  output: str | None) -> None:
+    """Calibrate block heights of PHOTONS against airborne-lidar references.
 
-    Blocks are computed with the paper's cut-offs, their corridor reference values read
-    from the rasters, and for each length the (top, ground) fractions that best match
-    are searched (seed 001 calibrated its cut-offs this way).  The RMSE columns are
-    held out: cut-offs fitted on even blocks are scored on odd blocks and vice versa.
+    --method cutoffs: blocks are computed with the paper's cut-offs, their corridor
+    reference values read from the rasters, and for each length the (top, ground)
+    fractions that best match are searched (seed 001 calibrated its cut-offs this way).
+    The RMSE columns are held out: cut-offs fitted on even blocks are scored on odd
+    blocks and vice versa.
+
+    --method bias: a correction of Hmax and H90 per block length and beam strength for
+    the chosen estimators (--preset), with its held-out error; apply it with
+    `canopyblocks blocks ... --preset P --calibration cal.json`.
     """
     from ..blocks import BlockParams
-    from ..validation.calibration import calibrate_reference_rasters
+    from ..errors import InputError
 
     if output is not None:
-        from ..outputs.tables import check_output_path
+        if method == "bias":
+            if not output.lower().endswith(".json"):
+                raise InputError(f"-o {output}: a bias calibration is written as JSON; "
+                                 "name it *.json")
+            from ..outputs.atomic import check_writable
 
-        check_output_path(output)  # fail before the work, not after it
+            check_writable(output)
+        else:
+            from ..outputs.tables import check_output_path
+
+            check_output_path(output)  # fail before the work, not after it
     params = BlockParams(lengths=tuple(lengths) or (10.0, 25.0, 50.0),
                          min_signal_conf=min_signal_conf)
     quiet = bool(ctx.obj and ctx.obj.get("quiet"))
+    if method == "bias":
+        _bias(photons, params, quiet=quiet, dtm=dtm, dsm_max=dsm_max, dsm_p90=dsm_p90,
+              reference=reference, points=points, beams=beams, channel=channel,
+              preset=preset, noise=noise, ground_estimator=ground_estimator,
+              top_estimator=top_estimator, min_signal_conf=min_signal_conf, kind=kind,
+              width=13.0 if width is None else width, crs=crs, geoid=geoid, offset=offset,
+              photon_vcrs=photon_vcrs, output=output)
+        return
+    if dtm is None or dsm_max is None or dsm_p90 is None:
+        raise InputError("--method cutoffs needs --dtm, --dsm-max and --dsm-p90")
+    if preset not in (None, "paper") or noise not in (None, "sigma") or \
+            ground_estimator not in (None, "paper") or top_estimator not in (None, "paper"):
+        raise InputError("--method cutoffs calibrates the paper's cut-offs; other estimators "
+                         "are calibrated with --method bias")
+    from ..validation.calibration import calibrate_reference_rasters
+
     with progress_bar("calibrate", quiet=quiet) as progress:
         cal = calibrate_reference_rasters(
-            photons, params, dtm=dtm, dsm_max=dsm_max, dsm_p90=dsm_p90, width=width,
-            beam=beam, channel=parse_channel(channel), crs=crs, geoid=geoid, offset=offset,
+            photons, params, dtm=dtm, dsm_max=dsm_max, dsm_p90=dsm_p90,
+            width=2.0 if width is None else width, beam=beams[0] if beams else None,
+            channel=parse_channel(channel), crs=crs, geoid=geoid, offset=offset,
             progress=progress)
     for row in cal.table.itertuples():
         click.echo(f"{row.length:>5g} m: top {row.top_cutoff:.3f} (paper {row.default_top_cutoff:.3f})"
@@ -67,10 +126,40 @@ def calibrate_cmd(ctx: click.Context, photons: str, dtm: str, dsm_max: str, dsm_
         from ..outputs.tables import write_table
 
         write_table(cal.table, output, layer="calibration")
-    top = ",".join(f"{L:g}:{t:g}" for L, t in ((r.length, r.top_cutoff)
-                                                for r in cal.table.itertuples()))
-    click.echo(f"canopyblocks: use them with `canopyblocks blocks ... --top-cutoff`/"
-               f"`--ground-cutoff` per length (top {top})", err=True)
+    if not quiet:
+        click.echo("canopyblocks: use them one length at a time, e.g.", err=True)
+        for row in cal.table.itertuples():
+            click.echo(f"  canopyblocks blocks PHOTONS --length {row.length:g} "
+                       f"--top-cutoff {row.top_cutoff:g} --ground-cutoff "
+                       f"{row.ground_cutoff:g} -o blocks_{row.length:g}m.gpkg", err=True)
+
+
+def _bias(photons: str, params: object, *, quiet: bool, output: str | None,
+          preset: str | None, noise: str | None, ground_estimator: str | None,
+          top_estimator: str | None, min_signal_conf: int | None, channel: str | None,
+          photon_vcrs: str | None, **kw: Any) -> None:
+    from ..blocks.estimators import preset as named_preset
+    from ..validation.bias_calibration import write_bias_calibration
+    from ..validation.bias_calibration_files import calibrate_bias_file
+    from .blocks import estimators_from_options
+
+    est = estimators_from_options(preset, noise, ground_estimator, top_estimator,
+                                  min_signal_conf) or named_preset("paper")
+    with progress_bar("calibrate", quiet=quiet) as progress:
+        cal = calibrate_bias_file(photons, params, est,  # type: ignore[arg-type]
+                                  channel=parse_channel(channel),
+                                  photon_vertical_crs=photon_vcrs, progress=progress, **kw)
+    for row in cal.table().itertuples():
+        click.echo(f"{row.metric:<5} {row.length:>5g} m {row.strength:<6}: "
+                   f"{row.slope:.3f} x + {row.intercept:+.2f} m  held-out RMSE "
+                   f"{row.holdout_rmse_before:.2f} -> {row.holdout_rmse_after:.2f} m "
+                   f"(n={row.n})")
+    if output is not None:
+        write_bias_calibration(cal, output)
+        if not quiet:
+            click.echo(f"canopyblocks: apply it with `canopyblocks blocks PHOTONS --preset "
+                       f"{est.name if est.name in ('paper', 'icesat2', 'mabel') else '...'} "
+                       f"--calibration {output}`", err=True)
 
 
 def register(group: click.Group) -> None:

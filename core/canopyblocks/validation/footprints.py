@@ -411,6 +411,13 @@ def validate_blocks_footprint(
         pts = points
     else:
         paths = [points] if isinstance(points, (str, os.PathLike)) else list(points)
+        if not paths:
+            raise InputError("no LAS/LAZ tile given; pass --points TILE.laz")
+        tiles_crs = las_crs(paths[0])
+        if tiles_crs is not None and blocks.crs is not None and \
+                not tiles_crs.equals(blocks.crs, ignore_axis_order=True):
+            blocks = blocks.to_crs(tiles_crs)   # the tiles' bbox is in their own CRS
+            blocks = blocks.assign(x=blocks.geometry.x, y=blocks.geometry.y)
         m = params.cut_radius + float(blocks["length"].max()) + 5.0
         xb, yb = blocks["x"].to_numpy(float), blocks["y"].to_numpy(float)
         bbox = (float(np.nanmin(xb) - m), float(np.nanmin(yb) - m), float(np.nanmax(xb) + m),

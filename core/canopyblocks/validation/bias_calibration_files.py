@@ -1,0 +1,117 @@
+"""Bias calibration from files: photons + reference -> a calibration JSON (DESIGN 1.10).
+
+The one core call behind ``canopyblocks calibrate --method bias`` and the QGIS algorithm:
+read every requested track, compute blocks with the chosen estimators, validate them
+against the corridor rasters or the footprint-matched ALS reference, and fit
+:func:`~canopyblocks.validation.bias_calibration.fit_bias_calibration` per block length
+and beam strength, with its parity hold-out error.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..blocks import BlockParams
+from ..blocks.estimators import Estimators
+from ..errors import InputError
+from ..progress import Progress, as_progress
+from .bias_calibration import BiasCalibration, BiasKind, fit_bias_calibration
+
+__all__ = ["calibrate_bias_file"]
+
+
+def calibrate_bias_file(
+    photons: str | os.PathLike[str],
+    params: BlockParams,
+    estimators: Estimators,
+    *,
+    dtm: str | os.PathLike[str] | None = None,
+    dsm_max: str | os.PathLike[str] | None = None,
+    dsm_p90: str | os.PathLike[str] | None = None,
+    points: Sequence[str | os.PathLike[str]] = (),
+    reference: str = "corridor",
+    width: float = 13.0,
+    beams: Sequence[str] = (),
+    channel: int | str | None = None,
+    crs: Any = None,
+    geoid: str | os.PathLike[str] | None = None,
+    offset: float | None = None,
+    photon_vertical_crs: Any = None,
+    kind: BiasKind = "additive",
+    by_strength: bool = True,
+    progress: Progress | None = None,
+) -> BiasCalibration:
+    """Fit a bias calibration of hmax/h90 for blocks made with ``estimators``.
+
+    Parameters
+    ----------
+    photons : path
+        ATL03 / MABEL / photon table (every beam, or ``beams``).
+    params : BlockParams
+        Block lengths (one model per length).
+    estimators : Estimators
+        The estimators the calibration is valid for (recorded; applying it to blocks made
+        with others is refused).
+    dtm, dsm_max, dsm_p90 : path
+        Corridor reference rasters (``reference="corridor"``).
+    points : sequence of path
+        Airborne tiles (``reference="footprint"``: footprint-matched reference).
+    width : float
+        Corridor width (m) of the raster reference; recorded.
+    kind : "additive" or "linear"
+    by_strength : bool
+        One model per beam strength (ATL03 strong/weak); else one for all tracks.
+
+    Returns
+    -------
+    BiasCalibration
+        Write it with :func:`~canopyblocks.validation.bias_calibration.write_bias_calibration`.
+    """
+    from ..track_blocks import read_tracks, run_blocks, track_strengths
+    from .block_validation import raster_horizontal_crs, validate_blocks
+
+    prog = as_progress(progress)
+    if reference not in ("corridor", "footprint"):
+        raise InputError(f"reference must be 'corridor' or 'footprint'; got {reference!r}")
+    if reference == "corridor" and (dtm is None or dsm_max is None or dsm_p90 is None):
+        raise InputError("the corridor reference needs --dtm, --dsm-max and --dsm-p90")
+    if reference == "footprint" and not points:
+        raise InputError("the footprint reference needs the airborne tiles (--points)")
+    if crs is None and dtm is not None:
+        horizontal = raster_horizontal_crs(dtm)
+        crs = None if horizontal is None else horizontal.to_wkt()
+    tracks = read_tracks(photons, beams=beams, channel=channel, crs=crs,
+                         min_signal_conf=params.min_signal_conf, progress=prog.sub(0.0, 0.2))
+    blocks, _ = run_blocks(tracks, params, estimators=estimators, progress=prog.sub(0.2, 0.5))
+    if reference == "footprint":
+        from ..reference.footprint import FootprintReferenceParams
+        from .footprints import validate_blocks_footprint
+
+        val = validate_blocks_footprint(blocks, list(points),
+                                        params=FootprintReferenceParams.icesat2(),
+                                        geoid=geoid, offset=offset,
+                                        photon_vertical_crs=photon_vertical_crs,
+                                        progress=prog.sub(0.5, 0.9))
+    else:
+        val = validate_blocks(blocks, dtm=dtm, dsm_max=dsm_max,  # type: ignore[arg-type]
+                              dsm_p90=dsm_p90, width=width,  # type: ignore[arg-type]
+                              geoid=geoid, offset=offset,
+                              photon_vertical_crs=photon_vertical_crs,
+                              progress=prog.sub(0.5, 0.9))
+    residuals = val.residuals
+    if "estimators" not in residuals.columns:   # validation keeps the block columns it uses
+        residuals = residuals.assign(estimators=estimators.label())
+    strengths = track_strengths(photons, tracks) if by_strength else {}
+    n_photons = float(np.nansum(blocks["n_photons"])) if len(blocks) else 0.0
+    noise_share = (1.0 - float(np.nansum(blocks["n_kept"])) / n_photons) if n_photons else None
+    cal = fit_bias_calibration(residuals, kind=kind, strengths=strengths or None,
+                               preset=estimators.name, noise_level=noise_share,
+                               corridor_width=width if reference == "corridor" else None,
+                               reference=reference, sources=(Path(photons).name,))
+    prog.update(1.0, "calibrated")
+    return cal
