@@ -98,6 +98,11 @@ def run_chain(
     offset: float | None = None,
     calibrate: bool = False,
     realisations: int = 100,
+    estimators: Any = None,
+    calibration: Any = None,
+    compare_preset: str | None = "icesat2",
+    coregister: bool = False,
+    footprint_reference: bool = False,
     progress: Progress | None = None,
 ) -> ChainResult:
     """Run photons -> blocks -> reference rasters -> validation -> report.
@@ -131,6 +136,22 @@ def run_chain(
         Also fit the cut-offs to the reference (DESIGN.md 1.7; first track), recompute the
         blocks with them and validate again: layers ``residuals_calibrated`` and
         ``stats_calibrated``, table ``calibration.csv`` with held-out RMSEs.
+    estimators : Estimators, optional
+        Block estimators (DESIGN 1.10; default the paper's).
+    calibration : path or BiasCalibration, optional
+        Bias calibration applied to the blocks.
+    compare_preset : str, optional
+        With the paper's estimators: also compute the blocks with this preset (default
+        ``icesat2``), validate them, fit a bias calibration with its held-out error, and
+        show both side by side in the report (layers ``residuals_<preset>``,
+        ``stats_<preset>``; ``bias_calibration_<preset>.json``). None skips it.
+    coregister : bool
+        Search the joint geolocation offset of the blocks against the DTM/DSM and
+        validate the horizontally shifted blocks (DESIGN 2.8); ``offsets.json``, layer
+        ``stats_uncorrected``.
+    footprint_reference : bool
+        Also validate against the footprint-matched airborne reference (DESIGN 2.7):
+        layers ``residuals_footprint``, ``stats_footprint``.
     """
     from .outputs.profile_plot import plot_profile  # noqa: F401  (fails early without matplotlib)
     from .outputs.validation_plots import write_validation_plots
@@ -162,7 +183,8 @@ def run_chain(
         width = 2.0 if width is None else width
         plots_dir = out / "plots"
         prog.update(0.25, "block heights")
-        res = blocks_from_file(photons, params, beams=beams, channel=channel, atl08=atl08,
+        res = blocks_from_file(photons, params, estimators=estimators, calibration=calibration,
+                               beams=beams, channel=channel, atl08=atl08,
                                crs=crs, output=out / "blocks.gpkg", with_photons=True,
                                profile=plots_dir / "profile.png", progress=prog.sub(0.25, 0.4))
         blocks = res.blocks
@@ -171,24 +193,49 @@ def run_chain(
                                          crs=blocks.crs, ground=ground,  # type: ignore[arg-type]
                                          progress=prog.sub(0.4, 0.75))
         prog.update(0.75, "validation")
+        # the rasters were made in the blocks' (horizontal) CRS: their heights keep the
+        # tiles' vertical datum, which the one datum rule (DESIGN 2.6) must see
+        ref_vcrs = _tiles_crs(tiles)
+        vkw: dict[str, Any] = {"width": width, "geoid": geoid, "offset": offset,
+                               "photon_vertical_crs": photon_vcrs,
+                               "reference_vertical_crs": ref_vcrs}
+        layers: dict[str, pd.DataFrame] = {}
+        offsets_doc = None
+        if coregister:
+            blocks, offsets_doc, before = _coregistered(
+                blocks, res.tracks, rasters, out, vkw, prog.sub(0.75, 0.8))
+            if before is not None:
+                layers[f"{LAYER_STATS}_uncorrected"] = before
         val = validate_blocks(blocks, dtm=rasters.dtm, dsm_max=rasters.dsm_max,
-                              dsm_p90=rasters.dsm_p90, width=width, geoid=geoid, offset=offset,
-                              photon_vertical_crs=photon_vcrs, progress=prog.sub(0.75, 0.9))
-        layers = {LAYER_RESIDUALS: val.residuals, LAYER_STATS: val.stats}
-        calibration = None
+                              dsm_p90=rasters.dsm_p90, **vkw, progress=prog.sub(0.8, 0.85))
+        layers = {LAYER_RESIDUALS: val.residuals, LAYER_STATS: val.stats, **layers}
+        if footprint_reference:
+            from .validation.footprints import validate_blocks_footprint
+
+            vf = validate_blocks_footprint(
+                blocks, tiles, geoid=geoid, offset=offset,
+                photon_vertical_crs=photon_vcrs, reference_vertical_crs=ref_vcrs)
+            layers.update({f"{LAYER_RESIDUALS}_footprint": vf.residuals,
+                           f"{LAYER_STATS}_footprint": vf.stats})
+        compared = None
+        if compare_preset and estimators is None and calibration is None:
+            compared = _compare_preset(compare_preset, res.tracks, params, rasters, out,
+                                       vkw, photons, prog.sub(0.85, 0.9))
+            layers.update({f"{LAYER_RESIDUALS}_{compare_preset}": compared[0],
+                           f"{LAYER_STATS}_{compare_preset}": compared[1]})
+        cutoffs = None
         if calibrate:
             from .track_blocks import run_blocks
             from .validation.calibration import calibrate_against_reference
 
             prog.update(0.9, "calibrating cut-offs")
-            calibration = calibrate_against_reference(res.tracks[0], val.residuals, params)
-            blocks_c, _ = run_blocks(res.tracks, calibration.params)
+            cutoffs = calibrate_against_reference(res.tracks[0], val.residuals, params)
+            blocks_c, _ = run_blocks(res.tracks, cutoffs.params)
             val_c = validate_blocks(blocks_c, dtm=rasters.dtm, dsm_max=rasters.dsm_max,
-                                    dsm_p90=rasters.dsm_p90, width=width, geoid=geoid,
-                                    offset=offset, photon_vertical_crs=photon_vcrs)
+                                    dsm_p90=rasters.dsm_p90, **vkw)
             layers.update({f"{LAYER_RESIDUALS}_calibrated": val_c.residuals,
                            f"{LAYER_STATS}_calibrated": val_c.stats})
-            write_table(calibration.table, out / "calibration.csv", layer="calibration")
+            write_table(cutoffs.table, out / "calibration.csv", layer="calibration")
         if atl08 is not None:
             v8 = validate_atl08(blocks, atl08, width=width)
             layers.update({f"{LAYER_RESIDUALS}_atl08": v8.residuals,
@@ -197,13 +244,15 @@ def run_chain(
         write_table(val.stats, out / "stats.csv", layer=LAYER_STATS)
         plots = [plots_dir / "profile.png", *write_validation_plots(val.residuals, val.stats,
                                                                      plots_dir)]
+        plots.append(_residual_map(val.residuals, rasters.dtm, plots_dir))
         prog.update(0.95, "report")
         report = _report(out, tiles=tiles, photons=Path(photons), simulated=simulated,
                          params=params, width=width, resolution=resolution, blocks=blocks,
                          stats=val.stats, datum=val.datum, plots=plots, azimuth=azimuth,
                          diameter=diameter, preset=preset, seed=seed,
-                         calibration=None if calibration is None else calibration.table,
-                         seed002=seed002, seed002_png=seed002_png)
+                         calibration=None if cutoffs is None else cutoffs.table,
+                         seed002=seed002, seed002_png=seed002_png, compared=compared,
+                         compare_preset=compare_preset, offsets=offsets_doc)
         prog.update(1.0, "done")
         return ChainResult(out_dir=out, photons=Path(photons), blocks=out / "blocks.gpkg",
                            rasters={"dtm": rasters.dtm, "dsm_max": rasters.dsm_max,
@@ -212,12 +261,107 @@ def run_chain(
                            simulated=simulated)
 
 
+def _tiles_crs(tiles: Sequence[Path]) -> Any:
+    """The tiles' (compound) CRS: the vertical datum of every raster made from them."""
+    from .readers.las import las_crs
+
+    try:
+        return las_crs(tiles[0])
+    except Exception:  # noqa: BLE001 - unreadable tiles were reported by the rasters step
+        return None
+
+
+def _coregistered(blocks: Any, tracks: Any, rasters: Any, out: Path, vkw: dict[str, Any],
+                  prog: Progress) -> tuple[Any, dict[str, Any] | None, pd.DataFrame | None]:
+    """Blocks shifted by the joint offset found from the photons (their ground- and
+    top-window photons, DESIGN 2.8), horizontally only (the vertical offset is reported:
+    applying it would hide the estimators' ground bias); the offsets document; the
+    uncorrected statistics."""
+    from dataclasses import replace
+
+    from .reference.datum import check_vertical_datums
+    from .reference.raster_sampling import read_surface
+    from .validation.block_validation import validate_blocks
+    from .validation.coregistration import coregister
+    from .validation.coregistration_files import vertical_shift, write_offsets
+    from .validation.coregistration_targets import CoregTargets, apply_offset, targets_from_photons
+
+    dtm = read_surface(rasters.dtm, what="DTM")
+    dsm = read_surface(rasters.dsm_max, what="DSM")
+    check_vertical_datums(vkw["photon_vertical_crs"] or "EPSG:4979",
+                          vkw["reference_vertical_crs"] if vkw["reference_vertical_crs"]
+                          is not None else dtm.crs, geoid=vkw["geoid"], offset=vkw["offset"])
+    parts = [targets_from_photons(t, dtm.crs, track_index=i,
+                                  heights=t.h - vertical_shift(t.lon, t.lat, vkw["geoid"],
+                                                               vkw["offset"]))
+             for i, t in enumerate(tracks)]
+    result = coregister(CoregTargets.concat(parts), dtm, dsm, progress=prog)
+    write_offsets(result, out / "offsets.json")
+    doc = result.to_dict()
+    joint = result.offsets.get("all") or next(iter(result.offsets.values()))
+    if not joint.determined:
+        import warnings
+
+        from .errors import CanopyBlocksWarning
+
+        warnings.warn(f"geolocation offset undetermined ({joint.reason}); validated without "
+                      "co-registration", CanopyBlocksWarning, stacklevel=3)
+        return blocks, doc, None
+    before = validate_blocks(blocks, dtm=rasters.dtm, dsm_max=rasters.dsm_max,
+                             dsm_p90=rasters.dsm_p90, **vkw).stats
+    return apply_offset(blocks, replace(joint, vertical=0.0)), doc, before
+
+
+def _compare_preset(name: str, tracks: Any, params: BlockParams, rasters: Any, out: Path,
+                    vkw: dict[str, Any], photons: Any, prog: Progress
+                    ) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame]:
+    """Residuals and stats of the blocks made with preset ``name``, and the table of a
+    bias calibration fitted on them (with its parity hold-out error)."""
+    from .blocks.estimators import preset
+    from .errors import NoUsableDataError
+    from .track_blocks import run_blocks, track_strengths
+    from .validation.bias_calibration import fit_bias_calibration, write_bias_calibration
+    from .validation.block_validation import validate_blocks
+
+    est = preset(name)
+    blocks, _ = run_blocks(tracks, params, estimators=est, progress=prog.sub(0.0, 0.6))
+    val = validate_blocks(blocks, dtm=rasters.dtm, dsm_max=rasters.dsm_max,
+                          dsm_p90=rasters.dsm_p90, **vkw, progress=prog.sub(0.6, 0.9))
+    residuals = val.residuals.assign(estimators=est.label())
+    try:
+        cal = fit_bias_calibration(residuals, strengths=track_strengths(photons, tracks) or None,
+                                   preset=name, corridor_width=vkw["width"],
+                                   sources=(Path(photons).name,))
+    except NoUsableDataError as exc:
+        log.warning("no bias calibration for the %s preset: %s", name, exc)
+        table = pd.DataFrame()
+    else:
+        write_bias_calibration(cal, out / f"bias_calibration_{name}.json")
+        table = cal.table()
+    prog.update(1.0)
+    return val.residuals, val.stats, table
+
+
+def _residual_map(residuals: Any, dtm: Path, folder: Path) -> Path:
+    """Block corridors coloured by their Hmax residual over a hillshade of the DTM
+    (the middle block length)."""
+    from .outputs.footprint_maps import plot_footprint_map
+
+    lengths = sorted(residuals["length"].unique())
+    length = lengths[len(lengths) // 2]
+    sub = residuals[residuals["length"] == length]
+    return plot_footprint_map(sub, "res_hmax", folder / "residual_map.png", dtm=dtm,
+                              title=f"Hmax residual of {length:g} m blocks (m)")
+
+
 def _report(out: Path, *, tiles: list[Path], photons: Path, simulated: bool,
             params: BlockParams, width: float, resolution: float, blocks: pd.DataFrame,
             stats: pd.DataFrame, datum: str, plots: list[Path], azimuth: float,
             diameter: float, preset: str, seed: int,
             calibration: pd.DataFrame | None = None, seed002: pd.DataFrame | None = None,
-            seed002_png: Path | None = None) -> Path:
+            seed002_png: Path | None = None,
+            compared: tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame] | None = None,
+            compare_preset: str | None = None, offsets: dict[str, Any] | None = None) -> Path:
     source = (f"ICESat-2 photons simulated over the airborne tiles (seed paper 002 method): "
               f"track azimuth {azimuth:g} degrees, {diameter:g} m footprints, '{preset}' photon "
               f"rate, seed {seed}; written in the ATL03 layout to {photons.name} and read back."
@@ -263,5 +407,38 @@ def _report(out: Path, *, tiles: list[Path], photons: Path, simulated: bool,
             "blocks are scored on the odd blocks and vice versa. Layers residuals_calibrated "
             "and stats_calibrated of validation.gpkg hold the validation with the cut-offs "
             "fitted on all blocks."], {"calibration (metres)": calibration}))
+    if compared is not None:
+        _, pstats, ptable = compared
+        keep = ["length", "metric", "n", "bias", "rmse", "r2"]
+        paper = overall[[c for c in keep if c in overall.columns]]
+        other = pstats[pstats["group"] == "all"][[c for c in keep if c in pstats.columns]]
+        side = paper.merge(other, on=["length", "metric"], how="outer",
+                           suffixes=("_paper", f"_{compare_preset}"))
+        sections.append(ReportSection(f"The paper's method and the '{compare_preset}' preset", [
+            "Why the paper's numbers on ICESat-2 are biased: seed 001's estimators were built "
+            "for dense MABEL photons. On sparse ICESat-2 photons its ground is at least the "
+            "lowest photon plus the ground window (about +1.5 m), its canopy top at least the "
+            "top window below the highest kept photon, and its 2.5-sigma filter removes real "
+            "tree-top photons in many blocks, so Hmax comes out several metres low. The "
+            f"'{compare_preset}' preset (DESIGN 1.10) keeps photons by local density, fits a "
+            "robust ground surface along the track and takes a high percentile of the canopy "
+            "photons as the top; a bias calibration per block length and beam strength, "
+            "fitted on reference blocks, removes what bias remains. Use the preset with a "
+            "calibration fitted on other sites (canopyblocks calibrate --method bias), and "
+            "quote its held-out error.",
+            "Statistics of both against the same corridor reference (all blocks):"],
+            {"paper vs preset": side,
+             "bias calibration of the preset (held-out columns: fitted on even blocks, "
+             "scored on odd ones and vice versa)": ptable}))
+    if offsets is not None:
+        rows = pd.DataFrame([{"track": k, **{c: v.get(c) for c in (
+            "along_track", "cross_track", "east", "north", "vertical", "rmse_before",
+            "rmse_after", "determined", "reason")}} for k, v in offsets.items()])
+        sections.append(ReportSection("Co-registration", [
+            "Offsets (m) that align the blocks with the DTM (DESIGN 2.8): the shift to add to "
+            "the reported positions. The joint offset 'all' was applied horizontally before "
+            "validating; its vertical part, which includes the ground estimator's bias, is "
+            "reported only. Layer stats_uncorrected holds the statistics without it."],
+            {"offsets": rows}))
     return write_report(out / "report.html", "canopyblocks: block heights and validation",
                         sections)

@@ -109,6 +109,8 @@ def blocks_cmd(ctx: click.Context, path: str, output: str, beams: tuple[str, ...
             profile=profile, progress=progress,
         )
     n_ok = int((result.blocks["flag"] == "ok").sum()) if len(result.blocks) else 0
+    if quiet:
+        return
     click.echo(
         f"canopyblocks: {len(result.blocks)} blocks ({n_ok} ok) from "
         f"{', '.join(t.track for t in result.tracks)} -> {Path(output)}",

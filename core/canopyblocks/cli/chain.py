@@ -48,15 +48,32 @@ from .common import (
 @vertical_options
 @click.option("--calibrate", is_flag=True,
               help="Also fit the cut-offs to the reference and validate again with them.")
+@click.option("--estimators", "estimator_preset", type=click.Choice(["paper", "icesat2", "mabel"]),
+              default=None, help="Block estimators (DESIGN 1.10; default the paper's). "
+              "(--preset names the simulated photon rate.)")
+@click.option("--calibration", type=click.Path(dir_okay=False), default=None,
+              help="Bias calibration JSON to apply to the blocks (fitted for --estimators).")
+@click.option("--compare/--no-compare", default=True, show_default=True,
+              help="With the paper's estimators, also validate the icesat2 preset and fit "
+                   "its bias calibration, side by side in the report.")
+@click.option("--coregister", is_flag=True,
+              help="Find the track's geolocation offset against the DTM/DSM and validate the "
+                   "shifted blocks (offsets.json, layer stats_uncorrected).")
+@click.option("--footprint-reference", is_flag=True,
+              help="Also validate against the footprint-matched airborne points "
+                   "(layers residuals_footprint, stats_footprint).")
 @click.pass_context
 def run_cmd(ctx: click.Context, tiles: tuple[str, ...], out_dir: str, photons: str | None,
             simulate: bool, beams: tuple[str, ...], channel: str | None, atl08: str | None,
             azimuth: float, diameter: float, preset: str, seed: int,
             lengths: tuple[float, ...], min_signal_conf: int | None, width: float | None,
             resolution: float, smrf: bool, geoid: str | None, offset: float | None,
-            calibrate: bool, realisations: int) -> None:
+            calibrate: bool, realisations: int, estimator_preset: str | None,
+            calibration: str | None, compare: bool, coregister: bool,
+            footprint_reference: bool) -> None:
     """Photons + airborne TILES -> blocks, reference rasters, validation, plots, report."""
     from ..blocks import BlockParams
+    from ..blocks.estimators import preset as named_preset
     from ..whole_chain import run_chain
 
     if simulate and photons:
@@ -71,7 +88,14 @@ def run_cmd(ctx: click.Context, tiles: tuple[str, ...], out_dir: str, photons: s
                            seed=seed, params=params, width=width, resolution=resolution,
                            ground="smrf" if smrf else "class2", geoid=geoid, offset=offset,
                            calibrate=calibrate, realisations=realisations,
+                           estimators=None if estimator_preset in (None, "paper")
+                           else named_preset(estimator_preset),
+                           calibration=calibration,
+                           compare_preset="icesat2" if compare else None,
+                           coregister=coregister, footprint_reference=footprint_reference,
                            progress=progress)
+    if quiet:
+        return
     if result.stats is not None and len(result.stats):
         s = result.stats[result.stats["group"] == "all"]
         for row in s.itertuples():

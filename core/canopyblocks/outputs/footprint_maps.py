@@ -110,7 +110,10 @@ def plot_footprint_map(residuals: Any, column: str, path: str | os.PathLike[str]
     col = use & np.isfinite(vals)
     x0, y0, x1, y1 = (float(v) for v in gdf.total_bounds)
     pad = 0.05 * max(x1 - x0, y1 - y0, 1.0)
-    bounds = (x0 - pad, y0 - pad, x1 + pad, y1 + pad)
+    # a narrow track still gets a readable map: at least half as wide as tall (and v.v.)
+    side = max(x1 - x0, y1 - y0, 1.0)
+    wx, wy = max(0.5 * side - (x1 - x0), 0.0) / 2, max(0.5 * side - (y1 - y0), 0.0) / 2
+    bounds = (x0 - pad - wx, y0 - pad - wy, x1 + pad + wx, y1 + pad + wy)
     fig, ax = new_figure(figsize=(7.0, 6.0))
     if dtm is not None:
         got = _dtm_window(dtm, bounds)

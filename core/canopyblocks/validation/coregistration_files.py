@@ -26,6 +26,7 @@ from .coregistration import CoregParams, CoregResult, coregister
 from .coregistration_targets import CoregTargets, targets_from_photons, targets_from_table
 
 __all__ = ["coregister_file", "coregister_table", "table_targets", "write_offsets",
+           "vertical_shift",
            "read_table_for_coregistration"]
 
 log = logging.getLogger(__name__)
@@ -58,7 +59,7 @@ def read_table_for_coregistration(path: str | os.PathLike[str]) -> pd.DataFrame 
     return None  # a photon table
 
 
-def _vertical_shift(lon: np.ndarray, lat: np.ndarray, geoid: str | os.PathLike[str] | None,
+def vertical_shift(lon: np.ndarray, lat: np.ndarray, geoid: str | os.PathLike[str] | None,
                     offset: float | None) -> np.ndarray | float:
     """N (m) to subtract from ellipsoidal heights: a constant, per-point geoid, or 0."""
     if offset is not None:
@@ -127,7 +128,7 @@ def coregister_file(
                              progress=prog.sub(0.02, 0.2))
         parts: list[CoregTargets] = []
         for i, t in enumerate(tracks):
-            n = _vertical_shift(t.lon, t.lat, geoid, offset)
+            n = vertical_shift(t.lon, t.lat, geoid, offset)
             parts.append(targets_from_photons(t, surface.crs, length=length, heights=t.h - n,
                                               min_signal_conf=min_signal_conf, track_index=i))
         targets = CoregTargets.concat(parts)
@@ -159,7 +160,7 @@ def table_targets(table: pd.DataFrame, raster_crs: Any, *, beams: tuple[str, ...
 
             lon, lat = from_metric(table.geometry.x.to_numpy(float),
                                    table.geometry.y.to_numpy(float), as_crs(tcrs))
-        n = _vertical_shift(np.asarray(lon), np.asarray(lat), geoid, offset)
+        n = vertical_shift(np.asarray(lon), np.asarray(lat), geoid, offset)
         heights = heights.sub(n, axis=0) if isinstance(n, np.ndarray) else heights - n
     return targets_from_table(table, tcrs, raster_crs, heights=heights)
 

@@ -172,7 +172,8 @@ def targets_from_table(table: pd.DataFrame, table_crs: Any, crs: Any, *,
     for c in ("ground", "top"):
         if c not in t.columns:
             raise InputError(f"the table has no '{c}' column; give a block or footprint table")
-    ok = (t["flag"] == "ok").to_numpy() if "flag" in t.columns else np.ones(len(t), bool)
+    ok = ((t["flag"] == "ok").to_numpy(dtype=bool, copy=True) if "flag" in t.columns
+          else np.ones(len(t), bool))
     if "length" in t.columns and t["length"].nunique() > 1:
         shortest = float(t["length"].min())
         ok &= (t["length"] == shortest).to_numpy()
