@@ -262,11 +262,13 @@ def run_chain(
 
 
 def _tiles_crs(tiles: Sequence[Path]) -> Any:
-    """The tiles' (compound) CRS: the vertical datum of every raster made from them."""
-    from .readers.las import las_crs
-
+    """The tiles' full (compound) CRS as their header states it: the vertical datum of
+    every raster made from them, also after reprojection; None when unstated."""
     try:
-        return las_crs(tiles[0])
+        import laspy
+
+        with laspy.open(tiles[0]) as reader:
+            return reader.header.parse_crs()
     except Exception:  # noqa: BLE001 - unreadable tiles were reported by the rasters step
         return None
 
