@@ -61,7 +61,9 @@ def test_recovers_true_cutoffs_and_beats_defaults():
     assert abs(res.ground_cutoff - TRUE_GROUND) <= 0.025 + 1e-9
     assert res.rmse < 0.5                      # within one bin of the reference
     assert res.default_rmse > 2 * res.rmse      # the paper's 10 %/20 % are far off here
-    assert len(res.table) == 20 * 20
+    from canopyblocks.blocks.calibration import DEFAULT_GRID
+
+    assert len(res.table) == len(DEFAULT_GRID) ** 2 and min(DEFAULT_GRID) <= 0.001
     assert res.n_blocks == 60
 
     # the reported RMSE is what compute_blocks gives with the calibrated cut-offs

@@ -15,6 +15,9 @@ from canopyblocks.validation.calibration import HOLDOUT_COLUMNS, calibrate_again
 
 L = 25.0
 
+pytestmark = pytest.mark.filterwarnings(
+    "ignore::canopyblocks.blocks.calibration.CutoffEdgeWarning")
+
 
 def synthetic_track(seed: int = 5) -> tuple[PhotonTrack, pd.DataFrame]:
     """40 blocks: ground photons at 0 m (sd 0.15), canopy photons uniform up to a known top."""
@@ -39,7 +42,12 @@ def synthetic_track(seed: int = 5) -> tuple[PhotonTrack, pd.DataFrame]:
 def test_calibration_beats_the_paper_out_of_sample() -> None:
     track, ref = synthetic_track()
     params = BlockParams(lengths=(L,), s0=0.0)
-    cal = calibrate_against_reference(track, ref, params)
+    # this synthetic canopy's best top window is the smallest the method allows (one
+    # photon): the search says the optimum lies on its edge instead of staying silent
+    from canopyblocks.blocks.calibration import CutoffEdgeWarning
+
+    with pytest.warns(CutoffEdgeWarning, match="edge of the searched grid"):
+        cal = calibrate_against_reference(track, ref, params)
     row = cal.table.iloc[0]
     assert list(cal.table.columns) == list(HOLDOUT_COLUMNS)
     assert row["n_holdout"] >= 30

@@ -9,6 +9,7 @@ top and ground against reference values, on the blocks flagged ``ok``.
 from __future__ import annotations
 
 import logging
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING
@@ -16,7 +17,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pandas as pd
 
-from ..errors import InputError, NoUsableDataError
+from ..errors import CanopyBlocksWarning, InputError, NoUsableDataError
 from ..progress import Progress, as_progress
 from .engine import blocks_for_length, prepare_track
 from .params import BlockParams
@@ -24,12 +25,19 @@ from .params import BlockParams
 if TYPE_CHECKING:
     from ..photons import PhotonTrack
 
-__all__ = ["CalibrationResult", "calibrate_cutoffs", "DEFAULT_GRID"]
+__all__ = ["CalibrationResult", "calibrate_cutoffs", "DEFAULT_GRID", "CutoffEdgeWarning"]
 
 log = logging.getLogger(__name__)
 
 #: Default grid of cut-off fractions: 2.5 % to 50 % in 2.5 % steps.
-DEFAULT_GRID: tuple[float, ...] = tuple(round(0.025 * i, 4) for i in range(1, 21))
+DEFAULT_GRID: tuple[float, ...] = (0.001, 0.005, 0.01, 0.015,
+                                    *(round(0.025 * i, 4) for i in range(1, 21)))
+"""Candidate cut-offs: down to 0.001 (a window of one photon: the smallest the paper's
+expansion allows) and up to 0.5."""
+
+
+class CutoffEdgeWarning(CanopyBlocksWarning):
+    """The best cut-off lies on the edge of the searched grid: the optimum may lie beyond."""
 
 
 @dataclass(frozen=True)
@@ -180,6 +188,15 @@ def calibrate_cutoffs(
             "give more reference blocks or a lower min_blocks"
         )
     best = table.loc[table["rmse"].idxmin()]
+    for what, value, g in (("top", best["top_cutoff"], top_grid),
+                           ("ground", best["ground_cutoff"], ground_grid)):
+        if g.size > 2 and value in (g[0], g[-1]):
+            warnings.warn(
+                f"{length:g} m blocks of track {track.track}: the best {what} cut-off "
+                f"{value:g} lies on the edge of the searched grid ({g[0]:g}..{g[-1]:g}); "
+                "the optimum may lie beyond it (at the low edge: the window floor of the "
+                "paper's method, see DESIGN 1.10, which the 'icesat2' preset avoids)",
+                CutoffEdgeWarning, stacklevel=2)
     # the paper's defaults on the same reference
     td, gd = p.cutoffs_for(p.lengths[0])
     top_d, ground_d = hist.top_height(hist.top_bin(td)), hist.ground_height(hist.ground_bin(gd))
