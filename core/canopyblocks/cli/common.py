@@ -7,6 +7,7 @@ import math
 import signal
 import sys
 import threading
+import time
 import warnings
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
@@ -18,13 +19,16 @@ from ..errors import CanopyBlocksError, CanopyBlocksWarning
 from ..progress import Progress
 
 __all__ = ["lengths_option", "channel_option", "min_signal_conf_option", "vertical_options",
-           "parse_floats", "parse_channel", "run_main", "setup_logging", "progress_bar", "EXIT_OK", "EXIT_BAD_INPUT", "EXIT_BUG"]
+           "parse_floats", "parse_channel", "run_main", "setup_logging", "progress_bar", "summary",
+           "is_quiet", "EXIT_OK", "EXIT_BAD_INPUT", "EXIT_BUG", "EXIT_SIGINT", "EXIT_SIGTERM"]
 
 F = TypeVar("F", bound=Callable[..., Any])
 
 EXIT_OK = 0
 EXIT_BUG = 1
 EXIT_BAD_INPUT = 2
+EXIT_SIGINT = 130  # 128 + SIGINT: interrupted by Ctrl-C
+EXIT_SIGTERM = 143  # 128 + SIGTERM: stopped by kill, timeout, SLURM, a container
 
 
 # ---- option definitions shared by several commands (rasterio's rio keeps them in one place too)
@@ -88,6 +92,18 @@ class _CliFormatter(logging.Formatter):
         return f"canopyblocks: {level}{record.getMessage()}"
 
 
+class _StderrHandler(logging.StreamHandler):
+    """A handler writing to whatever ``sys.stderr`` is now (test capture, redirections)."""
+
+    @property
+    def stream(self) -> Any:
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, value: Any) -> None:
+        pass
+
+
 def setup_logging(verbose: int, quiet: bool) -> None:
     """Attach a stderr handler to the package logger (the library itself stays silent)."""
     level = logging.WARNING if quiet or verbose == 0 else (
@@ -95,7 +111,7 @@ def setup_logging(verbose: int, quiet: bool) -> None:
     logger = logging.getLogger("canopyblocks")
     logger.setLevel(level)
     if not any(getattr(h, "_canopyblocks_cli", False) for h in logger.handlers):
-        h = logging.StreamHandler(sys.stderr)
+        h = _StderrHandler()
         h.setFormatter(_CliFormatter())
         h._canopyblocks_cli = True  # type: ignore[attr-defined]
         logger.addHandler(h)
@@ -105,49 +121,183 @@ def setup_logging(verbose: int, quiet: bool) -> None:
 
     warnings.showwarning = _show  # one line per warning, never a source excerpt
     warnings.simplefilter("default", CanopyBlocksWarning)
+    _quiet_numpy()
 
 
-_INTERRUPTED = threading.Event()
+class _Interrupts:
+    """What the signal handler knows: which signal came first, and what runs now.
+
+    ``signum`` is the first SIGINT/SIGTERM of this run (None before any);
+    ``operations`` counts the open :func:`progress_bar` blocks, where a signal first asks
+    the operation to cancel (its :class:`Progress` raises
+    :class:`~canopyblocks.errors.CancelledError` at its next check) and only after
+    :data:`GRACE` seconds without an answer interrupts it (KeyboardInterrupt).
+    """
+
+    GRACE = 1.0
+    """Seconds an operation has to notice a cancellation before it is interrupted."""
+
+    def __init__(self) -> None:
+        self.event = threading.Event()
+        self.signum: int | None = None
+        self.operations = 0
+        self.raised_at = -math.inf
+        self.timer: threading.Timer | None = None
+        self.installed = False
+        self.finishing = False
+        self.noticed = False
+        self.lock = threading.Lock()
+
+    def reset(self) -> None:
+        self.cancel_timer()
+        self.event.clear()
+        self.signum = None
+        self.raised_at = -math.inf
+        self.noticed = False
+
+    def cancel_timer(self) -> None:
+        if self.timer is not None:
+            self.timer.cancel()
+            self.timer = None
+
+    def arm(self, delay: float) -> None:
+        """Re-enter the handler ``delay`` seconds from now (from a helper thread)."""
+        self.cancel_timer()
+        t = threading.Timer(delay, self._fire)
+        t.daemon = True
+        self.timer = t
+        t.start()
+
+    def _fire(self) -> None:
+        import _thread
+
+        with self.lock:  # never after the handlers are restored (see _signals_handled)
+            if self.installed and not self.finishing and not self.noticed:
+                _thread.interrupt_main(signal.SIGINT)
+
+    def handler(self, signum: int, frame: object) -> None:
+        from ..outputs.atomic import committing
+
+        first = self.signum is None
+        if first:
+            self.signum = signum
+            self.event.set()
+        if self.finishing:
+            return
+        if first and self.operations > 0:
+            self.arm(self.GRACE)  # the operation's next Progress check cancels it
+            return
+        if committing():  # outputs are being renamed into place: let that finish
+            self.arm(0.05)
+            return
+        now = time.monotonic()
+        if now - self.raised_at < 3.0:
+            # already interrupting: let the clean-up (temporary files, partial outputs)
+            # run to its end instead of interrupting it in turn
+            return
+        self.raised_at = now
+        raise KeyboardInterrupt
+
+    def label(self) -> str:
+        return "SIGTERM" if self.signum == signal.SIGTERM else "Ctrl-C"
+
+    def exit_code(self) -> int:
+        return 128 + int(self.signum if self.signum is not None else signal.SIGINT)
+
+
+_STATE = _Interrupts()
+_INTERRUPTED = _STATE.event  # set once SIGINT or SIGTERM arrived in this run
+
+
+@contextmanager
+def _signals_handled() -> Iterator[None]:
+    """While inside: SIGINT and SIGTERM interrupt the run cleanly (see :class:`_Interrupts`).
+
+    Installed by :func:`run_main` for a whole command (a SIGTERM from ``timeout``,
+    ``kill``, SLURM or a container is handled like Ctrl-C: temporary and partial files are
+    removed) and by :func:`progress_bar` when a command runs without :func:`run_main`.
+    Only the main thread can install signal handlers; elsewhere this does nothing.  A
+    signal the parent process ignores (SIGINT of a background job) stays ignored.
+    """
+    if _STATE.installed or threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    _STATE.reset()
+    _STATE.finishing = False
+    # a signal ignored by the parent stays ignored (e.g. SIGINT of a background job)
+    previous = {s: signal.signal(s, _STATE.handler) for s in (signal.SIGINT, signal.SIGTERM)
+                if signal.getsignal(s) is not signal.SIG_IGN}
+    _STATE.installed = True
+    try:
+        yield
+    finally:
+        with _STATE.lock:
+            _STATE.finishing = True
+            _STATE.installed = False
+            _STATE.cancel_timer()
+        for s, h in previous.items():  # runs a signal still pending with our handler first
+            signal.signal(s, h)
 
 
 @contextmanager
 def _ctrl_c_cancels() -> Iterator[None]:
-    """While inside: the first Ctrl-C (SIGINT) asks the running operation to cancel.
+    """While inside: the first Ctrl-C (SIGINT) or SIGTERM asks the running operation to cancel.
 
     A KeyboardInterrupt raised at an arbitrary byte code can land in a garbage-collector
     callback, where Python ignores it and the run goes on to "succeed".  Instead the
     signal sets a flag that :class:`Progress` checks; the operation then stops at its
     next check (at most a fraction of a second away: PDAL runs are polled), removing
-    its partial outputs.  A second Ctrl-C interrupts at once.
+    its partial outputs.  An operation that does not check within
+    :attr:`_Interrupts.GRACE` seconds (a long numpy step, writing a file) is interrupted
+    by a KeyboardInterrupt, as is any work outside an operation, and a second signal
+    interrupts at once.
     """
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
+    with _signals_handled():
+        _STATE.operations += 1
+        try:
+            yield
+        finally:
+            _STATE.operations -= 1
 
-    def handler(signum: int, frame: object) -> None:
-        if _INTERRUPTED.is_set():
-            raise KeyboardInterrupt
-        _INTERRUPTED.set()
 
-    previous = signal.signal(signal.SIGINT, handler)
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
+def _cancelled() -> bool:
+    """The Progress probe: True once a signal came; the operation then stops by itself."""
+    if not _INTERRUPTED.is_set():
+        return False
+    with _STATE.lock:  # it noticed: no need to interrupt its clean-up
+        _STATE.noticed = True
+        _STATE.cancel_timer()
+    return True
 
 
 @contextmanager
 def progress_bar(label: str, *, quiet: bool = False) -> Iterator[Progress]:
     """A :class:`Progress` that drives a tqdm bar on stderr (nothing when quiet/not a tty).
 
-    Ctrl-C inside the block cancels the operation through the Progress.
+    Ctrl-C or SIGTERM inside the block cancels the operation through the Progress.
     """
     with _ctrl_c_cancels():
         if quiet:
-            yield Progress(cancelled=_INTERRUPTED.is_set)
+            yield Progress(cancelled=_cancelled)
             return
         with _tqdm_progress(label) as progress:
             yield progress
+
+
+def is_quiet() -> bool:
+    """True when the running command was given ``-q`` (no summaries, warnings only)."""
+    ctx = click.get_current_context(silent=True)
+    while ctx is not None:
+        if isinstance(ctx.obj, dict) and ctx.obj.get("quiet"):
+            return True
+        ctx = ctx.parent
+    return False
+
+
+def summary(message: str, *, err: bool = True) -> None:
+    """Print a command's summary line (stderr by default); nothing under ``-q``."""
+    if not is_quiet():
+        click.echo(message, err=err)
 
 
 @contextmanager
@@ -166,7 +316,7 @@ def _tqdm_progress(label: str) -> Iterator[Progress]:
             bar.set_postfix_str(message, refresh=False)
 
     try:
-        yield Progress(callback=cb, cancelled=_INTERRUPTED.is_set)
+        yield Progress(callback=cb, cancelled=_cancelled)
     finally:
         bar.close()
 
@@ -180,35 +330,96 @@ def _error(message: object) -> None:
     click.echo(f"canopyblocks: error: {_one_line(str(message))}", err=True)
 
 
+_NUMPY_NOISE = (r"invalid value encountered", r"divide by zero encountered",
+                r"Mean of empty slice", r"All-NaN (slice|axis) encountered",
+                r"Degrees of freedom <= 0")
+"""numpy's RuntimeWarnings about NaN arithmetic: the core flags such results itself."""
+
+
+def _quiet_numpy() -> None:
+    for pattern in _NUMPY_NOISE:
+        warnings.filterwarnings("ignore", message=pattern, category=RuntimeWarning)
+
+
 def run_main(group: click.Group, argv: list[str] | None) -> int:
     """Run ``group``; map the project's errors to exit 2 with a one-line message.
 
-    Usage errors, bad input, cancellation and Ctrl-C all end with exactly one line
-    ``canopyblocks: error: ...`` on stderr (warnings may precede it) and exit status 2;
-    anything else is a bug and keeps its traceback (exit status 1).
+    Usage errors and bad input (including an unwritable output and too little memory)
+    end with exactly one line ``canopyblocks: error: ...`` on stderr (warnings may
+    precede it) and exit status 2.  Ctrl-C (SIGINT) and SIGTERM end with one line and
+    exit status 130 / 143; the line says which outputs, if any, were completed before
+    the signal (a cancelled operation removes its partial files).  Anything else is a bug
+    and keeps its traceback (exit status 1).
     """
-    _INTERRUPTED.clear()
+    from ..outputs.atomic import journal_mark
+
+    mark = journal_mark()
+    with warnings.catch_warnings(), _signals_handled():
+        _quiet_numpy()
+        try:
+            try:
+                code, message = _invoke(group, argv)
+            finally:
+                _STATE.finishing = True  # from here on a signal is only recorded
+        except KeyboardInterrupt:
+            code, message = EXIT_BAD_INPUT, None
+        if _INTERRUPTED.is_set() and code != EXIT_OK_NO_WORK:
+            _error(_interrupted_message(mark))
+            return _STATE.exit_code()
+        if message is not None:
+            _error(message)
+        return EXIT_OK if code == EXIT_OK_NO_WORK else code
+
+
+EXIT_OK_NO_WORK = -1  # internal: --help/--version and the like (nothing to interrupt)
+
+
+def _interrupted_message(mark: int) -> str:
+    from ..outputs.atomic import written_since
+
+    kept = written_since(mark)
+    what = f"interrupted ({_STATE.label()})"
+    if not kept:
+        return f"{what}; no output was written"
+    names = ", ".join(str(p) for p in kept[:5]) + (f" and {len(kept) - 5} more"
+                                                  if len(kept) > 5 else "")
+    return f"{what} after these complete outputs were written: {names}"
+
+
+def _invoke(group: click.Group, argv: list[str] | None) -> tuple[int, str | None]:
+    """Run the command; return its exit status and the error line to print (or None)."""
     try:
         group.main(args=argv, prog_name="canopyblocks", standalone_mode=False)
-    except click.exceptions.Abort:
-        _error("aborted; no output was written")
-        return EXIT_BAD_INPUT
+    except click.exceptions.Abort:  # click's name for a KeyboardInterrupt (or EOF at a prompt)
+        return EXIT_BAD_INPUT, "aborted; no output was written"
     except click.UsageError as exc:  # usage errors: click's message, on one line
         path = exc.ctx.command_path if exc.ctx is not None else "canopyblocks"
-        _error(f"{exc.format_message()} (see '{path} --help')")
-        return EXIT_BAD_INPUT
-    except click.ClickException as exc:
-        _error(exc.format_message())
-        return EXIT_BAD_INPUT
-    except CanopyBlocksError as exc:
-        if _INTERRUPTED.is_set():  # e.g. PDAL, which got the Ctrl-C too, failed first
-            _error("interrupted (Ctrl-C); no output was written")
-        else:
-            _error(exc)
-        return EXIT_BAD_INPUT
-    except KeyboardInterrupt:
-        _error("interrupted (Ctrl-C); no output was written")
-        return EXIT_BAD_INPUT
+        return EXIT_BAD_INPUT, f"{exc.format_message()} (see '{path} --help')"
     except click.exceptions.Exit as exc:
-        return int(exc.exit_code)
-    return EXIT_OK
+        return (EXIT_OK_NO_WORK if exc.exit_code == 0 else int(exc.exit_code)), None
+    except click.ClickException as exc:
+        return EXIT_BAD_INPUT, exc.format_message()
+    except CanopyBlocksError as exc:
+        return EXIT_BAD_INPUT, str(exc)
+    except KeyboardInterrupt:
+        return EXIT_BAD_INPUT, "interrupted; no output was written"
+    except MemoryError:
+        return EXIT_BAD_INPUT, ("not enough memory for this run; use fewer or smaller "
+                                "inputs, or parameters that make less data")
+    except OSError as exc:  # the system refused a file operation (permissions, full disk)
+        if _INTERRUPTED.is_set():
+            return EXIT_BAD_INPUT, None
+        return EXIT_BAD_INPUT, _os_error_message(exc)
+    except Exception:
+        if _INTERRUPTED.is_set():  # e.g. a library that the signal cut short
+            return EXIT_BAD_INPUT, None
+        raise
+    return EXIT_OK, None
+
+
+def _os_error_message(exc: OSError) -> str:
+    name = exc.filename
+    reason = exc.strerror or str(exc)
+    if name is None:
+        return f"{reason}; check the paths and their permissions, and the free disk space"
+    return f"cannot use {name}: {reason}; check the path, its permissions and the free disk space"

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from .common import progress_bar
+from .common import progress_bar, summary
 
 log = logging.getLogger(__name__)
 
@@ -51,10 +51,10 @@ def rasters_cmd(ctx: click.Context, las: tuple[str, ...], out_dir: str, resoluti
             bounds=bounds or None, ground="smrf" if smrf else "class2", pdal=pdal_exe,
             progress=progress)
     g = result.grid
-    click.echo(f"grid: {g.width} x {g.height} cells of {g.resolution:g} m, "
-               f"bounds {g.bounds}, CRS {result.crs_label}")
+    summary(f"grid: {g.width} x {g.height} cells of {g.resolution:g} m, "
+            f"bounds {g.bounds}, CRS {result.crs_label}", err=False)
     for path in (result.dtm, result.dsm_max, result.dsm_p90):
-        click.echo(str(path))
+        summary(str(path), err=False)
 
 
 def register(group: click.Group) -> None:

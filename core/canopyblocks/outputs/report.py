@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import html
+import logging
 import os
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -10,9 +11,12 @@ from pathlib import Path
 
 import pandas as pd
 
-from .atomic import atomic_output
+from ..progress import Progress
+from .atomic import atomic_output, atomic_outputs, will_exist
 
 __all__ = ["ReportSection", "write_report"]
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -40,10 +44,19 @@ def _table_html(df: pd.DataFrame) -> str:
                       escape=True)
 
 
-def write_report(path: str | os.PathLike[str], title: str, sections: Sequence[ReportSection]
-                 ) -> Path:
-    """Write an HTML report atomically; images are linked relative to the report's folder."""
+def write_report(path: str | os.PathLike[str], title: str, sections: Sequence[ReportSection],
+                 *, progress: Progress | None = None) -> Path:
+    """Write an HTML report atomically; images are linked relative to the report's folder.
+
+    An image that does not exist (and is not being written in the same
+    :func:`~canopyblocks.outputs.atomic.atomic_outputs` block) is left out with a logged
+    warning rather than linked broken.  Called inside such a block, the report appears
+    together with the block's other outputs, or not at all; ``progress`` is checked
+    before anything is written.
+    """
     out = Path(path)
+    if progress is not None:
+        progress.check()
     parts = [f"<!doctype html><html><head><meta charset='utf-8'><title>{html.escape(title)}"
              f"</title><style>{_CSS}</style></head><body><h1>{html.escape(title)}</h1>"]
     for sec in sections:
@@ -52,9 +65,12 @@ def write_report(path: str | os.PathLike[str], title: str, sections: Sequence[Re
         for caption, df in sec.tables.items():
             parts.append(f"<p class='cap'>{html.escape(caption)}</p>{_table_html(df)}")
         for img in sec.images:
+            if not will_exist(img):
+                log.warning("report %s: image %s was not written; left out", out, img)
+                continue
             rel = os.path.relpath(Path(img), out.parent)
             parts.append(f"<img src='{html.escape(rel)}' alt='{html.escape(Path(img).stem)}'>")
     parts.append("</body></html>")
-    with atomic_output(out) as tmp:
+    with atomic_outputs(progress=progress), atomic_output(out) as tmp:
         tmp.write_text("\n".join(parts), encoding="utf-8")
     return out

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import os
+from collections.abc import Iterable
 from pathlib import Path
 
 import geopandas as gpd
@@ -11,9 +12,10 @@ import pandas as pd
 
 from ..errors import DependencyError, FileFormatError, InputError
 from ..schema import LAYER_BLOCKS
-from .atomic import atomic_output, check_writable
+from .atomic import atomic_output, atomic_outputs, check_writable
 
-__all__ = ["check_output_path", "write_table", "write_layers", "read_layer", "read_blocks", "SUFFIXES"]
+__all__ = ["check_output_path", "write_table", "write_layers", "layer_files", "read_layer",
+           "read_blocks", "SUFFIXES"]
 
 log = logging.getLogger(__name__)
 
@@ -29,11 +31,45 @@ def _suffix(path: Path, verb: str = "write") -> str:
     return suf
 
 
-def check_output_path(path: str | os.PathLike[str]) -> Path:
-    """Check an output table path's suffix before any work is done; return it as a Path."""
+def check_output_path(path: str | os.PathLike[str], *, layers: Iterable[str] = (),
+                      reads: Iterable[tuple[str | os.PathLike[str], str | None]] = ()) -> Path:
+    """Check an output table path before any work is done; return it as a Path.
+
+    Parameters
+    ----------
+    path : path-like
+        The output; its suffix must be one of :data:`SUFFIXES` and its folder writable.
+    layers : iterable of str
+        The layers the run will write (see :func:`layer_files`).
+    reads : iterable of (path, layer or None)
+        The tables the run reads.  Writing onto one of them is refused unless the
+        output is a GeoPackage and the layer read is not among ``layers`` (the other
+        layers of a GeoPackage are kept, so the input layer survives).
+
+    Raises
+    ------
+    InputError
+        Unknown suffix, or the output would replace a table that is being read.
+    FileFormatError
+        The output cannot be written.
+    """
     p = Path(path)
-    _suffix(p)
-    check_writable(p)
+    suf = _suffix(p)
+    names = list(layers)
+    files = list(layer_files(p, names).values()) if names else [p]
+    for f in files:
+        check_writable(f)
+    for src, layer in reads:
+        s = Path(src)
+        if not s.exists():
+            continue
+        for f in files:
+            if not (f.exists() and os.path.samefile(f, s)):
+                continue
+            if suf != ".gpkg" or layer is None or layer in names:
+                what = f"its layer {layer!r}" if suf == ".gpkg" and layer else "it"
+                raise InputError(f"{f}: the output would overwrite {what}, which is an "
+                                 "input of this run; give another output file")
     return p
 
 
@@ -74,29 +110,80 @@ def write_table(df: pd.DataFrame, path: str | os.PathLike[str], *, layer: str = 
     layer : str
         GeoPackage layer name.
     append : bool
-        GeoPackage only: keep the file's other layers (the file is still replaced
-        atomically; an existing layer of the same name is overwritten).
+        GeoPackage only: the caller expects the file's other layers and keeps them
+        quietly.  Without it they are kept too (only ``layer`` is replaced), with a
+        logged warning naming them, since they may come from an earlier run.
+
+    Returns
+    -------
+    Path
+        The file written.
     """
     return write_layers({layer: df}, path, append=append)
+
+
+def layer_files(path: str | os.PathLike[str], layers: Iterable[str]) -> dict[str, Path]:
+    """The file each layer of :func:`write_layers` goes to.
+
+    A GeoPackage holds every layer; a CSV or Parquet ``path`` holds one table, so with
+    several layers each goes to ``<stem>_<layer><suffix>`` beside it (and ``path``
+    itself is not written).
+    """
+    p = Path(path)
+    names = list(layers)
+    if _suffix(p) == ".gpkg" or len(names) <= 1:
+        return {n: p for n in names}
+    return {n: p.with_name(f"{p.stem}_{n}{p.suffix}") for n in names}
 
 
 def write_layers(layers: dict[str, pd.DataFrame], path: str | os.PathLike[str], *,
                  append: bool = False) -> Path:
     """Write several layers to one GeoPackage (or one table to CSV/Parquet), atomically.
 
-    For .csv/.parquet with several layers, each layer goes to ``<stem>_<layer><suffix>``.
+    An existing GeoPackage keeps its other layers: only the layers written are replaced
+    (with ``append=False`` a warning is logged naming the layers kept).  For
+    .csv/.parquet with several layers, each layer goes to ``<stem>_<layer><suffix>``
+    (see :func:`layer_files`); they are written all or none.
+
+    Returns
+    -------
+    Path
+        ``path`` for a GeoPackage or a single table; otherwise the first layer's file.
     """
     p = Path(path)
     suf = _suffix(p)
+    if not layers:
+        raise InputError(f"nothing to write to {p}: no layers given")
+    files = layer_files(p, layers)
     if suf != ".gpkg" and len(layers) > 1:
-        for name, df in layers.items():
-            write_table(df, p.with_name(f"{p.stem}_{name}{p.suffix}"), layer=name)
-        return p
-    with atomic_output(p, keep_existing=append and suf == ".gpkg") as tmp:
+        with atomic_outputs():
+            for name, df in layers.items():
+                with atomic_output(files[name]) as tmp:
+                    _write_one(df, tmp, suf, name)
+        log.info("wrote %s", ", ".join(str(f) for f in files.values()))
+        return files[next(iter(layers))]
+    kept: list[str] = []
+    if suf == ".gpkg" and p.exists():
+        kept = [n for n in _gpkg_layers(p) if n not in layers]
+    with atomic_output(p, keep_existing=suf == ".gpkg") as tmp:
         for name, df in layers.items():
             _write_one(df, tmp, suf, name)
+    if kept and not append:
+        log.warning("%s already held layers %s; they were kept, and only %s replaced",
+                    p, ", ".join(kept), ", ".join(layers))
     log.info("wrote %s (%s)", p, ", ".join(layers))
     return p
+
+
+def _gpkg_layers(p: Path) -> list[str]:
+    """Layer names of an existing GeoPackage; refuse to replace a file that is not one."""
+    import pyogrio
+
+    try:
+        return [str(n) for n, _ in pyogrio.list_layers(p)]
+    except Exception as exc:  # pyogrio raises several types for files it cannot open
+        raise FileFormatError(f"{p} exists and is not a readable GeoPackage ({exc}); "
+                              "remove it or choose another output name") from None
 
 
 def read_layer(path: str | os.PathLike[str], layer: str | None = None) -> pd.DataFrame:

@@ -14,18 +14,28 @@ import logging
 import os
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 
 from ..errors import InputError
 from ..geo import from_metric
+from ..outputs.atomic import atomic_outputs, check_writable
 from ..outputs.h5_layouts import Atl03BeamData, MabelChannelData, write_atl03, write_mabel
-from ..outputs.tables import write_table
+from ..outputs.tables import check_output_path, write_table
+from ..progress import Progress, as_progress
 from ..schema import LAYER_PHOTONS
 from .engine import PHOTON_TRUTH_COLUMNS, Simulation
 
+if TYPE_CHECKING:
+    from .analysis import Seed002Result
+
 __all__ = ["atl03_beam_data", "write_simulation_atl03", "write_simulation_mabel",
-           "write_photon_table", "truth_extra"]
+           "write_photon_table", "truth_extra", "write_seed002_report",
+           "check_simulation_outputs", "write_simulation_outputs", "PHOTON_SUFFIXES"]
+
+PHOTON_SUFFIXES = (".h5", ".hdf5", ".parquet", ".geoparquet", ".gpkg", ".csv")
+"""Suffixes of a simulated photon file: HDF5 (ATL03/MABEL layout) or a table."""
 
 log = logging.getLogger(__name__)
 
@@ -124,3 +134,117 @@ def write_photon_table(sim: Simulation, path: str | os.PathLike[str], *,
     """
     gdf = sim.photon_frame(realisation)
     return write_table(gdf, path, layer=LAYER_PHOTONS)
+
+
+def write_seed002_report(folder: str | os.PathLike[str], result: Seed002Result) -> list[Path]:
+    """The seed-002 report files in ``folder``, all or none.
+
+    ``seed002_table.csv`` (one row per footprint diameter), ``residuals_by_cover.csv``,
+    ``residuals_by_cover.png`` and ``truth_<d>m.csv`` (per-footprint truth, metres in
+    the cloud's CRS and vertical datum) per diameter.
+    """
+    from .plots import plot_cover_residuals
+
+    out = Path(folder)
+    check_writable(out, folder=True)
+    written = []
+    with atomic_outputs():
+        written.append(write_table(result.table, out / "seed002_table.csv"))
+        written.append(write_table(result.cover, out / "residuals_by_cover.csv"))
+        written.append(plot_cover_residuals(result, out / "residuals_by_cover.png"))
+        for d, sim in result.simulations.items():
+            frame = sim.truth_frame().drop(columns="geometry")
+            written.append(write_table(frame, out / f"truth_{d:g}m.csv"))
+    return written
+
+
+def check_simulation_outputs(output: str | os.PathLike[str], *,
+                             photon_table: str | os.PathLike[str] | None = None,
+                             report: str | os.PathLike[str] | None = None) -> None:
+    """Refuse unusable output paths of :func:`write_simulation_outputs` before simulating.
+
+    Raises
+    ------
+    InputError
+        ``output`` has no photon-file suffix (:data:`PHOTON_SUFFIXES`), ``photon_table``
+        no table suffix, or two outputs are the same file.
+    FileFormatError
+        A path cannot be written (folder missing rights, a file where a folder is).
+    """
+    out = Path(output)
+    if out.suffix.lower() not in PHOTON_SUFFIXES:
+        raise InputError(f"output {out}: use .h5 (ATL03/MABEL layout) or .parquet/.gpkg/.csv")
+    check_writable(out)
+    if photon_table is not None:
+        check_output_path(photon_table)
+        if Path(photon_table).absolute() == out.absolute():
+            raise InputError(f"--photons {photon_table} is also the main output; give "
+                             "another file name")
+    if report is not None:
+        check_writable(report, folder=True)
+
+
+def write_simulation_outputs(result: Seed002Result, output: str | os.PathLike[str], *,
+                             layout: Literal["atl03", "mabel"] = "atl03",
+                             diameter: float | None = None,
+                             photon_table: str | os.PathLike[str] | None = None,
+                             report: str | os.PathLike[str] | None = None,
+                             progress: Progress | None = None) -> list[Path]:
+    """Every output of ``canopyblocks simulate``, written all or none.
+
+    Parameters
+    ----------
+    result : Seed002Result
+    output : path-like
+        The photons of the first realisation: ``.h5``/``.hdf5`` in the ATL03 or MABEL
+        layout (``layout``), or a ``.parquet``/``.gpkg``/``.csv`` table with truth.
+    layout : {"atl03", "mabel"}
+    diameter : float, optional
+        Which simulation (footprint diameter, metres) goes to the files; default the
+        first.
+    photon_table : path-like, optional
+        Every realisation's photons with truth (a table).
+    report : path-like, optional
+        Folder for :func:`write_seed002_report`.
+    progress : Progress, optional
+        Checked between the files and once more before they are renamed into place: a
+        cancellation while writing leaves none of them.
+
+    Returns
+    -------
+    list of Path
+        The files written.
+    """
+    prog = as_progress(progress)
+    check_simulation_outputs(output, photon_table=photon_table, report=report)
+    if not result.simulations:
+        raise InputError("the simulation result holds no simulation to write")
+    d = next(iter(result.simulations)) if diameter is None else float(diameter)
+    if d not in result.simulations:
+        raise InputError(f"no simulation with a {d:g} m footprint; the result has "
+                         f"{', '.join(f'{k:g}' for k in result.simulations)} m")
+    sim = result.simulations[d]
+    out = Path(output)
+    written: list[Path] = []
+    n_steps = 1 + (photon_table is not None) + (report is not None)
+    with atomic_outputs(progress=prog):
+        prog.update(0.0, f"writing {out.name}")
+        if out.suffix.lower() in (".h5", ".hdf5"):
+            if layout == "mabel":
+                written.append(write_simulation_mabel(sim, out))
+            elif layout == "atl03":
+                written.append(write_simulation_atl03(sim, out))
+            else:
+                raise InputError(f"layout must be 'atl03' or 'mabel'; got {layout!r}")
+        else:
+            written.append(write_photon_table(sim, out, realisation=0))
+        step = 1
+        if photon_table is not None:
+            prog.update(step / n_steps, f"writing {Path(photon_table).name}")
+            written.append(write_photon_table(sim, photon_table, realisation=None))
+            step += 1
+        if report is not None:
+            prog.update(step / n_steps, "writing the report")
+            written.extend(write_seed002_report(report, result))
+    prog.report(1.0, "written")  # committed: too late to cancel
+    return written
