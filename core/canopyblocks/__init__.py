@@ -47,14 +47,17 @@ from .readers import (
     read_table,
 )
 from .reference import (
+    FootprintReferenceParams,
     Grid,
     ReferenceRasters,
     atl08_reference_values,
     block_corridors,
+    block_footprint_reference,
     block_reference_values,
     block_terrain,
     check_vertical_datums,
     find_pdal,
+    footprint_reference,
     horn_slope_aspect,
     make_reference_rasters,
     read_atl08_segments,
@@ -70,18 +73,52 @@ from .simulate import (
 )
 from .track_blocks import BlocksResult, blocks_from_file, read_tracks
 from .validation import (
+    BiasCalibration,
+    CoregParams,
+    CoregResult,
+    FileValidation,
+    FootprintValidation,
     ValidationResult,
+    apply_bias_calibration,
+    apply_offset,
     block_stats,
+    calibrate_bias_file,
     compute_residuals,
+    coregister,
+    coregister_file,
     error_stats,
+    fit_bias_calibration,
+    read_bias_calibration,
     validate_atl08,
     validate_blocks,
+    validate_file,
+    validate_footprints,
+    write_bias_calibration,
+    write_offsets,
 )
 from .whole_chain import ChainResult, run_chain
 
 __version__ = "0.1.0"
 
 logging.getLogger(__name__).addHandler(logging.NullHandler())
+
+# Parts with heavy imports (scipy.stats, the batch runner, the waveform package) load on
+# first use, so that the command line starts quickly.
+_LAZY = {
+    "Estimators": ".blocks.estimators", "PRESETS": ".blocks.estimators",
+    "preset": ".blocks.estimators", "estimate_blocks": ".blocks.estimators",
+    "BatchConfig": ".batch", "BatchResult": ".batch", "run_batch": ".batch",
+    "WaveformBatch": ".waveforms", "WaveformParams": ".waveforms",
+    "process_waveforms": ".waveforms",
+}
+
+
+def __getattr__(name: str) -> object:
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name], __name__), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 __all__ = [
     "__version__",
@@ -127,6 +164,18 @@ __all__ = [
     "calibrate_cutoffs",
     "compute_blocks",
     "default_cutoffs",
+    "Estimators",
+    "PRESETS",
+    "preset",
+    "estimate_blocks",
+    # waveforms (GEDI and the seed-003/004 instruments)
+    "WaveformBatch",
+    "WaveformParams",
+    "process_waveforms",
+    # many granules
+    "BatchConfig",
+    "BatchResult",
+    "run_batch",
     # file -> layers
     "BlocksResult",
     "blocks_from_file",
@@ -140,12 +189,31 @@ __all__ = [
     "block_terrain",
     "check_vertical_datums",
     "find_pdal",
+    "FootprintReferenceParams",
+    "footprint_reference",
+    "block_footprint_reference",
     "horn_slope_aspect",
     "make_reference_rasters",
     "read_atl08_segments",
     "run_pipeline",
     # validation
     "ValidationResult",
+    "FileValidation",
+    "validate_file",
+    "FootprintValidation",
+    "validate_footprints",
+    "CoregParams",
+    "CoregResult",
+    "coregister",
+    "coregister_file",
+    "write_offsets",
+    "apply_offset",
+    "BiasCalibration",
+    "fit_bias_calibration",
+    "apply_bias_calibration",
+    "read_bias_calibration",
+    "write_bias_calibration",
+    "calibrate_bias_file",
     "block_stats",
     "compute_residuals",
     "error_stats",

@@ -12,18 +12,20 @@ import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import geopandas as gpd
 import numpy as np
 import pandas as pd
 
 from .blocks import BlockParams, compute_blocks
-from .blocks.estimators import Estimators
 from .errors import CanopyBlocksWarning, NoUsableDataError
 from .photons import PhotonTrack
 from .progress import Progress, as_progress
 from .schema import BLOCK_COLUMNS, LABEL_NAMES, LAYER_BLOCKS, LAYER_PHOTONS
+
+if TYPE_CHECKING:
+    from .blocks.estimators import Estimators
 
 __all__ = ["BlocksResult", "select_tracks", "read_tracks", "run_blocks", "blocks_from_file",
            "photon_layer", "track_strengths", "calibrate_blocks"]

@@ -14,4 +14,21 @@ __all__ = [
     "LABEL_OUTSIDE",
     "calibrate_cutoffs",
     "CalibrationResult",
+    "Estimators",
+    "PRESETS",
+    "preset",
+    "estimate_blocks",
 ]
+
+
+# estimators pull in scipy.stats (the density filter): imported on first use
+_LAZY = {"Estimators": ".estimators", "PRESETS": ".estimators", "preset": ".estimators",
+         "estimate_blocks": ".estimators"}
+
+
+def __getattr__(name: str) -> object:
+    if name in _LAZY:
+        import importlib
+
+        return getattr(importlib.import_module(_LAZY[name], __name__), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -2,7 +2,8 @@
 
 PDAL rasters from airborne lidar (``pdal``, ``rasters``, ``lidar_points``), the corridor
 polygons cut at block edges (``corridor``), zonal block values (``zonal``), terrain slope
-and aspect (``terrain``), vertical datums (``datum``) and ATL08 land segments (``atl08``).
+and aspect (``terrain``), vertical datums (``datum``), ATL08 land segments (``atl08``),
+the footprint-matched ALS reference (``footprint``) and raster sampling (``raster_sampling``).
 """
 
 from __future__ import annotations
@@ -10,8 +11,16 @@ from __future__ import annotations
 from .atl08 import atl08_reference_values, read_atl08_segments
 from .corridor import block_corridors
 from .datum import apply_vertical_offset, check_vertical_datums, vertical_part
+from .footprint import (
+    FootprintCloud,
+    FootprintReferenceParams,
+    block_footprint_reference,
+    density_weights,
+    footprint_reference,
+)
 from .lidar_points import cell_percentile, crop_corridor
 from .pdal import PIPELINES, TileInfo, find_pdal, pdal_version, run_pipeline, tile_info
+from .raster_sampling import RasterSurface, read_surface
 from .rasters import NODATA, Grid, RasterParams, ReferenceRasters, make_reference_rasters
 from .terrain import aspect_class, block_terrain, horn_slope_aspect, slope_class
 from .zonal import block_reference_values
@@ -41,4 +50,11 @@ __all__ = [
     "horn_slope_aspect",
     "slope_class",
     "block_reference_values",
+    "FootprintReferenceParams",
+    "FootprintCloud",
+    "footprint_reference",
+    "block_footprint_reference",
+    "density_weights",
+    "RasterSurface",
+    "read_surface",
 ]

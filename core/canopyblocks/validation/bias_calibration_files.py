@@ -12,15 +12,17 @@ from __future__ import annotations
 import os
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from ..blocks import BlockParams
-from ..blocks.estimators import Estimators
 from ..errors import InputError
 from ..progress import Progress, as_progress
 from .bias_calibration import BiasCalibration, BiasKind, fit_bias_calibration
+
+if TYPE_CHECKING:
+    from ..blocks.estimators import Estimators
 
 __all__ = ["calibrate_bias_file"]
 
