@@ -14,7 +14,7 @@ import logging
 import os
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -185,7 +185,7 @@ def check_simulation_outputs(output: str | os.PathLike[str], *,
 
 
 def write_simulation_outputs(result: Seed002Result, output: str | os.PathLike[str], *,
-                             layout: Literal["atl03", "mabel"] = "atl03",
+                             layout: str = "atl03",
                              diameter: float | None = None,
                              photon_table: str | os.PathLike[str] | None = None,
                              report: str | os.PathLike[str] | None = None,
