@@ -18,6 +18,7 @@ from . import (
     reference,
     simulate,
     validate,
+    waveforms,
 )
 from .common import run_main
 
@@ -28,8 +29,9 @@ from .common import run_main
 @click.option("-q", "--quiet", is_flag=True, help="No progress bars, warnings only.")
 @click.pass_context
 def cli(ctx: click.Context, verbose: int, quiet: bool) -> None:
-    """Canopy height and ground per along-track block from photon-counting lidar
-    (ICESat-2 ATL03, MABEL), validated against airborne lidar."""
+    """Canopy height and ground from lidar profiles -- per along-track block from
+    photon-counting lidar (ICESat-2 ATL03, MABEL), per footprint from full-waveform lidar
+    (GEDI L1B) -- validated against airborne lidar."""
     from .common import setup_logging
 
     ctx.ensure_object(dict)
@@ -38,7 +40,7 @@ def cli(ctx: click.Context, verbose: int, quiet: bool) -> None:
 
 
 for _module in (blocks, reference, validate, footprint_validation, coregister, calibrate,
-                simulate, chain, batch):
+                simulate, chain, batch, waveforms):
     _module.register(cli)
 
 

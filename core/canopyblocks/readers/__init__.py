@@ -1,5 +1,6 @@
-"""Readers of photon files: ICESat-2 ATL03 (+ ATL08 classes), MABEL L2A, tables
-(and airborne LAS/LAZ point clouds, :mod:`.las`).
+"""Readers of photon files: ICESat-2 ATL03 (+ ATL08 classes), MABEL L2A, tables;
+of GEDI L1B waveforms (:mod:`.gedi`) and L2A/L2B products (:mod:`.gedi_l2`); and of
+airborne LAS/LAZ point clouds (:mod:`.las`).
 
 Each reader returns one :class:`~canopyblocks.photons.PhotonTrack` (one beam or
 channel), optionally subset by a WGS84 ``bbox`` or an along-track ``s_range``
@@ -11,6 +12,15 @@ from __future__ import annotations
 
 from .atl03 import BEAMS, BeamInfo, atl03_beams, read_atl03
 from .atl08 import read_atl08_photons
+from .gedi import (
+    GEDI_BEAMS,
+    gedi_beam_info,
+    gedi_beams,
+    is_gedi_l1b,
+    iter_gedi_l1b,
+    read_gedi_l1b,
+)
+from .gedi_l2 import read_gedi_l2a, read_gedi_l2b
 from .las import LasPoints, las_crs, read_las
 from .mabel import mabel_channels, read_mabel
 from .sniff import default_beam, detect_product, file_info, format_info, open_track
@@ -33,4 +43,12 @@ __all__ = [
     "format_info",
     "detect_product",
     "default_beam",
+    "GEDI_BEAMS",
+    "gedi_beams",
+    "gedi_beam_info",
+    "is_gedi_l1b",
+    "iter_gedi_l1b",
+    "read_gedi_l1b",
+    "read_gedi_l2a",
+    "read_gedi_l2b",
 ]

@@ -85,6 +85,9 @@ def detect_product(path: str | os.PathLike[str]) -> Product:
             raise FileFormatError(
                 f"{p}: HDF5 file but neither ATL03 (gtXX/heights) nor MABEL L2A "
                 f"(photon/channelNNN); top-level groups: {', '.join(f.keys()) or 'none'}"
+                + ("; GEDI: L1B waveforms go through `canopyblocks waveforms`, L2A/L2B "
+                   "serve as its --l2a/--l2b"
+                   if any(k.startswith("BEAM") for k in f.keys()) else "")
             )
         return prod
 
@@ -185,6 +188,10 @@ def file_info(path: str | os.PathLike[str]) -> dict[str, Any]:
         lat_max, degrees).  ATL03 spans come from the geolocation segments; MABEL
         spans from every k-th photon (at most 100,000 per channel).
     """
+    from .gedi import gedi_file_info, is_gedi_l1b
+
+    if Path(path).suffix.lower() in (".h5", ".hdf5", ".he5") and is_gedi_l1b(path):
+        return gedi_file_info(path)
     prod = detect_product(path)
     info: dict[str, Any] = {"path": str(path), "product": prod}
     if prod == "table":
@@ -260,8 +267,14 @@ def format_info(info: dict[str, Any]) -> str:
     for key in ("rgt", "cycle", "sc_orient", "track", "crs", "n_photons"):
         if info.get(key) is not None:
             lines.append(f"  {key}: {info[key]}")
+    if info.get("n_shots") is not None:
+        lines.append(f"  shots: {info['n_shots']}")
     for b in info.get("beams", []):
-        if isinstance(b, dict):
+        if isinstance(b, dict) and "n_shots" in b:
+            flags = "".join(f", {b[k]} {k[2:]}" for k in ("n_stale", "n_degraded") if b.get(k))
+            lines.append(f"  beam {b['beam']}: {b['power']} power, {b['n_shots']} shots"
+                         f"{flags}")
+        elif isinstance(b, dict):
             spot = f", spot {b['spot']}" if b.get("spot") else ""
             lines.append(f"  beam {b['name']}: {b['strength']}{spot}, {b['n_photons']} photons")
         else:

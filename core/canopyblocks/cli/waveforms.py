@@ -1,0 +1,72 @@
+"""CLI command ``waveforms``: GEDI L1B waveforms -> footprints layer (DESIGN section 4)."""
+
+from __future__ import annotations
+
+import logging
+
+import click
+
+from .common import parse_floats, progress_bar
+
+log = logging.getLogger(__name__)
+
+
+def register(group: click.Group) -> None:
+    """Add this module's commands to ``group``."""
+    group.add_command(waveforms_cmd)
+
+
+@click.command("waveforms")
+@click.argument("path", metavar="L1B", type=click.Path(dir_okay=False))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
+              help="Footprints: .gpkg (layer 'footprints'), .parquet or .csv.")
+@click.option("--beam", "beams", multiple=True,
+              help="Beam (BEAM0000 .. BEAM1011); repeat for several. Default: every beam.")
+@click.option("--setting", type=click.Choice(["a1", "a2", "a3", "a4", "a5", "a6"]),
+              default="a1", show_default=True, help="L2A setting group (thresholds, "
+              "smoothing).")
+@click.option("--decompose", is_flag=True,
+              help="Also fit Gaussians (seed 003) and add ground_gauss (30-100x slower).")
+@click.option("--all-rh", is_flag=True, help="Write rh0 .. rh100 (every percent).")
+@click.option("--bbox", default=None, help="lon_min,lat_min,lon_max,lat_max (degrees) subset.")
+@click.option("--crs", default=None, help="Metric CRS of the layer (default: UTM zone).")
+@click.option("--quality", is_flag=True,
+              help="Drop stale and degraded shots (default: keep them, flagged).")
+@click.option("--l2a", type=click.Path(dir_okay=False), default=None,
+              help="GEDI L2A of the same shots: add its values and the differences "
+                   "(layer l2a_comparison).")
+@click.option("--l2b", type=click.Path(dir_okay=False), default=None,
+              help="GEDI L2B of the same shots: add its cover.")
+@click.option("--plots", type=click.Path(file_okay=False), default=None,
+              help="Folder for waveform plots (PNG) and waveforms.html.")
+@click.option("--shot", "shots", multiple=True, type=int,
+              help="Shot number to plot (repeatable; default a few ok shots per beam).")
+@click.pass_context
+def waveforms_cmd(ctx: click.Context, path: str, output: str, beams: tuple[str, ...],
+                  setting: str, decompose: bool, all_rh: bool, bbox: str | None,
+                  crs: str | None, quality: bool, l2a: str | None, l2b: str | None,
+                  plots: str | None, shots: tuple[int, ...]) -> None:
+    """Ground, canopy top, RH metrics and cover per GEDI footprint from L1B waveforms
+    (GEDI L2A's algorithm, setting groups a1-a6)."""
+    from ..waveform_footprints import footprints_to_file
+    from ..waveforms.settings import WaveformParams
+
+    params = WaveformParams(setting=setting, decompose=decompose,  # type: ignore[arg-type]
+                            all_rh=all_rh)
+    quiet = bool(ctx.obj and ctx.obj.get("quiet"))
+    with progress_bar("waveforms", quiet=quiet) as progress:
+        res = footprints_to_file(
+            path, output, beams=beams or None, params=params,
+            bbox=parse_floats(bbox, 4, "lon_min,lat_min,lon_max,lat_max", "--bbox"),  # type: ignore[arg-type]
+            crs=crs, quality=quality, l2a=l2a, l2b=l2b, plots_dir=plots,
+            plot_shots=shots or None, progress=progress)
+    if quiet:
+        return
+    if res.comparison is not None and len(res.comparison):
+        for row in res.comparison[res.comparison["beam"] == "all"].itertuples():
+            click.echo(f"  vs L2A {row.metric:<6} n={row.n:<5} bias={row.bias:+.3f} "
+                       f"rmse={row.rmse:.3f} m  within 0.10 m: {100 * row[6]:.1f} %",
+                       err=True)
+    flags = ", ".join(f"{k} {v}" for k, v in sorted(res.flags.items()))
+    click.echo(f"canopyblocks: {len(res.footprints)} footprints ({flags}) -> {res.output}",
+               err=True)

@@ -1,0 +1,295 @@
+"""GEDI L1B file -> footprints layer: the one core call behind ``canopyblocks waveforms``,
+the QGIS algorithm and ``run`` with GEDI input.
+
+Reads the L1B beam by beam in chunks of shots (:func:`~canopyblocks.readers.gedi.iter_gedi_l1b`),
+processes each chunk (:func:`~canopyblocks.waveforms.process.process_waveforms`), applies
+the seed-003 terrain filter along each whole beam, and returns one GeoDataFrame with the
+DESIGN 5 footprint columns and PointZ geometry (x, y, ground elevation) in a metric CRS
+(the UTM zone of the data unless given). Optionally joins the official L2A (and L2B)
+values of the same shots for comparison, and draws waveform plots of chosen shots.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import geopandas as gpd
+import numpy as np
+import pandas as pd
+
+from .errors import InputError, NoUsableDataError
+from .progress import Progress, as_progress
+from .schema import LAYER_FOOTPRINTS
+
+__all__ = ["FootprintRunSummary", "footprints_from_l1b", "footprints_to_file",
+           "compare_with_l2a", "GEDI_VERTICAL_DATUM"]
+
+log = logging.getLogger(__name__)
+
+#: GEDI elevations are heights above the WGS84 ellipsoid.
+GEDI_VERTICAL_DATUM = "EPSG:4979"
+_PLOT_DEFAULT = 3      # waveform plots per beam when no shots are named
+
+
+@dataclass
+class FootprintRunSummary:
+    """What :func:`footprints_to_file` produced."""
+
+    output: Path
+    footprints: gpd.GeoDataFrame
+    flags: dict[str, int]
+    comparison: pd.DataFrame | None = None
+    plots: list[Path] = field(default_factory=list)
+
+
+def _terrain_filter(table: pd.DataFrame) -> pd.DataFrame:
+    """Seed-003 terrain outliers along one whole beam (time order), flagged."""
+    from .waveforms.terrain_filter import terrain_outliers
+
+    if table.empty:
+        return table
+    order = np.argsort(table["time"].to_numpy(float), kind="stable")
+    flag = table["flag"].to_numpy(object)
+    usable = (flag == "ok") | (flag == "too_many_modes")
+    ground = table["ground"].to_numpy(float)
+    height = table["top"].to_numpy(float) - ground
+    z = np.where(usable, ground, np.nan)[order]
+    h = np.where(usable, height, np.nan)[order]
+    outlier = np.zeros(len(table), dtype=bool)
+    outlier[order] = terrain_outliers(z, h)
+    flag = flag.copy()
+    flag[outlier & (flag == "ok")] = "terrain_outlier"
+    return table.assign(flag=flag)
+
+
+def footprints_from_l1b(
+    path: str | os.PathLike[str],
+    *,
+    beams: Sequence[str] | str | None = None,
+    params: Any = None,
+    bbox: tuple[float, float, float, float] | None = None,
+    crs: Any = None,
+    quality: bool = False,
+    chunk_shots: int = 4096,
+    plot_shots: Sequence[int] | None = None,
+    plots_dir: str | os.PathLike[str] | None = None,
+    progress: Progress | None = None,
+) -> tuple[gpd.GeoDataFrame, list[Path]]:
+    """Footprints (ground, top, RH, cover, flags) of every shot of a GEDI L1B file.
+
+    Parameters
+    ----------
+    path : path
+        GEDI L1B granule or subset.
+    beams : str or sequence, optional
+        Default every beam.
+    params : WaveformParams, optional
+        Setting group (default a1), ``all_rh``, ``decompose``, ...; its terrain filter is
+        applied per whole beam.
+    bbox : (lon_min, lat_min, lon_max, lat_max), optional
+        Degrees WGS84.
+    crs : CRS-like, optional
+        Metric CRS of the geometry (default the UTM zone of the footprints).
+    quality : bool
+        Drop stale/degraded shots instead of flagging them.
+    plot_shots, plots_dir
+        Waveform plots (PNG) of these shot numbers (default the first few ``ok`` shots of
+        each beam) into ``plots_dir``.
+
+    Returns
+    -------
+    (GeoDataFrame, list of Path)
+        The footprints layer (``attrs["vertical_datum"]`` EPSG:4979) and plots written.
+
+    Raises
+    ------
+    FileFormatError, InputError, NoUsableDataError
+    """
+    from .geo import as_crs, to_metric
+    from .readers.gedi import iter_gedi_l1b
+    from .waveforms.process import process_waveforms, shot_details
+    from .waveforms.settings import WaveformParams
+
+    base = params if params is not None else WaveformParams()
+    if not isinstance(base, WaveformParams):
+        raise InputError(f"params must be a WaveformParams; got {type(base).__name__}")
+    chunk_params = replace(base, terrain_filter=False)
+    prog = as_progress(progress)
+    wanted = None if plot_shots is None else {int(s) for s in plot_shots}
+    per_beam: dict[str, list[pd.DataFrame]] = {}
+    plots: list[Path] = []
+    plotted: dict[str, int] = {}
+    reading = prog.sub(0.0, 0.9)
+    for batch in iter_gedi_l1b(path, beams, bbox=bbox, quality=quality,
+                               chunk_shots=chunk_shots, progress=reading):
+        table = process_waveforms(batch, chunk_params)
+        per_beam.setdefault(batch.beam, []).append(table)
+        if plots_dir is not None:
+            plots += _plot(batch, table, wanted, plotted, Path(plots_dir), base, shot_details)
+        reading.check()
+    if not per_beam:
+        raise NoUsableDataError(f"{path}: no shot to process"
+                                + (" inside the bbox" if bbox is not None else ""))
+    frames = []
+    for _beam, parts in per_beam.items():
+        t = pd.concat(parts, ignore_index=True)
+        frames.append(_terrain_filter(t) if base.terrain_filter else t)
+    table = pd.concat(frames, ignore_index=True)
+    prog.update(0.92, "footprint geometry")
+    lon, lat = table["lon"].to_numpy(float), table["lat"].to_numpy(float)
+    fin = np.isfinite(lon) & np.isfinite(lat)
+    if not fin.any():
+        raise NoUsableDataError(f"{path}: no footprint has a finite position")
+    target = as_crs(crs, "crs") if crs is not None else None
+    x = np.full(len(table), np.nan)
+    y = np.full(len(table), np.nan)
+    xf, yf, out_crs = to_metric(lon[fin], lat[fin], target)
+    x[fin], y[fin] = xf, yf
+    z = table["ground"].to_numpy(float)
+    geom = gpd.points_from_xy(x, y, np.where(np.isfinite(z), z, np.nan), crs=out_crs)
+    gdf = gpd.GeoDataFrame(table, geometry=geom, crs=out_crs)
+    gdf.attrs["vertical_datum"] = GEDI_VERTICAL_DATUM
+    prog.update(1.0, f"{len(gdf)} footprints")
+    return gdf, plots
+
+
+def _plot(batch: Any, table: pd.DataFrame, wanted: set[int] | None, plotted: dict[str, int],
+          folder: Path, params: Any, shot_details: Any) -> list[Path]:
+    from .outputs.waveform_plot import plot_waveform
+
+    sn = table["shot_number"].to_numpy(np.int64)
+    if wanted is not None:
+        idx = np.flatnonzero(np.isin(sn, list(wanted)))
+    else:
+        done = plotted.get(batch.beam, 0)
+        ok = np.flatnonzero(table["flag"].to_numpy(object) == "ok")
+        idx = ok[:max(0, _PLOT_DEFAULT - done)]
+        plotted[batch.beam] = done + len(idx)
+    out = []
+    for i in idx:
+        details = shot_details(batch, int(i), params)
+        out.append(plot_waveform(details, folder / f"waveform_{batch.beam}_{sn[i]}.png"))
+    return out
+
+
+def compare_with_l2a(footprints: pd.DataFrame, l2a: str | os.PathLike[str] | None = None,
+                     l2b: str | os.PathLike[str] | None = None, *,
+                     setting: str = "a1") -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Footprints with the official L2A (and L2B) values of the same shots, and the
+    agreement statistics.
+
+    Adds ``l2a_ground``, ``l2a_rh50``, ``l2a_rh98``, ``l2a_top``, ``l2a_valid`` (L2A
+    ``quality_flag`` 1, ``rx_algrunflag`` 1, not stale/degraded) and ``d_ground``,
+    ``d_rh50``, ``d_rh98``, ``d_top`` (ours minus L2A, m); with ``l2b`` ``l2b_cover`` and
+    ``d_cover``. Joined on ``shot_number`` (int64, exact).
+
+    Returns
+    -------
+    (DataFrame, DataFrame)
+        The joined table, and per beam and metric ``n``, ``bias``, ``rmse``,
+        ``within_0.10`` (share of valid ok shots within 0.10 m).
+    """
+    from .readers.gedi_l2 import read_gedi_l2a, read_gedi_l2b
+
+    out = footprints.copy()
+    metrics = ["ground", "rh50", "rh98", "top"]
+    if l2a is not None:
+        ref = read_gedi_l2a(l2a, setting=setting)
+        ref = ref.drop_duplicates("shot_number").set_index("shot_number")
+        sn = out["shot_number"].to_numpy(np.int64)
+        for m in metrics:
+            out[f"l2a_{m}"] = ref[m].reindex(sn).to_numpy(float)
+            out[f"d_{m}"] = out[m].to_numpy(float) - out[f"l2a_{m}"].to_numpy(float)
+        valid = ((ref["quality_flag"].reindex(sn).to_numpy() == 1)
+                 & (ref["algrunflag"].reindex(sn).to_numpy() == 1))
+        out["l2a_valid"] = valid & (out["flag"].to_numpy(object) == "ok")
+    if l2b is not None:
+        cov = read_gedi_l2b(l2b).drop_duplicates("shot_number").set_index("shot_number")
+        out["l2b_cover"] = cov["cover"].reindex(out["shot_number"].to_numpy(np.int64)) \
+            .to_numpy(float)
+        out["d_cover"] = out["cover"].to_numpy(float) - out["l2b_cover"].to_numpy(float)
+        metrics.append("cover")
+    rows = []
+    if "l2a_valid" in out or "d_cover" in out:
+        use = out["l2a_valid"].to_numpy(bool) if "l2a_valid" in out else \
+            (out["flag"].to_numpy(object) == "ok")
+        for beam in ["all", *sorted(out["beam"].unique())]:
+            sel = use & ((out["beam"] == beam).to_numpy() if beam != "all" else True)
+            for m in metrics:
+                if f"d_{m}" not in out:
+                    continue
+                d = out[f"d_{m}"].to_numpy(float)[sel]
+                d = d[np.isfinite(d)]
+                rows.append({"beam": beam, "metric": m, "n": int(d.size),
+                             "bias": float(d.mean()) if d.size else np.nan,
+                             "rmse": float(np.sqrt(np.mean(d * d))) if d.size else np.nan,
+                             "within_0.10": float(np.mean(np.abs(d) <= 0.10)) if d.size
+                             else np.nan})
+    return out, pd.DataFrame(rows)
+
+
+def footprints_to_file(
+    path: str | os.PathLike[str],
+    output: str | os.PathLike[str],
+    *,
+    beams: Sequence[str] | str | None = None,
+    params: Any = None,
+    bbox: tuple[float, float, float, float] | None = None,
+    crs: Any = None,
+    quality: bool = False,
+    l2a: str | os.PathLike[str] | None = None,
+    l2b: str | os.PathLike[str] | None = None,
+    plots_dir: str | os.PathLike[str] | None = None,
+    plot_shots: Sequence[int] | None = None,
+    progress: Progress | None = None,
+) -> FootprintRunSummary:
+    """Process a GEDI L1B file and write the footprints layer (atomically).
+
+    ``output``: ``.gpkg`` (layer ``footprints``, plus ``l2a_comparison`` with ``l2a``),
+    ``.parquet`` or ``.csv``. See :func:`footprints_from_l1b` and :func:`compare_with_l2a`.
+    """
+    from .outputs.atomic import check_writable, new_files_removed_on_failure
+    from .outputs.tables import check_output_path, write_layers
+
+    check_output_path(output)
+    if plots_dir is not None:
+        check_writable(plots_dir, folder=True)
+        Path(plots_dir).mkdir(parents=True, exist_ok=True)
+    prog = as_progress(progress)
+    setting = params.setting if params is not None else "a1"
+    ctx = new_files_removed_on_failure(plots_dir) if plots_dir is not None else None
+    if ctx is not None:
+        ctx.__enter__()
+    try:
+        gdf, plots = footprints_from_l1b(path, beams=beams, params=params, bbox=bbox,
+                                         crs=crs, quality=quality, plot_shots=plot_shots,
+                                         plots_dir=plots_dir, progress=prog.sub(0.0, 0.9))
+        comparison = None
+        if l2a is not None or l2b is not None:
+            joined, comparison = compare_with_l2a(gdf, l2a, l2b, setting=setting)
+            gdf = gpd.GeoDataFrame(joined, geometry="geometry", crs=gdf.crs)
+            gdf.attrs["vertical_datum"] = GEDI_VERTICAL_DATUM
+        if plots:
+            from .outputs.waveform_plot import plots_index
+
+            plots.append(plots_index(plots, Path(plots_dir) / "waveforms.html"))  # type: ignore[arg-type]
+        prog.update(0.95, "writing")
+        layers: dict[str, pd.DataFrame] = {LAYER_FOOTPRINTS: gdf}
+        if comparison is not None and Path(output).suffix.lower() == ".gpkg":
+            layers["l2a_comparison"] = comparison
+        out = write_layers(layers, output)
+    except BaseException as exc:
+        if ctx is not None:
+            ctx.__exit__(type(exc), exc, exc.__traceback__)
+        raise
+    if ctx is not None:
+        ctx.__exit__(None, None, None)
+    flags = {str(k): int(v) for k, v in gdf["flag"].value_counts().items()}
+    prog.update(1.0, "done")
+    return FootprintRunSummary(output=out, footprints=gdf, flags=flags,
+                               comparison=comparison, plots=plots)
