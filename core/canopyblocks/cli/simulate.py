@@ -21,6 +21,11 @@ log = logging.getLogger(__name__)
 
 @click.command("simulate")
 @click.argument("las", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.option("--sensor", type=click.Choice(["icesat2", "gedi", "esfl", "dual"]),
+              default="icesat2", show_default=True,
+              help="icesat2: photons (seed 002; --instrument mabel for MABEL); gedi: "
+                   "waveforms in the GEDI L1B layout; esfl: flash-array data cubes "
+                   "(seed 003); dual: visible/NIR waveform pairs (seed 004).")
 @click.option("--azimuth", type=float, default=None,
               help="Track through the survey centre at this azimuth, degrees clockwise "
                    "from grid north, clipped to the survey extent.")
@@ -64,7 +69,7 @@ log = logging.getLogger(__name__)
               help="Folder for the seed-002 table (CSV), residuals by cover (CSV), the "
                    "cover plot (PNG) and the per-footprint truth (CSV).")
 @click.pass_context
-def simulate_cmd(ctx: click.Context, las: tuple[str, ...], azimuth: float | None,
+def simulate_cmd(ctx: click.Context, las: tuple[str, ...], sensor: str, azimuth: float | None,
                  line: str | None, polyline: str | None, centre: str | None,
                  diameters: tuple[float, ...],
                  instrument: Instrument, shot_spacing: float | None, preset: Ecosystem,
@@ -72,11 +77,11 @@ def simulate_cmd(ctx: click.Context, las: tuple[str, ...], azimuth: float | None
                  mean_photons: float | None, noise_rate: float, geolocation_sigma: float,
                  realisations: int, seed: int, crs: str | None, output: str, fmt: str | None,
                  photon_table: str | None, report: str | None) -> None:
-    """Simulate photon-counting lidar along a track over airborne LAS/LAZ tiles.
+    """Simulate lidar along a track over airborne LAS/LAZ tiles: ICESat-2/MABEL photons
+    (default), GEDI waveforms, flash-array cubes or dual-wavelength pairs.
 
-    Photons keep the LAS files' CRS (converted to WGS84 lat/lon in HDF5 files) and
-    vertical datum; truth columns (source point, footprint ground/top/cover) travel
-    with them.
+    Heights keep the LAS files' CRS (converted to WGS84 lat/lon in HDF5 files) and
+    vertical datum; the truth (footprint ground, top, RH, cover) travels with them.
     """
     from ..errors import InputError
     from ..readers.las import las_bounds, read_las
@@ -90,6 +95,10 @@ def simulate_cmd(ctx: click.Context, las: tuple[str, ...], azimuth: float | None
     if sum(v is not None for v in (azimuth, line, polyline)) != 1:
         raise click.UsageError(
             "give exactly one of --azimuth DEG, --line x0,y0,x1,y1 or --polyline 'x,y;x,y;...'")
+    if sensor != "icesat2":
+        _waveform_sensor(ctx, las, sensor, azimuth, line, polyline, centre, seed, crs,
+                         output, report)
+        return
     params = SimParams(instrument=instrument,
                        diameter=diameters[0] if diameters else None,
                        shot_spacing=shot_spacing, preset=preset,
@@ -145,6 +154,55 @@ def simulate_cmd(ctx: click.Context, las: tuple[str, ...], azimuth: float | None
             f"rms {r['top_rms']:.2f} m", err=True)
     click.echo(f"canopyblocks: {len(sim.photon_columns(0)['h']):,} photons over "
                f"{sim.length:.0f} m -> {out}", err=True)
+
+
+def _waveform_sensor(ctx: click.Context, las: tuple[str, ...], sensor: str,
+                     azimuth: float | None, line: str | None, polyline: str | None,
+                     centre: str | None, seed: int, crs: str | None, output: str,
+                     report: str | None) -> None:
+    """``--sensor gedi|esfl|dual``: one core call writing the HDF5 (and the report)."""
+    from ..errors import InputError
+    from ..readers.las import las_bounds, read_las
+    from ..simulate import SimTrack, line_through
+    from ..simulate.sensor_files import (
+        simulate_dual_to_file,
+        simulate_esfl_to_file,
+        simulate_gedi_to_file,
+    )
+
+    out = Path(output)
+    if out.suffix.lower() not in (".h5", ".hdf5"):
+        raise InputError(f"output {out}: --sensor {sensor} writes HDF5; name it *.h5")
+    if seed < 0:
+        raise InputError(f"--seed must be >= 0; got {seed}")
+    reach = {"gedi": 17.5, "esfl": 10.0, "dual": 17.5}[sensor]   # 3 sigma + 1 m
+    if line is not None:
+        x0, y0, x1, y1 = _parse(line, 4, "x0,y0,x1,y1")
+        track = SimTrack.line(x0, y0, x1, y1)
+    elif polyline is not None:
+        track = _polyline(polyline)
+    else:
+        c = None if centre is None else _pair(centre, "x,y")
+        track = line_through(las_bounds(list(las)), float(cast(float, azimuth)),
+                             inset=reach, centre=c)
+    vx, vy = zip(*track.vertices)
+    bbox = (min(vx) - reach, min(vy) - reach, max(vx) + reach, max(vy) + reach)
+    quiet = bool(ctx.obj and ctx.obj.get("quiet"))
+    run = {"gedi": simulate_gedi_to_file, "esfl": simulate_esfl_to_file,
+           "dual": simulate_dual_to_file}[sensor]
+    with progress_bar("simulate", quiet=quiet) as progress:
+        pts = read_las(list(las), crs=crs, bbox=bbox, progress=progress.sub(0.0, 0.2))
+        summary = run(pts, track, out, seed=seed, report_dir=report,  # type: ignore[operator]
+                      progress=progress.sub(0.2, 1.0))
+    if quiet:
+        return
+    study = summary.get("study")
+    if sensor == "gedi" and study is not None:
+        for r in study.itertuples():
+            click.echo(f"canopyblocks: simulated GEDI vs truth {r.metric:<6} n={r.n} "
+                       f"bias={r.bias:+.2f} rmse={r.rmse:.2f}", err=True)
+    click.echo(f"canopyblocks: {summary['footprints']} {sensor} footprints over "
+               f"{track.length:.0f} m -> {out}", err=True)
 
 
 def _parse(value: str, n: int, what: str) -> tuple[float, ...]:

@@ -1,11 +1,15 @@
-"""Simulated flash-array cubes and dual-wavelength pairs over airborne tiles, as files.
+"""Simulated GEDI waveforms, flash-array cubes and dual-wavelength pairs over airborne
+tiles, as files.
 
-What ``canopyblocks simulate LAS --sensor esfl|dual`` writes: one HDF5 file (atomic) with
+What ``canopyblocks simulate LAS --sensor gedi|esfl|dual`` writes: one HDF5 file (atomic) with
 the simulated data and their truth, and optionally a report folder with the method's
 study (seed 003's energy-threshold table, or seed 004's ground error against cover).
 
 Layouts (HDF5, metres unless stated):
 
+- GEDI: the L1B layout (:mod:`canopyblocks.outputs.gedi_l1b_layout`) with the truth in
+  ``BEAMxxxx/canopyblocks_truth/``; report: ``gedi_truth.csv`` and
+  ``gedi_round_trip.csv`` (the L2A-style processing of the file against the truth).
 - ESFL: ``cubes`` (footprints, rows, cols, bins) float32, ``top`` (footprints,) the
   elevation of bin 0, ``x``/``y`` footprint centres (the tiles' CRS, attribute ``crs``),
   ``truth/ground``, ``truth/top``, ``truth/height``; attributes ``bin_size``,
@@ -25,18 +29,18 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..errors import InputError, NoUsableDataError
+from ..errors import InputError
 from ..outputs.atomic import atomic_output
 from ..progress import Progress, as_progress
 from ..readers.las import LasPoints
 from .dual_pairs import DualPairs
 from .flash_cubes import FlashSimParams, simulate_flash_cubes, threshold_study
-from .footprints import CloudIndex
+from .footprint_returns import footprint_returns
 from .tracks import SimTrack, shots_along
 from .waveform_binning import bin_returns
 
 __all__ = ["DualAlsParams", "simulate_dual_over_points", "simulate_esfl_to_file",
-           "simulate_dual_to_file"]
+           "simulate_dual_to_file", "simulate_gedi_to_file", "gedi_round_trip"]
 
 log = logging.getLogger(__name__)
 
@@ -73,22 +77,8 @@ def simulate_dual_over_points(points: LasPoints, track: SimTrack,
     """Visible/NIR pairs along ``track``; returns the pairs and the footprint centres."""
     p = params or DualAlsParams()
     sx, sy, _ = shots_along(track, p.spacing)
-    ok = np.isfinite(points.x) & np.isfinite(points.y) & np.isfinite(points.z)
-    ids = np.flatnonzero(ok)
-    index = CloudIndex(points.x[ids], points.y[ids], points.z[ids])
-    pairs = index.pairs(sx, sy, 3.0 * p.sigma)
-    shot, pt = pairs.shot, pairs.point
-    if pt.size == 0:
-        raise NoUsableDataError("no airborne point under the simulated footprints")
-    n = sx.size
-    x, y, z = index.x[pt], index.y[pt], index.z[pt]
-    r2 = (x - sx[shot]) ** 2 + (y - sy[shot]) ** 2
-    cell = (np.floor(x / p.density_cell).astype(np.int64) * 1_000_003
-            + np.floor(y / p.density_cell).astype(np.int64))
-    key = shot.astype(np.int64) * (1 << 40) + (cell % (1 << 40))
-    _, inv, counts = np.unique(key, return_inverse=True, return_counts=True)
-    w = np.exp(-r2 / (2 * p.sigma ** 2)) / counts[inv]
-    ground = points.classification[ids[pt]] == 2
+    ret = footprint_returns(points, sx, sy, p.sigma, density_cell=p.density_cell)
+    n, shot, z, w, ground, r2 = ret.n, ret.shot, ret.z, ret.weight, ret.ground, ret.r2
     zmax = np.full(n, -np.inf)
     zmin = np.full(n, np.inf)
     np.maximum.at(zmax, shot, z)
@@ -192,6 +182,59 @@ def simulate_dual_to_file(points: LasPoints, track: SimTrack, path: str | os.Pat
         table["dual_error"] = table["dual_ground"] - table["truth_ground"]
         table["mode_error"] = table["lowest_mode_ground"] - table["truth_ground"]
         _write_report_table(table, Path(report_dir) / "dual_ground_by_footprint.csv")
+        summary["study"] = table
+    prog.report(1.0, "done")
+    return summary
+
+
+def gedi_round_trip(path: str | os.PathLike[str], truth: pd.DataFrame) -> pd.DataFrame:
+    """Read a simulated L1B back, process it (setting a1) and compare with the truth:
+    per metric ``n``, ``bias``, ``rmse`` (m; cover as a fraction)."""
+    from ..readers.gedi import gedi_beams, read_gedi_l1b
+    from ..waveforms.process import process_waveforms
+
+    beam = gedi_beams(path)[0]
+    res = process_waveforms(read_gedi_l1b(path, beam))
+    ok = (res["flag"] == "ok").to_numpy()
+    rows = []
+    for metric, ours, ref in (("ground", "ground", "truth_ground"),
+                              ("rh50", "rh50", "truth_rh50"),
+                              ("rh98", "rh98", "truth_rh98"),
+                              ("cover", "cover", "truth_cover")):
+        d = res[ours].to_numpy(float) - truth[ref].to_numpy(float)
+        d = d[ok & np.isfinite(d)]
+        rows.append({"metric": metric, "n": int(d.size),
+                     "bias": float(d.mean()) if d.size else np.nan,
+                     "rmse": float(np.sqrt(np.mean(d * d))) if d.size else np.nan})
+    return pd.DataFrame(rows)
+
+
+def simulate_gedi_to_file(points: LasPoints, track: SimTrack, path: str | os.PathLike[str],
+                          *, params: object = None, seed: int = 0,
+                          report_dir: str | os.PathLike[str] | None = None,
+                          progress: Progress | None = None) -> dict[str, object]:
+    """Simulate GEDI waveforms along ``track``, write them in the L1B layout (and the
+    truth and round-trip tables into ``report_dir``)."""
+    from ..outputs.gedi_l1b_layout import write_gedi_l1b
+    from .gedi_waveforms import GediSimParams, simulate_gedi
+
+    prog = as_progress(progress)
+    p = params if params is not None else GediSimParams()
+    if not isinstance(p, GediSimParams):
+        raise InputError(f"params must be GediSimParams; got {type(p).__name__}")
+    prog.update(0.0, "simulating GEDI waveforms")
+    sim = simulate_gedi(points, track, params=p, seed=seed)
+    prog.update(0.6, "writing")
+    out = write_gedi_l1b(path, [sim.batch], truth={sim.batch.beam: sim.truth},
+                         attrs={"simulated": "canopyblocks GEDI waveform simulation",
+                                "crs": sim.crs, "vertical_datum": sim.vertical_datum,
+                                "seed": int(seed)})
+    summary: dict[str, object] = {"footprints": len(sim.truth), "output": str(out)}
+    if report_dir is not None:
+        prog.update(0.8, "round trip")
+        _write_report_table(sim.truth, Path(report_dir) / "gedi_truth.csv")
+        table = gedi_round_trip(out, sim.truth)
+        _write_report_table(table, Path(report_dir) / "gedi_round_trip.csv")
         summary["study"] = table
     prog.report(1.0, "done")
     return summary
