@@ -16,7 +16,19 @@ from ..errors import NoUsableDataError
 from ..readers.las import LasPoints
 from .footprints import CloudIndex
 
-__all__ = ["FootprintReturns", "footprint_returns"]
+__all__ = ["FootprintReturns", "footprint_returns", "footprint_index", "EXCLUDED_CLASSES"]
+
+#: ASPRS classes that are not surfaces (low and high noise): never part of a waveform.
+EXCLUDED_CLASSES: tuple[int, ...] = (7, 18)
+
+
+def footprint_index(points: LasPoints) -> tuple[CloudIndex, np.ndarray]:
+    """A spatial index over the points waveforms see (finite, not noise classes) and
+    their positions in ``points``; build it once for several simulations."""
+    keep = np.isfinite(points.x) & np.isfinite(points.y) & np.isfinite(points.z)
+    keep &= ~np.isin(points.classification, EXCLUDED_CLASSES)
+    ids = np.flatnonzero(keep)
+    return CloudIndex(points.x[ids], points.y[ids], points.z[ids]), ids
 
 
 @dataclass(frozen=True)
@@ -54,8 +66,9 @@ class FootprintReturns:
 
 
 def footprint_returns(points: LasPoints, sx: np.ndarray, sy: np.ndarray, sigma: float, *,
-                      density_cell: float = 1.5, index: CloudIndex | None = None,
-                      ids: np.ndarray | None = None) -> FootprintReturns:
+                      density_cell: float = 1.5,
+                      index: tuple[CloudIndex, np.ndarray] | None = None
+                      ) -> FootprintReturns:
     """Weighted returns of the points within ``3 sigma`` of each centre ``(sx, sy)``.
 
     Parameters
@@ -68,26 +81,21 @@ def footprint_returns(points: LasPoints, sx: np.ndarray, sy: np.ndarray, sigma: 
         Gaussian footprint sigma (m); GEDI 5.5.
     density_cell : float
         Cell (m) of the density weight; 0 disables it.
-    index, ids : optional
-        A prebuilt :class:`CloudIndex` over ``points[ids]``.
+    index : optional
+        :func:`footprint_index` of ``points``, built once for several calls.
 
     Raises
     ------
     NoUsableDataError
         No point under any footprint.
     """
-    if index is None:
-        ok = np.isfinite(points.x) & np.isfinite(points.y) & np.isfinite(points.z)
-        ids = np.flatnonzero(ok)
-        index = CloudIndex(points.x[ids], points.y[ids], points.z[ids])
-    if ids is None:
-        ids = np.arange(index.x.size, dtype=np.int64)
-    pairs = index.pairs(np.asarray(sx, float), np.asarray(sy, float), 3.0 * sigma)
+    cloud, ids = footprint_index(points) if index is None else index
+    pairs = cloud.pairs(np.asarray(sx, float), np.asarray(sy, float), 3.0 * sigma)
     shot, pt = pairs.shot.astype(np.int64), pairs.point
     if pt.size == 0:
         raise NoUsableDataError("no airborne point under the simulated footprints: check "
                                 "the track against the tiles' extent")
-    x, y, z = index.x[pt], index.y[pt], index.z[pt]
+    x, y, z = cloud.x[pt], cloud.y[pt], cloud.z[pt]
     r2 = (x - np.asarray(sx, float)[shot]) ** 2 + (y - np.asarray(sy, float)[shot]) ** 2
     w = np.exp(-r2 / (2.0 * sigma ** 2))
     if density_cell > 0:

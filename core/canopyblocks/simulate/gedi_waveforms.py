@@ -29,6 +29,7 @@ from ..errors import InputError, NoUsableDataError
 from ..readers.las import LasPoints
 from ..waveforms.batch import WaveformBatch
 from .footprint_returns import footprint_returns
+from .footprints import CloudIndex
 from .tracks import SimTrack, shots_along
 from .waveform_binning import bin_returns
 
@@ -190,7 +191,8 @@ def _detectable_rh(batch: WaveformBatch, clean: np.ndarray,
 
 def simulate_gedi(points: LasPoints, track: SimTrack | None = None, *,
                   centres: tuple[np.ndarray, np.ndarray] | None = None,
-                  params: GediSimParams | None = None, seed: int = 0) -> GediSimulation:
+                  params: GediSimParams | None = None, seed: int = 0,
+                  index: tuple[CloudIndex, np.ndarray] | None = None) -> GediSimulation:
     """Simulate GEDI L1B-like waveforms over airborne points.
 
     Parameters
@@ -204,6 +206,8 @@ def simulate_gedi(points: LasPoints, track: SimTrack | None = None, *,
     params : GediSimParams, optional
     seed : int
         Noise seed; same inputs and seed give identical waveforms.
+    index : optional
+        :func:`~.footprint_returns.footprint_index` of ``points``, to reuse across calls.
 
     Raises
     ------
@@ -224,7 +228,8 @@ def simulate_gedi(points: LasPoints, track: SimTrack | None = None, *,
     n = sx.size
     if n == 0:
         raise NoUsableDataError("no footprint centre on the track")
-    ret = footprint_returns(points, sx, sy, p.sigma, density_cell=p.density_cell)
+    ret = footprint_returns(points, sx, sy, p.sigma, density_cell=p.density_cell,
+                            index=index)
     counts = np.bincount(ret.shot, minlength=n)
     wg = ret.per_shot(ret.weight, ret.ground)
     if not (wg > 0).any():
