@@ -116,7 +116,9 @@ def run_chain(
         ``rasters/{dtm,dsm_max,dsm_p90}.tif``, ``validation.gpkg`` (layers ``residuals``,
         ``stats``), ``stats.csv``, ``plots/*.png``, ``report.html``.
     photons : path, optional
-        ATL03 / MABEL / table photon file.  When None, ICESat-2 photons are simulated
+        ATL03 / MABEL / table photon file, or a GEDI L1B file (then the chain is
+        :func:`~canopyblocks.waveform_chain.run_waveform_chain`: footprints validated
+        against the tiles).  When None, ICESat-2 photons are simulated
         over the tiles (seed 002 method) along a line at ``azimuth`` degrees through
         the survey centre, with ``diameter`` m footprints and the ``preset`` photon rate.
     params : BlockParams, optional
@@ -159,6 +161,14 @@ def run_chain(
     from .validation.block_validation import validate_atl08, validate_blocks
 
     prog = as_progress(progress)
+    if photons is not None and str(photons).lower().endswith((".h5", ".hdf5")):
+        from .readers.gedi import is_gedi_l1b
+
+        if is_gedi_l1b(photons):   # full-waveform lidar: footprints, not blocks
+            from .waveform_chain import run_waveform_chain
+
+            return run_waveform_chain(las_paths, out_dir, photons, beams=beams,
+                                      geoid=geoid, offset=offset, progress=prog)
     out = check_writable(out_dir, folder=True)
     for name, value in (("width", width), ("resolution", resolution),
                         ("diameter", diameter)):

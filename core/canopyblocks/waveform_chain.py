@@ -1,0 +1,112 @@
+"""The whole chain for full-waveform lidar: GEDI L1B and airborne tiles -> footprints ->
+footprint-matched validation -> layers, plots, HTML report (what ``canopyblocks run``
+does when ``--photons`` is a GEDI L1B file).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from .outputs.atomic import check_writable, new_files_removed_on_failure
+from .progress import Progress, as_progress
+
+__all__ = ["run_waveform_chain"]
+
+log = logging.getLogger(__name__)
+
+
+def run_waveform_chain(
+    las_paths: Sequence[str | os.PathLike[str]],
+    out_dir: str | os.PathLike[str],
+    l1b: str | os.PathLike[str],
+    *,
+    beams: Sequence[str] = (),
+    params: Any = None,
+    geoid: str | os.PathLike[str] | None = None,
+    offset: float | None = None,
+    photon_vertical_crs: Any = "EPSG:4979",
+    progress: Progress | None = None,
+) -> Any:
+    """GEDI L1B + airborne tiles -> ``footprints.gpkg``, ``validation.gpkg`` (layers
+    ``residuals_footprints``, ``stats_footprints``), ``stats.csv``, ``plots/`` (footprint
+    maps over the tiles, scatter, waveform plots) and ``report.html`` in ``out_dir``.
+
+    Parameters
+    ----------
+    las_paths : sequence of path
+        Airborne LAS/LAZ tiles under the footprints (metric CRS).
+    l1b : path
+        GEDI L1B granule or subset (or a simulated one).
+    params : WaveformParams, optional
+    geoid, offset, photon_vertical_crs
+        The datum rule: GEDI elevations are WGS84-ellipsoidal; simulated ones keep the
+        tiles' datum (``offset=0``).
+
+    Returns
+    -------
+    ChainResult
+    """
+    from .outputs.footprint_maps import write_footprint_plots
+    from .outputs.report import ReportSection, write_report
+    from .outputs.tables import write_layers, write_table
+    from .validation.footprints import (
+        LAYER_RESIDUALS_FOOTPRINTS,
+        LAYER_STATS_FOOTPRINTS,
+        validate_footprints,
+    )
+    from .waveform_footprints import footprints_from_l1b
+    from .whole_chain import ChainResult
+
+    prog = as_progress(progress)
+    out = check_writable(out_dir, folder=True)
+    tiles = [Path(p) for p in las_paths]
+    with new_files_removed_on_failure(out):
+        out.mkdir(parents=True, exist_ok=True)
+        plots_dir = out / "plots"
+        plots_dir.mkdir(exist_ok=True)
+        from .readers.las import las_crs
+
+        crs = las_crs(tiles[0])
+        fp, wave_plots = footprints_from_l1b(l1b, beams=beams or None, params=params, crs=crs,
+                                             plots_dir=plots_dir,
+                                             progress=prog.sub(0.0, 0.4))
+        footprints = write_layers({"footprints": fp}, out / "footprints.gpkg")
+        prog.update(0.4, "footprint validation")
+        val = validate_footprints(fp, tiles, geoid=geoid, offset=offset,
+                                  photon_vertical_crs=photon_vertical_crs,
+                                  progress=prog.sub(0.4, 0.85))
+        validation = write_layers({LAYER_RESIDUALS_FOOTPRINTS: val.residuals,
+                                   LAYER_STATS_FOOTPRINTS: val.stats},
+                                  out / "validation.gpkg")
+        write_table(val.stats, out / "stats.csv", layer="stats")
+        maps = write_footprint_plots(val.residuals, plots_dir)
+        prog.update(0.95, "report")
+        flags = fp["flag"].value_counts().rename_axis("flag").reset_index(name="footprints")
+        overall = val.stats[val.stats["group"] == "all"] if "group" in val.stats else val.stats
+        sections = [
+            ReportSection("Inputs", [
+                f"GEDI L1B waveforms from {Path(l1b).name}, processed with the GEDI L2A "
+                f"algorithm (setting {getattr(params, 'setting', 'a1')}; DESIGN 4.3).",
+                "Airborne tiles: " + ", ".join(t.name for t in tiles) + f"; vertical datums: "
+                f"{val.datum}."]),
+            ReportSection("Footprints", [
+                f"{len(fp)} footprints (layer 'footprints' of footprints.gpkg: ground, top, "
+                "RH25-RH100, cover, penetration, flags)."], {"footprints per flag": flags},
+                wave_plots[:6]),
+            ReportSection("Validation against the airborne lidar", [
+                "Each footprint is compared with the airborne points weighted by a Gaussian "
+                "footprint (DESIGN 2.7): ground, RH98, RH50 and cover. Residual = waveform "
+                "value minus reference value (m)."],
+                {"statistics (all footprints)": overall, "by group": val.stats},
+                maps),
+        ]
+        report = write_report(out / "report.html", "canopyblocks: GEDI footprints and "
+                              "validation", sections)
+        prog.update(1.0, "done")
+        return ChainResult(out_dir=out, photons=Path(l1b), blocks=footprints, rasters={},
+                           validation=validation, report=report,
+                           plots=[*wave_plots, *maps], stats=val.stats, simulated=False)
