@@ -364,8 +364,10 @@ def run_main(group: click.Group, argv: list[str] | None) -> int:
         except KeyboardInterrupt:
             code, message = EXIT_BAD_INPUT, None
         if _INTERRUPTED.is_set() and code != EXIT_OK_NO_WORK:
-            _error(_interrupted_message(mark))
+            _error(_interrupted_message(mark, f"interrupted ({_STATE.label()})"))
             return _STATE.exit_code()
+        if message is _ABORTED:
+            message = _interrupted_message(mark, "aborted")
         if message is not None:
             _error(message)
         return EXIT_OK if code == EXIT_OK_NO_WORK else code
@@ -374,11 +376,14 @@ def run_main(group: click.Group, argv: list[str] | None) -> int:
 EXIT_OK_NO_WORK = -1  # internal: --help/--version and the like (nothing to interrupt)
 
 
-def _interrupted_message(mark: int) -> str:
+_ABORTED = "aborted"  # internal: click's Abort, answered with _interrupted_message
+
+
+def _interrupted_message(mark: int, what: str) -> str:
+    """``what``, and truthfully which complete outputs this run left (or that none)."""
     from ..outputs.atomic import written_since
 
     kept = written_since(mark)
-    what = f"interrupted ({_STATE.label()})"
     if not kept:
         return f"{what}; no output was written"
     names = ", ".join(str(p) for p in kept[:5]) + (f" and {len(kept) - 5} more"
@@ -391,7 +396,7 @@ def _invoke(group: click.Group, argv: list[str] | None) -> tuple[int, str | None
     try:
         group.main(args=argv, prog_name="canopyblocks", standalone_mode=False)
     except click.exceptions.Abort:  # click's name for a KeyboardInterrupt (or EOF at a prompt)
-        return EXIT_BAD_INPUT, "aborted; no output was written"
+        return EXIT_BAD_INPUT, _ABORTED
     except click.UsageError as exc:  # usage errors: click's message, on one line
         path = exc.ctx.command_path if exc.ctx is not None else "canopyblocks"
         return EXIT_BAD_INPUT, f"{exc.format_message()} (see '{path} --help')"
@@ -402,7 +407,7 @@ def _invoke(group: click.Group, argv: list[str] | None) -> tuple[int, str | None
     except CanopyBlocksError as exc:
         return EXIT_BAD_INPUT, str(exc)
     except KeyboardInterrupt:
-        return EXIT_BAD_INPUT, "interrupted; no output was written"
+        return EXIT_BAD_INPUT, _ABORTED
     except MemoryError:
         return EXIT_BAD_INPUT, ("not enough memory for this run; use fewer or smaller "
                                 "inputs, or parameters that make less data")
