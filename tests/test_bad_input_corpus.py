@@ -646,9 +646,14 @@ def test_corpus(case: Case, base: Base, tmp_path: Path, request: pytest.FixtureR
         request.getfixturevalue("pdal_bin")  # skips (fails under CI=true) without PDAL
     inputs = case.make(tmp_path, base)
     if case.runner == "cli":
-        judge_cli(case, inputs, tmp_path, request.node.callspec.id.endswith("-subprocess"))
+        outcome = judge_cli(case, inputs, tmp_path,
+                            request.node.callspec.id.endswith("-subprocess"))
     else:
-        judge_api(case, inputs, tmp_path)
+        outcome = judge_api(case, inputs, tmp_path)
+    log = os.environ.get("CANOPYBLOCKS_CORPUS_LOG")  # for a tally of the outcomes
+    if log:
+        with open(log, "a") as fh:
+            fh.write(f"{request.node.callspec.id}\t{outcome}\n")
 
 
 def test_corpus_is_large_enough() -> None:

@@ -354,7 +354,7 @@ def run_main(group: click.Group, argv: list[str] | None) -> int:
     from ..outputs.atomic import journal_mark
 
     mark = journal_mark()
-    with warnings.catch_warnings(), _signals_handled():
+    with warnings.catch_warnings(), _signals_handled(), _quiet_unraisable_interrupts():
         _quiet_numpy()
         try:
             try:
@@ -371,6 +371,28 @@ def run_main(group: click.Group, argv: list[str] | None) -> int:
         if message is not None:
             _error(message)
         return EXIT_OK if code == EXIT_OK_NO_WORK else code
+
+
+@contextmanager
+def _quiet_unraisable_interrupts() -> Iterator[None]:
+    """A KeyboardInterrupt that lands in a destructor or callback is not printed.
+
+    Python cannot raise it there and prints "Exception ignored in ..." with a
+    traceback instead; the run still stops (the signal's flag stays set), so the
+    user sees only the one line of :func:`run_main`.
+    """
+    previous = sys.unraisablehook
+
+    def hook(u: Any) -> None:
+        if u.exc_type is not None and issubclass(u.exc_type, KeyboardInterrupt):
+            return
+        previous(u)
+
+    sys.unraisablehook = hook
+    try:
+        yield
+    finally:
+        sys.unraisablehook = previous
 
 
 EXIT_OK_NO_WORK = -1  # internal: --help/--version and the like (nothing to interrupt)
