@@ -8,3 +8,13 @@ echo "== block engine and ATL03 file path (bench/bench_blocks.py)"
 "$PY" bench/bench_blocks.py "$@"
 echo "== simulator (bench/bench_simulate.py)"
 "$PY" bench/bench_simulate.py
+echo "== granule scale (bench/bench_granule.py)"
+"$PY" bench/bench_granule.py
+echo "== many granules (bench/bench_batch.py)"
+"$PY" bench/bench_batch.py
+echo "== GEDI waveforms (bench/bench_waveforms.py)"
+"$PY" bench/bench_waveforms.py
+echo "== GEDI waveform simulation (bench/bench_simulate_waveforms.py)"
+"$PY" bench/bench_simulate_waveforms.py
+echo "== co-registration (bench/bench_coregistration.py)"
+"$PY" bench/bench_coregistration.py

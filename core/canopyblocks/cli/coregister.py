@@ -82,4 +82,5 @@ def coregister(ctx: click.Context, source: str, dtm: str, dsm_max: str | None,
             click.echo(f"{name:<10} {o.along_track:+7.2f} {o.cross_track:+7.2f} "
                        f"{o.east:+7.2f} {o.north:+7.2f} {o.vertical:+7.2f} "
                        f"{o.rmse_before:11.2f} {o.rmse_after:6.2f}  {status}")
-    click.echo(f"offsets -> {output}", err=True)
+    if not quiet:
+        click.echo(f"offsets -> {output}", err=True)

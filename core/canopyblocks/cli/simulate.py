@@ -145,6 +145,8 @@ def simulate_cmd(ctx: click.Context, las: tuple[str, ...], sensor: str, azimuth:
         if report:
             _write_report(Path(report), result)
         progress.update(1.0, "done")
+    if quiet:
+        return
     t = result.table
     for _, r in t.iterrows():
         click.echo(
