@@ -685,9 +685,7 @@ def _quiet_args(name: str, base: Base, out: Path) -> list[str]:
 
 
 @pytest.mark.parametrize("command", [
-    "blocks", pytest.param("rasters", marks=pytest.mark.pdal), "validate",
-    pytest.param("simulate", marks=pytest.mark.xfail(
-        strict=False, reason="helper C: cli/simulate.py prints its summary under -q")),
+    "blocks", pytest.param("rasters", marks=pytest.mark.pdal), "validate", "simulate",
     pytest.param("calibrate", marks=pytest.mark.xfail(
         strict=False, reason="cli/calibrate.py prints its table and hint under -q"))])
 def test_quiet_prints_no_summaries(command, base, tmp_path, request) -> None:

@@ -25,17 +25,30 @@ Everything is seeded: the corpus is the same on every run.
 from __future__ import annotations
 
 import shutil
-import struct
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from functools import cached_property
 from pathlib import Path
 from typing import Any
 
 import h5py
 import numpy as np
 
-F32_MAX = float(np.finfo(np.float32).max)  # 3.4028235e38, the ICESat-2 float fill value
+from .base import Base
+from .damage import (
+    F32_MAX,
+    bit_flipped,
+    delete,
+    empty_beam_group,
+    h5_edited,
+    keep_photons,
+    patched,
+    rename,
+    reshape,
+    set_values,
+    shift,
+    truncated,
+    write_cloud,
+)
 
 Inputs = dict[str, Any]
 
@@ -79,306 +92,6 @@ class Case:
     must_accept: bool = False
     pdal: bool = False
     opts: dict[str, Any] = field(default_factory=dict)
-
-
-# ---- the real files and what is derived from them once per session ---------------------------
-
-
-class Base:
-    """Paths of the real samples and artefacts derived from them (made on first use)."""
-
-    def __init__(self, data_file: Callable[[str], Path], folder: Path) -> None:
-        self.data_file = data_file
-        self.folder = folder
-        folder.mkdir(parents=True, exist_ok=True)
-
-    # ATL03 / ATL08
-    @cached_property
-    def vegr(self) -> Path:
-        return self.data_file("icesat2/vegr_atl03_clip.h5")
-
-    @cached_property
-    def harmony(self) -> Path:
-        return self.data_file("icesat2/harmony_ATL03_gt1l.h5")
-
-    @cached_property
-    def atl08(self) -> Path:
-        return self.data_file("icesat2/vegr_atl08_clip.h5")
-
-    # point clouds
-    @cached_property
-    def conifer(self) -> Path:
-        return self.data_file("als/lidR_MixedConifer.laz")
-
-    @cached_property
-    def topo(self) -> Path:
-        return self.data_file("als/lidR_Topography.laz")
-
-    @cached_property
-    def conifer_las(self) -> Path:
-        """An uncompressed LAS 1.2 copy of the MixedConifer tile."""
-        import laspy
-
-        out = self.folder / "conifer.las"
-        if not out.exists():
-            las = laspy.read(self.conifer)
-            las.write(out)
-        return out
-
-    @cached_property
-    def conifer_points(self) -> dict[str, np.ndarray]:
-        """The MixedConifer points as laspy reads them (x, y, z metres, class)."""
-        import laspy
-
-        las = laspy.read(self.conifer)
-        return {"x": np.asarray(las.x, float), "y": np.asarray(las.y, float),
-                "z": np.asarray(las.z, float),
-                "c": np.asarray(las.classification, np.uint8)}
-
-    # reference rasters over the Topography tile (numpy, independent of PDAL)
-    @cached_property
-    def rasters(self) -> dict[str, Any]:
-        return _make_rasters(self.topo, self.folder / "rasters")
-
-    @cached_property
-    def blocks(self) -> Path:
-        """Simulated blocks over the Topography tile (GeoPackage, layer blocks)."""
-        return _make_blocks(self.topo, self.folder / "blocks")
-
-    @cached_property
-    def photon_csv(self) -> Path:
-        """gt1r of the vegr clip as a lon/lat/h/time table."""
-        import pandas as pd
-
-        out = self.folder / "photons.csv"
-        if not out.exists():
-            with h5py.File(self.vegr) as f:
-                g = f["gt1r/heights"]
-                pd.DataFrame({"lon": g["lon_ph"][:], "lat": g["lat_ph"][:],
-                              "h": g["h_ph"][:].astype(float),
-                              "time": g["delta_time"][:]}).to_csv(out, index=False)
-        return out
-
-
-RASTER_RES = 4.0  # metres
-
-
-def _make_rasters(tile: Path, folder: Path) -> dict[str, Any]:
-    """DTM (mean of class 2), DSM max and p90 on a 4 m grid, nodata -9999 declared."""
-    import laspy
-    import rasterio
-    from rasterio.transform import Affine
-
-    folder.mkdir(parents=True, exist_ok=True)
-    las = laspy.read(tile)
-    crs = las.header.parse_crs()
-    x, y, z = (np.asarray(v, float) for v in (las.x, las.y, las.z))
-    cls = np.asarray(las.classification)
-    xmin, ymax = float(np.floor(x.min())), float(np.ceil(y.max()))
-    w = int(np.ceil((x.max() - xmin) / RASTER_RES))
-    h = int(np.ceil((ymax - y.min()) / RASTER_RES))
-    col = np.minimum(((x - xmin) / RASTER_RES).astype(int), w - 1)
-    row = np.minimum(((ymax - y) / RASTER_RES).astype(int), h - 1)
-    cell = row * w + col
-    g = cls == 2
-    s = np.bincount(cell[g], z[g], w * h)
-    n = np.bincount(cell[g], None, w * h)
-    dtm = np.where(n > 0, s / np.maximum(n, 1), np.nan)
-    top = np.full(w * h, -np.inf)
-    np.maximum.at(top, cell, z)
-    top[~np.isfinite(top)] = np.nan
-    order = np.lexsort((z, cell))
-    cs, zs = cell[order], z[order]
-    first = np.searchsorted(cs, np.arange(w * h))
-    count = np.bincount(cs, None, w * h).astype(int)
-    p90 = np.full(w * h, np.nan)
-    has = count > 0
-    p90[has] = zs[first[has] + np.floor(0.9 * (count[has] - 1)).astype(int)]
-    profile = dict(driver="GTiff", width=w, height=h, count=1, dtype="float32",
-                   nodata=-9999.0, crs=crs.to_wkt(),
-                   transform=Affine(RASTER_RES, 0.0, xmin, 0.0, -RASTER_RES, ymax))
-    paths = {}
-    for name, arr in (("dtm", dtm), ("dsm_max", top), ("dsm_p90", p90)):
-        p = folder / f"{name}.tif"
-        with rasterio.open(p, "w", **profile) as dst:
-            dst.write(np.where(np.isnan(arr), -9999.0, arr).reshape(h, w).astype("float32"), 1)
-        paths[name] = p
-    return {"paths": paths, "profile": profile, "crs": crs,
-            "ranges": {"dtm": (float(np.nanmin(dtm)), float(np.nanmax(dtm))),
-                       "dsm_max": (float(np.nanmin(top)), float(np.nanmax(top))),
-                       "dsm_p90": (float(np.nanmin(p90)), float(np.nanmax(p90)))}}
-
-
-def _make_blocks(tile: Path, folder: Path) -> Path:
-    from canopyblocks import BlockParams, read_las
-    from canopyblocks.simulate import SimParams, line_through, simulate_photons
-    from canopyblocks.simulate.writers import write_simulation_atl03
-    from canopyblocks.track_blocks import blocks_from_file
-
-    folder.mkdir(parents=True, exist_ok=True)
-    out = folder / "blocks.gpkg"
-    if out.exists():
-        return out
-    pts = read_las(tile)
-    track = line_through(pts.bounds, 30.0, inset=10.0)
-    sim = simulate_photons(pts, track, SimParams(), realisations=1, seed=1)
-    h5 = write_simulation_atl03(sim, folder / "sim_atl03.h5")
-    blocks_from_file(h5, BlockParams(lengths=(25.0,)), crs=pts.crs, output=out)
-    return out
-
-
-# ---- byte-level damage ------------------------------------------------------------------------
-
-
-def truncated(src: Path, dst: Path, n: int) -> Path:
-    """The first ``n`` bytes of ``src``."""
-    with src.open("rb") as f:
-        dst.write_bytes(f.read(max(n, 0)))
-    return dst
-
-
-def bit_flipped(src: Path, dst: Path, positions: list[int]) -> Path:
-    """``src`` with one bit flipped at each byte position (bit chosen by the position)."""
-    raw = bytearray(src.read_bytes())
-    for p in positions:
-        raw[p % len(raw)] ^= 1 << (p % 8)
-    dst.write_bytes(bytes(raw))
-    return dst
-
-
-def patched(src: Path, dst: Path, patches: list[tuple[int, str, Any]]) -> Path:
-    """``src`` with ``struct`` values written at byte offsets: ``[(offset, fmt, value)]``."""
-    raw = bytearray(src.read_bytes())
-    for offset, fmt, value in patches:
-        struct.pack_into(fmt, raw, offset, *(value if isinstance(value, tuple) else (value,)))
-    dst.write_bytes(bytes(raw))
-    return dst
-
-
-# ---- HDF5 damage ---------------------------------------------------------------------------------
-
-
-def h5_edited(src: Path, dst: Path, edit: Callable[[h5py.File], None]) -> Path:
-    shutil.copyfile(src, dst)
-    with h5py.File(dst, "r+") as f:
-        edit(f)
-    return dst
-
-
-def _replace(f: h5py.File, name: str, data: Any, keep_attrs: bool = True) -> None:
-    attrs = dict(f[name].attrs) if keep_attrs and name in f else {}
-    del f[name]
-    ds = f.create_dataset(name, data=data)
-    for k, v in attrs.items():
-        if k != "_FillValue" or np.asarray(v).dtype.kind == ds.dtype.kind:
-            ds.attrs[k] = v
-
-
-def _part_mask(n: int, frac: float, seed: int) -> np.ndarray:
-    rng = np.random.default_rng(seed)
-    m = np.zeros(n, bool)
-    k = max(1, int(round(frac * n)))
-    m[rng.choice(n, size=min(k, n), replace=False)] = True
-    return m
-
-
-def set_values(name: str, value: float | int, frac: float, *, fill_attr: bool = False,
-               seed: int = 1) -> Callable[[h5py.File], None]:
-    """Set ``frac`` of the rows of dataset ``name`` to ``value`` (optionally declaring it
-    as ``_FillValue``)."""
-
-    def edit(f: h5py.File) -> None:
-        ds = f[name]
-        arr = ds[()]
-        n = arr.shape[0]
-        m = _part_mask(n, frac, seed) if frac < 1 else np.ones(n, bool)
-        if arr.dtype.kind in "iu":
-            info = np.iinfo(arr.dtype)
-            v = int(np.clip(value, info.min, info.max))
-        else:
-            v = value
-        arr[m] = v
-        ds[...] = arr
-        if fill_attr:
-            ds.attrs["_FillValue"] = np.asarray(v, dtype=arr.dtype)
-
-    return edit
-
-
-def delete(*names: str) -> Callable[[h5py.File], None]:
-    def edit(f: h5py.File) -> None:
-        for n in names:
-            del f[n]
-
-    return edit
-
-
-def rename(name: str, new: str) -> Callable[[h5py.File], None]:
-    def edit(f: h5py.File) -> None:
-        f.move(name, new)
-
-    return edit
-
-
-def reshape(name: str, how: str) -> Callable[[h5py.File], None]:
-    """Replace dataset ``name`` by a scalar, 2-D, string, shorter, longer, empty or
-    retyped copy."""
-
-    def edit(f: h5py.File) -> None:
-        arr = f[name][()]
-        n = arr.shape[0]
-        if how == "scalar":
-            new: Any = arr.reshape(-1)[0]
-        elif how == "2d":
-            new = np.stack([arr, arr], axis=-1)
-        elif how == "string":
-            new = np.array([str(v).encode() for v in arr.reshape(n, -1)[:, 0]], dtype="S16")
-        elif how == "short1":
-            new = arr[: n - 1]
-        elif how == "half":
-            new = arr[: n // 2]
-        elif how == "long":
-            new = np.concatenate([arr, arr[: max(1, n // 10)]])
-        elif how == "empty":
-            new = arr[:0]
-        elif how == "retype":  # float -> float64, integer -> float32 (values unchanged)
-            new = arr.astype(np.float64) if arr.dtype.kind == "f" else arr.astype(np.float32)
-        else:
-            raise ValueError(how)
-        _replace(f, name, new)
-
-    return edit
-
-
-def keep_photons(beam: str, n_keep: int) -> Callable[[h5py.File], None]:
-    """Keep the first ``n_keep`` photons of ``beam`` (and consistent segments)."""
-
-    def edit(f: h5py.File) -> None:
-        hg, gg = f"{beam}/heights", f"{beam}/geolocation"
-        n = f[f"{hg}/h_ph"].shape[0]
-        for k in list(f[hg].keys()):
-            if isinstance(f[f"{hg}/{k}"], h5py.Dataset) and f[f"{hg}/{k}"].shape[:1] == (n,):
-                _replace(f, f"{hg}/{k}", f[f"{hg}/{k}"][:n_keep])
-        cnt = f[f"{gg}/segment_ph_cnt"][()]
-        new_cnt = np.zeros_like(cnt)
-        new_beg = np.zeros_like(f[f"{gg}/ph_index_beg"][()])
-        if n_keep > 0:
-            i = int(np.flatnonzero(cnt > 0)[0])
-            new_cnt[i] = n_keep
-            new_beg[i] = 1
-        f[f"{gg}/segment_ph_cnt"][...] = new_cnt
-        f[f"{gg}/ph_index_beg"][...] = new_beg
-
-    return edit
-
-
-def empty_beam_group(beam: str) -> Callable[[h5py.File], None]:
-    def edit(f: h5py.File) -> None:
-        for k in list(f[beam].keys()):
-            del f[f"{beam}/{k}"]
-        f[beam].create_group("heights")
-
-    return edit
 
 
 # ---- case lists ----------------------------------------------------------------------------------
@@ -556,11 +269,11 @@ def atl08_cases() -> list[Case]:
                                                         fill_attr=True)))))
     cases.append(Case("atl08-delta-time-shifted", "atl08",
                       a8("atl08_edit.h5", lambda p, d: h5_edited(
-                          p, d, _shift(f"{g}/delta_time", 1000.0))),
+                          p, d, shift(f"{g}/delta_time", 1000.0))),
                       needles=("match", "atl08")))
     cases.append(Case("atl08-segments-shifted", "atl08",
                       a8("atl08_edit.h5", lambda p, d: h5_edited(
-                          p, d, _shift(f"{g}/ph_segment_id", 100000))),
+                          p, d, shift(f"{g}/ph_segment_id", 100000))),
                       needles=("match", "join", "none", "no photon", "atl08"),
                       warn_words=("join", "match", "classified")))
     cases.append(Case("atl08-is-the-atl03", "atl08",
@@ -568,13 +281,6 @@ def atl08_cases() -> list[Case]:
                                     "original": b.atl08},
                       needles=("atl08",)))
     return cases
-
-
-def _shift(name: str, by: float) -> Callable[[h5py.File], None]:
-    def edit(f: h5py.File) -> None:
-        ds = f[name]
-        ds[...] = ds[()] + np.asarray(by).astype(ds.dtype)
-    return edit
 
 
 # ---- LAS / LAZ -----------------------------------------------------------------------------------
@@ -626,27 +332,6 @@ def _las_make(src_attr: str, fname: str, edit: Callable[[Path, Path], Path], **e
         src = getattr(base, src_attr)
         return {"path": edit(src, folder / fname), "truth": base.conifer_points, **extra}
     return make
-
-
-def write_cloud(path: Path, x: np.ndarray, y: np.ndarray, z: np.ndarray, c: np.ndarray,
-                crs: Any, *, scale: float = 0.01) -> Path:
-    """A LAS/LAZ (by suffix) with the given points and CRS (None: no CRS records)."""
-    import laspy
-
-    # LAS 1.4 (WKT CRS records) for compound CRSs, which 1.2's GeoTIFF keys cannot hold
-    compound = crs is not None and getattr(crs, "is_compound", False)
-    h = laspy.LasHeader(point_format=6 if compound else 1, version="1.4" if compound else "1.2")
-    if len(x):
-        h.offsets = [float(np.floor(np.min(x))), float(np.floor(np.min(y))),
-                     float(np.floor(np.min(z)))]
-    h.scales = [scale, scale, scale]
-    if crs is not None:
-        h.add_crs(crs)
-    las = laspy.LasData(h)
-    las.x, las.y, las.z = x, y, z
-    las.classification = c
-    las.write(path)
-    return path
 
 
 def _cloud_variant(kind: str) -> Callable[[Path, Base], Inputs]:
