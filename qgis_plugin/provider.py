@@ -11,9 +11,12 @@ from .algorithms.aspecterrors import AspectErrorsAlgorithm
 from .algorithms.blockheights import BlockHeightsAlgorithm
 from .algorithms.calibrate import CalibrateAlgorithm
 from .algorithms.corridor import CorridorAlgorithm
+from .algorithms.footprintvalidation import FootprintValidationAlgorithm
+from .algorithms.gedifootprints import GediFootprintsAlgorithm
 from .algorithms.referencerasters import ReferenceRastersAlgorithm
 from .algorithms.simulate import SimulateAlgorithm
 from .algorithms.validate import ValidateAlgorithm
+from .algorithms.waveformplot import WaveformPlotAlgorithm
 
 __all__ = ["CanopyBlocksProvider", "ALGORITHMS", "ICON"]
 
@@ -28,6 +31,9 @@ ALGORITHMS = (
     AspectErrorsAlgorithm,
     CalibrateAlgorithm,
     SimulateAlgorithm,
+    GediFootprintsAlgorithm,
+    FootprintValidationAlgorithm,
+    WaveformPlotAlgorithm,
 )
 
 
