@@ -10,6 +10,7 @@ from qgis.PyQt.QtGui import QIcon
 from .algorithms.aspecterrors import AspectErrorsAlgorithm
 from .algorithms.blockheights import BlockHeightsAlgorithm
 from .algorithms.calibrate import CalibrateAlgorithm
+from .algorithms.coregister import CoregisterAlgorithm
 from .algorithms.corridor import CorridorAlgorithm
 from .algorithms.footprintvalidation import FootprintValidationAlgorithm
 from .algorithms.gedifootprints import GediFootprintsAlgorithm
@@ -30,6 +31,7 @@ ALGORITHMS = (
     ValidateAlgorithm,
     AspectErrorsAlgorithm,
     CalibrateAlgorithm,
+    CoregisterAlgorithm,
     SimulateAlgorithm,
     GediFootprintsAlgorithm,
     FootprintValidationAlgorithm,

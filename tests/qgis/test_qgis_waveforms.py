@@ -63,3 +63,41 @@ def test_footprint_validation_and_plots(run_alg, open_layer, layer_rows, sample,
     text = Path(out["OUTPUT"]).read_text()
     assert all(str(s) in text for s in shots)
     assert len(list(tmp_path.glob("view_*.png"))) == 2
+
+
+def test_coregister_algorithm(run_alg, sample, tmp_path):
+    """Simulated photons over the real tile (no inserted offset): a small, determined offset
+    per beam and for all, written as JSON."""
+    import json
+
+    import rasterio
+    from rasterio.transform import Affine
+
+    from canopyblocks.readers.las import read_las
+    from canopyblocks.simulate import SimParams, line_through, simulate_photons
+    from canopyblocks.simulate.writers import write_simulation_atl03
+
+    laz = sample("als/lasR_bcts_1.laz")
+    pts = read_las([laz])
+    b = pts.bounds
+    g = pts.classification == 2
+    res = 2.0
+    nx, ny = int((b[2] - b[0]) // res) + 1, int((b[3] - b[1]) // res) + 1
+    k = (((b[3] - pts.y[g]) // res).astype(int) * nx + ((pts.x[g] - b[0]) // res).astype(int))
+    n = np.bincount(k, minlength=nx * ny)
+    dtm = np.where(n > 0, np.bincount(k, pts.z[g], minlength=nx * ny) / np.maximum(n, 1),
+                   -9999).reshape(ny, nx)
+    tif = tmp_path / "dtm.tif"
+    with rasterio.open(tif, "w", driver="GTiff", width=nx, height=ny, count=1,
+                       dtype="float32", crs=pts.crs, nodata=-9999,
+                       transform=Affine(res, 0, b[0], 0, -res, b[3])) as dst:
+        dst.write(dtm.astype("float32"), 1)
+    sim = simulate_photons(pts, line_through(b, 10.0, inset=8), SimParams(), seed=2)
+    h5 = tmp_path / "sim.h5"
+    write_simulation_atl03(sim, h5)
+    out = run_alg("canopyblocks:coregister", {
+        "INPUT": str(h5), "DTM": str(tif), "OFFSET": 0.0, "CRS": "EPSG:3005", "RANGE": 10.0,
+        "OUTPUT": str(tmp_path / "offsets.json")})
+    doc = json.loads(Path(out["OUTPUT"]).read_text())
+    assert "all" in doc and abs(doc["all"]["vertical"]) < 0.6
+    assert abs(doc["all"]["along_track"]) <= 3 and abs(doc["all"]["cross_track"]) <= 3

@@ -1,0 +1,107 @@
+"""``canopyblocks:coregister``: a track's geolocation offset against the DTM (DESIGN 2.8)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from qgis.core import (
+    QgsProcessingContext,
+    QgsProcessingFeedback,
+    QgsProcessingParameterCrs,
+    QgsProcessingParameterFile,
+    QgsProcessingParameterFileDestination,
+    QgsProcessingParameterNumber,
+    QgsProcessingParameterRasterLayer,
+)
+
+from ..core_bridge import import_core
+from .base import CanopyBlocksAlgorithm, optional_number
+from .validate import raster_path
+
+__all__ = ["CoregisterAlgorithm"]
+
+
+class CoregisterAlgorithm(CanopyBlocksAlgorithm):
+    """Along-track, cross-track and vertical offsets aligning a track with airborne lidar."""
+
+    ALG_ID = "coregister"
+    DISPLAY = "Co-register a track with airborne lidar"
+    GROUP = "Validation"
+    GROUP_ID = "validation"
+    HELP = (
+        "Searches the horizontal shift (along and across the track, +- the search range, "
+        "1 m then 0.25 m steps) that best aligns the track's ground (and, with a DSM, its "
+        "canopy top) with the airborne DTM/DSM; the vertical offset is the robust mean "
+        "residual at each shift. Works on photons (ATL03/MABEL/tables: their ground- and "
+        "top-window photons), block tables or GEDI footprint tables. Writes offsets.json: "
+        "one entry per track and 'all' (one offset for every track together), each with "
+        "east, north, along_track, cross_track and vertical (metres to ADD to the reported "
+        "positions and heights), bootstrap uncertainties and the ground RMSE before and "
+        "after; a flat or featureless reference is reported as undetermined, not as noise."
+    )
+
+    INPUT = "INPUT"
+    DTM = "DTM"
+    DSM_MAX = "DSM_MAX"
+    OFFSET = "OFFSET"
+    CRS = "CRS"
+    RANGE = "RANGE"
+    OUTPUT = "OUTPUT"
+    PLOT = "PLOT"
+
+    def initAlgorithm(self, config: dict[str, Any] | None = None) -> None:  # noqa: N802
+        self.addParameter(QgsProcessingParameterFile(
+            self.INPUT, "Photons, blocks or footprints",
+            behavior=QgsProcessingParameterFile.File,
+            fileFilter="Tracks (*.h5 *.hdf5 *.gpkg *.parquet *.csv);;All files (*.*)"))
+        self.addParameter(QgsProcessingParameterRasterLayer(self.DTM, "DTM"))
+        self.addParameter(QgsProcessingParameterRasterLayer(
+            self.DSM_MAX, "DSM (maximum; optional: also align the canopy top)",
+            optional=True))
+        self.addParameter(QgsProcessingParameterNumber(
+            self.OFFSET, "Vertical offset N = h_track - H_reference (m; empty = none)",
+            type=QgsProcessingParameterNumber.Double, optional=True))
+        self.addParameter(QgsProcessingParameterCrs(
+            self.CRS, "Metric CRS of the photons / of a CSV table (optional)", optional=True))
+        self.addParameter(QgsProcessingParameterNumber(
+            self.RANGE, "Search range (m)", type=QgsProcessingParameterNumber.Double,
+            defaultValue=15.0, minValue=1.0, maxValue=200.0))
+        self.addParameter(QgsProcessingParameterFileDestination(
+            self.OUTPUT, "Offsets (JSON)", fileFilter="JSON (*.json)"))
+        self.addParameter(QgsProcessingParameterFileDestination(
+            self.PLOT, "Cost surface (PNG)", fileFilter="PNG (*.png)", optional=True,
+            createByDefault=False))
+
+    def execute(self, parameters: dict[str, Any], context: QgsProcessingContext,
+                feedback: QgsProcessingFeedback, progress: Any) -> dict[str, Any]:
+        files = import_core("canopyblocks.validation.coregistration_files")
+        coreg = import_core("canopyblocks.validation.coregistration")
+        kwargs: dict[str, Any] = {}
+        offset = optional_number(self, parameters, self.OFFSET, context)
+        if offset is not None:
+            kwargs["offset"] = offset
+        crs = self.parameterAsCrs(parameters, self.CRS, context)
+        if crs.isValid():
+            kwargs["crs"] = crs.toWkt()
+        dsm = (raster_path(self, parameters, self.DSM_MAX, context)
+               if parameters.get(self.DSM_MAX) not in (None, "") else None)
+        result = files.coregister_file(
+            self.parameterAsFile(parameters, self.INPUT, context),
+            raster_path(self, parameters, self.DTM, context), dsm,
+            params=coreg.CoregParams(
+                search_range=self.parameterAsDouble(parameters, self.RANGE, context)),
+            progress=progress.sub(0.0, 0.9), **kwargs)
+        out = self.parameterAsFileOutput(parameters, self.OUTPUT, context)
+        files.write_offsets(result, out)
+        results: dict[str, Any] = {self.OUTPUT: out}
+        plot = self.parameterAsFileOutput(parameters, self.PLOT, context)
+        if plot:
+            plots = import_core("canopyblocks.outputs.coregistration_plot")
+            plots.write_cost_surfaces(result, plot)
+            results[self.PLOT] = plot
+        for name, o in result.offsets.items():
+            state = "" if o.determined else f" (undetermined: {o.reason})"
+            feedback.pushInfo(f"{name}: along {o.along_track:+.2f} m, cross "
+                              f"{o.cross_track:+.2f} m, vertical {o.vertical:+.2f} m; ground "
+                              f"RMSE {o.rmse_before:.2f} -> {o.rmse_after:.2f} m{state}")
+        return results
