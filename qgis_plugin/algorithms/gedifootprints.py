@@ -20,10 +20,19 @@ from ..layers import write_frame
 from ..styles import style_on_load
 from .base import CanopyBlocksAlgorithm
 
-__all__ = ["GediFootprintsAlgorithm", "SETTINGS", "GEDI_FILTER"]
+__all__ = ["GediFootprintsAlgorithm", "SETTINGS", "GEDI_FILTER", "add_l1b_parameters"]
 
 SETTINGS = ("a1", "a2", "a3", "a4", "a5", "a6")
 GEDI_FILTER = "GEDI HDF5 (*.h5 *.hdf5);;All files (*.*)"
+
+
+def add_l1b_parameters(alg: Any, file_name: str, setting_name: str) -> None:
+    """The GEDI L1B file and L2A setting-group parameters (shared by the algorithms)."""
+    alg.addParameter(QgsProcessingParameterFile(
+        file_name, "GEDI L1B file", behavior=QgsProcessingParameterFile.File,
+        fileFilter=GEDI_FILTER))
+    alg.addParameter(QgsProcessingParameterEnum(
+        setting_name, "L2A setting group", options=list(SETTINGS), defaultValue=0))
 
 
 class GediFootprintsAlgorithm(CanopyBlocksAlgorithm):
@@ -52,14 +61,10 @@ class GediFootprintsAlgorithm(CanopyBlocksAlgorithm):
     OUTPUT = "OUTPUT"
 
     def initAlgorithm(self, config: dict[str, Any] | None = None) -> None:  # noqa: N802
-        self.addParameter(QgsProcessingParameterFile(
-            self.INPUT, "GEDI L1B file", behavior=QgsProcessingParameterFile.File,
-            fileFilter=GEDI_FILTER))
+        add_l1b_parameters(self, self.INPUT, self.SETTING)
         self.addParameter(QgsProcessingParameterString(
             self.BEAMS, "Beams (e.g. BEAM0101, BEAM0110; empty = all)", defaultValue="",
             optional=True))
-        self.addParameter(QgsProcessingParameterEnum(
-            self.SETTING, "L2A setting group", options=list(SETTINGS), defaultValue=0))
         self.addParameter(QgsProcessingParameterBoolean(
             self.DECOMPOSE, "Also fit Gaussians (ground_gauss; much slower)",
             defaultValue=False))

@@ -9,15 +9,13 @@ from qgis.core import (
     QgsProcessingContext,
     QgsProcessingException,
     QgsProcessingFeedback,
-    QgsProcessingParameterEnum,
-    QgsProcessingParameterFile,
     QgsProcessingParameterFileDestination,
     QgsProcessingParameterString,
 )
 
 from ..core_bridge import import_core
 from .base import CanopyBlocksAlgorithm
-from .gedifootprints import GEDI_FILTER, SETTINGS
+from .gedifootprints import SETTINGS, add_l1b_parameters
 
 __all__ = ["WaveformPlotAlgorithm"]
 
@@ -44,13 +42,9 @@ class WaveformPlotAlgorithm(CanopyBlocksAlgorithm):
     OUTPUT = "OUTPUT"
 
     def initAlgorithm(self, config: dict[str, Any] | None = None) -> None:  # noqa: N802
-        self.addParameter(QgsProcessingParameterFile(
-            self.INPUT, "GEDI L1B file", behavior=QgsProcessingParameterFile.File,
-            fileFilter=GEDI_FILTER))
+        add_l1b_parameters(self, self.INPUT, self.SETTING)
         self.addParameter(QgsProcessingParameterString(
             self.SHOTS, "Shot numbers (comma separated)"))
-        self.addParameter(QgsProcessingParameterEnum(
-            self.SETTING, "L2A setting group", options=list(SETTINGS), defaultValue=0))
         self.addParameter(QgsProcessingParameterFileDestination(
             self.OUTPUT, "Waveform view (HTML)", fileFilter="HTML (*.html)"))
 

@@ -14,7 +14,7 @@ from .bias_calibration import (
 from .bias_calibration_files import calibrate_bias_file
 from .block_validation import ValidationResult, validate_atl08, validate_blocks
 from .coregistration import CoregOffset, CoregParams, CoregResult, coregister
-from .coregistration_files import coregister_file, coregister_table, write_offsets
+from .coregistration_files import coregister_file, write_offsets
 from .coregistration_targets import (
     CoregTargets,
     apply_offset,
@@ -52,7 +52,6 @@ __all__ = [
     "CoregTargets",
     "coregister",
     "coregister_file",
-    "coregister_table",
     "write_offsets",
     "apply_offset",
     "targets_from_photons",

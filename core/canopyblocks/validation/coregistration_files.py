@@ -25,7 +25,7 @@ from ..schema import LAYER_BLOCKS, LAYER_FOOTPRINTS
 from .coregistration import CoregParams, CoregResult, coregister
 from .coregistration_targets import CoregTargets, targets_from_photons, targets_from_table
 
-__all__ = ["coregister_file", "coregister_table", "table_targets", "write_offsets",
+__all__ = ["coregister_file", "table_targets", "write_offsets",
            "vertical_shift",
            "read_table_for_coregistration"]
 
@@ -70,7 +70,7 @@ def vertical_shift(lon: np.ndarray, lat: np.ndarray, geoid: str | os.PathLike[st
 
 
 def coregister_file(
-    path: str | os.PathLike[str],
+    path: str | os.PathLike[str] | pd.DataFrame,
     dtm: str | os.PathLike[str],
     dsm_max: str | os.PathLike[str] | None = None,
     *,
@@ -89,9 +89,10 @@ def coregister_file(
 
     Parameters
     ----------
-    path : path
+    path : path or DataFrame
         A photon file (ATL03, MABEL, photon table), a block table or a footprint table
-        (GeoPackage layers ``blocks``/``footprints``, GeoParquet, CSV).
+        (GeoPackage layers ``blocks``/``footprints``, GeoParquet, CSV), or such a table
+        already in memory.
     dtm, dsm_max : path
         Reference rasters (m). ``dsm_max`` enables the canopy-top term.
     beams : tuple of str
@@ -117,10 +118,11 @@ def coregister_file(
                           reference_vertical_crs if reference_vertical_crs is not None
                           else surface.crs, geoid=geoid, offset=offset)
     prog.update(0.02, "reading")
-    table = read_table_for_coregistration(path)
+    table = path if isinstance(path, pd.DataFrame) else read_table_for_coregistration(path)
     if table is not None:
         targets = table_targets(table, surface.crs, beams=beams, crs=crs, geoid=geoid,
-                                offset=offset, source=path)
+                                offset=offset,
+                                source="table" if isinstance(path, pd.DataFrame) else path)
     else:
         from ..track_blocks import read_tracks
 
@@ -163,31 +165,6 @@ def table_targets(table: pd.DataFrame, raster_crs: Any, *, beams: tuple[str, ...
         n = vertical_shift(np.asarray(lon), np.asarray(lat), geoid, offset)
         heights = heights.sub(n, axis=0) if isinstance(n, np.ndarray) else heights - n
     return targets_from_table(table, tcrs, raster_crs, heights=heights)
-
-
-def coregister_table(
-    table: pd.DataFrame,
-    dtm: str | os.PathLike[str],
-    dsm_max: str | os.PathLike[str] | None = None,
-    *,
-    beams: tuple[str, ...] = (),
-    crs: Any = None,
-    geoid: str | os.PathLike[str] | None = None,
-    offset: float | None = None,
-    photon_vertical_crs: Any = "EPSG:4979",
-    reference_vertical_crs: Any = None,
-    params: CoregParams | None = None,
-    progress: Progress | None = None,
-) -> CoregResult:
-    """Like :func:`coregister_file` for a block or footprint table already in memory."""
-    surface = read_surface(dtm, what="DTM")
-    dsm = read_surface(dsm_max, what="DSM") if dsm_max is not None else None
-    check_vertical_datums(photon_vertical_crs,
-                          reference_vertical_crs if reference_vertical_crs is not None
-                          else surface.crs, geoid=geoid, offset=offset)
-    targets = table_targets(table, surface.crs, beams=beams, crs=crs, geoid=geoid,
-                            offset=offset)
-    return coregister(targets, surface, dsm, params, progress=progress)
 
 
 def write_offsets(result: CoregResult, path: str | os.PathLike[str]) -> Path:

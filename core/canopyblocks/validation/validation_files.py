@@ -223,12 +223,12 @@ def validate_file(
     applied = ""
     stats_before = None
     if coregister:
-        from .coregistration_files import coregister_table
+        from .coregistration_files import coregister_file
         from .coregistration_targets import apply_offset
 
         prog.update(0.0, "co-registration")
         assert dtm is not None  # checked above
-        coreg = coregister_table(table, dtm, dsm_max,
+        coreg = coregister_file(table, dtm, dsm_max,
                                  crs=table_crs, geoid=geoid, offset=offset,
                                  photon_vertical_crs=photon_vertical_crs,
                                  reference_vertical_crs=reference_vertical_crs,
