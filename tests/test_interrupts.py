@@ -396,8 +396,6 @@ def test_several_csv_layers_are_named_and_written_together(tmp_path) -> None:
         check_output_path(gpkg, layers=["blocks"], reads=[(gpkg, "blocks")])
 
 
-@pytest.mark.xfail(strict=False, reason="helper C: cli/simulate.py must check its outputs first "
-                   "and write them with simulate.writers.write_simulation_outputs")
 def test_cli_unwritable_report_is_one_line(sample, tmp_path) -> None:
     """simulate --report into a folder that cannot be made: exit 2, one line, nothing left."""
     from canopyblocks.cli import main

@@ -160,5 +160,4 @@ XFAIL: dict[str, str] = {cid: _WHY[key] for cid, key in (
     ("cli-simulate-option--shot-spacing=0.00001", "C-cli"),
     ("cli-simulate-option--mean-photons=1e9", "C-cli"),
     ("cli-simulate-option--noise-rate=1e6", "C-cli"),
-    ("cli-simulate-report-unwritable", "C-cli"),
 )}
