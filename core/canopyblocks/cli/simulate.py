@@ -13,7 +13,6 @@ from .common import progress_bar
 
 if TYPE_CHECKING:
     from ..simulate import SimTrack
-    from ..simulate.analysis import Seed002Result
     from ..simulate.params import Beam, Ecosystem, Instrument
 
 log = logging.getLogger(__name__)
@@ -83,14 +82,9 @@ def simulate_cmd(ctx: click.Context, las: tuple[str, ...], sensor: str, azimuth:
     Heights keep the LAS files' CRS (converted to WGS84 lat/lon in HDF5 files) and
     vertical datum; the truth (footprint ground, top, RH, cover) travels with them.
     """
-    from ..errors import InputError
     from ..readers.las import las_bounds, read_las
     from ..simulate import SimParams, SimTrack, line_through, seed002_experiment
-    from ..simulate.writers import (
-        write_photon_table,
-        write_simulation_atl03,
-        write_simulation_mabel,
-    )
+    from ..simulate.writers import check_simulation_outputs, write_simulation_outputs
 
     if sum(v is not None for v in (azimuth, line, polyline)) != 1:
         raise click.UsageError(
@@ -107,9 +101,8 @@ def simulate_cmd(ctx: click.Context, las: tuple[str, ...], sensor: str, azimuth:
     # SimParams.__post_init__ fills diameter from the instrument when it is None.
     diams = tuple(diameters) or (float(cast(float, params.diameter)),)
     out = Path(output)
-    suffix = out.suffix.lower()
-    if suffix not in (".h5", ".hdf5", ".parquet", ".geoparquet", ".gpkg", ".csv"):
-        raise InputError(f"output {out}: use .h5 (ATL03/MABEL layout) or .parquet/.gpkg/.csv")
+    # every output checked before the work; written all or none after it
+    check_simulation_outputs(out, photon_table=photon_table, report=report)
     quiet = bool(ctx.obj and ctx.obj.get("quiet"))
     with progress_bar("simulate", quiet=quiet) as progress:
         if line is not None:
@@ -132,18 +125,10 @@ def simulate_cmd(ctx: click.Context, las: tuple[str, ...], sensor: str, azimuth:
                                     realisations=realisations, seed=seed,
                                     progress=progress.sub(0.2, 0.9))
         sim = result.simulations[float(diams[0])]
-        if suffix in (".h5", ".hdf5"):
-            layout = fmt or ("mabel" if instrument == "mabel" else "atl03")
-            if layout == "mabel":
-                write_simulation_mabel(sim, out)
-            else:
-                write_simulation_atl03(sim, out)
-        else:
-            write_photon_table(sim, out, realisation=0)
-        if photon_table:
-            write_photon_table(sim, photon_table, realisation=None)
-        if report:
-            _write_report(Path(report), result)
+        layout = fmt or ("mabel" if instrument == "mabel" else "atl03")
+        write_simulation_outputs(result, out, layout=layout, diameter=float(diams[0]),
+                                 photon_table=photon_table, report=report,
+                                 progress=progress.sub(0.9, 1.0))
         progress.update(1.0, "done")
     if quiet:
         return
@@ -230,19 +215,6 @@ def _polyline(value: str) -> SimTrack:
     if len(verts) < 2:
         raise click.BadParameter(f"a polyline needs at least two vertices; got {value!r}")
     return SimTrack(tuple(verts))
-
-
-def _write_report(folder: Path, result: Seed002Result) -> None:
-    from ..outputs.tables import write_table
-    from ..simulate.plots import plot_cover_residuals
-
-    folder.mkdir(parents=True, exist_ok=True)
-    write_table(result.table, folder / "seed002_table.csv")
-    write_table(result.cover, folder / "residuals_by_cover.csv")
-    plot_cover_residuals(result, folder / "residuals_by_cover.png")
-    for d, sim in result.simulations.items():
-        frame = sim.truth_frame().drop(columns="geometry")
-        write_table(frame, folder / f"truth_{d:g}m.csv")
 
 
 def register(group: click.Group) -> None:

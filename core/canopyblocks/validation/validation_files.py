@@ -181,7 +181,8 @@ def validate_file(
 
     prog = as_progress(progress)
     if geoid is not None and offset is not None:
-        raise InputError("give either a geoid or a constant offset, not both")
+        raise InputError("give either --geoid (a geoid raster) or --offset (a constant), "
+                         "not both")
     if reference not in REFERENCE_KINDS:
         raise InputError(f"reference must be one of {', '.join(REFERENCE_KINDS)}; "
                          f"got {reference!r}")
@@ -306,6 +307,8 @@ def _check_reference_inputs(reference: str, dtm: object, dsm_max: object, dsm_p9
                              "--reference footprint --points TILE.laz)")
     elif reference == "atl08" and atl08 is None:
         raise InputError("--reference atl08 needs --atl08 FILE")
+    elif reference == "atl08" and any(r is not None for r in rasters):
+        raise InputError("give either the rasters (--dtm ...) or --atl08, not both")
     elif reference == "footprint" and not points:
         raise InputError("--reference footprint needs the airborne tiles: --points TILE.laz")
 
