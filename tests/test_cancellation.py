@@ -242,7 +242,7 @@ def test_ctrl_c_during_run_leaves_no_files(sample, tmp_path, stage, whole_group)
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-    assert proc.returncode == 2, err
+    assert proc.returncode == 130, err
     assert "Traceback" not in err, err
     lines = [ln for ln in err.splitlines() if ln.strip()]
     assert lines and lines[-1].startswith("canopyblocks: error:"), err

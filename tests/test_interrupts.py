@@ -177,16 +177,11 @@ def _opened_then(run: Run, path: Path, seconds: float) -> Callable[[], bool]:
 SIGNALS = {"int": (signal.SIGINT, False), "int-group": (signal.SIGINT, True),
            "term": (signal.SIGTERM, False), "term-group": (signal.SIGTERM, True)}
 
-STARTUP = pytest.mark.xfail(
-    strict=False, reason="Ctrl-C while `import canopyblocks` runs (1.5 s of eager re-exports) "
-    "raises before the CLI can catch it: needs the lazy canopyblocks/__init__.py")
-
-
 # ---- run -------------------------------------------------------------------------------------------
 
 
 @pytest.mark.parametrize("stage,how", [
-    pytest.param("startup", "int", marks=STARTUP), ("startup", "term"),
+    ("startup", "int"), ("startup", "term"),
     ("photons_atl03.h5", "term"), ("blocks.gpkg", "int-group"), ("pdal", "term"),
     ("rasters", "term-group")])
 def test_run_interrupted(sample, pdal_bin, tmp_path, stage, how) -> None:
@@ -217,7 +212,7 @@ def _p90_step(run: Run) -> Callable[[], bool]:
 
 
 @pytest.mark.parametrize("stage,how", [
-    pytest.param("startup", "int", marks=STARTUP), ("pdal", "int"), ("pdal", "term"),
+    ("startup", "int"), ("pdal", "int"), ("pdal", "term"),
     ("pdal", "int-group"), ("p90", "int"), ("p90", "term"), ("p90", "term-group")])
 def test_rasters_interrupted(sample, pdal_bin, tmp_path, stage, how) -> None:
     out = tmp_path / "rasters"

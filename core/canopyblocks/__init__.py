@@ -6,15 +6,10 @@ Public functions are re-exported here; see ``docs/ARCHITECTURE.md``.
 
 from __future__ import annotations
 
+import importlib
 import logging
+from typing import TYPE_CHECKING, Any
 
-from .blocks import (
-    BlockParams,
-    CalibrationResult,
-    calibrate_cutoffs,
-    compute_blocks,
-    default_cutoffs,
-)
 from .errors import (
     CancelledError,
     CanopyBlocksError,
@@ -29,96 +24,195 @@ from .errors import (
     PdalError,
     SparseBlockWarning,
 )
-from .geo import utm_crs_for
-from .outputs.atomic import atomic_output
-from .outputs.h5_layouts import Atl03BeamData, MabelChannelData, write_atl03, write_mabel
-from .outputs.tables import read_blocks, read_layer, write_layers, write_table
-from .photons import PhotonTrack, along_track_distance
-from .progress import Progress
-from .readers import (
-    BeamInfo,
-    atl03_beams,
-    file_info,
-    mabel_channels,
-    open_track,
-    read_atl03,
-    read_las,
-    read_mabel,
-    read_table,
-)
-from .reference import (
-    FootprintReferenceParams,
-    Grid,
-    ReferenceRasters,
-    atl08_reference_values,
-    block_corridors,
-    block_footprint_reference,
-    block_reference_values,
-    block_terrain,
-    check_vertical_datums,
-    find_pdal,
-    footprint_reference,
-    horn_slope_aspect,
-    make_reference_rasters,
-    read_atl08_segments,
-    run_pipeline,
-)
-from .simulate import (
-    SimParams,
-    SimTrack,
-    Simulation,
-    line_through,
-    seed002_experiment,
-    simulate_photons,
-)
-from .track_blocks import BlocksResult, blocks_from_file, read_tracks
-from .validation import (
-    BiasCalibration,
-    CoregParams,
-    CoregResult,
-    FileValidation,
-    FootprintValidation,
-    ValidationResult,
-    apply_bias_calibration,
-    apply_offset,
-    block_stats,
-    calibrate_bias_file,
-    compute_residuals,
-    coregister,
-    coregister_file,
-    error_stats,
-    fit_bias_calibration,
-    read_bias_calibration,
-    validate_atl08,
-    validate_blocks,
-    validate_file,
-    validate_footprints,
-    write_bias_calibration,
-    write_offsets,
-)
-from .whole_chain import ChainResult, run_chain
+
+if TYPE_CHECKING:  # loaded on first use, see __getattr__
+    from .batch import BatchConfig, BatchResult, run_batch
+    from .blocks import (
+        BlockParams,
+        CalibrationResult,
+        calibrate_cutoffs,
+        compute_blocks,
+        default_cutoffs,
+    )
+    from .blocks.estimators import PRESETS, Estimators, estimate_blocks, preset
+    from .geo import utm_crs_for
+    from .outputs.atomic import atomic_output
+    from .outputs.h5_layouts import Atl03BeamData, MabelChannelData, write_atl03, write_mabel
+    from .outputs.tables import read_blocks, read_layer, write_layers, write_table
+    from .photons import PhotonTrack, along_track_distance
+    from .progress import Progress
+    from .readers import (
+        BeamInfo,
+        atl03_beams,
+        file_info,
+        mabel_channels,
+        open_track,
+        read_atl03,
+        read_las,
+        read_mabel,
+        read_table,
+    )
+    from .reference import (
+        FootprintReferenceParams,
+        Grid,
+        ReferenceRasters,
+        atl08_reference_values,
+        block_corridors,
+        block_footprint_reference,
+        block_reference_values,
+        block_terrain,
+        check_vertical_datums,
+        find_pdal,
+        footprint_reference,
+        horn_slope_aspect,
+        make_reference_rasters,
+        read_atl08_segments,
+        run_pipeline,
+    )
+    from .simulate import (
+        SimParams,
+        SimTrack,
+        Simulation,
+        line_through,
+        seed002_experiment,
+        simulate_photons,
+    )
+    from .track_blocks import BlocksResult, blocks_from_file, read_tracks
+    from .validation import (
+        BiasCalibration,
+        CoregParams,
+        CoregResult,
+        FileValidation,
+        FootprintValidation,
+        ValidationResult,
+        apply_bias_calibration,
+        apply_offset,
+        block_stats,
+        calibrate_bias_file,
+        compute_residuals,
+        coregister,
+        coregister_file,
+        error_stats,
+        fit_bias_calibration,
+        read_bias_calibration,
+        validate_atl08,
+        validate_blocks,
+        validate_file,
+        validate_footprints,
+        write_bias_calibration,
+        write_offsets,
+    )
+    from .waveforms import WaveformBatch, WaveformParams, process_waveforms
+    from .whole_chain import ChainResult, run_chain
 
 __version__ = "0.1.0"
 
 logging.getLogger(__name__).addHandler(logging.NullHandler())
 
-# Parts with heavy imports (scipy.stats, the batch runner, the waveform package) load on
-# first use, so that the command line starts quickly.
-_LAZY = {
-    "Estimators": ".blocks.estimators", "PRESETS": ".blocks.estimators",
-    "preset": ".blocks.estimators", "estimate_blocks": ".blocks.estimators",
-    "BatchConfig": ".batch", "BatchResult": ".batch", "run_batch": ".batch",
-    "WaveformBatch": ".waveforms", "WaveformParams": ".waveforms",
+# Everything but the exceptions loads on first use: ``import canopyblocks`` and the
+# command line start in a fraction of a second, and the heavy imports (numpy, geopandas,
+# pyproj, ...) happen inside a command, where Ctrl-C or SIGTERM end it with one line.
+_LAZY: dict[str, str] = {
+    "BlockParams": ".blocks",
+    "CalibrationResult": ".blocks",
+    "calibrate_cutoffs": ".blocks",
+    "compute_blocks": ".blocks",
+    "default_cutoffs": ".blocks",
+    "utm_crs_for": ".geo",
+    "atomic_output": ".outputs.atomic",
+    "Atl03BeamData": ".outputs.h5_layouts",
+    "MabelChannelData": ".outputs.h5_layouts",
+    "write_atl03": ".outputs.h5_layouts",
+    "write_mabel": ".outputs.h5_layouts",
+    "read_blocks": ".outputs.tables",
+    "read_layer": ".outputs.tables",
+    "write_layers": ".outputs.tables",
+    "write_table": ".outputs.tables",
+    "PhotonTrack": ".photons",
+    "along_track_distance": ".photons",
+    "Progress": ".progress",
+    "BeamInfo": ".readers",
+    "atl03_beams": ".readers",
+    "file_info": ".readers",
+    "mabel_channels": ".readers",
+    "open_track": ".readers",
+    "read_atl03": ".readers",
+    "read_las": ".readers",
+    "read_mabel": ".readers",
+    "read_table": ".readers",
+    "FootprintReferenceParams": ".reference",
+    "Grid": ".reference",
+    "ReferenceRasters": ".reference",
+    "atl08_reference_values": ".reference",
+    "block_corridors": ".reference",
+    "block_footprint_reference": ".reference",
+    "block_reference_values": ".reference",
+    "block_terrain": ".reference",
+    "check_vertical_datums": ".reference",
+    "find_pdal": ".reference",
+    "footprint_reference": ".reference",
+    "horn_slope_aspect": ".reference",
+    "make_reference_rasters": ".reference",
+    "read_atl08_segments": ".reference",
+    "run_pipeline": ".reference",
+    "SimParams": ".simulate",
+    "SimTrack": ".simulate",
+    "Simulation": ".simulate",
+    "line_through": ".simulate",
+    "seed002_experiment": ".simulate",
+    "simulate_photons": ".simulate",
+    "BlocksResult": ".track_blocks",
+    "blocks_from_file": ".track_blocks",
+    "read_tracks": ".track_blocks",
+    "BiasCalibration": ".validation",
+    "CoregParams": ".validation",
+    "CoregResult": ".validation",
+    "FileValidation": ".validation",
+    "FootprintValidation": ".validation",
+    "ValidationResult": ".validation",
+    "apply_bias_calibration": ".validation",
+    "apply_offset": ".validation",
+    "block_stats": ".validation",
+    "calibrate_bias_file": ".validation",
+    "compute_residuals": ".validation",
+    "coregister": ".validation",
+    "coregister_file": ".validation",
+    "error_stats": ".validation",
+    "fit_bias_calibration": ".validation",
+    "read_bias_calibration": ".validation",
+    "validate_atl08": ".validation",
+    "validate_blocks": ".validation",
+    "validate_file": ".validation",
+    "validate_footprints": ".validation",
+    "write_bias_calibration": ".validation",
+    "write_offsets": ".validation",
+    "ChainResult": ".whole_chain",
+    "run_chain": ".whole_chain",
+    "Estimators": ".blocks.estimators",
+    "PRESETS": ".blocks.estimators",
+    "preset": ".blocks.estimators",
+    "estimate_blocks": ".blocks.estimators",
+    "BatchConfig": ".batch",
+    "BatchResult": ".batch",
+    "run_batch": ".batch",
+    "WaveformBatch": ".waveforms",
+    "WaveformParams": ".waveforms",
     "process_waveforms": ".waveforms",
 }
 
 
-def __getattr__(name: str) -> object:
-    if name in _LAZY:
-        import importlib
+def __getattr__(name: str) -> Any:
+    module = _LAZY.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(module, __name__), name)
+    globals()[name] = value  # later look-ups skip this function
+    return value
 
-        return getattr(importlib.import_module(_LAZY[name], __name__), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))
+
 
 __all__ = [
     "__version__",

@@ -68,8 +68,8 @@ def batch(ctx: click.Context, granules: tuple[str, ...], tiles: tuple[str, ...],
                         backend=backend, workers=workers, scheduler=scheduler,  # type: ignore[arg-type]
                         progress=prog)
     ok = sum(u["status"] == "ok" for u in res.units)
+    for u in res.failed:  # shown under -q too: a failure is a warning
+        click.echo(f"canopyblocks: warning: failed: {u['key']}: {u['error']}", err=True)
     if not quiet:
-        for u in res.failed:
-            click.echo(f"failed: {u['key']}: {u['error']}", err=True)
-    click.echo(f"{ok} of {len(res.units)} units validated ({res.skipped} already done, "
-               f"{len(res.failed)} failed) -> {output}", err=True)
+        click.echo(f"{ok} of {len(res.units)} units validated ({res.skipped} already done, "
+                   f"{len(res.failed)} failed) -> {output}", err=True)

@@ -117,7 +117,8 @@ def calibrate_cmd(ctx: click.Context, photons: str, method: str, dtm: str | None
             width=2.0 if width is None else width, beam=beams[0] if beams else None,
             channel=parse_channel(channel), crs=crs, geoid=geoid, offset=offset,
             progress=progress)
-    for row in cal.table.itertuples():
+    # the table is the command's result: on stdout, unless -q and it went to a file
+    for row in ([] if quiet and output is not None else cal.table.itertuples()):
         click.echo(f"{row.length:>5g} m: top {row.top_cutoff:.3f} (paper {row.default_top_cutoff:.3f})"
                    f"  ground {row.ground_cutoff:.3f} (paper {row.default_ground_cutoff:.3f})"
                    f"  held-out Hmax RMSE {row.rmse_hmax_default:.2f} -> "
@@ -149,7 +150,7 @@ def _bias(photons: str, params: object, *, quiet: bool, output: str | None,
         cal = calibrate_bias_file(photons, params, est,  # type: ignore[arg-type]
                                   channel=parse_channel(channel),
                                   photon_vertical_crs=photon_vcrs, progress=progress, **kw)
-    for row in cal.table().itertuples():
+    for row in ([] if quiet and output is not None else cal.table().itertuples()):
         click.echo(f"{row.metric:<5} {row.length:>5g} m {row.strength:<6}: "
                    f"{row.slope:.3f} x + {row.intercept:+.2f} m  held-out RMSE "
                    f"{row.holdout_rmse_before:.2f} -> {row.holdout_rmse_after:.2f} m "

@@ -71,5 +71,7 @@ def validate_footprints_cmd(ctx: click.Context, footprints: str, points: tuple[s
             geoid=geoid, offset=offset, photon_vertical_crs=photon_vcrs,
             reference_vertical_crs=reference_vcrs, points_crs=points_crs,
             table_crs=table_crs, slope_threshold=slope_threshold, progress=prog)
+    if quiet:
+        return
     used = int(result.residuals["use"].sum())
     click.echo(f"validated {used} of {len(result.residuals)} footprints -> {output}", err=True)

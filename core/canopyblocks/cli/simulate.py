@@ -55,7 +55,7 @@ log = logging.getLogger(__name__)
               help="Horizontal geolocation error (Gaussian sigma), metres.")
 @click.option("--realisations", type=click.IntRange(min=1), default=100, show_default=True,
               help="Photon draws per diameter for the statistics (the file holds the first).")
-@click.option("--seed", type=int, default=0, show_default=True, help="Random seed.")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Random seed.")
 @click.option("--crs", default=None, help="CRS of LAS files that state none (e.g. 3005).")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Photons: .h5 (ATL03 layout, or MABEL with --format mabel), or a "
@@ -129,7 +129,7 @@ def simulate_cmd(ctx: click.Context, las: tuple[str, ...], sensor: str, azimuth:
         write_simulation_outputs(result, out, layout=layout, diameter=float(diams[0]),
                                  photon_table=photon_table, report=report,
                                  progress=progress.sub(0.9, 1.0))
-        progress.update(1.0, "done")
+        progress.report(1.0, "done")
     if quiet:
         return
     t = result.table

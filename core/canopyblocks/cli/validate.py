@@ -111,7 +111,7 @@ def validate(ctx: click.Context, blocks_path: str, dtm: str | None, dsm_max: str
             _print_before_after(result.stats_before, result.stats)
     if not quiet:
         click.echo(f"validated {result.n_used} of {len(result.residuals)} {result.kind} -> "
-                   f"{result.output}", err=True)
+                   f"{', '.join(str(p) for p in result.files or (result.output,))}", err=True)
 
 
 def _print_before_after(before: pd.DataFrame, after: pd.DataFrame) -> None:

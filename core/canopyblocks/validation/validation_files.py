@@ -55,6 +55,9 @@ class FileValidation:
         ``offsets.json`` written beside the output (with ``coregister``).
     datum : str
         How the vertical datums were reconciled.
+    files : tuple of Path
+        The files written: ``output`` for a GeoPackage, one file per layer for CSV or
+        Parquet (:func:`~canopyblocks.outputs.tables.layer_files`).
     """
 
     kind: str
@@ -66,6 +69,7 @@ class FileValidation:
     output: Path
     offsets: Path | None
     datum: str
+    files: tuple[Path, ...] = ()
 
     @property
     def n_used(self) -> int:
@@ -177,7 +181,7 @@ def validate_file(
     InputError, CRSError, DatumError, NoUsableDataError (nothing validated)
     """
     from ..outputs.atomic import check_writable, new_files_removed_on_failure
-    from ..outputs.tables import check_output_path, read_blocks, read_layer
+    from ..outputs.tables import check_output_path, layer_files, read_blocks, read_layer
 
     prog = as_progress(progress)
     if geoid is not None and offset is not None:
@@ -285,7 +289,8 @@ def validate_file(
     prog.update(1.0, "validated")
     return FileValidation(kind=kind, residuals=residuals, stats=stats,
                           stats_before=stats_before, coregistration=coreg, applied=applied,
-                          output=out, offsets=offsets_path, datum=datum)
+                          output=out, offsets=offsets_path, datum=datum,
+                          files=tuple(dict.fromkeys(layer_files(out, tables).values())))
 
 
 def _layer_names(kind: str) -> tuple[str, str]:
