@@ -146,6 +146,37 @@ def require_metric_crs(crs: pyproj.CRS, what: str = "CRS") -> pyproj.CRS:
     return crs
 
 
+def require_metre_units(crs: object, what: str) -> None:
+    """Refuse a CRS with any axis (horizontal or vertical) in feet or other non-metre units.
+
+    One unit rule for every command: heights and positions are metres.  Degrees of a
+    geographic CRS pass (they are handled where positions are projected).
+
+    Parameters
+    ----------
+    crs : CRS-like
+        Possibly compound.
+    what : str
+        Names the data (e.g. ``"tile a.laz"``, ``"DTM dtm.tif"``) in the message.
+
+    Raises
+    ------
+    CRSError
+        An axis in feet (or another non-metre length unit), with what to do.
+    """
+    c = as_crs(crs, what)
+    subs = c.sub_crs_list if c.is_compound and c.sub_crs_list else [c]
+    for sub in subs:
+        for axis in sub.axis_info:
+            if abs(axis.unit_conversion_factor - 1.0) > 1e-9 and "degree" not in \
+                    axis.unit_name and axis.unit_name != "radian":
+                raise CRSError(
+                    f"{what} is in {axis.unit_name!r} ({sub.name}); positions and heights in "
+                    "feet are not supported: convert it to metres (x, y and z) first, e.g. "
+                    "with PDAL filters.reprojection plus a Z scale of 0.3048006, or "
+                    "gdal_calc.py for a raster")
+
+
 def _transformer(src: pyproj.CRS, dst: pyproj.CRS) -> pyproj.Transformer:
     return pyproj.Transformer.from_crs(src, dst, always_xy=True)
 

@@ -50,13 +50,14 @@ BLOCK_COLUMNS: tuple[str, ...] = (
     "hmax",       # top - ground, m
     "z90",        # 90th percentile height of the photons between ground and top, m
     "h90",        # z90 - ground, m
-    "flag",       # ok / sparse / inverted
+    "flag",       # ok / sparse / inverted / implausible
 )
 
 FLAG_OK = "ok"
 FLAG_SPARSE = "sparse"
 FLAG_INVERTED = "inverted"
-FLAGS: tuple[str, ...] = (FLAG_OK, FLAG_SPARSE, FLAG_INVERTED)
+FLAG_IMPLAUSIBLE = "implausible"  # Hmax taller than any tree (blocks/plausibility.py)
+FLAGS: tuple[str, ...] = (FLAG_OK, FLAG_SPARSE, FLAG_INVERTED, FLAG_IMPLAUSIBLE)
 
 #: The four validated metrics, photon-side column -> reference-side column.
 METRICS: tuple[str, ...] = ("ground", "top", "hmax", "h90")

@@ -29,6 +29,7 @@ from ..schema import (
 )
 from .histogram import BlockHistograms, segment_starts, sigma_filter
 from .params import BlockParams
+from .plausibility import background_fraction, flag_implausible_blocks
 
 if TYPE_CHECKING:
     import geopandas as gpd
@@ -362,6 +363,8 @@ def compute_blocks(track: PhotonTrack, params: BlockParams | None = None, *,
             f"{params.min_photons} kept photons; they are flagged 'sparse' with NaN metrics",
             SparseBlockWarning, stacklevel=2,
         )
+    flag_implausible_blocks(gdf, track.track, None if params.min_signal_conf is not None
+                            else background_fraction(track.signal_conf))
     log.info("track %s: %d blocks for lengths %s", track.track, len(gdf), lengths)
     if labels:
         return gdf, label_out

@@ -25,6 +25,7 @@ without background); ``mabel`` (the same for dense airborne photons).
 from __future__ import annotations
 
 import logging
+import warnings
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Literal, overload
 
@@ -35,6 +36,7 @@ from ..schema import LABEL_BETWEEN, LABEL_CANOPY, LABEL_GROUND, LABEL_NOISE
 from .density_filter import DensityParams, density_filter
 from .ground_surface import GroundSurfaceParams, block_mean_ground, fit_ground_surface
 from .params import BlockParams
+from .plausibility import ImplausibleBlockWarning, flag_implausible_blocks
 
 if TYPE_CHECKING:
     import geopandas as gpd
@@ -208,8 +210,12 @@ def estimate_blocks(track: PhotonTrack, params: BlockParams | None = None,
                  float(np.median(res.rate)) if res.rate.size else 0.0)
         work = track.subset(res.keep)
     bp = _paper_params(params, est)
-    blocks, lab = compute_blocks(work, bp, labels=True, progress=progress)
-    if est.ground == "paper" and est.top == "paper":
+    paper_only = est.ground == "paper" and est.top == "paper"
+    with warnings.catch_warnings():
+        if not paper_only:  # flagged below, on the estimators' own heights
+            warnings.simplefilter("ignore", ImplausibleBlockWarning)
+        blocks, lab = compute_blocks(work, bp, labels=True, progress=progress)
+    if paper_only:
         blocks["estimators"] = est.label()
         if labels:
             return blocks, {k: _expand(v, removed) for k, v in lab.items()}
@@ -274,6 +280,7 @@ def estimate_blocks(track: PhotonTrack, params: BlockParams | None = None,
             new[near] = LABEL_GROUND
             out_labels[length] = _expand(new, removed)
     blocks["estimators"] = est.label()
+    flag_implausible_blocks(blocks, track.track)
     if labels:
         return blocks, out_labels
     return blocks

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import FileFormatError
+from ..errors import FileFormatError, InputError
 
 __all__ = ["H5File", "open_h5", "decode_attr", "HDF5_SIGNATURE"]
 
@@ -262,6 +262,9 @@ def open_h5(path: str | os.PathLike[str], product: str = "HDF5") -> Iterator[H5F
         When the file does not exist, is not HDF5, or cannot be opened
         (truncated, corrupt); the message names the file.
     """
+    if not isinstance(path, (str, os.PathLike)):
+        raise InputError(f"expected the path of an HDF5 {product} file (str or Path), got "
+                         f"{type(path).__name__} {path!r:.60}")
     p = Path(path)
     if not p.exists():
         raise FileFormatError(f"{p}: file does not exist")

@@ -35,6 +35,13 @@ from ..progress import Progress, as_progress
 from ._common import bbox_mask, check_bbox, check_s_range, s_mask
 from ._h5 import H5File, open_h5
 from .atl08 import BEAMS, join_atl08, read_atl08_photons
+from .photon_checks import (
+    PHOTON_LIMITS,
+    S_LIMIT,
+    check_photon_datasets,
+    drop_invalid_photons,
+    valid_photon_mask,
+)
 
 __all__ = ["BeamInfo", "BEAMS", "atl03_beams", "read_atl03", "beam_strength", "beam_spot",
            "EXTRA_GROUP"]
@@ -45,6 +52,8 @@ EXTRA_GROUP = "canopyblocks_truth"
 """Per-beam group holding extra per-photon columns (the simulator's truth)."""
 
 SIGNAL_CONF_COLUMNS = ("land", "ocean", "sea_ice", "land_ice", "inland_water")
+PHOTON_DATASETS = ("h_ph", "lat_ph", "lon_ph", "dist_ph_along", "delta_time")
+"""Per-photon datasets of ``gtXX/heights`` every read needs."""
 _SEG_MARGIN_M = 25.0  # photons lie up to ~1 m outside their 20 m segment; keep one more
 _BBOX_MARGIN_M = 30.0  # plus one neighbouring segment each side
 
@@ -125,8 +134,11 @@ def _beam_info(f: H5File, beam: str, sc_orient: int | None) -> BeamInfo:
         spot: int | None = int(spot_attr)
     except (TypeError, ValueError):
         spot = beam_spot(beam, sc_orient)
-    n = f.shape(f"{beam}/heights/h_ph")[0] if f.is_dataset(f"{beam}/heights/h_ph") else 0
-    return BeamInfo(beam, strength, int(n), spot)
+    if not f.is_dataset(f"{beam}/heights/h_ph") and f.keys(f"{beam}/heights"):
+        raise FileFormatError(f"{f.path}: /{beam}/heights/h_ph is missing (the group holds "
+                              f"{', '.join(f.keys(f'{beam}/heights')[:6])}); the file is damaged")
+    shape = f.shape(f"{beam}/heights/h_ph") if f.is_dataset(f"{beam}/heights/h_ph") else ()
+    return BeamInfo(beam, strength, int(shape[0]) if len(shape) == 1 else 0, spot)
 
 
 def atl03_beams(path: str | os.PathLike[str]) -> list[BeamInfo]:
@@ -356,7 +368,7 @@ def read_atl03(
                              for b in (_beam_info(f, b, orient) for b in beams))
             raise InputError(f"{f.path}: beam {beam} is not in this file; it has {have}")
         hg = f"{beam}/heights"
-        n_all = f.shape(f"{hg}/h_ph")[0]
+        n_all = check_photon_datasets(f, hg, PHOTON_DATASETS, optional=("signal_conf_ph",))
         segs = _read_segments(f, beam, n_all)
         if n_all == 0 or segs.segment_id.size == 0:
             raise NoUsableDataError(f"{f.path}: beam {beam} has no photons")
@@ -388,10 +400,17 @@ def read_atl03(
                 arr = arr[:, column]
             return arr[take]
 
+        def valid(name: str, values: np.ndarray) -> np.ndarray:
+            return valid_photon_mask(name, values, f.attr(f"{hg}/{name}", "_FillValue"))
+
         lat = col("lat_ph", np.float64)
         lon = col("lon_ph", np.float64)
         s = col("dist_ph_along", np.float64)
+        masks = {f"{hg}/lat_ph": valid("lat_ph", lat), f"{hg}/lon_ph": valid("lon_ph", lon),
+                 f"{hg}/dist_ph_along": valid("dist_ph_along", s)}
         _add_per_segment(s, segs.dist_x, segs.count)  # s = segment_dist_x + dist_ph_along
+        with np.errstate(invalid="ignore"):
+            masks[f"{beam}/geolocation/segment_dist_x"] = np.abs(s) < S_LIMIT + PHOTON_LIMITS["dist_ph_along"][1]
         keep = None
         if bb is not None or sr is not None:
             keep = bbox_mask(lon, lat, bb) & s_mask(s, sr)
@@ -399,7 +418,9 @@ def read_atl03(
         cpath = f"{hg}/signal_conf_ph"
         if f.is_dataset(cpath):
             ndim = len(f.shape(cpath))
-            conf = col("signal_conf_ph", np.int8, 0 if ndim == 2 else None)
+            conf = col("signal_conf_ph", None, 0 if ndim == 2 else None)
+            masks[cpath] = valid("signal_conf_ph", conf)
+            conf = conf.astype(np.int8, copy=False)  # wrapped values are dropped below
         elif min_signal_conf is not None:
             raise FileFormatError(f"{f.path}: /{hg}/signal_conf_ph is missing, so "
                                   "min_signal_conf cannot be applied; drop min_signal_conf")
@@ -417,6 +438,16 @@ def read_atl03(
         cols: dict[str, np.ndarray] = {
             "time": col("delta_time", np.float64), "lat": lat, "lon": lon,
             "h": col("h_ph", np.float64), "s": s}
+        masks[f"{hg}/h_ph"] = valid("h_ph", cols["h"])
+        masks[f"{hg}/delta_time"] = valid("delta_time", cols["time"])
+        usable = drop_invalid_photons(f.path, f"beam {beam}", masks)
+        del masks
+        if usable is not None:
+            keep = usable if keep is None else keep & usable
+            if not keep.any():
+                raise NoUsableDataError(
+                    f"{f.path}: beam {beam}: no photon with valid values is left in the "
+                    "selection (bbox, s_range, min_signal_conf)")
         del lat, lon, s
         if conf is not None:
             cols["signal_conf"] = conf

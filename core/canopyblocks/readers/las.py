@@ -25,7 +25,7 @@ from ..errors import (
     InputError,
     NoUsableDataError,
 )
-from ..geo import as_crs, require_metric_crs
+from ..geo import as_crs, require_metre_units, require_metric_crs
 from ..progress import Progress, as_progress
 
 __all__ = ["LasPoints", "read_las", "las_crs", "las_bounds"]
@@ -276,6 +276,8 @@ def read_las(
                 raise CRSError(
                     f"{path}: the file's CRS {file_crs.to_string()} differs from the CRS given, "
                     f"{given.to_string()}; reproject the tiles or drop the CRS argument")
+            if file_crs_full is not None:
+                require_metre_units(file_crs_full, f"tile {path}")
             if used_crs is None:
                 used_crs = require_metric_crs(file_crs, f"{path} CRS")
                 vdatum = _vertical_name(file_crs_full, header)

@@ -16,13 +16,29 @@ import numpy as np
 import pyproj
 
 from ..errors import CRSError, DependencyError, FileFormatError, InputError
+from ..geo import require_metre_units
 
-__all__ = ["RasterSurface", "read_surface", "UNDECLARED_NODATA"]
+__all__ = ["RasterSurface", "read_surface", "clean_heights", "UNDECLARED_NODATA"]
 
 log = logging.getLogger(__name__)
 
 #: Values treated as nodata even when a raster does not declare them.
 UNDECLARED_NODATA: tuple[float, ...] = (-9999.0, float(np.finfo(np.float32).max))
+
+
+def clean_heights(values: np.ndarray, what: str = "raster") -> np.ndarray:
+    """``values`` (float64, modified in place) with undeclared nodata and non-finite as NaN.
+
+    Surveys often leave -9999 or float32 max (3.4028235e38) undeclared (DESIGN 2.9);
+    used wherever raster cells are read as heights.
+    """
+    for nd in UNDECLARED_NODATA:
+        hit = values == nd
+        if hit.any():
+            log.info("%s: %d cells hold %g, treated as nodata", what, int(hit.sum()), nd)
+            values[hit] = np.nan
+    values[~np.isfinite(values)] = np.nan
+    return values
 
 
 @dataclass(frozen=True)
@@ -134,13 +150,8 @@ def read_surface(path: str | os.PathLike[str], *, what: str = "raster") -> Raste
             crs = pyproj.CRS.from_user_input(src.crs.to_wkt())
     except rasterio.errors.RasterioIOError as exc:
         raise FileFormatError(f"{what} {p}: cannot read ({exc})") from None
-    values = np.ma.filled(band.astype(np.float64), np.nan)
-    for nd in UNDECLARED_NODATA:
-        hit = values == nd
-        if hit.any():
-            log.info("%s %s: %d cells hold %g, treated as nodata", what, p, int(hit.sum()), nd)
-            values[hit] = np.nan
-    values[~np.isfinite(values)] = np.nan
+    require_metre_units(crs, f"{what} {p}")
+    values = clean_heights(np.ma.filled(band.astype(np.float64), np.nan), f"{what} {p}")
     if not np.isfinite(values).any():
         raise InputError(f"{what} {p} holds no valid cell (all nodata)")
     return RasterSurface(values, float(t.c), float(t.f), float(t.a), float(-t.e), crs, p)

@@ -50,7 +50,7 @@ from ..errors import (
     NoUsableDataError,
     PdalError,
 )
-from ..geo import as_crs, require_metric_crs
+from ..geo import as_crs, require_metre_units, require_metric_crs
 from ..outputs.atomic import atomic_output
 from ..progress import Progress, as_progress
 from .lidar_points import cell_neighbourhoods, cell_percentile, read_points_csv
@@ -234,13 +234,7 @@ def check_tile_crs(info: TileInfo, assigned: pyproj.CRS | None) -> tuple[pyproj.
                     assigned.to_string())
         return assigned, True
     crs = as_crs(wkt, f"CRS of tile {info.path}")
-    for axis in crs.axis_info:
-        if abs(axis.unit_conversion_factor - 1.0) > 1e-9 and "degree" not in axis.unit_name \
-                and axis.unit_name != "radian":
-            raise CRSError(
-                f"tile {info.path} is in {axis.unit_name!r} ({crs.name}); positions and "
-                "heights in feet are not supported: convert the tile to metres (x, y and z) "
-                "first, e.g. with PDAL filters.reprojection plus a Z scale of 0.3048006")
+    require_metre_units(crs, f"tile {info.path}")
     return crs, override
 
 

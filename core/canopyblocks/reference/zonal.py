@@ -42,7 +42,9 @@ import pandas as pd
 import pyproj
 
 from ..errors import CoverageError, CRSError, DependencyError, FileFormatError, InputError
+from ..geo import require_metre_units
 from ..progress import Progress, as_progress
+from .raster_sampling import clean_heights
 
 if TYPE_CHECKING:
     from affine import Affine
@@ -135,6 +137,7 @@ def open_grid(paths: Mapping[str, str | os.PathLike[str]]) -> RasterGrid:
             )
         if t.b != 0 or t.d != 0:
             raise InputError(f"{name} raster {p} has a rotated grid; warp it north-up first")
+        require_metre_units(c.to_wkt(), f"{name} raster {p}")
     for name, p, t, w, h, c in grids[1:]:
         # compare horizontal parts: GDAL may rename an unknown vertical datum on a round trip
         same_crs = _horizontal_crs(c) == _horizontal_crs(c0)
@@ -182,7 +185,7 @@ def _read_window(srcs: dict[str, Any], r0: int, r1: int, c0: int, c1: int,
         if rr1 > rr0 and cc1 > cc0:
             win = rasterio.windows.Window(cc0, rr0, cc1 - cc0, rr1 - rr0)
             data = src.read(1, window=win, masked=True).astype(np.float64)
-            vals = data.filled(np.nan)
+            vals = clean_heights(data.filled(np.nan), f"{name} raster")
             arr[rr0 - r0:rr1 - r0, cc0 - c0:cc1 - c0] = vals
         out[name] = arr
     return out

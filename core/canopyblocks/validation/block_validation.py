@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import os
+import warnings
 from dataclasses import dataclass
 
 import geopandas as gpd
@@ -16,7 +17,7 @@ import numpy as np
 import pandas as pd
 import pyproj
 
-from ..errors import CoverageError, FileFormatError, InputError
+from ..errors import CanopyBlocksWarning, CoverageError, FileFormatError, InputError
 from ..geo import require_metric_crs
 from ..progress import Progress, as_progress
 from ..reference.atl08 import atl08_reference_values, read_atl08_segments
@@ -96,6 +97,53 @@ def _require_reference(ref: pd.DataFrame,
                 "value, extent and the tiles' ground classes)")
 
 
+MAX_MEDIAN_RESIDUAL_M = 100.0
+"""A median |residual| above this (m) is not a measurement error but a reference in other
+units, of another datum, or without heights: the validation is refused."""
+
+
+def require_plausible_reference(residuals: pd.DataFrame,
+                                rasters: dict[str, tuple[str, str, object]]) -> None:
+    """Refuse references that cannot describe the photons' surface; warn on constant ones.
+
+    Parameters
+    ----------
+    residuals : DataFrame
+        With ``use`` and, per entry of ``rasters``, the residual and reference columns.
+    rasters : dict
+        ``residual column -> (reference column, what, path)``.
+
+    Raises
+    ------
+    InputError
+        Median |residual| above :data:`MAX_MEDIAN_RESIDUAL_M` over the usable rows: a
+        raster in feet, holding zeros, or on another vertical datum.
+    """
+    use = residuals["use"].to_numpy(bool) if "use" in residuals.columns else \
+        np.ones(len(residuals), bool)
+    for res_col, (ref_col, what, path) in rasters.items():
+        if res_col not in residuals.columns or ref_col not in residuals.columns:
+            continue
+        res = residuals[res_col].to_numpy(float)
+        ref = residuals[ref_col].to_numpy(float)
+        ok = use & np.isfinite(res) & np.isfinite(ref)
+        if not ok.any():
+            continue
+        med = float(np.median(res[ok]))
+        if abs(med) > MAX_MEDIAN_RESIDUAL_M:
+            raise InputError(
+                f"{what} raster {path}: the photons differ from it by a median of {med:+.0f} m "
+                f"over {int(ok.sum())} blocks (raster median {np.median(ref[ok]):.1f} m); it "
+                "cannot be the same surface: check that it holds heights in metres (not feet, "
+                "not zeros, nodata declared) on the photons' vertical datum (a geoid or "
+                "vertical offset may be missing)")
+        if int(ok.sum()) >= 3 and float(np.ptp(ref[ok])) == 0.0:
+            warnings.warn(
+                f"{what} raster {path} gives the same value ({ref[ok][0]:g} m) under all "
+                f"{int(ok.sum())} blocks; check that it holds heights", CanopyBlocksWarning,
+                stacklevel=3)
+
+
 def validate_blocks(blocks: gpd.GeoDataFrame, *, dtm: str | os.PathLike[str],
                     dsm_max: str | os.PathLike[str], dsm_p90: str | os.PathLike[str],
                     width: float = 2.0, geoid: str | os.PathLike[str] | None = None,
@@ -147,6 +195,8 @@ def validate_blocks(blocks: gpd.GeoDataFrame, *, dtm: str | os.PathLike[str],
     terrain = block_terrain(corridors, dtm, slope_threshold=slope_threshold,
                             all_touched=all_touched, progress=prog.sub(0.6, 0.95))
     residuals = compute_residuals(work, ref, terrain, corridors=corridors)
+    require_plausible_reference(residuals, {"res_ground": ("ref_ground", "DTM", str(dtm)),
+                                            "res_top": ("ref_top", "DSM max", str(dsm_max))})
     stats = block_stats(residuals)
     prog.update(1.0, "validation done")
     return ValidationResult(residuals, stats, decision)
