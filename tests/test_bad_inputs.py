@@ -518,10 +518,11 @@ def test_atl03_with_nan_heights(inputs, tmp_path, fraction) -> None:
     out.mkdir()
     r = run_cli("blocks", str(path), "--beam", "gt1r", "-o", str(out / "b.csv"))
     if fraction == 1.0:
-        assert_bad_input(r, "gt1r", "atl03_nan.h5", "finite height")
+        assert_bad_input(r, "gt1r", "atl03_nan.h5", "h_ph", "none of its")
         assert files_under(out) == set()
     else:
         assert r.returncode == 0, r.stderr
-        assert f"{n_nan} of {len(a)} photons have a NaN" in r.stderr
+        assert f"dropped {n_nan} of {len(a)} photons" in r.stderr
+        assert f"{n_nan} in /gt1r/heights/h_ph" in r.stderr
         blocks = pd.read_csv(out / "b.csv")
         assert len(blocks) > 0 and np.isfinite(blocks.loc[blocks["flag"] == "ok", "top"]).all()

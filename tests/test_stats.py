@@ -46,8 +46,10 @@ def test_small_n_and_degenerate() -> None:
     assert np.isnan(st["slope"]) and np.isnan(st["r2"]) and np.isnan(st["intercept"])
     st = error_stats([1.0, 2.0, 3.0], [5.0, 5.0, 5.0])  # constant reference
     assert np.isnan(st["slope"]) and st["rmse"] == pytest.approx(np.sqrt((16 + 9 + 4) / 3))
-    st = error_stats([], [])
+    st = error_stats([], [], allow_empty=True)  # an empty group of a table
     assert st["n"] == 0 and np.isnan(st["bias"])
+    with pytest.raises(InputError, match="empty"):  # an empty call from a user
+        error_stats([], [])
 
 
 def _residual_frame() -> pd.DataFrame:

@@ -7,6 +7,7 @@ number of block lengths; the vectorised kernels live in :mod:`.histogram`.
 from __future__ import annotations
 
 import logging
+import os
 import warnings
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal, overload
@@ -16,6 +17,7 @@ import pandas as pd
 
 from ..errors import CanopyBlocksWarning, InputError, NoUsableDataError, SparseBlockWarning
 from ..geo import from_metric, require_metric_crs
+from ..photons import PhotonTrack
 from ..progress import Progress, as_progress
 from ..schema import (
     BLOCK_COLUMNS,
@@ -33,8 +35,6 @@ from .plausibility import background_fraction, flag_implausible_blocks
 
 if TYPE_CHECKING:
     import geopandas as gpd
-
-    from ..photons import PhotonTrack
 
 __all__ = ["compute_blocks", "LABEL_OUTSIDE", "PreparedTrack", "prepare_track", "LengthResult",
            "blocks_for_length"]
@@ -333,6 +333,12 @@ def compute_blocks(track: PhotonTrack, params: BlockParams | None = None, *,
     params = BlockParams() if params is None else params
     if not isinstance(params, BlockParams):
         raise InputError(f"params must be a BlockParams; got {type(params).__name__}")
+    if not isinstance(track, PhotonTrack):
+        raise InputError(
+            f"compute_blocks needs a PhotonTrack (from read_atl03, read_mabel, read_table or "
+            f"open_track); got {type(track).__name__}"
+            + (" (a path: read it with canopyblocks.open_track first)"
+               if isinstance(track, (str, os.PathLike)) else ""))
     prog = as_progress(progress)
     prog.update(0.0, f"blocks of track {track.track}")
     pt = prepare_track(track, params)

@@ -169,7 +169,7 @@ def plot_footprint_scatter(residuals: pd.DataFrame, path: str | os.PathLike[str]
         y = sub[m].to_numpy(float)
         ok = np.isfinite(x) & np.isfinite(y)
         x, y = x[ok], y[ok]
-        st = error_stats(y, x)
+        st = error_stats(y, x, allow_empty=True)
         ax.scatter(x, y, s=12, alpha=0.7, color="tab:blue", edgecolor="none")
         if x.size:
             lo, hi = float(min(x.min(), y.min())), float(max(x.max(), y.max()))

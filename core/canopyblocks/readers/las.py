@@ -232,10 +232,14 @@ def read_las(
     NoUsableDataError
         No point left (empty files, or the box misses every tile).
     """
-    laspy = _laspy()
-    prog = as_progress(progress)
     if isinstance(paths, (str, os.PathLike)):
         paths = [paths]
+    if not isinstance(paths, (list, tuple)) or not all(
+            isinstance(p, (str, os.PathLike)) for p in paths):
+        raise InputError(f"read_las needs LAS/LAZ paths (a str/Path or a list of them); got "
+                         f"{type(paths).__name__} {paths!r:.60}")
+    laspy = _laspy()
+    prog = as_progress(progress)
     files = [Path(p) for p in paths]
     if not files:
         raise InputError("no LAS/LAZ file given")

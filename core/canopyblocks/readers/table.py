@@ -26,6 +26,7 @@ from ..errors import CRSError, DependencyError, FileFormatError, InputError, NoU
 from ..geo import WGS84, as_crs
 from ..photons import PhotonTrack
 from ._common import bbox_mask, check_bbox, check_s_range, s_mask
+from .photon_checks import drop_invalid_photons, valid_photon_mask
 
 __all__ = ["read_table", "TABLE_SUFFIXES"]
 
@@ -176,9 +177,16 @@ def read_table(
             f"{p}: needs columns {lon!r}/{lat!r} (WGS84 degrees) or {x!r}/{y!r} plus a CRS; "
             f"columns are {', '.join(map(str, df.columns))}"
         )
-    ok = np.isfinite(lo) & np.isfinite(la) & np.isfinite(hv)
-    if not ok.any():
-        raise NoUsableDataError(f"{p}: no row with finite position and height")
+    masks = {hcol: valid_photon_mask("h_ph", hv), "latitude": valid_photon_mask("lat_ph", la),
+             "longitude": valid_photon_mask("lon_ph", lo)}
+    if time in cols:
+        masks[time] = np.isfinite(t)
+    try:
+        usable = drop_invalid_photons(p, "the table's rows", masks)
+    except FileFormatError as exc:  # a column without one valid value
+        raise NoUsableDataError(str(exc).replace("the file is damaged",
+                                                 "no row is usable")) from None
+    ok = np.ones(len(hv), bool) if usable is None else usable
     tr = PhotonTrack.from_lonlat(
         t[ok], la[ok], lo[ok], hv[ok], track=name,
         s=None if s_in is None or not np.all(np.isfinite(s_in[ok])) else s_in[ok],

@@ -178,6 +178,44 @@ def cloud_index(points: LasPoints, params: SimParams | None = None) -> CloudInde
     return CloudIndex(points.x[ids], points.y[ids], points.z[ids], ids=points.rows[ids])
 
 
+MAX_SIMULATED_ITEMS = 100_000_000
+"""Refuse a simulation expected to hold more photons or footprint-point pairs than this
+(each costs tens of bytes in several arrays: 1e8 is a few GiB)."""
+
+
+def check_simulation_size(points: LasPoints, track: SimTrack, params: SimParams,
+                          realisations: int) -> None:
+    """Estimate shots, photons and footprint-point pairs; refuse absurd parameters.
+
+    Raises
+    ------
+    InputError
+        The estimate exceeds :data:`MAX_SIMULATED_ITEMS`; the message names the
+        parameter that makes it large.
+    """
+    spacing = float(params.shot_spacing)  # type: ignore[arg-type]
+    shots = track.length / spacing + 1.0
+    x0, y0, x1, y1 = points.bounds if len(points) else (0.0, 0.0, 1.0, 1.0)
+    area = max((x1 - x0) * (y1 - y0), 1.0)
+    per_footprint = len(points) / area * np.pi * params.radius ** 2
+    below, above = params.noise_window
+    z_span = float(np.ptp(points.z)) if len(points) else 0.0
+    estimates = {
+        "shot_spacing": shots * max(per_footprint, 1.0),
+        "mean_photons": shots * realisations * params.photon_mean,
+        "noise_rate": shots * realisations * params.noise_rate * (below + above + z_span),
+    }
+    name, worst = max(estimates.items(), key=lambda kv: kv[1])
+    if not worst <= MAX_SIMULATED_ITEMS:
+        raise InputError(
+            f"these simulation parameters would make about {worst:.2g} "
+            f"{'footprint-point pairs' if name == 'shot_spacing' else 'photons'} "
+            f"({shots:.3g} shots x {realisations} realisations; limit "
+            f"{MAX_SIMULATED_ITEMS:.0e}): reduce {name} "
+            f"(now {getattr(params, name) if name != 'mean_photons' else params.photon_mean:g})"
+            ", the number of realisations or the track length")
+
+
 def simulate_photons(
     points: LasPoints,
     track: SimTrack,
@@ -220,12 +258,15 @@ def simulate_photons(
     params = params or SimParams()
     if not (isinstance(realisations, (int, np.integer)) and realisations >= 1):
         raise InputError(f"realisations must be an integer >= 1; got {realisations!r}")
+    if seed is not None and not (isinstance(seed, (int, np.integer)) and seed >= 0):
+        raise InputError(f"seed must be an integer >= 0 (or None); got {seed!r}")
     prog = as_progress(progress)
     if index is None:
         index = cloud_index(points, params)
+    n_real = int(realisations)
+    check_simulation_size(points, track, params, n_real)
     sx, sy, ss = shots_along(track, float(params.shot_spacing))  # type: ignore[arg-type]
     n = ss.size
-    n_real = int(realisations)
     radius, psf = params.radius, params.psf
     # all random numbers up front, in shot order: the photons of a seed do not depend
     # on the chunks below (counts at shots without points are dropped afterwards)

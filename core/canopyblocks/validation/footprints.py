@@ -314,7 +314,8 @@ def footprint_stats(residuals: pd.DataFrame, *, length: float,
     rows = []
     for m in metrics:
         for name, sub in subsets:
-            st = error_stats(sub[m].to_numpy(float), sub[FOOTPRINT_METRICS[m]].to_numpy(float))
+            st = error_stats(sub[m].to_numpy(float), sub[FOOTPRINT_METRICS[m]].to_numpy(float),
+                             allow_empty=True)
             rows.append({"length": float(length), "metric": m, "group": name, **st})
     out = pd.DataFrame(rows, columns=list(STATS_COLUMNS))
     out["n"] = out["n"].astype(np.int64)

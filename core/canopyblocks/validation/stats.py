@@ -34,13 +34,22 @@ _CLASS_ORDER = ("N", "NE", "E", "SE", "S", "SW", "W", "NW", "flat",
                 "0-5", "5-10", "10-20", "20-30", ">30", "unknown")
 
 
-def error_stats(photon: np.ndarray, reference: np.ndarray) -> dict[str, float]:
+def error_stats(photon: np.ndarray, reference: np.ndarray, *,
+                allow_empty: bool = False) -> dict[str, float]:
     """n, bias, rmse, mae, slope, intercept, r2 of ``photon`` against ``reference``.
 
-    Pairs with a non-finite value are ignored (NaN-safe).
+    Pairs with a non-finite value are ignored (NaN-safe).  Empty arrays raise
+    :class:`~canopyblocks.errors.InputError` unless ``allow_empty`` (then n = 0 and NaN
+    statistics: a group of a table that happens to be empty).
     """
     y = np.asarray(photon, dtype=float)
     x = np.asarray(reference, dtype=float)
+    if y.shape != x.shape:
+        raise InputError(f"error_stats needs two arrays of one length; got {y.shape} and "
+                         f"{x.shape}")
+    if y.size == 0 and not allow_empty:
+        raise InputError("error_stats got empty arrays: no pair of photon and reference "
+                         "values to compare")
     ok = np.isfinite(x) & np.isfinite(y)
     x, y = x[ok], y[ok]
     n = int(x.size)
@@ -111,7 +120,8 @@ def block_stats(residuals: pd.DataFrame, *, metrics: Sequence[str] = METRICS,
         for m in metrics:
             ref = RESIDUAL_PAIRS[m]
             for name, sub in subsets:
-                st = error_stats(sub[m].to_numpy(float), sub[ref].to_numpy(float))
+                st = error_stats(sub[m].to_numpy(float), sub[ref].to_numpy(float),
+                                 allow_empty=True)
                 rows.append({"length": float(length), "metric": m, "group": name, **st})
     out = pd.DataFrame(rows, columns=list(STATS_COLUMNS))
     out["n"] = out["n"].astype(np.int64)
