@@ -18,7 +18,7 @@ import pytest
 from canopyblocks import BlockParams, read_atl03, read_mabel
 from canopyblocks.cli import main
 from canopyblocks.schema import BLOCK_COLUMNS
-from test_blocks_oracle import oracle
+from test_blocks_oracle import expected_flags, oracle
 
 LENGTHS = (10.0, 25.0, 50.0)
 ATL03 = "icesat2/vegr_atl03_clip.h5"
@@ -42,10 +42,7 @@ def check_against_oracle(track, blocks: gpd.GeoDataFrame, params: BlockParams) -
         for col in ("top", "ground", "z90"):
             np.testing.assert_allclose(got[col].to_numpy(), [r[col] for r in rows],
                                        rtol=0, atol=1e-9, err_msg=col)
-        # the paper's flags, plus 'implausible' for its 'ok' blocks taller than any tree
-        expected = ["implausible" if r["flag"] == "ok" and r["top"] - r["ground"] > 130.0
-                    else r["flag"] for r in rows]
-        assert list(got["flag"]) == expected
+        assert list(got["flag"]) == expected_flags(rows)
         n += len(rows)
     return n
 

@@ -27,6 +27,8 @@ from ..errors import (
 )
 from ..geo import as_crs, require_metre_units, require_metric_crs
 from ..progress import Progress, as_progress
+from .cloud_checks import warn_if_normalised
+from .las_header import check_las_file
 
 __all__ = ["LasPoints", "read_las", "las_crs", "las_bounds"]
 
@@ -256,6 +258,9 @@ def read_las(
     offset = 0  # rows of the files before this one
     for i, path in enumerate(files):
         sub = prog.sub(i / len(files), (i + 1) / len(files))
+        if not path.exists():
+            raise FileFormatError(f"{path}: no such file")
+        check_las_file(path)
         try:
             reader_cm = laspy.open(path)
         except FileNotFoundError:
@@ -321,6 +326,7 @@ def read_las(
         classification=np.concatenate(parts["c"]), return_number=np.concatenate(parts["r"]),
         number_of_returns=np.concatenate(parts["n"]), crs=used_crs, vertical_datum=vdatum,
         sources=tuple(str(f) for f in files), row=np.concatenate(parts["row"]))
+    warn_if_normalised(pts.z, pts.classification, ", ".join(str(f) for f in files))
     prog.update(1.0, f"{len(pts):,} points read")
     log.info("read %d points from %d file(s)", len(pts), len(files))
     return pts

@@ -33,8 +33,9 @@ import logging
 import math
 import os
 import tempfile
+import warnings
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal, cast
 
@@ -42,6 +43,7 @@ import numpy as np
 import pyproj
 
 from ..errors import (
+    CanopyBlocksWarning,
     CoverageError,
     CRSError,
     DependencyError,
@@ -53,6 +55,8 @@ from ..errors import (
 from ..geo import as_crs, require_metre_units, require_metric_crs
 from ..outputs.atomic import atomic_output
 from ..progress import Progress, as_progress
+from ..readers.cloud_checks import warn_if_normalised
+from ..readers.las_summary import LasSummary, las_summary
 from .lidar_points import cell_neighbourhoods, cell_percentile, read_points_csv
 from .pdal import (
     TileInfo,
@@ -279,6 +283,20 @@ def _union_bounds(infos: list[TileInfo], crss: list[pyproj.CRS],
             float(arr[:, 2].max()), float(arr[:, 3].max()))
 
 
+def _trust_points(info: TileInfo, summary: LasSummary, resolution: float) -> TileInfo:
+    """``info`` with the extent and count of the points when the header disagrees."""
+    if summary.header_disagrees(tolerance=max(resolution, 0.01)) or \
+            summary.n_points != info.n_points:
+        warnings.warn(
+            f"tile {info.path}: its header says {info.n_points} points in "
+            f"{_fmt(summary.header_bounds)}, its points are {summary.n_points} in "
+            f"{_fmt(summary.bounds)}; using the points (the header is wrong: rewrite the file "
+            "with a LAS tool to fix it)", CanopyBlocksWarning, stacklevel=3)
+        return replace(info, bounds=summary.bounds, n_points=summary.n_points,
+                       z_range=summary.z_range)
+    return info
+
+
 def _fmt(bounds: Sequence[float]) -> tuple[float, ...]:
     return tuple(round(float(v), 2) for v in bounds)
 
@@ -347,9 +365,21 @@ def make_reference_rasters(
     exe = find_pdal(pdal)
     prog.update(0.0, "reading tile headers")
 
-    infos = [tile_info(p, pdal=exe) for p in paths]
+    # the points, not the headers, say where a tile is and what it holds
+    summaries = [las_summary(p) for p in paths]
+    infos = [_trust_points(tile_info(p, pdal=exe), s, params.resolution)
+             for p, s in zip(paths, summaries)]
+    names = ", ".join(map(str, paths))
     if sum(i.n_points for i in infos) == 0:
-        raise NoUsableDataError(f"the tiles {', '.join(map(str, paths))} hold no points")
+        raise NoUsableDataError(f"the tiles {names} hold no points")
+    if all(s.n_points == s.n_noise for s in summaries):
+        raise NoUsableDataError(
+            f"every point of {names} is classed noise (ASPRS class 7 or 18), which the rasters "
+            "exclude; reclassify the tiles (e.g. PDAL filters.outlier only on real outliers)")
+    if params.ground == "class2" and sum(s.n_ground for s in summaries) == 0:
+        raise NoUsableDataError(
+            f"no point of {names} is classed ground (ASPRS class 2): the tiles are "
+            "unclassified; use ground='smrf' (--smrf) to classify the ground first")
     target_in = None if crs is None else require_metric_crs(as_crs(crs, "output crs"),
                                                             "output crs")
     checked = [check_tile_crs(i, target_in) for i in infos]
@@ -381,8 +411,9 @@ def make_reference_rasters(
         area = union
     grid = Grid.from_bounds(area, params.resolution, out_wkt)
     if grid.width * grid.height > _MAX_CELLS:
-        raise InputError(f"the grid would have {grid.width} x {grid.height} cells; use a "
-                         "coarser resolution or smaller bounds")
+        raise InputError(f"the grid over {names} would have {grid.width:.3g} x "
+                         f"{grid.height:.3g} cells at {params.resolution:g} m (limit "
+                         f"{_MAX_CELLS:.0e}); use a coarser resolution or smaller bounds")
     log.info("grid %d x %d cells of %g m at (%.2f, %.2f)", grid.width, grid.height,
              grid.resolution, grid.origin_x, grid.origin_y)
 
@@ -440,7 +471,8 @@ def make_reference_rasters(
         except PdalError as exc:
             if "no points" not in str(exc):
                 raise
-            raise NoUsableDataError(f"no ground point in the grid {_fmt(grid.bounds)}"
+            raise NoUsableDataError(f"no ground point of {names} in the grid "
+                                    f"{_fmt(grid.bounds)}"
                                     + ("" if smrf else "; the files may be unclassified: use "
                                        "ground='smrf' (--smrf)")) from None
         pts_path = tmp / "points.csv"
@@ -515,6 +547,10 @@ def _check_outputs(dtm: Path, dsm: Path, grid: Grid, params: RasterParams,
     if counts["dtm"] == 0:
         hint = ("; the files may be unclassified: use ground='smrf' (--smrf)"
                 if params.ground == "class2" else "")
-        raise NoUsableDataError(f"no ground point in the grid "
-                                f"{_fmt(grid.bounds)}{hint}")
+        raise NoUsableDataError(f"no ground point of {', '.join(map(str, paths))} in the "
+                                f"grid {_fmt(grid.bounds)}{hint}")
+    with rasterio.open(dtm) as src:
+        a = src.read(1)
+    ground = a[a != NODATA]
+    warn_if_normalised(ground, np.full(ground.size, 2), ", ".join(map(str, paths)))
     return counts

@@ -1,0 +1,101 @@
+"""Checks of a LAS/LAZ public header before any point is read.
+
+A truncated or damaged file must be refused as such, not reported as "states no CRS" or
+"no points inside the box", and a header whose scale, offset or point count cannot be
+right must not turn the points into zeros, 1e300 or half a tile.  Checked, from the
+public header (ASPRS LAS 1.0-1.4) and the file size:
+
+* the signature ``LASF`` and a header of full length;
+* the point data starting inside the file; for LAZ, the chunk-table pointer inside the
+  file; for uncompressed LAS, the file holding exactly the points the header counts
+  (up to the extended VLRs of LAS 1.4);
+* x/y/z scale factors finite, positive and at most 1 m per unit; offsets finite and
+  within 1e9 m (no projected coordinate is larger).
+
+Both ``readers.las.read_las`` and the PDAL path (``reference.pdal``) use it.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from pathlib import Path
+
+from ..errors import FileFormatError
+
+__all__ = ["check_las_file", "MAX_SCALE", "MAX_OFFSET"]
+
+MAX_SCALE = 1.0
+"""Largest plausible scale factor, metres per integer unit (surveys use 0.001-0.01)."""
+MAX_OFFSET = 1.0e9
+"""Largest plausible header offset, metres."""
+
+_HEADER_MIN = 227  # LAS 1.0-1.2 public header size
+
+
+def check_las_file(path: str | Path) -> None:
+    """Refuse a LAS/LAZ file whose header cannot describe its points.
+
+    Raises
+    ------
+    FileFormatError
+        Not LAS/LAZ, truncated, or a header with impossible scale, offset or point
+        count; the message names the file and what is wrong.
+    """
+    p = Path(path)
+    try:
+        size = p.stat().st_size
+        with p.open("rb") as f:
+            head = f.read(375)
+            if len(head) < _HEADER_MIN or head[:4] != b"LASF":
+                raise FileFormatError(f"{p} is not a LAS/LAZ file (no LASF header) or is "
+                                      f"truncated ({size} bytes)")
+            offset = struct.unpack_from("<I", head, 96)[0]
+            fmt = head[104]
+            rec_len = struct.unpack_from("<H", head, 105)[0]
+            n_legacy = struct.unpack_from("<I", head, 107)[0]
+            scales = struct.unpack_from("<3d", head, 131)
+            offsets = struct.unpack_from("<3d", head, 155)
+            version = (head[24], head[25])
+            n = n_legacy
+            evlr_start = 0
+            if version >= (1, 4) and len(head) >= 375:
+                evlr_start = struct.unpack_from("<Q", head, 235)[0]
+                if n_legacy == 0:
+                    n = struct.unpack_from("<Q", head, 247)[0]
+            if size < offset:
+                raise FileFormatError(f"{p} is truncated: {size} bytes, its header says the "
+                                      f"points start at byte {offset}")
+            for axis, v in zip("xyz", scales):
+                if not (math.isfinite(v) and 0.0 < v <= MAX_SCALE):
+                    raise FileFormatError(
+                        f"{p}: the header's {axis} scale factor is {v:g}, not a positive "
+                        f"step of at most {MAX_SCALE:g} m; the header is corrupt (rewrite "
+                        "the file with a LAS tool, e.g. las2las or PDAL)")
+            for axis, v in zip("xyz", offsets):
+                if not (math.isfinite(v) and abs(v) <= MAX_OFFSET):
+                    raise FileFormatError(
+                        f"{p}: the header's {axis} offset is {v:g} m, beyond any coordinate; "
+                        "the header is corrupt (rewrite the file with a LAS tool)")
+            if fmt & 0x80 or fmt & 0x40:  # LAZ: a chunk-table pointer opens the point data
+                f.seek(offset)
+                raw = f.read(8)
+                table = struct.unpack("<q", raw)[0] if len(raw) == 8 else size + 1
+                if table > size:
+                    raise FileFormatError(f"{p} is truncated: {size} bytes, its LAZ chunk "
+                                          f"table is at byte {table}")
+            elif rec_len > 0:
+                end = evlr_start if 0 < evlr_start <= size else size
+                held = (end - offset) // rec_len
+                if held < n:
+                    raise FileFormatError(f"{p} is truncated: {size} bytes hold {held} points "
+                                          f"of {rec_len} bytes, its header counts {n}")
+                if held > n and (end - offset) - n * rec_len >= rec_len:
+                    raise FileFormatError(
+                        f"{p}: the header counts {n} points but the file holds {held} "
+                        f"(point records of {rec_len} bytes from byte {offset}); the header "
+                        "is corrupt (rewrite the file with a LAS tool)")
+    except FileFormatError:
+        raise
+    except OSError as exc:
+        raise FileFormatError(f"cannot read {p}: {exc}") from None
