@@ -10,12 +10,13 @@ from __future__ import annotations
 
 import logging
 import os
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import FileFormatError, InputError
+from ..errors import CanopyBlocksWarning, FileFormatError, InputError
 from ._h5 import H5File, open_h5
 
 __all__ = ["Atl08Photons", "check_atl08_beams", "read_atl08_photons", "join_atl08", "photon_keys", "BEAMS"]
@@ -110,6 +111,17 @@ def read_atl08_photons(path: str | os.PathLike[str], beam: str) -> Atl08Photons:
                 f"{f.path}: {g}: ph_segment_id, classed_pc_indx and classed_pc_flag have "
                 f"different shapes {seg.shape}, {idx.shape}, {flag.shape}"
             )
+        if dt is not None and dt.shape != seg.shape:
+            raise FileFormatError(
+                f"{f.path}: {g}/delta_time has shape {dt.shape} but ph_segment_id "
+                f"{seg.shape}; the file is damaged")
+        bad = (flag < 0) | (flag > 4)
+        if bad.any():
+            warnings.warn(
+                f"{f.path}: {g}: {int(bad.sum())} of {flag.size} photons have a "
+                f"classed_pc_flag outside 0-4 ({', '.join(map(str, np.unique(flag[bad])[:5]))}); "
+                "they are read as unclassified (-1)", CanopyBlocksWarning, stacklevel=2)
+            flag = np.where(bad, -1, flag).astype(np.int8)
         return Atl08Photons(seg, idx, flag, dt, _int_or_none(f, "orbit_info/rgt"),
                             _int_or_none(f, "orbit_info/cycle_number"), str(f.path))
 
@@ -169,13 +181,26 @@ def join_atl08(
     out[hit] = atl08.flag[src]
     if atl08.delta_time is not None and hit.any():
         dt = np.abs(np.asarray(ph_time, np.float64)[hit] - atl08.delta_time[src])
-        bad = int(np.sum(~(dt <= time_tolerance)))
+        off = ~(dt <= time_tolerance)
+        bad = int(np.sum(off))
         if bad > 0.01 * hit.sum():
             raise InputError(
                 f"{what}: ATL08 file {atl08.source} does not match: {bad} of {int(hit.sum())} "
                 "photons joined by (segment_id, index) have a different delta_time; pass the "
                 "ATL08 granule made from this ATL03 granule"
             )
+        if bad:
+            stale = np.flatnonzero(hit)[off]
+            out[stale] = -1
+            hit[stale] = False
+            warnings.warn(
+                f"{what}: {bad} photons joined from ATL08 file {atl08.source} have another "
+                "delta_time; they are left unclassified", CanopyBlocksWarning, stacklevel=2)
+    if keys.size and not hit.any():
+        warnings.warn(
+            f"{what}: ATL08 file {atl08.source} joins none of its {keys.size} photons (no "
+            "matching segment_id and index): no photon is classified; check that it is the "
+            "ATL08 granule made from this ATL03 granule", CanopyBlocksWarning, stacklevel=2)
     log.info("%s: %d of %d ATL03 photons classified by ATL08 (%d ATL08 photons)",
              what, int(hit.sum()), keys.size, k8.size)
     return out

@@ -77,11 +77,21 @@ class LasPoints:
 
     @property
     def bounds(self) -> tuple[float, float, float, float]:
-        """``(xmin, ymin, xmax, ymax)`` in metres; raises NoUsableDataError when empty."""
+        """``(xmin, ymin, xmax, ymax)`` in metres.
+
+        Raises NoUsableDataError when the cloud is empty or its points cover no area
+        (all at one place or on one line: nothing to place a track over or grid).
+        """
+        names = ", ".join(self.sources) or "the point cloud"
         if len(self) == 0:
-            raise NoUsableDataError("the point cloud is empty")
-        return (float(self.x.min()), float(self.y.min()), float(self.x.max()),
-                float(self.y.max()))
+            raise NoUsableDataError(f"{names}: the point cloud is empty")
+        b = (float(self.x.min()), float(self.y.min()), float(self.x.max()),
+             float(self.y.max()))
+        if b[2] - b[0] < 0.01 or b[3] - b[1] < 0.01:
+            raise NoUsableDataError(
+                f"{names}: its {len(self)} points cover {b[2] - b[0]:.2f} x {b[3] - b[1]:.2f} m "
+                "(all at one place or on one line): no surface to work on")
+        return b
 
     def subset(self, mask: np.ndarray) -> LasPoints:
         """Points selected by a boolean mask or an index array."""

@@ -260,6 +260,19 @@ def simulate_photons(
         raise InputError(f"realisations must be an integer >= 1; got {realisations!r}")
     if seed is not None and not (isinstance(seed, (int, np.integer)) and seed >= 0):
         raise InputError(f"seed must be an integer >= 0 (or None); got {seed!r}")
+    try:
+        return _simulate(points, track, params, int(realisations), seed, index, progress)
+    except (InputError, NoUsableDataError) as exc:  # say which cloud the problem is in
+        names = ", ".join(points.sources)
+        if not names or names in str(exc):
+            raise
+        raise type(exc)(f"{names}: {exc}") from None
+
+
+def _simulate(points: LasPoints, track: SimTrack, params: SimParams, realisations: int,
+              seed: int | None, index: CloudIndex | None,
+              progress: Progress | None) -> Simulation:
+    """:func:`simulate_photons` after its argument checks."""
     prog = as_progress(progress)
     if index is None:
         index = cloud_index(points, params)
