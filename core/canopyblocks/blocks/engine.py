@@ -36,6 +36,9 @@ from .plausibility import background_fraction, flag_implausible_blocks
 if TYPE_CHECKING:
     import geopandas as gpd
 
+MAX_TRACK_SPAN_M = 1.0e9
+"""Longest along-track extent accepted, metres (an orbit is ~4e7 m; fills are ~3.4e38)."""
+
 __all__ = ["compute_blocks", "LABEL_OUTSIDE", "PreparedTrack", "prepare_track", "LengthResult",
            "blocks_for_length"]
 
@@ -121,6 +124,12 @@ def prepare_track(track: PhotonTrack, params: BlockParams) -> PreparedTrack:
         s0 = params.s0
     else:
         s0 = float(np.min(s)) if finite is None else float(np.min(s[finite]))
+    s_max = float(np.max(s)) if finite is None else float(np.max(s[finite]))
+    if s_max - s0 > MAX_TRACK_SPAN_M:  # block indices would overflow int64 (fill values)
+        raise InputError(
+            f"track {track.track} ({track.source or 'in memory'}): along-track distances run "
+            f"from {s0:.6g} to {s_max:.6g} m, longer than any track ({MAX_TRACK_SPAN_M:.0e} m); "
+            "s holds fill values (e.g. ATL03's 3.4028235e38): drop those photons")
     is_sorted = all_finite and (n < 2 or bool(np.all(s[1:] >= s[:-1])))
     if is_sorted:
         first = int(np.searchsorted(s, s0, side="left"))
