@@ -289,7 +289,8 @@ def read_las(
                 if given is None:
                     raise CRSError(
                         f"{path}: the file states no CRS (no WKT or GeoTIFF keys); give one, "
-                        "e.g. crs='EPSG:3005' (CLI: --crs 3005)")
+                        "e.g. crs='EPSG:3005' (--crs in rasters/simulate), or write it into "
+                        "the file (e.g. pdal translate with writers.las.a_srs) for `run`")
                 file_crs = given
             elif given is not None and not file_crs.equals(given, ignore_axis_order=True):
                 raise CRSError(

@@ -232,8 +232,9 @@ def check_tile_crs(info: TileInfo, assigned: pyproj.CRS | None) -> tuple[pyproj.
                      info.path)
     if wkt is None:
         if assigned is None:
-            raise CRSError(f"tile {info.path} has no CRS; set it with --crs EPSG:XXXX "
-                           "(crs=...), the CRS its coordinates are in")
+            raise CRSError(f"tile {info.path} has no CRS; give the CRS its coordinates are in "
+                           "(--crs EPSG:XXXX in rasters, crs=... in Python) or write it into "
+                           "the file (pdal translate with writers.las.a_srs) for `run`")
         log.warning("tile %s has no CRS; reading it as %s (the given crs)", info.path,
                     assigned.to_string())
         return assigned, True
@@ -389,7 +390,7 @@ def make_reference_rasters(
         for info, c in zip(infos[1:], tile_crss[1:]):
             if not _horizontal(c).equals(_horizontal(first), ignore_axis_order=True):
                 raise CRSError(f"tiles are in different CRSs: {infos[0].path} in "
-                               f"{crs_label(first)}, {info.path} in {crs_label(c)}; give --crs EPSG:XXXX (crs=...) to "
+                               f"{crs_label(first)}, {info.path} in {crs_label(c)}; give --crs EPSG:XXXX (rasters; crs=... in Python) to "
                                "reproject all of them to one")
         target = require_metric_crs(first, f"CRS of tile {infos[0].path}")
     else:
