@@ -73,7 +73,7 @@ def test_blockheights_matches_core_and_photon_count(run_alg, open_layer, layer_r
                 assert r[col] == pytest.approx(v, abs=1e-9)
         assert r["_xy"] == pytest.approx((d.x, d.y), abs=1e-6)
     # hmax = top - ground on the QGIS side too
-    ok = [r for r in rows if r["flag"] in ("ok", "implausible")]  # noise-free day clip: tall
+    ok = [r for r in rows if r["flag"] in ("ok", "implausible")]  # unfiltered daytime clip: tall
     assert ok, "the forest clip must give some ok blocks"
     assert all(r["hmax"] == pytest.approx(r["top"] - r["ground"], abs=1e-9) for r in ok)
     # the profile PNG and the labelled photons
