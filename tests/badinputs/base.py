@@ -4,6 +4,7 @@ table."""
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 from functools import cached_property
 from pathlib import Path
@@ -37,7 +38,10 @@ class Base:
     # point clouds
     @cached_property
     def conifer(self) -> Path:
-        return self.data_file("als/lidR_MixedConifer.laz")
+        """The damaged clouds' source; CANOPYBLOCKS_CORPUS_TILE swaps in another tile (a
+        fresh corpus from a file the checks were not written against)."""
+        other = os.environ.get("CANOPYBLOCKS_CORPUS_TILE")
+        return Path(other) if other else self.data_file("als/lidR_MixedConifer.laz")
 
     @cached_property
     def topo(self) -> Path:

@@ -7,12 +7,11 @@ case passes (issue 10).
 from __future__ import annotations
 
 _WHY = {
-    "D-las": "known limit: a LAZ header that counts fewer points than the file holds, or a bit "
-             "flip in its x scale/offset, gives points consistent with the header; laspy stops "
-             "at the header's count and the chunk table holds no per-chunk counts to check",
+    "D-las": "known limit: a LAZ header that counts fewer points than the file holds gives "
+             "consistent points: laspy stops at the header's count and a one-chunk LAZ file "
+             "holds no other count to check it against",
 }
 
 XFAIL: dict[str, str] = {cid: _WHY[key] for cid, key in (
     ("laz-header-count-half", "D-las"),
-    ("laz-bitflip-header-2", "D-las"),
 )}

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import logging
 import os
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -19,6 +20,7 @@ import pyproj
 
 from ..errors import (
     CancelledError,
+    CanopyBlocksWarning,
     CRSError,
     DependencyError,
     FileFormatError,
@@ -28,7 +30,7 @@ from ..errors import (
 from ..geo import as_crs, require_metre_units, require_metric_crs
 from ..progress import Progress, as_progress
 from .cloud_checks import warn_if_normalised
-from .las_header import check_las_file
+from .las_header import check_header_extent, check_las_file
 
 __all__ = ["LasPoints", "read_las", "las_crs", "las_bounds"]
 
@@ -305,8 +307,9 @@ def read_las(
                 raise CRSError(
                     f"{path}: CRS {file_crs.to_string()} differs from the first tile's "
                     f"{used_crs.to_string()}; reproject the tiles to one CRS first")
-            if bbox is not None:
-                mins, maxs = header.mins, header.maxs
+            mins, maxs = header.mins, header.maxs
+            hdr_ext = (float(mins[0]), float(mins[1]), float(maxs[0]), float(maxs[1]))
+            if bbox is not None and all(np.isfinite(hdr_ext)):
                 if (maxs[0] < bbox[0] or mins[0] > bbox[2] or maxs[1] < bbox[1]
                         or mins[1] > bbox[3]):
                     log.debug("%s: outside the bbox, skipped", path)
@@ -314,9 +317,12 @@ def read_las(
                     continue
             total = max(int(header.point_count), 1)
             done = 0
+            ext = [np.inf, np.inf, -np.inf, -np.inf]  # the points' own extent
             try:
                 for chunk in reader.chunk_iterator(_CHUNK):
-                    _append_chunk(chunk, parts, bbox, excl, offset + done)
+                    e = _append_chunk(chunk, parts, bbox, excl, offset + done)
+                    ext = [min(ext[0], e[0]), min(ext[1], e[1]), max(ext[2], e[2]),
+                           max(ext[3], e[3])]
                     done += len(chunk)
                     sub.update(done / total, f"{path.name}: {done:,} points")
             except CancelledError:
@@ -325,6 +331,12 @@ def read_las(
                 raise FileFormatError(
                     f"{path}: truncated or corrupt point data after {done:,} points ({exc})"
                 ) from None
+            if done and not check_header_extent(
+                    path, hdr_ext, (ext[0], ext[1], ext[2], ext[3]),
+                    tolerance=max(1.0, 2.0 * float(max(header.scales)))):
+                warnings.warn(f"{path}: the header's extent {hdr_ext} cannot be right; using "
+                              f"the points' ({', '.join(f'{v:.2f}' for v in ext)})",
+                              CanopyBlocksWarning, stacklevel=2)
             offset += int(header.point_count)
     if used_crs is None:  # pragma: no cover - files list non-empty implies a CRS
         raise CRSError("no CRS found")
@@ -345,8 +357,9 @@ def read_las(
 
 def _append_chunk(chunk: Any, parts: dict[str, list[np.ndarray]],
                   bbox: tuple[float, float, float, float] | None, excl: np.ndarray,
-                  first_row: int) -> None:
-    """Append the kept points of one laspy point record (untyped: ``Any``) to ``parts``."""
+                  first_row: int) -> tuple[float, float, float, float]:
+    """Append the kept points of one laspy point record (untyped: ``Any``) to ``parts``;
+    return the extent of all its points (kept or not)."""
     x = np.asarray(chunk.x, dtype=np.float64)
     y = np.asarray(chunk.y, dtype=np.float64)
     z = np.asarray(chunk.z, dtype=np.float64)
@@ -362,3 +375,6 @@ def _append_chunk(chunk: Any, parts: dict[str, list[np.ndarray]],
     arrays: tuple[np.ndarray, ...] = (x, y, z, c, r, n, row)
     for key, arr in zip(("x", "y", "z", "c", "r", "n", "row"), arrays):
         parts[key].append(arr[keep])
+    if x.size == 0:
+        return (np.inf, np.inf, -np.inf, -np.inf)
+    return (float(np.nanmin(x)), float(np.nanmin(y)), float(np.nanmax(x)), float(np.nanmax(y)))

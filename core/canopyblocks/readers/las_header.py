@@ -23,7 +23,7 @@ from pathlib import Path
 
 from ..errors import FileFormatError
 
-__all__ = ["check_las_file", "MAX_SCALE", "MAX_OFFSET"]
+__all__ = ["check_las_file", "check_header_extent", "MAX_SCALE", "MAX_OFFSET"]
 
 MAX_SCALE = 1.0
 """Largest plausible scale factor, metres per integer unit (surveys use 0.001-0.01)."""
@@ -99,3 +99,33 @@ def check_las_file(path: str | Path) -> None:
         raise
     except OSError as exc:
         raise FileFormatError(f"cannot read {p}: {exc}") from None
+
+
+def check_header_extent(path: str | Path, header: tuple[float, float, float, float],
+                        points: tuple[float, float, float, float], tolerance: float) -> bool:
+    """Compare the header's extent with the points'; True when they agree.
+
+    A header extent that cannot be right (NaN, beyond 1e9 m, min above max) is a lie the
+    points correct: False is returned and the caller uses the points' extent (with a
+    warning).  A plausible header extent that disagrees with the points by more than
+    ``tolerance`` (m) is refused: either the extent or the header's scale/offset is
+    corrupt, and the two cannot be told apart (a flipped offset bit moves every point).
+
+    Raises
+    ------
+    FileFormatError
+        A plausible header extent that disagrees with the points.
+    """
+    h = [float(v) for v in header]
+    broken = not all(math.isfinite(v) and abs(v) <= MAX_OFFSET for v in h) or \
+        h[0] > h[2] or h[1] > h[3]
+    if broken:
+        return False
+    worst = max(abs(a - b) for a, b in zip(h, points))
+    if worst <= tolerance:
+        return True
+    raise FileFormatError(
+        f"{path}: its header says the points lie in ({h[0]:.2f}, {h[1]:.2f}, {h[2]:.2f}, "
+        f"{h[3]:.2f}) but they lie in ({points[0]:.2f}, {points[1]:.2f}, {points[2]:.2f}, "
+        f"{points[3]:.2f}): the header's extent or its scale/offset is corrupt; rewrite the "
+        "file with a LAS tool (e.g. las2las or PDAL) after checking where it should be")

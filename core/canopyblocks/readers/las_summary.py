@@ -50,13 +50,6 @@ class LasSummary:
     n_ground: int
     header_bounds: tuple[float, float, float, float]
 
-    def header_disagrees(self, tolerance: float) -> bool:
-        """The header's extent differs from the points' by more than ``tolerance`` (m)."""
-        if self.n_points == 0:
-            return False
-        h = np.asarray(self.header_bounds, float)
-        p = np.asarray(self.bounds, float)
-        return not bool(np.all(np.isfinite(h)) and np.all(np.abs(h - p) <= tolerance))
 
 
 def _laspy() -> Any:

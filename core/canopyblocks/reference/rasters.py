@@ -56,6 +56,7 @@ from ..geo import as_crs, require_metre_units, require_metric_crs
 from ..outputs.atomic import atomic_output
 from ..progress import Progress, as_progress
 from ..readers.cloud_checks import warn_if_normalised
+from ..readers.las_header import check_header_extent
 from ..readers.las_summary import LasSummary, las_summary
 from .lidar_points import cell_neighbourhoods, cell_percentile, read_points_csv
 from .pdal import (
@@ -286,8 +287,11 @@ def _union_bounds(infos: list[TileInfo], crss: list[pyproj.CRS],
 
 def _trust_points(info: TileInfo, summary: LasSummary, resolution: float) -> TileInfo:
     """``info`` with the extent and count of the points when the header disagrees."""
-    if summary.header_disagrees(tolerance=max(resolution, 0.01)) or \
-            summary.n_points != info.n_points:
+    # a plausible header extent that disagrees with the points raises (it may be the
+    # scale/offset that is corrupt); an impossible one (NaN, 1e300, swapped) is replaced
+    agree = summary.n_points == 0 or check_header_extent(
+        info.path, summary.header_bounds, summary.bounds, tolerance=max(resolution, 1.0))
+    if not agree or summary.n_points != info.n_points:
         warnings.warn(
             f"tile {info.path}: its header says {info.n_points} points in "
             f"{_fmt(summary.header_bounds)}, its points are {summary.n_points} in "
