@@ -16,5 +16,7 @@ echo "== GEDI waveforms (bench/bench_waveforms.py)"
 "$PY" bench/bench_waveforms.py
 echo "== GEDI waveform simulation (bench/bench_simulate_waveforms.py)"
 "$PY" bench/bench_simulate_waveforms.py
+echo "== reference rasters (bench/bench_rasters.py)"
+"$PY" bench/bench_rasters.py
 echo "== co-registration (bench/bench_coregistration.py)"
 "$PY" bench/bench_coregistration.py

@@ -204,10 +204,14 @@ def test_run_interrupted(sample, pdal_bin, tmp_path, stage, how) -> None:
 
 
 def _p90_step(run: Run) -> Callable[[], bool]:
-    """PDAL wrote the points for the 90th percentile and has exited: numpy's turn."""
+    """PDAL made the DTM and has exited: numpy's turn (the tiles decoded once for the DSM
+    maximum and 90th percentile)."""
+    seen = [False]
+
     def ready() -> bool:
-        pts = list(run.tmpdir.glob("canopyblocks-pdal-*/points.csv"))
-        return bool(pts) and not _pdal_running(run)()
+        running = _pdal_running(run, "dtm")()
+        seen[0] = seen[0] or running
+        return seen[0] and not running
     return ready
 
 
@@ -217,7 +221,7 @@ def _p90_step(run: Run) -> Callable[[], bool]:
 def test_rasters_interrupted(sample, pdal_bin, tmp_path, stage, how) -> None:
     out = tmp_path / "rasters"
     run = Run(["rasters", str(sample(BCTS)), "-o", str(out), "--resolution", "1"], tmp_path)
-    ready = {"startup": _after(run, 0.3), "pdal": _pdal_running(run, "dsm_max"),
+    ready = {"startup": _after(run, 0.3), "pdal": _pdal_running(run, "dtm"),
              "p90": _p90_step(run)}[stage]
     sig, group = SIGNALS[how]
     assert run.wait_until(ready), "rasters ended before the stage"

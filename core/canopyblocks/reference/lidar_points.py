@@ -21,6 +21,7 @@ from ..progress import Progress
 from .pdal import expand_readers, load_pipeline, run_pipeline, tile_info, write_pipeline
 
 __all__ = ["LidarPoints", "read_points_csv", "cell_neighbourhoods", "cell_percentile",
+           "cell_max_and_percentile",
            "crop_corridor"]
 
 log = logging.getLogger(__name__)
@@ -125,23 +126,38 @@ def cell_percentile(
     ndarray of float64, shape (n_cells,)
         NaN where a cell has no value.
     """
+    return cell_max_and_percentile(cell, values, n_cells, q)[1]
+
+
+def cell_max_and_percentile(
+    cell: np.ndarray, values: np.ndarray, n_cells: int, q: float = 90.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Per-cell maximum and ``q``-th percentile (numpy's "linear" rule) from one sort.
+
+    The same values as ``cell_percentile(..., 100.0)`` and ``cell_percentile(..., q)``.
+
+    Returns
+    -------
+    (max, percentile) : ndarrays of float64, shape (n_cells,)
+        NaN where a cell has no value.
+    """
     if not 0.0 <= q <= 100.0:
         raise InputError(f"percentile q={q} must be in [0, 100]")
-    out = np.full(n_cells, np.nan)
+    top = np.full(n_cells, np.nan)
+    pct = np.full(n_cells, np.nan)
     if cell.size == 0:
-        return out
+        return top, pct
     order = np.lexsort((values, cell))
     c = cell[order]
     v = np.asarray(values, dtype=np.float64)[order]
     uniq, start, count = np.unique(c, return_index=True, return_counts=True)
+    top[uniq] = v[start + count - 1]
     pos = (q / 100.0) * (count - 1)
     lo = np.floor(pos).astype(np.int64)
     hi = np.minimum(lo + 1, count - 1)
-    frac = pos - lo
     a = v[start + lo]
-    b = v[start + hi]
-    out[uniq] = a + (b - a) * frac
-    return out
+    pct[uniq] = a + (v[start + hi] - a) * (pos - lo)
+    return top, pct
 
 
 def crop_corridor(

@@ -55,10 +55,16 @@ from ..errors import (
 from ..geo import as_crs, require_metre_units, require_metric_crs
 from ..outputs.atomic import atomic_output
 from ..progress import Progress, as_progress
-from ..readers.cloud_checks import warn_if_normalised
+from ..readers.cloud_checks import NormalisedCloudWarning, warn_if_normalised
+from ..readers.las import read_las
 from ..readers.las_header import check_header_extent
 from ..readers.las_summary import LasSummary, las_summary
-from .lidar_points import cell_neighbourhoods, cell_percentile, read_points_csv
+from .lidar_points import (
+    cell_max_and_percentile,
+    cell_neighbourhoods,
+    cell_percentile,
+    read_points_csv,
+)
 from .pdal import (
     TileInfo,
     expand_readers,
@@ -458,21 +464,14 @@ def make_reference_rasters(
         p90_path = stack.enter_context(atomic_output(out / "dsm_p90.tif"))
 
         smrf = params.ground == "smrf"
-        try:
-            run("dsm_max", {"filters.crop.bounds": crop(grid.radius),
-                            "writers.gdal.filename": max_path, **grid.writer_options()},
-                prog.sub(0.05, 0.25))
-        except PdalError as exc:
-            if "no points" not in str(exc):
-                raise
-            raise CoverageError(f"no point of {', '.join(map(str, paths))} lies in the grid "
-                                f"{_fmt(grid.bounds)} ({crs_label(target)}); check the bounds and "
-                                "the CRS") from None
+        no_points = CoverageError(
+            f"no point of {names} lies in the grid {_fmt(grid.bounds)} "
+            f"({crs_label(target)}); check the bounds and the CRS")
         try:
             run("dtm_smrf" if smrf else "dtm",
                 {"filters.crop.bounds": crop(grid.radius + (_SMRF_BUFFER if smrf else 0.0)),
                  "writers.gdal.filename": dtm_path, **grid.writer_options()},
-                prog.sub(0.25, 0.6 if smrf else 0.45))
+                prog.sub(0.05, 0.45 if smrf else 0.3))
         except PdalError as exc:
             if "no points" not in str(exc):
                 raise
@@ -480,13 +479,31 @@ def make_reference_rasters(
                                     f"{_fmt(grid.bounds)}"
                                     + ("" if smrf else "; the files may be unclassified: use "
                                        "ground='smrf' (--smrf)")) from None
-        pts_path = tmp / "points.csv"
-        run("points_for_p90", {"filters.crop.bounds": crop(grid.radius),
-                               "writers.text.filename": pts_path},
-            prog.sub(0.6 if smrf else 0.45, 0.75))
-        prog.update(0.8, "90th percentile per cell")
-        p90 = _p90_grid(pts_path, grid)
-        dsm_crs = _write_p90(p90_path, p90, grid, max_path)
+        if reproject:  # PDAL reprojects the points: two more PDAL passes
+            try:
+                run("dsm_max", {"filters.crop.bounds": crop(grid.radius),
+                                "writers.gdal.filename": max_path, **grid.writer_options()},
+                    prog.sub(0.45, 0.6))
+            except PdalError as exc:
+                if "no points" not in str(exc):
+                    raise
+                raise no_points from None
+            pts_path = tmp / "points.csv"
+            run("points_for_p90", {"filters.crop.bounds": crop(grid.radius),
+                                   "writers.text.filename": pts_path},
+                prog.sub(0.6, 0.75))
+            prog.update(0.8, "90th percentile per cell")
+            p90 = _p90_grid(pts_path, grid)
+        else:  # one decode of the tiles: DSM max and p90 from the same neighbourhoods
+            any_override = any(override for _, override in checked)
+            top, p90 = _surfaces_from_tiles(paths, grid, _horizontal(target)
+                                            if any_override else None, prog.sub(0.45, 0.9))
+            if not np.isfinite(top).any():
+                raise no_points
+            _write_grid(max_path, top, grid, dtm_path)
+            prog.update(0.9, "dsm_max done")
+        dsm_crs = _write_grid(p90_path, p90, grid, dtm_path)
+        prog.update(0.95, "dsm_p90 done")
         stats.update(_check_outputs(dtm_path, max_path, grid, params, paths))
     log.info("reference rasters in %s: %s", out, stats)
     prog.report(1.0, "done")  # outputs are committed: too late to cancel
@@ -494,6 +511,29 @@ def make_reference_rasters(
                             dsm_p90=out / "dsm_p90.tif", grid=grid, crs=dsm_crs,
                             tiles=tuple(paths), ground=params.ground,
                             pdal_version=infos[0].pdal_version, stats=stats)
+
+
+def _surfaces_from_tiles(paths: list[Path], grid: Grid, crs: pyproj.CRS | None,
+                         progress: Progress) -> tuple[np.ndarray, np.ndarray]:
+    """DSM max and p90 (height, width) grids from one laspy decode of the tiles.
+
+    The neighbourhood is PDAL writers.gdal's (points strictly within ``grid.radius`` of a
+    cell centre) and noise classes 7/18 are left out, as in ``dsm_max.json`` and
+    ``points_for_p90.json``: the values equal what those pipelines give.
+    """
+    r = grid.radius
+    b = grid.bounds
+    with warnings.catch_warnings():  # said once, from the DTM, by _check_outputs
+        warnings.simplefilter("ignore", NormalisedCloudWarning)
+        pts = read_las(paths, crs=crs, bbox=(b[0] - r, b[1] - r, b[2] + r, b[3] + r),
+                       progress=progress.sub(0.0, 0.7))
+    cell, idx = cell_neighbourhoods(pts.x, pts.y, origin_x=grid.origin_x, top_y=grid.top_y,
+                                    resolution=grid.resolution, width=grid.width,
+                                    height=grid.height, radius=r)
+    progress.update(0.8, "maximum and 90th percentile per cell")
+    top, p90 = cell_max_and_percentile(cell, pts.z[idx], grid.width * grid.height, 90.0)
+    shape = (grid.height, grid.width)
+    return top.reshape(shape), p90.reshape(shape)
 
 
 def _p90_grid(points_csv: Path, grid: Grid) -> np.ndarray:
@@ -517,8 +557,9 @@ def _rasterio() -> Any:
     return rasterio
 
 
-def _write_p90(path: Path, values: np.ndarray, grid: Grid, like: Path) -> pyproj.CRS:
-    """Write the p90 grid as a float32 GeoTIFF with the CRS PDAL wrote into ``like``."""
+def _write_grid(path: Path, values: np.ndarray, grid: Grid, like: Path) -> pyproj.CRS:
+    """Write a (height, width) grid as a float32 GeoTIFF (nodata -9999) with the CRS PDAL
+    wrote into ``like``, so all three rasters carry the same CRS."""
     rasterio = _rasterio()
     from rasterio.transform import Affine
 
