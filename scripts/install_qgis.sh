@@ -16,8 +16,10 @@
 # ("WKB output dimension must be 2 or 3", h5py "Not a datatype", free(): invalid size).  So the
 # runtime for the plugin is Debian's builds of h5py/pyproj/rasterio/scipy/pandas/matplotlib
 # (linked to the same libraries as QGIS) plus, in RUNTIME (default /opt/canopyblocks-qgis-python,
-# env CANOPYBLOCKS_QGIS_RUNTIME), shapely 2.0.x (GEOS C API <= 3.11, which bookworm has) and
-# geopandas 1.0.x, installed without dependencies.  Use it with
+# env CANOPYBLOCKS_QGIS_RUNTIME), shapely 2.0.x (GEOS C API <= 3.11, which bookworm has),
+# geopandas 1.0.x, laspy and lazrs (LAZ; a self-contained Rust extension that links none of
+# QGIS's libraries), installed without dependencies.  Debian's xvfb lets the QGIS application
+# run headless (the project's tests of the real application).  Use it with
 #     PYTHONPATH=RUNTIME:<checkout>/core qgis   (or qgis_process)
 # or install canopyblocks itself there: python3 -m pip install --no-deps --target RUNTIME <checkout>
 set -euo pipefail
@@ -52,21 +54,23 @@ pkgs=(python3-qgis qgis-providers)
 [ "$with_process" -eq 1 ] && pkgs+=(qgis)
 # Debian builds of the core's compiled dependencies, linked to QGIS's GEOS/PROJ/GDAL/HDF5
 runtime_pkgs=(python3-h5py python3-pandas python3-rasterio python3-scipy python3-matplotlib
-              python3-pyproj python3-click python3-tqdm python3-pip)
+              python3-pyproj python3-click python3-tqdm python3-pip python3-fiona xvfb)
 [ "$with_runtime" -eq 1 ] && pkgs+=("${runtime_pkgs[@]}")
 
 install_runtime() {
     [ "$with_runtime" -eq 1 ] || return 0
     if PYTHONPATH="$RUNTIME" /usr/bin/python3 -c \
-        'import shapely, geopandas; assert shapely.__version__.startswith("2.0.")' 2>/dev/null; then
+        'import shapely, geopandas, laspy, lazrs; assert shapely.__version__.startswith("2.0.")' \
+        2>/dev/null; then
         return 0
     fi
-    echo "canopyblocks: installing shapely 2.0.x and geopandas 1.0.x into $RUNTIME" >&2
+    echo "canopyblocks: installing shapely 2.0.x, geopandas 1.0.x, laspy and lazrs into $RUNTIME" >&2
     $SUDO mkdir -p "$RUNTIME"
     local log; log=$(mktemp)
     if ! $SUDO /usr/bin/python3 -m pip install -q --disable-pip-version-check --no-deps \
             --root-user-action=ignore --target "$RUNTIME" --upgrade \
-            "shapely>=2.0,<2.1" "geopandas>=1.0,<1.1" >"$log" 2>&1; then
+            "shapely>=2.0,<2.1" "geopandas>=1.0,<1.1" "laspy>=2.5,<3" "lazrs>=0.6,<1" \
+            >"$log" 2>&1; then
         cat "$log" >&2; rm -f "$log"
         echo "install_qgis.sh: pip could not install the plugin runtime into $RUNTIME" >&2
         exit 1

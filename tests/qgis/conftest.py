@@ -13,6 +13,7 @@ import gc
 import importlib.util
 import os
 import shutil
+import subprocess
 import sys
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -152,3 +153,61 @@ def layer_rows(qgis_session: Any) -> Callable[[Any], list[dict[str, Any]]]:
     """``layer_rows(layer)``: attributes per feature as dicts (NULL -> None), plus
     ``_wkt``, ``_area`` and, for points, ``_xy``."""
     return _layer_rows
+
+
+# ---- the real qgis_process with the README's runtime ----------------------------------------
+
+RUNTIME = Path(os.environ.get("CANOPYBLOCKS_QGIS_RUNTIME", "/opt/canopyblocks-qgis-python"))
+
+
+def _env(profile: Path, core_on_path: bool = True,
+         runtime: Path | None = None) -> dict[str, str]:
+    """qgis_process embeds Debian's Python: the plugin runtime (scripts/install_qgis.sh) and
+    the core source go on its PYTHONPATH (never the venv's wheels: see install_qgis.sh)."""
+    env = dict(os.environ)
+    env["QT_QPA_PLATFORM"] = "offscreen"
+    env["QGIS_CUSTOM_CONFIG_PATH"] = str(profile)
+    paths = [str(runtime or RUNTIME)] + ([str(ROOT / "core")] if core_on_path else [])
+    env["PYTHONPATH"] = os.pathsep.join(paths)
+    env.pop("PYTHONHOME", None)
+    for var in ("LD_LIBRARY_PATH", "GDAL_DATA", "PROJ_LIB", "PDAL_DRIVER_PATH"):
+        env.pop(var, None)
+    return env
+
+
+@pytest.fixture(scope="session")
+def built_zip(tmp_path_factory) -> Path:
+    sys.path.insert(0, str(ROOT / "scripts"))
+    try:
+        import build_plugin
+    finally:
+        sys.path.remove(str(ROOT / "scripts"))
+    return build_plugin.build(tmp_path_factory.mktemp("dist"))
+
+
+@pytest.fixture(scope="session")
+def qgis_profile(built_zip, tmp_path_factory) -> Path:
+    """A clean QGIS profile folder with the BUILT zip unpacked and the plugin enabled."""
+    import zipfile
+
+    require(qgis_process_exe() is not None, "the qgis_process command line",
+            "run: bash scripts/install_qgis.sh (package 'qgis')")
+    require((RUNTIME / "geopandas").is_dir() and (RUNTIME / "laspy").is_dir(),
+            f"the QGIS-side runtime in {RUNTIME}", "run: bash scripts/install_qgis.sh")
+    profile = tmp_path_factory.mktemp("qgisprofile")
+    plugins = profile / "profiles" / "default" / "python" / "plugins"
+    plugins.mkdir(parents=True)
+    with zipfile.ZipFile(built_zip) as zf:
+        zf.extractall(plugins)
+    r = subprocess.run(["qgis_process", "plugins", "enable", "canopyblocks_qgis"],
+                       env=_env(profile), capture_output=True, text=True,
+                       timeout=120)
+    assert r.returncode == 0, r.stderr
+    return profile
+
+
+@pytest.fixture(scope="session")
+def qgis_process_env() -> Callable[..., dict[str, str]]:
+    """``env(profile, core_on_path=True)``: the environment the README documents for
+    ``qgis_process`` (the plugin runtime and the checkout's core on PYTHONPATH, no venv)."""
+    return _env

@@ -3,9 +3,7 @@
 from __future__ import annotations
 
 import json
-import os
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -49,59 +47,8 @@ def test_corridor_polygons(run_alg, open_layer, layer_rows, blocks_gpkg, tmp_pat
         assert by_block[b] == pytest.approx(geom.area, rel=1e-9)
 
 
-RUNTIME = Path(os.environ.get("CANOPYBLOCKS_QGIS_RUNTIME", "/opt/canopyblocks-qgis-python"))
-
-
-def _qgis_process_env(profile: Path, core_on_path: bool = True,
-                      runtime: Path | None = None) -> dict[str, str]:
-    """qgis_process embeds Debian's Python: the plugin runtime (scripts/install_qgis.sh) and
-    the core source go on its PYTHONPATH (never the venv's wheels: see install_qgis.sh)."""
-    env = dict(os.environ)
-    env["QT_QPA_PLATFORM"] = "offscreen"
-    env["QGIS_CUSTOM_CONFIG_PATH"] = str(profile)
-    paths = [str(runtime or RUNTIME)] + ([str(ROOT / "core")] if core_on_path else [])
-    env["PYTHONPATH"] = os.pathsep.join(paths)
-    env.pop("PYTHONHOME", None)
-    for var in ("LD_LIBRARY_PATH", "GDAL_DATA", "PROJ_LIB", "PDAL_DRIVER_PATH"):
-        env.pop(var, None)
-    return env
-
-
-@pytest.fixture(scope="module")
-def built_zip(tmp_path_factory) -> Path:
-    sys.path.insert(0, str(ROOT / "scripts"))
-    try:
-        import build_plugin
-    finally:
-        sys.path.remove(str(ROOT / "scripts"))
-    return build_plugin.build(tmp_path_factory.mktemp("dist"))
-
-
-@pytest.fixture(scope="module")
-def qgis_profile(built_zip, tmp_path_factory) -> Path:
-    """A clean QGIS profile folder with the BUILT zip unpacked and the plugin enabled."""
-    import zipfile
-
-    conftest = sys.modules["_canopyblocks_tests_root_conftest"]
-    exe = __import__("shutil").which("qgis_process")
-    conftest.require(exe is not None, "the qgis_process command line",
-                     "run: bash scripts/install_qgis.sh (package 'qgis')")
-    conftest.require((RUNTIME / "geopandas").is_dir(), f"the QGIS-side runtime in {RUNTIME}",
-                     "run: bash scripts/install_qgis.sh")
-    profile = tmp_path_factory.mktemp("qgisprofile")
-    plugins = profile / "profiles" / "default" / "python" / "plugins"
-    plugins.mkdir(parents=True)
-    with zipfile.ZipFile(built_zip) as zf:
-        zf.extractall(plugins)
-    r = subprocess.run(["qgis_process", "plugins", "enable", "canopyblocks_qgis"],
-                       env=_qgis_process_env(profile), capture_output=True, text=True,
-                       timeout=120)
-    assert r.returncode == 0, r.stderr
-    return profile
-
-
-def test_built_zip_in_clean_profile_lists_algorithms(qgis_profile):
-    r = subprocess.run(["qgis_process", "--json", "list"], env=_qgis_process_env(qgis_profile),
+def test_built_zip_in_clean_profile_lists_algorithms(qgis_profile, qgis_process_env):
+    r = subprocess.run(["qgis_process", "--json", "list"], env=qgis_process_env(qgis_profile),
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
     listing = json.loads(r.stdout)
@@ -112,12 +59,13 @@ def test_built_zip_in_clean_profile_lists_algorithms(qgis_profile):
         assert f"canopyblocks:{alg}" in ids
 
 
-def test_qgis_process_runs_corridor(qgis_profile, blocks_gpkg, open_layer, tmp_path):
+def test_qgis_process_runs_corridor(qgis_profile, qgis_process_env, blocks_gpkg, open_layer,
+                                   tmp_path):
     out = tmp_path / "corridor_cli.gpkg"
     r = subprocess.run(
         ["qgis_process", "--json", "run", "canopyblocks:corridor", "--",
          f"INPUT={blocks_gpkg}", "WIDTH=2", f"OUTPUT={out}"],
-        env=_qgis_process_env(qgis_profile), capture_output=True, text=True, timeout=300)
+        env=qgis_process_env(qgis_profile), capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stdout + r.stderr
     result = json.loads(r.stdout)
     assert result["results"]["OUTPUT"].startswith(str(out))
@@ -128,7 +76,7 @@ def test_qgis_process_runs_corridor(qgis_profile, blocks_gpkg, open_layer, tmp_p
     assert total == pytest.approx(float(direct.geometry.area.sum()), rel=1e-9)
 
 
-def test_qgis_process_runs_blockheights_on_real_atl03(qgis_profile,
+def test_qgis_process_runs_blockheights_on_real_atl03(qgis_profile, qgis_process_env,
                                                      atl03_sample, blocks_gpkg, open_layer,
                                                      layer_rows, tmp_path):
     """Inside qgis_process (QGIS's own GEOS/HDF5 loaded globally) the ATL03 reader works and
@@ -137,7 +85,7 @@ def test_qgis_process_runs_blockheights_on_real_atl03(qgis_profile,
     r = subprocess.run(
         ["qgis_process", "--json", "run", "canopyblocks:blockheights", "--",
          f"INPUT={atl03_sample}", "TRACK=gt1r", "LENGTHS=25", f"OUTPUT={out}"],
-        env=_qgis_process_env(qgis_profile), capture_output=True, text=True, timeout=300)
+        env=qgis_process_env(qgis_profile), capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stdout + r.stderr
     cli = {int(x["block"]): x for x in layer_rows(open_layer(out))}
     inproc = {int(x["block"]): x for x in layer_rows(open_layer(blocks_gpkg))}
@@ -148,8 +96,9 @@ def test_qgis_process_runs_blockheights_on_real_atl03(qgis_profile,
             assert cli[b]["hmax"] == pytest.approx(x["hmax"], abs=1e-9)
 
 
-def test_qgis_process_without_core_says_how_to_install(qgis_profile, blocks_gpkg, tmp_path):
-    env = _qgis_process_env(qgis_profile, core_on_path=False)
+def test_qgis_process_without_core_says_how_to_install(qgis_profile, qgis_process_env,
+                                                        blocks_gpkg, tmp_path):
+    env = qgis_process_env(qgis_profile, core_on_path=False)
     r = subprocess.run(
         ["qgis_process", "run", "canopyblocks:corridor", "--",
          f"INPUT={blocks_gpkg}", f"OUTPUT={tmp_path / 'x.gpkg'}"],
@@ -160,8 +109,8 @@ def test_qgis_process_without_core_says_how_to_install(qgis_profile, blocks_gpkg
     assert not (tmp_path / "x.gpkg").exists()
 
 
-def test_qgis_process_with_pypi_wheels_explains_the_library_clash(qgis_profile, atl03_sample,
-                                                                  tmp_path):
+def test_qgis_process_with_pypi_wheels_explains_the_library_clash(qgis_profile, qgis_process_env,
+                                                                  atl03_sample, tmp_path):
     """The venv's h5py wheel bundles its own HDF5; inside qgis_process QGIS's HDF5 wins and
     h5py fails at import: the plugin says why and what to install instead."""
     import sysconfig
@@ -169,7 +118,7 @@ def test_qgis_process_with_pypi_wheels_explains_the_library_clash(qgis_profile, 
     site = Path(sysconfig.get_paths()["purelib"])
     if not (site / "h5py.libs").is_dir():
         pytest.skip("this venv's h5py is not a PyPI wheel with its own HDF5")
-    env = _qgis_process_env(qgis_profile, runtime=site)
+    env = qgis_process_env(qgis_profile, runtime=site)
     out = tmp_path / "never.gpkg"
     r = subprocess.run(
         ["qgis_process", "run", "canopyblocks:blockheights", "--",

@@ -175,13 +175,23 @@ def write_layers(layers: dict[str, pd.DataFrame], path: str | os.PathLike[str], 
     return p
 
 
+def gpkg_layer_names(path: str | os.PathLike[str]) -> list[str]:
+    """Layer names of a GeoPackage, through pyogrio or, where it is absent (the QGIS
+    runtime built on Debian's GDAL), fiona.  Raises what the driver raises."""
+    try:
+        import pyogrio
+    except ImportError:
+        import fiona
+
+        return [str(n) for n in fiona.listlayers(str(path))]
+    return [str(n) for n, _ in pyogrio.list_layers(path)]
+
+
 def _gpkg_layers(p: Path) -> list[str]:
     """Layer names of an existing GeoPackage; refuse to replace a file that is not one."""
-    import pyogrio
-
     try:
-        return [str(n) for n, _ in pyogrio.list_layers(p)]
-    except Exception as exc:  # pyogrio raises several types for files it cannot open
+        return gpkg_layer_names(p)
+    except Exception as exc:  # the drivers raise several types for files they cannot open
         raise FileFormatError(f"{p} exists and is not a readable GeoPackage ({exc}); "
                               "remove it or choose another output name") from None
 
@@ -200,9 +210,7 @@ def read_layer(path: str | os.PathLike[str], layer: str | None = None) -> pd.Dat
     suf = _suffix(p, "read")
     try:
         if suf == ".gpkg":
-            import pyogrio
-
-            names = [n for n, _ in pyogrio.list_layers(p)]
+            names = gpkg_layer_names(p)
             if layer is not None and layer not in names:
                 raise FileFormatError(
                     f"{p}: no layer {layer!r}; the file has {', '.join(names) or 'no layers'}"

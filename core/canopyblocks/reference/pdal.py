@@ -126,11 +126,28 @@ def pipeline_path(name_or_path: str | os.PathLike[str]) -> Path:
         return p
     name = p.name[:-5] if p.name.endswith(".json") else p.name
     if name in PIPELINES:
-        ref = resources.files("canopyblocks.pdal_pipelines").joinpath(f"{name}.json")
-        with resources.as_file(ref) as real:
-            return Path(real)
+        return _shipped_pipeline(name)
     raise InputError(f"pipeline {str(name_or_path)!r} is neither an existing .json file nor "
                      f"one of the shipped pipelines {', '.join(PIPELINES)}")
+
+
+def _shipped_pipeline(name: str) -> Path:
+    """A shipped pipeline, in either layout: installed (package data
+    ``canopyblocks.pdal_pipelines``) or a checkout on ``PYTHONPATH=<checkout>/core``, where
+    the JSON files live in ``<checkout>/pdal_pipelines`` beside ``core/``."""
+    try:
+        ref = resources.files("canopyblocks.pdal_pipelines").joinpath(f"{name}.json")
+        with resources.as_file(ref) as real:
+            if Path(real).is_file():
+                return Path(real)
+    except ModuleNotFoundError:
+        pass
+    checkout = Path(__file__).resolve().parents[3] / "pdal_pipelines" / f"{name}.json"
+    if checkout.is_file():
+        return checkout
+    raise DependencyError(
+        f"the PDAL pipeline {name}.json is not installed with canopyblocks (looked in the "
+        f"package and in {checkout.parent}); reinstall canopyblocks or use a full checkout")
 
 
 def load_pipeline(name_or_path: str | os.PathLike[str]) -> list[dict[str, Any]]:

@@ -42,10 +42,10 @@ def read_table_for_coregistration(path: str | os.PathLike[str]) -> pd.DataFrame 
     if p.suffix.lower() not in _TABLE_SUFFIXES:
         return None
     if p.suffix.lower() == ".gpkg":
-        import pyogrio
+        from ..outputs.tables import gpkg_layer_names
 
         try:
-            layers = [str(row[0]) for row in pyogrio.list_layers(p)]
+            layers = gpkg_layer_names(p)
         except Exception as exc:  # noqa: BLE001 - any driver error means unreadable
             raise FileFormatError(f"{p}: not a readable GeoPackage ({exc})") from None
         for name in (LAYER_BLOCKS, LAYER_FOOTPRINTS):

@@ -83,10 +83,10 @@ def is_footprint_table(path: str | os.PathLike[str]) -> bool:
     p = Path(path)
     suffix = p.suffix.lower()
     if suffix == ".gpkg":
-        import pyogrio
+        from ..outputs.tables import gpkg_layer_names
 
         try:
-            layers = [str(row[0]) for row in pyogrio.list_layers(p)]
+            layers = gpkg_layer_names(p)
         except Exception:  # noqa: BLE001 - unreadable: let the block reader say why
             return False
         return LAYER_FOOTPRINTS in layers and "blocks" not in layers
