@@ -2,8 +2,14 @@
 
 * residuals (``res_*``): graduated, diverging RdBu ramp, classes symmetric around 0;
 * aspect classes: categorised, one colour per compass class (+ ``flat``);
-* block heights (``hmax``): graduated green ramp;
-* photon labels: categorised noise / ground / canopy / between.
+* block heights (``hmax``): graduated green ramp from light (not white) to dark green,
+  blocks without a height (sparse) drawn as grey outlines, not hidden;
+* photon labels: categorised noise / ground / canopy / between;
+* rasters: DTM in a terrain ramp with its elevation enabled, DSMs in greens.
+
+Elevation (QGIS 3.26+ Elevation Profile): photons at their height ``h``; blocks and
+footprints as vertical bars from ``ground`` up by ``hmax`` / ``rh98`` (absolute clamping,
+data-defined Z offset and extrusion); Z geometries at their own Z.
 """
 
 from __future__ import annotations
@@ -12,16 +18,26 @@ import math
 from typing import Any
 
 from qgis.core import (
+    Qgis,
     QgsCategorizedSymbolRenderer,
+    QgsColorRampShader,
     QgsGradientColorRamp,
     QgsGraduatedSymbolRenderer,
+    QgsMapLayerElevationProperties,
     QgsProcessingContext,
     QgsProcessingLayerPostProcessorInterface,
+    QgsProcessingUtils,
+    QgsProperty,
+    QgsRasterLayer,
+    QgsRasterShader,
     QgsRendererCategory,
     QgsRendererRange,
+    QgsRuleBasedRenderer,
+    QgsSingleBandPseudoColorRenderer,
     QgsStyle,
     QgsSymbol,
     QgsVectorLayer,
+    QgsWkbTypes,
 )
 from qgis.PyQt.QtGui import QColor
 
@@ -31,6 +47,8 @@ __all__ = [
     "height_renderer",
     "label_renderer",
     "style_on_load",
+    "load_raster_on_completion",
+    "set_elevation",
     "ASPECT_COLOURS",
 ]
 
@@ -98,8 +116,10 @@ def label_renderer(layer: QgsVectorLayer, field: str) -> QgsCategorizedSymbolRen
 
 
 def height_renderer(layer: QgsVectorLayer, field: str = "hmax",
-                    n_classes: int = 5) -> QgsGraduatedSymbolRenderer:
-    """Graduated green renderer of block heights (equal intervals, 0 to the maximum)."""
+                    n_classes: int = 5) -> QgsRuleBasedRenderer:
+    """Graduated green renderer of block heights (equal intervals, 0 to the maximum); the
+    lowest class is a visible light green, and features without a value (sparse blocks)
+    are drawn as grey outlines under an "else" rule instead of vanishing."""
     vals = [float(v) for v in _values(layer, field) if isinstance(v, (int, float))]
     vmax = max((v for v in vals if math.isfinite(v)), default=1.0)
     vmax = vmax if vmax > 0 else 1.0
@@ -108,13 +128,22 @@ def height_renderer(layer: QgsVectorLayer, field: str = "hmax",
     ranges = []
     for i in range(n_classes):
         lo, hi = vmax * i / n_classes, vmax * (i + 1) / n_classes
-        colour = ramp.color(i / max(n_classes - 1, 1))
+        colour = ramp.color(0.3 + 0.7 * i / max(n_classes - 1, 1))  # no near-white class
         sym = QgsSymbol.defaultSymbol(layer.geometryType())
         sym.setColor(colour)
         ranges.append(QgsRendererRange(lo, hi, sym, f"{lo:.1f} to {hi:.1f} m"))
-    r = QgsGraduatedSymbolRenderer(field, ranges)
-    r.setSourceColorRamp(ramp.clone())
-    return r
+    graduated = QgsGraduatedSymbolRenderer(field, ranges)
+    graduated.setSourceColorRamp(ramp.clone())
+    rules = QgsRuleBasedRenderer.convertFromRenderer(graduated)
+    empty = QgsSymbol.defaultSymbol(layer.geometryType())
+    empty.setColor(QColor(0, 0, 0, 0) if layer.geometryType() == Qgis.GeometryType.Polygon
+                   else QColor("#9e9e9e"))
+    if layer.geometryType() == Qgis.GeometryType.Polygon:
+        empty.symbolLayer(0).setStrokeColor(QColor("#757575"))
+    rule = QgsRuleBasedRenderer.Rule(empty, 0, 0, "ELSE", f"no {field} (sparse / no value)")
+    rule.setIsElse(True)
+    rules.rootRule().appendChild(rule)
+    return rules
 
 
 _STYLERS = {
@@ -123,6 +152,33 @@ _STYLERS = {
     "height": height_renderer,
     "label": label_renderer,
 }
+
+
+def set_elevation(layer: QgsVectorLayer) -> bool:
+    """Elevation properties so the layer shows in the Elevation Profile; True when set.
+
+    Photons (``h``) at their height; blocks and footprints (``ground`` with ``hmax`` or
+    ``rh98``) as bars from the ground to the canopy top; Z geometries at their Z.
+    """
+    fields = {f.name() for f in layer.fields()}
+    props = layer.elevationProperties()
+    dd = props.dataDefinedProperties()
+    has_z = QgsWkbTypes.hasZ(layer.wkbType())
+    height = next((f for f in ("hmax", "rh98") if f in fields), None)
+    if not has_z and "h" in fields:
+        dd.setProperty(QgsMapLayerElevationProperties.Property.ZOffset, QgsProperty.fromField("h"))
+    elif "ground" in fields and not has_z:
+        dd.setProperty(QgsMapLayerElevationProperties.Property.ZOffset,
+                       QgsProperty.fromField("ground"))
+    elif not has_z:
+        return False
+    if height is not None and "ground" in fields:
+        props.setExtrusionEnabled(True)
+        dd.setProperty(QgsMapLayerElevationProperties.Property.ExtrusionHeight,
+                       QgsProperty.fromField(height))
+    props.setClamping(Qgis.AltitudeClamping.Absolute)
+    props.setDataDefinedProperties(dd)
+    return True
 
 
 class _StylePostProcessor(QgsProcessingLayerPostProcessorInterface):
@@ -138,6 +194,7 @@ class _StylePostProcessor(QgsProcessingLayerPostProcessorInterface):
     def postProcessLayer(self, layer: Any, context: Any, feedback: Any) -> None:  # noqa: N802
         if isinstance(layer, QgsVectorLayer) and layer.fields().indexOf(self.field) >= 0:
             layer.setRenderer(_STYLERS[self.kind](layer, self.field))
+            set_elevation(layer)
             layer.triggerRepaint()
 
     @classmethod
@@ -153,3 +210,46 @@ def style_on_load(context: QgsProcessingContext, dest_id: str | None, kind: str,
     if dest_id and context.willLoadLayerOnCompletion(dest_id):
         details = context.layerToLoadOnCompletionDetails(dest_id)
         details.setPostProcessor(_StylePostProcessor.create(kind, field))
+
+
+class _RasterPostProcessor(QgsProcessingLayerPostProcessorInterface):
+    """Terrain ramp and elevation for a DTM, greens for a DSM, when QGIS loads it."""
+
+    _keep: list[_RasterPostProcessor] = []
+
+    def __init__(self, kind: str) -> None:
+        super().__init__()
+        self.kind = kind
+
+    def postProcessLayer(self, layer: Any, context: Any, feedback: Any) -> None:  # noqa: N802
+        if not isinstance(layer, QgsRasterLayer):
+            return
+        stats = layer.dataProvider().bandStatistics(1)
+        lo, hi = float(stats.minimumValue), float(stats.maximumValue)
+        ramp_name = "Spectral" if self.kind == "raster_dtm" else "Greens"
+        ramp = QgsStyle.defaultStyle().colorRamp(ramp_name)
+        shader = QgsColorRampShader(lo, hi, ramp)
+        shader.classifyColorRamp(5, -1)
+        raster_shader = QgsRasterShader()
+        raster_shader.setRasterShaderFunction(shader)
+        layer.setRenderer(QgsSingleBandPseudoColorRenderer(layer.dataProvider(), 1,
+                                                            raster_shader))
+        if self.kind == "raster_dtm":  # the terrain line of the Elevation Profile
+            layer.elevationProperties().setEnabled(True)
+        layer.triggerRepaint()
+
+    @classmethod
+    def create(cls, kind: str) -> _RasterPostProcessor:
+        p = cls(kind)
+        cls._keep.append(p)
+        return p
+
+
+def load_raster_on_completion(context: QgsProcessingContext, path: str, name: str,
+                              output_name: str, kind: str) -> None:
+    """Load raster ``path`` into the project when the algorithm ends, styled by ``kind``
+    (``raster_dtm`` or ``raster_dsm``)."""
+    details = QgsProcessingContext.LayerDetails(name, context.project(), output_name,
+                                                QgsProcessingUtils.LayerHint.Raster)
+    details.setPostProcessor(_RasterPostProcessor.create(kind))
+    context.addLayerToLoadOnCompletion(path, details)

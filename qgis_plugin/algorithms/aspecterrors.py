@@ -15,6 +15,7 @@ from qgis.core import (
 
 from ..core_bridge import import_core
 from ..layers import write_frame
+from ..styles import style_on_load
 from .base import SEED_001, CanopyBlocksAlgorithm
 
 __all__ = ["AspectErrorsAlgorithm"]
@@ -40,13 +41,15 @@ class AspectErrorsAlgorithm(CanopyBlocksAlgorithm):
         "and/or slope class (degrees) and computes n, bias, RMSE, MAE, OLS slope/intercept "
         "and r^2 per block length, metric and class (group 'aspect:E', 'slope:5-10', ...), "
         "plus the 'all' group; only blocks flagged usable (photon flag ok and reference ok) "
-        "count.<br><br>"
+        "count. A second output maps the usable blocks (their corridor polygons) coloured "
+        "by aspect class, with their residuals as attributes.<br><br>"
         "Method: " + SEED_001 + " (largest errors were found on easterly aspects)."
     )
 
     INPUT = "INPUT"
     GROUP_BY = "GROUP_BY"
     OUTPUT = "OUTPUT"
+    MAP = "MAP"
 
     def initAlgorithm(self, config: dict[str, Any] | None = None) -> None:  # noqa: N802
         self.addParameter(QgsProcessingParameterFeatureSource(
@@ -56,6 +59,9 @@ class AspectErrorsAlgorithm(CanopyBlocksAlgorithm):
             defaultValue=0))
         self.addParameter(QgsProcessingParameterFeatureSink(
             self.OUTPUT, "Statistics per class", type=QgsProcessing.TypeVector))
+        self.addParameter(QgsProcessingParameterFeatureSink(
+            self.MAP, "Blocks by aspect class (map)", type=QgsProcessing.TypeVectorPolygon,
+            optional=True, createByDefault=True))
 
     def execute(self, parameters: dict[str, Any], context: QgsProcessingContext,
                 feedback: QgsProcessingFeedback, progress: Any) -> dict[str, Any]:
@@ -67,4 +73,13 @@ class AspectErrorsAlgorithm(CanopyBlocksAlgorithm):
             residuals["use"] = residuals["use"].fillna(False).astype(bool)
         stats = stats_mod.block_stats(residuals, groups=groups)
         dest = write_frame(self, parameters, self.OUTPUT, context, stats, feedback)
-        return {self.OUTPUT: dest}
+        results: dict[str, Any] = {self.OUTPUT: dest}
+        if parameters.get(self.MAP) is not None and "aspect_class" in residuals.columns:
+            keep = [c for c in ("track", "length", "block", "aspect_class", "aspect", "slope",
+                                "slope_class", "res_ground", "res_top", "res_hmax", "res_h90",
+                                "use", "geometry") if c in residuals.columns]
+            used = residuals[residuals["use"]] if "use" in residuals.columns else residuals
+            mdest = write_frame(self, parameters, self.MAP, context, used[keep], feedback)
+            style_on_load(context, mdest, "aspect", "aspect_class")
+            results[self.MAP] = mdest
+        return results

@@ -22,6 +22,7 @@ from qgis.core import (
 
 from ..core_bridge import import_core
 from ..layers import pyproj_crs
+from ..styles import load_raster_on_completion
 from .base import SEED_001, CanopyBlocksAlgorithm
 
 __all__ = ["ReferenceRastersAlgorithm", "pdal_status"]
@@ -129,5 +130,11 @@ class ReferenceRastersAlgorithm(CanopyBlocksAlgorithm):
             ground=GROUND_OPTIONS[self.parameterAsEnum(parameters, self.GROUND, context)][1],
             progress=progress)
         feedback.pushInfo(f"PDAL {made.pdal_version}: {made.grid}")
+        for out, name, kind in ((self.DTM, "DTM", "raster_dtm"),
+                                (self.DSM_MAX, "DSM (maximum)", "raster_dsm"),
+                                (self.DSM_P90, "DSM (90th percentile)", "raster_dsm")):
+            path = {self.DTM: made.dtm, self.DSM_MAX: made.dsm_max,
+                    self.DSM_P90: made.dsm_p90}[out]
+            load_raster_on_completion(context, str(path), name, out, kind)
         return {self.OUTPUT_DIR: out_dir, self.DTM: str(made.dtm),
                 self.DSM_MAX: str(made.dsm_max), self.DSM_P90: str(made.dsm_p90)}

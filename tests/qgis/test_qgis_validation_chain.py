@@ -51,7 +51,7 @@ def chain(qgis_session, sample, pdal_bin, tmp_path_factory) -> dict[str, Any]:
         "OUTPUT": str(tmp / "calibration.csv")})
     out["aspect"] = run("canopyblocks:aspecterrors", {
         "INPUT": str(tmp / "residuals.gpkg"), "GROUP_BY": 0,
-        "OUTPUT": str(tmp / "aspect_stats.csv")})
+        "OUTPUT": str(tmp / "aspect_stats.csv"), "MAP": str(tmp / "aspect_map.gpkg")})
     return out
 
 
@@ -195,3 +195,58 @@ def test_calibrate_matches_core(chain):
         assert got[col].iloc[0] == pytest.approx(core.table[col].iloc[0], rel=1e-9)
     # held out: default vs calibrated scored on the same blocks
     assert got["n_holdout"].iloc[0] > 0
+
+
+def test_aspect_map_holds_the_usable_blocks_with_their_class(chain, open_layer, layer_rows):
+    """Issue 12 item 5: aspect errors on a map, not only a table."""
+    from qgis.core import QgsWkbTypes
+
+    layer = open_layer(chain["aspect"]["MAP"])
+    assert QgsWkbTypes.geometryType(layer.wkbType()) == QgsWkbTypes.PolygonGeometry
+    rows = layer_rows(layer)
+    used = [x for x in layer_rows(open_layer(chain["validate"]["OUTPUT"])) if x.get("use")]
+    assert sorted((int(r["block"]), r["aspect_class"]) for r in rows) == \
+        sorted((int(x["block"]), x["aspect_class"]) for x in used)
+    by_block = {int(x["block"]): x for x in used}
+    for r in rows:
+        if _finite(r["res_hmax"]):
+            assert r["res_hmax"] == pytest.approx(by_block[int(r["block"])]["res_hmax"])
+
+
+def test_blocks_stand_in_the_elevation_profile_and_sparse_ones_show(chain, open_layer):
+    """Issue 12 items 4 and 6: blocks as bars from ground to top; no near-white class; an
+    else rule draws blocks without a height."""
+    from qgis.core import Qgis, QgsMapLayerElevationProperties, QgsRuleBasedRenderer
+    from qgis_plugin import styles
+
+    layer = open_layer(chain["blocks"]["OUTPUT"])
+    assert styles.set_elevation(layer)
+    props = layer.elevationProperties()
+    dd = props.dataDefinedProperties()
+    P = QgsMapLayerElevationProperties.Property
+    assert props.clamping() == Qgis.AltitudeClamping.Absolute and props.extrusionEnabled()
+    assert dd.property(P.ZOffset).field() == "ground"
+    assert dd.property(P.ExtrusionHeight).field() == "hmax"
+    r = styles.height_renderer(layer, "hmax")
+    assert isinstance(r, QgsRuleBasedRenderer)
+    rules = r.rootRule().children()
+    assert any(rule.isElse() for rule in rules)
+    first = rules[0].symbol().color()
+    assert first.lightnessF() < 0.85, first.name()
+
+
+def test_dtm_loads_with_elevation_and_a_ramp_over_its_values(chain, open_layer):
+    import rasterio
+    from qgis.core import QgsProcessingContext, QgsProcessingFeedback
+    from qgis_plugin import styles
+
+    layer = open_layer(chain["rasters"]["DTM"], kind="raster")
+    pp = styles._RasterPostProcessor.create("raster_dtm")
+    pp.postProcessLayer(layer, QgsProcessingContext(), QgsProcessingFeedback())
+    assert layer.elevationProperties().isEnabled()
+    shader = layer.renderer().shader().rasterShaderFunction()
+    with rasterio.open(chain["rasters"]["DTM"]) as src:
+        v = src.read(1, masked=True)
+    assert shader.minimumValue() == pytest.approx(float(v.min()), abs=1e-3)
+    assert shader.maximumValue() == pytest.approx(float(v.max()), abs=1e-3)
+
