@@ -56,7 +56,7 @@ def check_metadata(path: Path = METADATA) -> None:
     cp = configparser.ConfigParser(interpolation=None)
     cp.read_string(path.read_text(encoding="utf-8"))
     required = ("name", "qgisMinimumVersion", "description", "about", "version", "author",
-                "email", "repository")
+                "email", "repository", "tracker", "homepage", "license", "tags")
     g = cp["general"] if cp.has_section("general") else {}
     missing = [k for k in required if not str(g.get(k, "")).strip()]
     if missing:
@@ -77,7 +77,8 @@ def plugin_files(plugin_dir: Path = PLUGIN_DIR) -> list[Path]:
 
 
 def build(out_dir: Path = ROOT / "dist", *, metadata: Path = METADATA,
-          plugin_dir: Path = PLUGIN_DIR, core_init: Path = CORE_INIT) -> Path:
+          plugin_dir: Path = PLUGIN_DIR, core_init: Path = CORE_INIT,
+          licence: Path = ROOT / "LICENSE") -> Path:
     """Write the zip and return its path (raises BuildError, leaving nothing behind)."""
     check_metadata(metadata)
     v_meta, v_core = metadata_version(metadata), core_version(core_init)
@@ -88,6 +89,9 @@ def build(out_dir: Path = ROOT / "dist", *, metadata: Path = METADATA,
         )
     if not (plugin_dir / "__init__.py").exists():
         raise BuildError(f"{plugin_dir}/__init__.py is missing")
+    if not licence.is_file():
+        raise BuildError(f"{licence} is missing; the QGIS plugin repository rejects a zip "
+                         "without its licence")
     out_dir.mkdir(parents=True, exist_ok=True)
     target = out_dir / f"{FOLDER}-{v_meta}.zip"
     fd, tmp = tempfile.mkstemp(prefix=f".{target.stem}.", suffix=".part.zip", dir=out_dir)
@@ -97,6 +101,7 @@ def build(out_dir: Path = ROOT / "dist", *, metadata: Path = METADATA,
             for p in plugin_files(plugin_dir):
                 zf.write(p, f"{FOLDER}/{p.relative_to(plugin_dir).as_posix()}")
             zf.write(metadata, f"{FOLDER}/metadata.txt")
+            zf.write(licence, f"{FOLDER}/LICENSE")
         os.replace(tmp, target)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

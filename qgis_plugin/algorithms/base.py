@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from typing import Any
 
 from qgis.core import (
@@ -14,6 +15,7 @@ from qgis.core import (
     QgsProcessingParameterRasterLayer,
     QgsProcessingParameterString,
 )
+from qgis.PyQt.QtCore import QCoreApplication
 from qgis.PyQt.QtGui import QIcon
 
 from ..core_bridge import core_errors, feedback_logging, progress_for
@@ -57,6 +59,40 @@ def optional_number(alg: Any, parameters: dict[str, Any], name: str,
     return float(alg.parameterAsDouble(parameters, name, context))
 
 
+HELP_URL = "https://github.com/canopyblocks/canopyblocks#qgis"
+"""The README's QGIS section (the Help button of every algorithm)."""
+
+_COMMON_TAGS = ("lidar", "canopy height", "forest", "canopyblocks")
+#: Words the toolbox search finds each algorithm by (besides its name).
+TAGS: dict[str, tuple[str, ...]] = {
+    "blockheights": ("ICESat-2", "ATL03", "ATL08", "MABEL", "photon", "ground", "Hmax",
+                     "H90", "block", "profile"),
+    "corridor": ("ICESat-2", "ATL03", "footprint", "corridor", "polygon", "block"),
+    "referencerasters": ("LAS", "LAZ", "airborne", "ALS", "PDAL", "DTM", "DSM", "raster",
+                         "point cloud"),
+    "validate": ("ICESat-2", "ATL03", "MABEL", "validation", "residual", "RMSE", "bias",
+                 "DTM", "DSM"),
+    "aspecterrors": ("aspect", "slope", "terrain", "validation", "RMSE", "statistics"),
+    "calibrate": ("ICESat-2", "ATL03", "MABEL", "calibration", "cut-off", "bias"),
+    "simulate": ("ICESat-2", "ATL03", "MABEL", "GEDI", "simulation", "LAS", "LAZ",
+                 "photon", "waveform"),
+    "coregister": ("ICESat-2", "ATL03", "GEDI", "geolocation", "offset", "co-registration",
+                   "DTM", "alignment"),
+    "gedifootprints": ("GEDI", "L1B", "L2A", "waveform", "full-waveform", "RH98", "RH",
+                       "ground", "cover", "footprint"),
+    "footprintvalidation": ("GEDI", "footprint", "validation", "LAS", "LAZ", "ALS", "RH98",
+                            "residual"),
+    "waveformplot": ("GEDI", "L1B", "waveform", "plot", "RH", "shot"),
+}
+
+
+def plain_help(html: str) -> str:
+    """Help text for ``shortHelpString``: ``<br>`` as newlines and no other markup, so the
+    dialog and ``qgis_process help`` both show clean text."""
+    text = re.sub(r"<br\s*/?>", "\n", html)
+    return re.sub(r"<[^>]+>", "", text)
+
+
 class CanopyBlocksAlgorithm(QgsProcessingAlgorithm):
     """Base: subclasses set ``ALG_ID``, ``DISPLAY``, ``HELP`` and implement :meth:`execute`."""
 
@@ -69,20 +105,31 @@ class CanopyBlocksAlgorithm(QgsProcessingAlgorithm):
     def name(self) -> str:
         return self.ALG_ID
 
+    @staticmethod
+    def tr(text: str) -> str:
+        """Translatable text (context ``canopyblocks``)."""
+        return QCoreApplication.translate("canopyblocks", text)
+
     def displayName(self) -> str:  # noqa: N802 - QGIS API
-        return self.DISPLAY
+        return self.tr(self.DISPLAY)
 
     def group(self) -> str:
-        return self.GROUP
+        return self.tr(self.GROUP)
 
     def groupId(self) -> str:  # noqa: N802 - QGIS API
         return self.GROUP_ID
 
+    def tags(self) -> list[str]:
+        return [self.tr(t) for t in (*TAGS.get(self.ALG_ID, ()), *_COMMON_TAGS)]
+
     def shortHelpString(self) -> str:  # noqa: N802 - QGIS API
-        return self.HELP
+        return self.tr(plain_help(self.HELP))
 
     def helpString(self) -> str:  # noqa: N802 - QGIS API
-        return self.HELP
+        return self.tr(plain_help(self.HELP))
+
+    def helpUrl(self) -> str:  # noqa: N802 - QGIS API
+        return HELP_URL
 
     def icon(self) -> QIcon:
         from ..provider import ICON

@@ -56,8 +56,9 @@ class BlockHeightsAlgorithm(CanopyBlocksAlgorithm):
         "<b>Block lengths</b>: metres, comma separated (e.g. '25, 10').<br>"
         "Outputs: block points (track CRS, UTM by default) with fields track, length, block, "
         "s_start, s_end, x, y, lon, lat, n_photons, n_kept, n_between, top, ground, hmax, z90, "
-        "h90, flag (ok/sparse/inverted); optionally the photons with their labels per block "
-        "length (0 noise, 1 ground window, 2 canopy window, 3 between) and a profile PNG. "
+        "h90, flag (ok / sparse / inverted / implausible: Hmax above 130 m, taller than any "
+        "tree); optionally the photons with their labels per block length (text: 'noise', "
+        "'ground', 'canopy', 'between', 'outside') and a profile PNG. "
         "Heights are in the input's vertical datum (ellipsoidal for ATL03/MABEL)."
     )
 

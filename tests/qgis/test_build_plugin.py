@@ -30,6 +30,10 @@ def test_zip_holds_plugin_folder_and_metadata(build_plugin, tmp_path):
     with zipfile.ZipFile(path) as zf:
         names = set(zf.namelist())
         meta = zf.read("canopyblocks_qgis/metadata.txt").decode()
+        licence = zf.read("canopyblocks_qgis/LICENSE").decode()
+    # the plugin repository rejects a zip without its licence: the GPL the metadata names
+    assert licence == (ROOT / "LICENSE").read_text()
+    assert licence.lstrip().startswith("GNU GENERAL PUBLIC LICENSE") and "Version 3" in licence
     assert {n.split("/")[0] for n in names} == {"canopyblocks_qgis"}
     for f in ("__init__.py", "plugin.py", "provider.py", "core_bridge.py", "layers.py",
               "styles.py", "icons/canopyblocks.svg", "algorithms/blockheights.py",
@@ -46,6 +50,10 @@ def test_zip_holds_plugin_folder_and_metadata(build_plugin, tmp_path):
     assert g["qgisMinimumVersion"] == "3.22"
     assert g["license"] == "GPL-3.0-or-later"
     assert g["hasProcessingProvider"] == "yes"
+    for key in ("tracker", "repository", "homepage", "email", "about"):
+        assert g[key].strip(), key
+    tags = {t.strip() for t in g["tags"].split(",")}
+    assert {"icesat-2", "atl03", "mabel", "gedi", "las", "laz"} <= tags
     assert (tmp_path / path.name).exists() and len(list(tmp_path.iterdir())) == 1
 
 

@@ -53,12 +53,21 @@ def work(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return tmp_path_factory.mktemp("qgis_process_all")
 
 
-def test_every_algorithm_is_listed(qgis_profile, qgis_process_env) -> None:
-    r = subprocess.run(["qgis_process", "--json", "list"], env=qgis_process_env(qgis_profile),
+def test_every_algorithm_is_listed_with_tags_and_help(qgis_profile, qgis_process_env) -> None:
+    env = qgis_process_env(qgis_profile)
+    r = subprocess.run(["qgis_process", "--json", "list"], env=env,
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
-    ids = set(json.loads(r.stdout)["providers"]["canopyblocks"]["algorithms"])
-    assert {f"canopyblocks:{a}" for a in ALGORITHMS} <= ids
+    algs = json.loads(r.stdout)["providers"]["canopyblocks"]["algorithms"]
+    assert {f"canopyblocks:{a}" for a in ALGORITHMS} <= set(algs)
+    # the toolbox search finds them by the products users know; a Help button each
+    tags = {t for a in ALGORITHMS for t in algs[f"canopyblocks:{a}"]["tags"]}
+    assert {"ATL03", "MABEL", "GEDI", "LAZ", "LAS"} <= tags
+    assert all(algs[f"canopyblocks:{a}"]["help_url"].startswith("https://")
+               for a in ALGORITHMS)
+    h = subprocess.run(["qgis_process", "help", "canopyblocks:blockheights"], env=env,
+                       capture_output=True, text=True, timeout=120)
+    assert h.returncode == 0 and "<br>" not in h.stdout and "<b>" not in h.stdout
 
 
 @pytest.fixture(scope="module")
