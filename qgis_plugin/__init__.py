@@ -8,6 +8,11 @@ from __future__ import annotations
 
 from typing import Any
 
+from .venv_guard import scrub_venv
+
+# before anything imports the core: an activated virtualenv's PyPI wheels must not be seen
+scrub_venv()
+
 
 def classFactory(iface: Any) -> Any:  # noqa: N802 - QGIS plugin entry point name
     """QGIS entry point: return the plugin object."""

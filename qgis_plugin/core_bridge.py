@@ -62,6 +62,11 @@ def import_core(name: str = "canopyblocks") -> ModuleType:
     """Import ``name`` (a core module) or raise QgsProcessingException with the install hint."""
     import importlib
 
+    from .venv_guard import venv_problem
+
+    problem = venv_problem()
+    if problem is not None:
+        raise QgsProcessingException(problem)
     try:
         return importlib.import_module(name)
     except ImportError as exc:

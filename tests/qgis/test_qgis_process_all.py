@@ -223,3 +223,24 @@ def test_footprintvalidation_on_simulated_gedi_over_the_tile(qp, work) -> None:
     assert len(used) >= 3
     # waveforms simulated from these points: ground within a metre of the points' ground
     assert abs(float(np.median(used["res_ground"]))) < 1.0
+
+
+def test_an_activated_virtualenv_is_refused_with_what_to_do(qgis_profile, qgis_process_env,
+                                                            work) -> None:
+    """Issue 12 item 9: QGIS started from a shell with the project's venv active took the
+    venv's PyPI wheels and crashed ("Not a datatype", double free); now one clear refusal."""
+    env = qgis_process_env(qgis_profile)
+    venv = Path(sys.prefix)
+    if venv == Path(sys.base_prefix):
+        pytest.skip("the tests do not run in a virtualenv")
+    env["VIRTUAL_ENV"] = str(venv)
+    env["PATH"] = f"{venv / 'bin'}:{env['PATH']}"
+    out = work / "venv_sim.h5"
+    r = subprocess.run(["qgis_process", "run", "canopyblocks:simulate", "--", f"INPUT={TILE}",
+                        f"OUTPUT={out}"], env=env, capture_output=True, text=True,
+                       timeout=300)
+    text = r.stdout + r.stderr
+    assert r.returncode != 0
+    assert "deactivate" in text and str(venv) in text
+    assert "double free" not in text and "Not a datatype" not in text
+    assert not out.exists()
