@@ -115,6 +115,40 @@ def label_renderer(layer: QgsVectorLayer, field: str) -> QgsCategorizedSymbolRen
     return QgsCategorizedSymbolRenderer(field, cats)
 
 
+def truth_renderer(layer: QgsVectorLayer, field: str = "noise") -> QgsCategorizedSymbolRenderer:
+    """Simulated photons: signal (from a surface) in green, background noise in grey."""
+    cats = [QgsRendererCategory(False, _symbol(layer, "#1b7837"), "signal photon"),
+            QgsRendererCategory(True, _symbol(layer, "#bdbdbd"), "background noise")]
+    return QgsCategorizedSymbolRenderer(field, cats)
+
+
+def _draw_rank(layer: Any) -> int:
+    """Points 0, lines 1, polygons 2, tables 3, rasters 4 (top of the legend first)."""
+    if isinstance(layer, QgsRasterLayer):
+        return 4
+    if not isinstance(layer, QgsVectorLayer) or not layer.isSpatial():
+        return 3
+    return {Qgis.GeometryType.Point: 0, Qgis.GeometryType.Line: 1}.get(
+        layer.geometryType(), 2)
+
+
+def _reorder(layer: Any, context: Any) -> None:
+    """Sort the project's top-level layers: points on top, then lines, polygons, tables,
+    rasters at the bottom (stable: loading order within a rank)."""
+    project = context.project() if context is not None else None
+    if project is None:
+        return
+    root = project.layerTreeRoot()
+    nodes = [n for n in root.children() if hasattr(n, "layer") and n.layer() is not None]
+    ranked = sorted(nodes, key=lambda n: _draw_rank(n.layer()))
+    if ranked == nodes:
+        return
+    for i, node in enumerate(ranked):
+        clone = node.clone()
+        root.insertChildNode(i, clone)
+        root.removeChildNode(node)
+
+
 def height_renderer(layer: QgsVectorLayer, field: str = "hmax",
                     n_classes: int = 5) -> QgsRuleBasedRenderer:
     """Graduated green renderer of block heights (equal intervals, 0 to the maximum); the
@@ -151,6 +185,7 @@ _STYLERS = {
     "aspect": aspect_renderer,
     "height": height_renderer,
     "label": label_renderer,
+    "truth": truth_renderer,
 }
 
 
@@ -195,6 +230,7 @@ class _StylePostProcessor(QgsProcessingLayerPostProcessorInterface):
         if isinstance(layer, QgsVectorLayer) and layer.fields().indexOf(self.field) >= 0:
             layer.setRenderer(_STYLERS[self.kind](layer, self.field))
             set_elevation(layer)
+            _reorder(layer, context)
             layer.triggerRepaint()
 
     @classmethod
@@ -236,6 +272,7 @@ class _RasterPostProcessor(QgsProcessingLayerPostProcessorInterface):
                                                             raster_shader))
         if self.kind == "raster_dtm":  # the terrain line of the Elevation Profile
             layer.elevationProperties().setEnabled(True)
+        _reorder(layer, context)
         layer.triggerRepaint()
 
     @classmethod

@@ -20,6 +20,7 @@ from qgis.core import (
 
 from ..core_bridge import import_core
 from ..layers import qgs_crs, write_frame
+from ..styles import style_on_load
 from .base import SEED_002, CanopyBlocksAlgorithm
 
 __all__ = ["SimulateAlgorithm"]
@@ -110,6 +111,7 @@ class SimulateAlgorithm(CanopyBlocksAlgorithm):
             photons = sim.photon_track().to_geodataframe()
             results[self.PHOTONS] = write_frame(self, parameters, self.PHOTONS, context,
                                                 photons, feedback)
+            style_on_load(context, results[self.PHOTONS], "truth", "noise")
         return results
 
     def _track(self, parameters: dict[str, Any], context: QgsProcessingContext,

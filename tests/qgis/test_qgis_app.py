@@ -1,0 +1,126 @@
+"""The real QGIS application under Xvfb, with the plugin installed from the built zip.
+
+Issue 12's acceptance test: a fresh profile, the zip from ``scripts/build_plugin.py``
+unpacked into it and enabled, QGIS 3.40 started with exactly the runtime the README
+documents (``PYTHONPATH=/opt/canopyblocks-qgis-python:<checkout>/core``, no virtualenv),
+the chain run with ``processing.runAndLoadResults`` (tests/qgis/app_startup.py), then the
+project checked: every output loaded and styled by the plugin, elevation properties on the
+layers the Elevation Profile needs, no Python error in the message log.  The rendered map
+is kept as an artifact (``$CANOPYBLOCKS_ARTIFACTS`` or ``tests/artifacts/``), not compared.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import time
+import zipfile
+from pathlib import Path
+
+import pytest
+
+pytestmark = [pytest.mark.qgis, pytest.mark.pdal]
+
+ROOT = Path(__file__).resolve().parents[2]
+TILE = ROOT / "tests" / "data" / "als" / "lasR_bcts_1.laz"
+
+
+@pytest.fixture(scope="module")
+def app_run(built_zip, gedi_l1b, pdal_bin, tmp_path_factory, qgis_process_env) -> dict:
+    from conftest import require  # tests/qgis/conftest.py
+
+    require(shutil.which("qgis") is not None, "the QGIS application (package 'qgis')",
+            "run: bash scripts/install_qgis.sh")
+    require(shutil.which("Xvfb") is not None, "Xvfb (package 'xvfb')",
+            "run: bash scripts/install_qgis.sh")
+    work = tmp_path_factory.mktemp("qgis_app")
+    prof = work / "profiles"
+    plugins = prof / "profiles" / "default" / "python" / "plugins"
+    plugins.mkdir(parents=True)
+    with zipfile.ZipFile(built_zip) as zf:
+        zf.extractall(plugins)
+    ini = prof / "profiles" / "default" / "QGIS" / "QGIS3.ini"
+    ini.parent.mkdir(parents=True)
+    ini.write_text("[PythonPlugins]\ncanopyblocks_qgis=true\n")
+    out = work / "out"
+    out.mkdir()
+    display = f":{90 + os.getpid() % 9}"
+    xvfb = subprocess.Popen(["Xvfb", display, "-screen", "0", "1600x1000x24", "-nolisten",
+                             "tcp"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        time.sleep(1.0)
+        env = qgis_process_env(prof)  # the README's runtime and core, no virtualenv
+        env.pop("QT_QPA_PLATFORM", None)
+        env.pop("QGIS_CUSTOM_CONFIG_PATH", None)
+        env.pop("VIRTUAL_ENV", None)
+        env["PATH"] = os.pathsep.join(p for p in env["PATH"].split(os.pathsep)
+                                      if not (Path(p) / "pyvenv.cfg").exists()
+                                      and not (Path(p).parent / "pyvenv.cfg").exists())
+        env["DISPLAY"] = display
+        env["CANOPYBLOCKS_PDAL"] = pdal_bin
+        env["CANOPYBLOCKS_APP_JSON"] = json.dumps(
+            {"out": str(out), "tile": str(TILE), "l1b": str(gedi_l1b)})
+        r = subprocess.run(["qgis", "--profiles-path", str(prof), "--nologo",
+                            "--noversioncheck", "--code", str(ROOT / "tests" / "qgis" /
+                                                                "app_startup.py")],
+                           env=env, capture_output=True, text=True, timeout=240)
+    finally:
+        xvfb.terminate()
+        xvfb.wait(timeout=10)
+    result_file = out / "result.json"
+    assert result_file.exists(), f"QGIS wrote no result (exit {r.returncode}):\n{r.stderr[-3000:]}"
+    result = json.loads(result_file.read_text())
+    artifacts = Path(os.environ.get("CANOPYBLOCKS_ARTIFACTS", ROOT / "tests" / "artifacts"))
+    if (out / "map.png").exists():
+        artifacts.mkdir(parents=True, exist_ok=True)
+        shutil.copy(out / "map.png", artifacts / "qgis_app_map.png")
+    result["out"] = str(out)
+    return result
+
+
+def _layer(result: dict, name_part: str) -> dict:
+    hits = [lyr for lyr in result["layers"] if lyr["name"] == name_part] or \
+        [lyr for lyr in result["layers"] if name_part.lower() in lyr["name"].lower()]
+    assert hits, f"no layer named like {name_part!r}: {[lyr['name'] for lyr in result['layers']]}"
+    return hits[0]
+
+
+def test_the_chain_runs_and_loads_without_python_errors(app_run) -> None:
+    assert "error" not in app_run, app_run.get("error")
+    assert app_run["messages"] == [], app_run["messages"]
+    names = {lyr["name"] for lyr in app_run["layers"]}
+    # every output of the chain is in the project: vectors and the three rasters
+    for part in ("Blocks", "Photons", "Residuals", "DTM", "DSM (maximum)",
+                 "DSM (90th percentile)", "aspect", "GEDI footprints"):
+        assert any(part.lower() in n.lower() for n in names), (part, names)
+
+
+def test_outputs_are_styled_by_the_plugin(app_run) -> None:
+    assert _layer(app_run, "Blocks")["renderer"] == "RuleRenderer"  # heights + sparse rule
+    assert _layer(app_run, "Residuals")["renderer"] == "graduatedSymbol"
+    assert _layer(app_run, "aspect")["renderer"] == "categorizedSymbol"
+    assert _layer(app_run, "DTM")["renderer"] == "singlebandpseudocolor"
+
+
+def test_layers_stand_in_the_elevation_profile(app_run) -> None:
+    blocks = _layer(app_run, "Blocks")
+    assert blocks["z_field"] == "ground" and blocks["extrusion"]
+    assert _layer(app_run, "Photons")["z_field"] == "h"
+    fp = _layer(app_run, "GEDI footprints")
+    assert fp["has_z"] or fp["z_field"] == "ground"
+    assert _layer(app_run, "DTM")["elevation"] is True
+
+
+def test_draw_order_rasters_below_points_on_top(app_run) -> None:
+    kinds = [(lyr["kind"], lyr["name"]) for lyr in app_run["layers"] if lyr.get("kind")]
+    rasters = [i for i, (k, _) in enumerate(kinds) if k == "raster"]
+    assert rasters and min(rasters) > max(i for i, (k, _) in enumerate(kinds) if k == "vector")
+    names = [n for _, n in kinds]
+    assert names.index("Photons with labels") < names.index("Residuals")
+
+
+def test_a_map_was_rendered(app_run) -> None:
+    png = Path(app_run["out"]) / "map.png"
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 20_000
