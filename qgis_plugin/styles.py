@@ -19,6 +19,7 @@ from typing import Any
 
 from qgis.core import (
     Qgis,
+    QgsAggregateCalculator,
     QgsCategorizedSymbolRenderer,
     QgsColorRampShader,
     QgsGradientColorRamp,
@@ -123,13 +124,16 @@ def truth_renderer(layer: QgsVectorLayer, field: str = "noise") -> QgsCategorize
 
 
 def _draw_rank(layer: Any) -> int:
-    """Points 0, lines 1, polygons 2, tables 3, rasters 4 (top of the legend first)."""
+    """Blocks/footprints 0, photons 1, lines 2, polygons 3, tables 4, rasters 5 (top of
+    the legend first)."""
     if isinstance(layer, QgsRasterLayer):
-        return 4
+        return 5
     if not isinstance(layer, QgsVectorLayer) or not layer.isSpatial():
-        return 3
-    return {Qgis.GeometryType.Point: 0, Qgis.GeometryType.Line: 1}.get(
-        layer.geometryType(), 2)
+        return 4
+    if layer.geometryType() == Qgis.GeometryType.Point:
+        # blocks and footprints above the thousands of photons they summarise
+        return 1 if layer.fields().indexOf("h") >= 0 else 0
+    return {Qgis.GeometryType.Line: 2}.get(layer.geometryType(), 3)
 
 
 def _reorder(layer: Any, context: Any) -> None:
@@ -149,26 +153,47 @@ def _reorder(layer: Any, context: Any) -> None:
         root.removeChildNode(node)
 
 
-def height_renderer(layer: QgsVectorLayer, field: str = "hmax",
-                    n_classes: int = 5) -> QgsRuleBasedRenderer:
-    """Graduated green renderer of block heights (equal intervals, 0 to the maximum); the
-    lowest class is a visible light green, and features without a value (sparse blocks)
-    are drawn as grey outlines under an "else" rule instead of vanishing."""
-    vals = [float(v) for v in _values(layer, field) if isinstance(v, (int, float))]
-    vmax = max((v for v in vals if math.isfinite(v)), default=1.0)
+def _height_rules(layer: QgsVectorLayer, field: str, values: list[float], n_classes: int,
+                  where: str = "") -> list[Any]:
+    """Graduated rules (equal intervals from 0 to the maximum of ``values``), each limited by
+    the filter ``where``; the lowest class is a visible light green, not near-white."""
+    vmax = max((v for v in values if math.isfinite(v)), default=1.0)
     vmax = vmax if vmax > 0 else 1.0
     ramp = QgsStyle.defaultStyle().colorRamp("Greens") or QgsGradientColorRamp(
         QColor("#e5f5e0"), QColor("#00441b"))
-    ranges = []
+    rules = []
     for i in range(n_classes):
         lo, hi = vmax * i / n_classes, vmax * (i + 1) / n_classes
-        colour = ramp.color(0.3 + 0.7 * i / max(n_classes - 1, 1))  # no near-white class
         sym = QgsSymbol.defaultSymbol(layer.geometryType())
-        sym.setColor(colour)
-        ranges.append(QgsRendererRange(lo, hi, sym, f"{lo:.1f} to {hi:.1f} m"))
-    graduated = QgsGraduatedSymbolRenderer(field, ranges)
-    graduated.setSourceColorRamp(ramp.clone())
-    rules = QgsRuleBasedRenderer.convertFromRenderer(graduated)
+        sym.setColor(ramp.color(0.3 + 0.7 * i / max(n_classes - 1, 1)))
+        last = i == n_classes - 1
+        expr = (f'"{field}" >= {lo!r} AND "{field}" {"<=" if last else "<"} {hi!r}'
+                + (f" AND {where}" if where else ""))
+        rules.append(QgsRuleBasedRenderer.Rule(sym, 0, 0, expr, f"{lo:.1f} to {hi:.1f} m"))
+    return rules
+
+
+def height_renderer(layer: QgsVectorLayer, field: str = "hmax",
+                    n_classes: int = 5) -> QgsRuleBasedRenderer:
+    """Block heights: one group of graduated green classes per block length (each length
+    on its own scale, toggled in the legend), or one group when there is one length;
+    features without a value (sparse blocks) drawn grey under an "else" rule, not hidden."""
+    root = QgsRuleBasedRenderer.Rule(None)
+    lengths = sorted(float(v) for v in _values(layer, "length") if isinstance(v, (int, float)))
+    if len(lengths) > 1:
+        for L in lengths:
+            params = QgsAggregateCalculator.AggregateParameters()
+            params.filter = f'"length" = {L!r}'
+            top, ok = layer.aggregate(Qgis.Aggregate.Max, field, params)
+            group = QgsRuleBasedRenderer.Rule(None, 0, 0, f'"length" = {L!r}', f"{L:g} m blocks")
+            vals = [float(top)] if ok and isinstance(top, (int, float)) else []
+            for rule in _height_rules(layer, field, vals, n_classes):
+                group.appendChild(rule)
+            root.appendChild(group)
+    else:
+        vals = [float(v) for v in _values(layer, field) if isinstance(v, (int, float))]
+        for rule in _height_rules(layer, field, vals, n_classes):
+            root.appendChild(rule)
     empty = QgsSymbol.defaultSymbol(layer.geometryType())
     empty.setColor(QColor(0, 0, 0, 0) if layer.geometryType() == Qgis.GeometryType.Polygon
                    else QColor("#9e9e9e"))
@@ -176,8 +201,8 @@ def height_renderer(layer: QgsVectorLayer, field: str = "hmax",
         empty.symbolLayer(0).setStrokeColor(QColor("#757575"))
     rule = QgsRuleBasedRenderer.Rule(empty, 0, 0, "ELSE", f"no {field} (sparse / no value)")
     rule.setIsElse(True)
-    rules.rootRule().appendChild(rule)
-    return rules
+    root.appendChild(rule)
+    return QgsRuleBasedRenderer(root)
 
 
 _STYLERS = {

@@ -50,7 +50,9 @@ def _describe(layer: Any) -> dict[str, Any]:
                  clamping=int(props.clamping()), extrusion=props.extrusionEnabled(),
                  z_field=dd.property(prop.ZOffset).field() if dd.isActive(prop.ZOffset)
                  else None,
-                 has_z=QgsWkbTypes.hasZ(layer.wkbType()))
+                 has_z=QgsWkbTypes.hasZ(layer.wkbType()),
+                 rules=[r.label() for r in layer.renderer().rootRule().children()]
+                 if layer.renderer() and layer.renderer().type() == "RuleRenderer" else [])
     elif isinstance(layer, QgsRasterLayer):
         d.update(kind="raster", renderer=layer.renderer().type() if layer.renderer() else None,
                  elevation=layer.elevationProperties().isEnabled())

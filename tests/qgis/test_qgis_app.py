@@ -98,7 +98,11 @@ def test_the_chain_runs_and_loads_without_python_errors(app_run) -> None:
 
 
 def test_outputs_are_styled_by_the_plugin(app_run) -> None:
-    assert _layer(app_run, "Blocks")["renderer"] == "RuleRenderer"  # heights + sparse rule
+    blocks = _layer(app_run, "Blocks")
+    assert blocks["renderer"] == "RuleRenderer"
+    # one group (own colour scale) per block length, and a rule for blocks without height
+    assert blocks["rules"][:2] == ["10 m blocks", "25 m blocks"]
+    assert blocks["rules"][-1].startswith("no hmax")
     assert _layer(app_run, "Residuals")["renderer"] == "graduatedSymbol"
     assert _layer(app_run, "aspect")["renderer"] == "categorizedSymbol"
     assert _layer(app_run, "DTM")["renderer"] == "singlebandpseudocolor"
@@ -118,7 +122,7 @@ def test_draw_order_rasters_below_points_on_top(app_run) -> None:
     rasters = [i for i, (k, _) in enumerate(kinds) if k == "raster"]
     assert rasters and min(rasters) > max(i for i, (k, _) in enumerate(kinds) if k == "vector")
     names = [n for _, n in kinds]
-    assert names.index("Photons with labels") < names.index("Residuals")
+    assert names.index("Blocks") < names.index("Photons with labels") < names.index("Residuals")
 
 
 def test_a_map_was_rendered(app_run) -> None:
