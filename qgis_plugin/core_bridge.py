@@ -8,6 +8,7 @@ saying how to install it.
 from __future__ import annotations
 
 import logging
+import re
 import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -18,6 +19,7 @@ from qgis.core import Qgis, QgsMessageLog, QgsProcessingException, QgsProcessing
 
 __all__ = [
     "MESSAGE_TAG",
+    "qgis_words",
     "LIBRARY_CLASH_SIGNS",
     "feedback_logging",
     "install_hint",
@@ -112,6 +114,39 @@ def progress_for(feedback: QgsProcessingFeedback | None) -> Any:
     return progress_mod.Progress(callback=callback, cancelled=feedback.isCanceled)
 
 
+#: Command-line options named in the core's messages -> the parameters of the algorithms.
+QGIS_NAMES = {
+    "geoid": "Geoid undulation raster", "offset": "Vertical offset",
+    "atl08": "Matching ATL08 file", "dtm": "DTM", "dsm-max": "DSM (maximum)",
+    "dsm-p90": "DSM (90th percentile)", "crs": "CRS", "smrf": "Ground points: SMRF",
+    "min-signal-conf": "ATL03: minimum land signal_conf_ph", "beam": "Beam",
+    "width": "Corridor width", "length": "Block lengths", "preset": "Preset",
+    "photon-vcrs": "Photons' vertical CRS", "diameter": "Footprint diameter",
+    "points": "Airborne LAS/LAZ tiles", "seed": "Random seed", "resolution": "Cell size",
+    "top-cutoff": "Canopy-top cut-off", "ground-cutoff": "Ground cut-off",
+}
+_OPTION = re.compile(r"--([a-z][a-z0-9-]*)")
+_COMMAND = re.compile(r"`?canopyblocks (rasters|validate|blocks|simulate|calibrate|waveforms|"
+                      r"coregister)`?")
+_COMMAND_NAMES = {"rasters": "Reference rasters from airborne lidar", "validate":
+                  "Validate blocks against reference rasters", "blocks":
+                  "Block canopy heights from photons", "simulate":
+                  "Simulate ICESat-2 photons from airborne lidar", "calibrate":
+                  "Calibrate cut-offs against reference rasters", "waveforms":
+                  "GEDI footprints from L1B waveforms", "coregister":
+                  "Co-register a track with airborne lidar"}
+
+
+def qgis_words(message: str) -> str:
+    """The core's message in QGIS terms: command-line options become the parameters of
+    the algorithms (``--geoid`` -> 'Geoid undulation raster'), commands become algorithm
+    names; "(CLI: ...)" asides go."""
+    text = re.sub(r"\s*\(CLI: [^)]*\)", "", message)
+    text = _COMMAND.sub(lambda m: f"the '{_COMMAND_NAMES[m.group(1)]}' algorithm", text)
+    return _OPTION.sub(lambda m: f"'{QGIS_NAMES.get(m.group(1), m.group(1).replace('-', ' '))}'",
+                       text)
+
+
 @contextmanager
 def core_errors() -> Iterator[None]:
     """Turn the core's errors into QgsProcessingException carrying the core's message."""
@@ -121,9 +156,9 @@ def core_errors() -> Iterator[None]:
     except QgsProcessingException:
         raise
     except errors.CancelledError as exc:
-        raise QgsProcessingException(f"canopyblocks: {exc}") from exc
+        raise QgsProcessingException(f"canopyblocks: {qgis_words(str(exc))}") from exc
     except errors.CanopyBlocksError as exc:
-        raise QgsProcessingException(f"canopyblocks: {exc}") from exc
+        raise QgsProcessingException(f"canopyblocks: {qgis_words(str(exc))}") from exc
     except Exception as exc:
         text = f"{type(exc).__name__}: {exc}"
         if any(sign in text for sign in LIBRARY_CLASH_SIGNS):

@@ -100,3 +100,21 @@ def test_referencerasters_says_how_to_get_pdal(qgis_session, monkeypatch, tmp_pa
     ok, msg = alg.checkParameterValues({"INPUT": [], "OUTPUT_DIR": str(tmp_path)},
                                        QgsProcessingContext())
     assert not ok and "install_pdal.sh" in msg
+
+
+def test_core_messages_speak_qgis_not_command_line(qgis_session) -> None:
+    """Issue 12 item 7: a datum refusal named --geoid/--offset; in QGIS it names the
+    algorithm's parameters."""
+    from qgis_plugin.core_bridge import qgis_words
+
+    from canopyblocks.errors import DatumError
+    from canopyblocks.reference.datum import check_vertical_datums
+
+    with pytest.raises(DatumError) as info:
+        check_vertical_datums("EPSG:4979", "EPSG:3005+5713")
+    raw = str(info.value)
+    assert "--geoid" in raw  # the core speaks command line ...
+    text = qgis_words(raw)
+    assert "--" not in text and "'Geoid undulation raster'" in text  # ... QGIS does not
+    assert qgis_words("run `canopyblocks rasters` first (CLI: --crs 3005)") == \
+        "run the 'Reference rasters from airborne lidar' algorithm first"
