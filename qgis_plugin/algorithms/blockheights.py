@@ -9,6 +9,7 @@ from qgis.core import (
     QgsProcessingContext,
     QgsProcessingException,
     QgsProcessingFeedback,
+    QgsProcessingParameterCrs,
     QgsProcessingParameterEnum,
     QgsProcessingParameterFeatureSink,
     QgsProcessingParameterFile,
@@ -17,7 +18,7 @@ from qgis.core import (
 )
 
 from ..core_bridge import import_core
-from ..layers import write_frame
+from ..layers import pyproj_crs, write_frame
 from ..styles import style_on_load
 from .base import SEED_001, CanopyBlocksAlgorithm, optional_number, parse_lengths
 
@@ -75,6 +76,7 @@ class BlockHeightsAlgorithm(CanopyBlocksAlgorithm):
     ATL08 = "ATL08"
     OUTPUT = "OUTPUT"
     PHOTONS = "PHOTONS"
+    CRS = "CRS"
     PROFILE = "PROFILE"
 
     def initAlgorithm(self, config: dict[str, Any] | None = None) -> None:  # noqa: N802
@@ -104,6 +106,9 @@ class BlockHeightsAlgorithm(CanopyBlocksAlgorithm):
             self.ATL08, "Matching ATL08 file (adds photon classes; optional)",
             behavior=QgsProcessingParameterFile.File, optional=True,
             fileFilter="HDF5 (*.h5 *.hdf5);;All files (*.*)"))
+        self.addParameter(QgsProcessingParameterCrs(
+            self.CRS, "Output CRS (metric; empty = the UTM zone of the track)",
+            optional=True))
         self.addParameter(QgsProcessingParameterFeatureSink(
             self.OUTPUT, "Blocks", type=QgsProcessing.TypeVectorPoint))
         self.addParameter(QgsProcessingParameterFeatureSink(
@@ -130,6 +135,9 @@ class BlockHeightsAlgorithm(CanopyBlocksAlgorithm):
             min_photons=self.parameterAsInt(parameters, self.MIN_PHOTONS, context),
             min_signal_conf=self.min_signal_conf(parameters, context),
         )
+        qcrs = self.parameterAsCrs(parameters, self.CRS, context)
+        if qcrs.isValid():  # metric CRS of x/y and of the output layers
+            track_kw["crs"] = pyproj_crs(qcrs)
         atl08 = self.parameterAsFile(parameters, self.ATL08, context) or None
         if atl08:
             track_kw["atl08"] = atl08

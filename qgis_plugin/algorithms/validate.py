@@ -13,6 +13,7 @@ from qgis.core import (
     QgsProcessingParameterFeatureSource,
     QgsProcessingParameterNumber,
     QgsProcessingParameterRasterLayer,
+    QgsProcessingParameterString,
 )
 
 from ..core_bridge import import_core
@@ -61,6 +62,7 @@ class ValidateAlgorithm(CanopyBlocksAlgorithm):
     OFFSET = "OFFSET"
     GEOID = "GEOID"
     SLOPE_THRESHOLD = "SLOPE_THRESHOLD"
+    PHOTON_VCRS = "PHOTON_VCRS"
     OUTPUT = "OUTPUT"
     STATS = "STATS"
 
@@ -70,6 +72,9 @@ class ValidateAlgorithm(CanopyBlocksAlgorithm):
         self.add_reference_parameters()
         self.addParameter(QgsProcessingParameterRasterLayer(
             self.GEOID, "Geoid undulation raster (optional)", optional=True))
+        self.addParameter(QgsProcessingParameterString(
+            self.PHOTON_VCRS, "Photons' vertical CRS (e.g. EPSG:4979 for ATL03/GEDI ellipsoid "
+            "heights, EPSG:5703 for NAVD88; empty = what the blocks record)", optional=True))
         self.addParameter(QgsProcessingParameterNumber(
             self.SLOPE_THRESHOLD, "Slope below which the aspect class is 'flat' (degrees)",
             type=QgsProcessingParameterNumber.Double, defaultValue=2.0, minValue=0.0,
@@ -88,6 +93,9 @@ class ValidateAlgorithm(CanopyBlocksAlgorithm):
         offset = optional_number(self, parameters, self.OFFSET, context)
         if offset is not None:
             kwargs["offset"] = offset
+        vcrs = self.parameterAsString(parameters, self.PHOTON_VCRS, context).strip()
+        if vcrs:
+            kwargs["photon_vertical_crs"] = vcrs
         if parameters.get(self.GEOID) not in (None, ""):
             kwargs["geoid"] = raster_path(self, parameters, self.GEOID, context)
         result = pipeline.validate_blocks(

@@ -244,3 +244,39 @@ def test_an_activated_virtualenv_is_refused_with_what_to_do(qgis_profile, qgis_p
     assert "deactivate" in text and str(venv) in text
     assert "double free" not in text and "Not a datatype" not in text
     assert not out.exists()
+
+
+def test_blockheights_output_crs_equals_the_pyproj_transform(qp, simulated, blocks,
+                                                             work) -> None:
+    """Issue 12 item 10: the block layer in a chosen metric CRS (the CLI's --crs)."""
+    import pyproj
+
+    out = work / "blocks_3005.gpkg"
+    qp("blockheights", INPUT=simulated, TRACK="gt1r", LENGTHS="25", CRS="EPSG:3005",
+       OUTPUT=out)
+    got = pyogrio.read_dataframe(out)
+    ref = pyogrio.read_dataframe(blocks)
+    assert got.crs.to_epsg() == 3005
+    t = pyproj.Transformer.from_crs(4326, 3005, always_xy=True)
+    x, y = t.transform(ref["lon"].to_numpy(), ref["lat"].to_numpy())
+    np.testing.assert_allclose(got.geometry.x, x, atol=0.01)
+    np.testing.assert_allclose(got.geometry.y, y, atol=0.01)
+
+
+def test_validate_photon_vertical_crs_applies_the_datum_rule(qgis_profile, qgis_process_env,
+                                                             blocks, rasters, work,
+                                                             pdal_bin) -> None:
+    """Issue 12 item 10: declaring the photons ellipsoidal (EPSG:4979) against the tile's
+    CGVD28 heights is refused unless a geoid or offset is given -- in QGIS's words."""
+    env = qgis_process_env(qgis_profile)
+    args = ["qgis_process", "run", "canopyblocks:validate", "--", f"INPUT={blocks}",
+            f"DTM={rasters['DTM']}", f"DSM_MAX={rasters['DSM_MAX']}",
+            f"DSM_P90={rasters['DSM_P90']}", "WIDTH=13", "PHOTON_VCRS=EPSG:4979",
+            f"OUTPUT={work / 'res_vcrs.gpkg'}", f"STATS={work / 'st_vcrs.csv'}"]
+    r = subprocess.run(args, env=env, capture_output=True, text=True, timeout=300)
+    text = r.stdout + r.stderr
+    assert r.returncode != 0 and "Geoid undulation raster" in text and "--geoid" not in text
+    r = subprocess.run([*args[:-2], "OFFSET=0", f"OUTPUT={work / 'res_vcrs.gpkg'}",
+                        f"STATS={work / 'st_vcrs.csv'}"], env=env, capture_output=True,
+                       text=True, timeout=300)
+    assert r.returncode == 0, r.stdout + r.stderr
