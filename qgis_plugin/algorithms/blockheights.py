@@ -25,6 +25,13 @@ from .base import SEED_001, CanopyBlocksAlgorithm, optional_number, parse_length
 __all__ = ["BlockHeightsAlgorithm"]
 
 NOISE_OPTIONS = ("sigma", "none")
+#: (menu label, preset name or None for the paper's engine as it is)
+PRESET_OPTIONS = (
+    ("paper: the seed-001 method (default; bit for bit)", None),
+    ("icesat2: confidence/density noise filter, ground surface, p98 top (DESIGN 1.10)",
+     "icesat2"),
+    ("mabel: density noise filter, ground surface, p99 top", "mabel"),
+)
 
 
 def parse_track(text: str) -> dict[str, Any]:
@@ -77,6 +84,8 @@ class BlockHeightsAlgorithm(CanopyBlocksAlgorithm):
     OUTPUT = "OUTPUT"
     PHOTONS = "PHOTONS"
     CRS = "CRS"
+    PRESET = "PRESET"
+    CALIBRATION = "CALIBRATION"
     PROFILE = "PROFILE"
 
     def initAlgorithm(self, config: dict[str, Any] | None = None) -> None:  # noqa: N802
@@ -106,6 +115,13 @@ class BlockHeightsAlgorithm(CanopyBlocksAlgorithm):
             self.ATL08, "Matching ATL08 file (adds photon classes; optional)",
             behavior=QgsProcessingParameterFile.File, optional=True,
             fileFilter="HDF5 (*.h5 *.hdf5);;All files (*.*)"))
+        self.addParameter(QgsProcessingParameterEnum(
+            self.PRESET, "Estimators", options=[label for label, _ in PRESET_OPTIONS],
+            defaultValue=0))
+        self.addParameter(QgsProcessingParameterFile(
+            self.CALIBRATION, "Bias calibration (JSON from Calibrate, bias method; optional)",
+            behavior=QgsProcessingParameterFile.File, fileFilter="Calibration (*.json)",
+            optional=True))
         self.addParameter(QgsProcessingParameterCrs(
             self.CRS, "Output CRS (metric; empty = the UTM zone of the track)",
             optional=True))
@@ -149,9 +165,22 @@ class BlockHeightsAlgorithm(CanopyBlocksAlgorithm):
         feedback.pushInfo(f"reading {path} {track_kw or ''}")
         track = readers.open_track(path, progress=progress.sub(0.0, 0.2), **track_kw)
         progress.update(0.2, f"{len(track)} photons read")
-        result = blocks_mod.compute_blocks(track, params, labels=want_labels,
-                                           progress=progress.sub(0.2, 0.85))
-        blocks, labels = result if want_labels else (result, None)
+        preset = PRESET_OPTIONS[self.parameterAsEnum(parameters, self.PRESET, context)][1]
+        calibration = self.parameterAsFile(parameters, self.CALIBRATION, context) or None
+        if preset is None and calibration is None:  # the paper's engine as it is
+            result = blocks_mod.compute_blocks(track, params, labels=want_labels,
+                                               progress=progress.sub(0.2, 0.85))
+            blocks, labels = result if want_labels else (result, None)
+        else:
+            track_mod = import_core("canopyblocks.track_blocks")
+            est = import_core("canopyblocks.blocks.estimators").preset(preset or "paper")
+            blocks, all_labels = track_mod.run_blocks([track], params, labels=want_labels,
+                                                      estimators=est,
+                                                      progress=progress.sub(0.2, 0.85))
+            labels = all_labels.get(track.track) if want_labels else None
+            if calibration:
+                blocks = track_mod.calibrate_blocks(
+                    blocks, calibration, track_mod.track_strengths(path, [track]))
         feedback.pushInfo(
             f"{len(blocks)} blocks, {int((blocks['flag'] == 'ok').sum())} flagged ok")
         results: dict[str, Any] = {}

@@ -280,3 +280,30 @@ def test_validate_photon_vertical_crs_applies_the_datum_rule(qgis_profile, qgis_
                         f"STATS={work / 'st_vcrs.csv'}"], env=env, capture_output=True,
                        text=True, timeout=300)
     assert r.returncode == 0, r.stdout + r.stderr
+
+
+def test_blockheights_preset_and_calibration_equal_the_command_line(qp, simulated, rasters,
+                                                                    work) -> None:
+    """Issue 12 item 11 / issue 11: the icesat2 preset and a bias calibration in QGIS give
+    the command line's blocks (the calibration fitted by the command line)."""
+    cal = work / "cal.json"
+    cli = [sys.executable, "-m", "canopyblocks", "-q"]
+    r = subprocess.run([*cli, "calibrate", str(simulated), "--method", "bias", "--preset",
+                        "icesat2", "--dtm", str(rasters["DTM"]), "--dsm-max",
+                        str(rasters["DSM_MAX"]), "--dsm-p90", str(rasters["DSM_P90"]),
+                        "--offset", "0", "--width", "13", "--length", "25", "-o", str(cal)],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    ref = work / "cli_blocks_cal.gpkg"
+    r = subprocess.run([*cli, "blocks", str(simulated), "--preset", "icesat2", "--calibration",
+                        str(cal), "--length", "25", "-o", str(ref)],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    out = work / "qgis_blocks_cal.gpkg"
+    qp("blockheights", INPUT=simulated, TRACK="gt1r", LENGTHS="25", PRESET=1,
+       CALIBRATION=cal, OUTPUT=out)
+    got = pyogrio.read_dataframe(out).sort_values("block")
+    want = pyogrio.read_dataframe(ref, layer="blocks").sort_values("block")
+    assert list(got["block"]) == list(want["block"])
+    np.testing.assert_allclose(got["hmax"], want["hmax"], atol=1e-6, equal_nan=True)
+    assert set(got["estimators"]) == set(want["estimators"]) and "calibration" in got
