@@ -16,6 +16,7 @@ from .algorithms.footprintvalidation import FootprintValidationAlgorithm
 from .algorithms.gedifootprints import GediFootprintsAlgorithm
 from .algorithms.referencerasters import ReferenceRastersAlgorithm
 from .algorithms.simulate import SimulateAlgorithm
+from .algorithms.simulatewaveforms import SimulateWaveformsAlgorithm
 from .algorithms.validate import ValidateAlgorithm
 from .algorithms.waveformplot import WaveformPlotAlgorithm
 
@@ -33,6 +34,7 @@ ALGORITHMS = (
     CalibrateAlgorithm,
     CoregisterAlgorithm,
     SimulateAlgorithm,
+    SimulateWaveformsAlgorithm,
     GediFootprintsAlgorithm,
     FootprintValidationAlgorithm,
     WaveformPlotAlgorithm,

@@ -83,6 +83,8 @@ TAGS: dict[str, tuple[str, ...]] = {
     "footprintvalidation": ("GEDI", "footprint", "validation", "LAS", "LAZ", "ALS", "RH98",
                             "residual"),
     "waveformplot": ("GEDI", "L1B", "waveform", "plot", "RH", "shot"),
+    "simulatewaveforms": ("GEDI", "ESFL", "flash", "dual-wavelength", "waveform", "L1B",
+                          "simulation", "LAS", "LAZ"),
 }
 
 

@@ -23,7 +23,7 @@ from ..layers import qgs_crs, write_frame
 from ..styles import style_on_load
 from .base import SEED_002, CanopyBlocksAlgorithm
 
-__all__ = ["SimulateAlgorithm"]
+__all__ = ["SimulateAlgorithm", "track_vertices"]
 
 PRESETS = ("boreal", "temperate", "tropical")
 BEAMS = ("strong", "weak")
@@ -116,17 +116,27 @@ class SimulateAlgorithm(CanopyBlocksAlgorithm):
 
     def _track(self, parameters: dict[str, Any], context: QgsProcessingContext,
                sim_mod: Any, points: Any, diameter: float) -> Any:
-        source = self.parameterAsSource(parameters, self.TRACK_LINE, context)
-        if source is None:
+        line = track_vertices(self, parameters, self.TRACK_LINE, context, points.crs)
+        if line is None:
             azimuth = self.parameterAsDouble(parameters, self.AZIMUTH, context)
             return sim_mod.line_through(points.bounds, azimuth, inset=diameter / 2.0)
-        feat = next(iter(source.getFeatures()), None)
-        if feat is None or feat.geometry().isNull():
-            raise QgsProcessingException("the track layer holds no line")
-        geom = feat.geometry()
-        target = qgs_crs(points.crs)
-        if source.sourceCrs().isValid() and target.isValid() and source.sourceCrs() != target:
-            geom.transform(QgsCoordinateTransform(source.sourceCrs(), target,
-                                                  context.transformContext()))
-        line = geom.asMultiPolyline()[0] if geom.isMultipart() else geom.asPolyline()
-        return sim_mod.polyline_from_points([(p.x(), p.y()) for p in line])
+        return sim_mod.polyline_from_points(line)
+
+
+def track_vertices(alg: Any, parameters: dict[str, Any], name: str,
+                   context: QgsProcessingContext, crs: Any) -> list[tuple[float, float]] | None:
+    """The first line of the optional line-layer parameter ``name`` as (x, y) vertices in
+    ``crs`` (the tiles' metric CRS, pyproj); None when no layer is given."""
+    source = alg.parameterAsSource(parameters, name, context)
+    if source is None:
+        return None
+    feat = next(iter(source.getFeatures()), None)
+    if feat is None or feat.geometry().isNull():
+        raise QgsProcessingException("the track layer holds no line")
+    geom = feat.geometry()
+    target = qgs_crs(crs)
+    if source.sourceCrs().isValid() and target.isValid() and source.sourceCrs() != target:
+        geom.transform(QgsCoordinateTransform(source.sourceCrs(), target,
+                                              context.transformContext()))
+    line = geom.asMultiPolyline()[0] if geom.isMultipart() else geom.asPolyline()
+    return [(p.x(), p.y()) for p in line]

@@ -28,7 +28,7 @@ ROOT = Path(__file__).resolve().parents[2]
 TILE = ROOT / "tests" / "data" / "als" / "lasR_bcts_1.laz"
 ALGORITHMS = ("aspecterrors", "blockheights", "calibrate", "coregister", "corridor",
               "footprintvalidation", "gedifootprints", "referencerasters", "simulate",
-              "validate", "waveformplot")
+              "simulatewaveforms", "validate", "waveformplot")
 
 
 @pytest.fixture(scope="module")
@@ -307,3 +307,27 @@ def test_blockheights_preset_and_calibration_equal_the_command_line(qp, simulate
     assert list(got["block"]) == list(want["block"])
     np.testing.assert_allclose(got["hmax"], want["hmax"], atol=1e-6, equal_nan=True)
     assert set(got["estimators"]) == set(want["estimators"]) and "calibration" in got
+
+
+@pytest.mark.parametrize("sensor,index", [("gedi", 0), ("esfl", 1), ("dual", 2)])
+def test_simulatewaveforms_writes_each_sensor_with_truth(qp, work, sensor, index) -> None:
+    """Issue 9: QGIS algorithms for the three sensors; the file holds waveforms and truth
+    along a track inside the tile (checked with h5py and laspy)."""
+    import laspy
+
+    out = work / f"wave_{sensor}.h5"
+    qp("simulatewaveforms", INPUT=TILE, SENSOR=index, AZIMUTH=0, SEED=4, OUTPUT=out)
+    las = laspy.read(TILE)
+    with h5py.File(out) as f:
+        if sensor == "gedi":
+            beams = [b for b in f if b.startswith("BEAM")]
+            assert beams and all("rxwaveform" in f[b] for b in beams)
+            truth = np.concatenate([f[b]["canopyblocks_truth"]["truth_ground"][()] for b in beams])
+        else:
+            assert f.attrs["sensor"] == sensor
+            truth = f["truth/ground"][()]
+    ground = las.z[las.classification == 2]
+    assert truth.size >= 3
+    ok = np.isfinite(truth)
+    assert ground.min() - 1 <= truth[ok].min() and truth[ok].max() <= ground.max() + 1
+

@@ -148,48 +148,30 @@ def _waveform_sensor(ctx: click.Context, las: tuple[str, ...], sensor: str,
                      centre: str | None, seed: int, crs: str | None, output: str,
                      report: str | None) -> None:
     """``--sensor gedi|esfl|dual``: one core call writing the HDF5 (and the report)."""
-    from ..errors import InputError
-    from ..readers.las import las_bounds, read_las
-    from ..simulate import SimTrack, line_through
-    from ..simulate.sensor_files import (
-        simulate_dual_to_file,
-        simulate_esfl_to_file,
-        simulate_gedi_to_file,
-    )
+    from ..simulate import SimTrack
+    from ..simulate.sensor_files import simulate_sensor_over_tiles
 
-    out = Path(output)
-    if out.suffix.lower() not in (".h5", ".hdf5"):
-        raise InputError(f"output {out}: --sensor {sensor} writes HDF5; name it *.h5")
-    if seed < 0:
-        raise InputError(f"--seed must be >= 0; got {seed}")
-    reach = {"gedi": 17.5, "esfl": 10.0, "dual": 17.5}[sensor]   # 3 sigma + 1 m
+    track = None
     if line is not None:
         x0, y0, x1, y1 = _parse(line, 4, "x0,y0,x1,y1")
         track = SimTrack.line(x0, y0, x1, y1)
     elif polyline is not None:
         track = _polyline(polyline)
-    else:
-        c = None if centre is None else _pair(centre, "x,y")
-        track = line_through(las_bounds(list(las)), float(cast(float, azimuth)),
-                             inset=reach, centre=c)
-    vx, vy = zip(*track.vertices)
-    bbox = (min(vx) - reach, min(vy) - reach, max(vx) + reach, max(vy) + reach)
     quiet = bool(ctx.obj and ctx.obj.get("quiet"))
-    run = {"gedi": simulate_gedi_to_file, "esfl": simulate_esfl_to_file,
-           "dual": simulate_dual_to_file}[sensor]
     with progress_bar("simulate", quiet=quiet) as progress:
-        pts = read_las(list(las), crs=crs, bbox=bbox, progress=progress.sub(0.0, 0.2))
-        summary = run(pts, track, out, seed=seed, report_dir=report,  # type: ignore[operator]
-                      progress=progress.sub(0.2, 1.0))
+        track, summary = simulate_sensor_over_tiles(
+            list(las), sensor, output, track=track, azimuth=float(azimuth or 0.0),
+            centre=None if centre is None else _pair(centre, "x,y"), seed=seed, crs=crs,
+            report_dir=report, progress=progress)
     if quiet:
         return
     study = summary.get("study")
     if sensor == "gedi" and study is not None:
-        for r in study.itertuples():
+        for r in study.itertuples():  # type: ignore[attr-defined]
             click.echo(f"canopyblocks: simulated GEDI vs truth {r.metric:<6} n={r.n} "
                        f"bias={r.bias:+.2f} rmse={r.rmse:.2f}", err=True)
     click.echo(f"canopyblocks: {summary['footprints']} {sensor} footprints over "
-               f"{track.length:.0f} m -> {out}", err=True)
+               f"{track.length:.0f} m -> {output}", err=True)
 
 
 def _parse(value: str, n: int, what: str) -> tuple[float, ...]:

@@ -40,7 +40,8 @@ from .tracks import SimTrack, shots_along
 from .waveform_binning import bin_returns
 
 __all__ = ["DualAlsParams", "simulate_dual_over_points", "simulate_esfl_to_file",
-           "simulate_dual_to_file", "simulate_gedi_to_file", "gedi_round_trip"]
+           "simulate_dual_to_file", "simulate_gedi_to_file", "gedi_round_trip",
+           "simulate_sensor_over_tiles", "SENSOR_REACH_M"]
 
 log = logging.getLogger(__name__)
 
@@ -244,3 +245,58 @@ def _write_report_table(table: pd.DataFrame, path: Path) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_output(path) as tmp:
         table.to_csv(tmp, index=False, float_format="%.4f")
+
+
+#: Half-width of the corridor each sensor's footprints reach (3 sigma + 1 m), metres.
+SENSOR_REACH_M = {"gedi": 17.5, "esfl": 10.0, "dual": 17.5}
+
+
+def simulate_sensor_over_tiles(las_paths: list[str | os.PathLike[str]], sensor: str,
+                               path: str | os.PathLike[str], *,
+                               track: SimTrack | None = None, azimuth: float = 0.0,
+                               centre: tuple[float, float] | None = None, seed: int = 0,
+                               crs: str | int | None = None,
+                               report_dir: str | os.PathLike[str] | None = None,
+                               progress: Progress | None = None
+                               ) -> tuple[SimTrack, dict[str, object]]:
+    """GEDI, ESFL flash or dual-wavelength waveforms simulated over airborne tiles, as a file.
+
+    The one entry point of ``canopyblocks simulate --sensor gedi|esfl|dual`` and of the
+    QGIS algorithm: the track (``track``, or a line at ``azimuth`` degrees through the tiles'
+    extent or ``centre``), only the corridor the footprints reach read from the tiles, then
+    :func:`simulate_gedi_to_file` / :func:`simulate_esfl_to_file` /
+    :func:`simulate_dual_to_file`.
+
+    Returns
+    -------
+    (SimTrack, dict)
+        The track used and the writer's summary.
+
+    Raises
+    ------
+    InputError
+        Unknown sensor, an output not named ``*.h5``, a negative seed.
+    """
+    from ..readers.las import las_bounds, read_las
+    from .tracks import line_through  # noqa: PLC0415
+
+    if sensor not in SENSOR_REACH_M:
+        raise InputError(f"sensor {sensor!r} is not one of {', '.join(SENSOR_REACH_M)}")
+    out = Path(path)
+    if out.suffix.lower() not in (".h5", ".hdf5"):
+        raise InputError(f"output {out}: a {sensor} simulation is written as HDF5; name it *.h5")
+    if not (isinstance(seed, (int, np.integer)) and seed >= 0):
+        raise InputError(f"seed must be an integer >= 0; got {seed!r}")
+    prog = as_progress(progress)
+    reach = SENSOR_REACH_M[sensor]
+    if track is None:
+        track = line_through(las_bounds(list(las_paths)), float(azimuth), inset=reach,
+                             centre=centre)
+    vx, vy = zip(*track.vertices)
+    bbox = (min(vx) - reach, min(vy) - reach, max(vx) + reach, max(vy) + reach)
+    pts = read_las(list(las_paths), crs=crs, bbox=bbox, progress=prog.sub(0.0, 0.2))
+    run = {"gedi": simulate_gedi_to_file, "esfl": simulate_esfl_to_file,
+           "dual": simulate_dual_to_file}[sensor]
+    summary = run(pts, track, out, seed=int(seed), report_dir=report_dir,  # type: ignore[operator]
+                  progress=prog.sub(0.2, 1.0))
+    return track, summary
