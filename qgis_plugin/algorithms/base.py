@@ -190,11 +190,13 @@ class CanopyBlocksAlgorithm(QgsProcessingAlgorithm):
         value = optional_number(self, parameters, "MIN_SIGNAL_CONF", context)
         return None if value is None else int(value)
 
-    def add_reference_parameters(self) -> None:
+    def add_reference_parameters(self, optional: bool = False) -> None:
         """DTM, DSM_MAX, DSM_P90 rasters, corridor WIDTH (m) and vertical OFFSET (m)."""
-        self.addParameter(QgsProcessingParameterRasterLayer("DTM", "DTM"))
-        self.addParameter(QgsProcessingParameterRasterLayer("DSM_MAX", "DSM (maximum)"))
-        self.addParameter(QgsProcessingParameterRasterLayer("DSM_P90", "DSM (90th percentile)"))
+        self.addParameter(QgsProcessingParameterRasterLayer("DTM", "DTM", optional=optional))
+        self.addParameter(QgsProcessingParameterRasterLayer("DSM_MAX", "DSM (maximum)",
+                                                            optional=optional))
+        self.addParameter(QgsProcessingParameterRasterLayer("DSM_P90", "DSM (90th percentile)",
+                                                            optional=optional))
         self.addParameter(QgsProcessingParameterNumber(
             "WIDTH", "Corridor width (m)", type=QgsProcessingParameterNumber.Double,
             defaultValue=2.0, minValue=0.001))

@@ -9,8 +9,10 @@ from qgis.core import (
     QgsProcessingContext,
     QgsProcessingException,
     QgsProcessingFeedback,
+    QgsProcessingParameterEnum,
     QgsProcessingParameterFeatureSink,
     QgsProcessingParameterFeatureSource,
+    QgsProcessingParameterMultipleLayers,
     QgsProcessingParameterNumber,
     QgsProcessingParameterRasterLayer,
     QgsProcessingParameterString,
@@ -63,13 +65,27 @@ class ValidateAlgorithm(CanopyBlocksAlgorithm):
     GEOID = "GEOID"
     SLOPE_THRESHOLD = "SLOPE_THRESHOLD"
     PHOTON_VCRS = "PHOTON_VCRS"
+    REFERENCE = "REFERENCE"
+    POINTS = "POINTS"
+    DIAMETER = "DIAMETER"
     OUTPUT = "OUTPUT"
     STATS = "STATS"
 
     def initAlgorithm(self, config: dict[str, Any] | None = None) -> None:  # noqa: N802
         self.addParameter(QgsProcessingParameterFeatureSource(
             self.INPUT, "Blocks", [QgsProcessing.TypeVectorPoint]))
-        self.add_reference_parameters()
+        self.addParameter(QgsProcessingParameterEnum(
+            self.REFERENCE, "Reference", options=[
+                "rasters: corridor statistics of the DTM and DSMs (seed 001)",
+                "footprint-matched: Gaussian-weighted airborne points in each footprint "
+                "(DESIGN 2.7; needs the LAS/LAZ tiles)"], defaultValue=0))
+        self.add_reference_parameters(optional=True)
+        self.addParameter(QgsProcessingParameterMultipleLayers(
+            self.POINTS, "Airborne LAS/LAZ tiles (footprint-matched reference)",
+            QgsProcessing.TypeFile, optional=True))
+        self.addParameter(QgsProcessingParameterNumber(
+            self.DIAMETER, "Footprint diameter for the footprint-matched reference (m)",
+            type=QgsProcessingParameterNumber.Double, defaultValue=13.0, minValue=0.5))
         self.addParameter(QgsProcessingParameterRasterLayer(
             self.GEOID, "Geoid undulation raster (optional)", optional=True))
         self.addParameter(QgsProcessingParameterString(
@@ -98,14 +114,33 @@ class ValidateAlgorithm(CanopyBlocksAlgorithm):
             kwargs["photon_vertical_crs"] = vcrs
         if parameters.get(self.GEOID) not in (None, ""):
             kwargs["geoid"] = raster_path(self, parameters, self.GEOID, context)
-        result = pipeline.validate_blocks(
-            blocks,
-            dtm=raster_path(self, parameters, self.DTM, context),
-            dsm_max=raster_path(self, parameters, self.DSM_MAX, context),
-            dsm_p90=raster_path(self, parameters, self.DSM_P90, context),
-            width=self.parameterAsDouble(parameters, self.WIDTH, context),
-            slope_threshold=self.parameterAsDouble(parameters, self.SLOPE_THRESHOLD, context),
-            progress=progress.sub(0.1, 0.9), **kwargs)
+        slope = self.parameterAsDouble(parameters, self.SLOPE_THRESHOLD, context)
+        if self.parameterAsEnum(parameters, self.REFERENCE, context) == 1:
+            footprints = import_core("canopyblocks.validation.footprints")
+            ref = import_core("canopyblocks.reference.footprint")
+            points = [str(f) for f in self.parameterAsFileList(parameters, self.POINTS,
+                                                               context)]
+            if not points:
+                raise QgsProcessingException(
+                    "the footprint-matched reference needs the airborne LAS/LAZ tiles")
+            result = footprints.validate_blocks_footprint(
+                blocks, points, params=ref.FootprintReferenceParams(
+                    diameter=self.parameterAsDouble(parameters, self.DIAMETER, context)),
+                slope_threshold=slope, progress=progress.sub(0.1, 0.9), **kwargs)
+        else:
+            rasters = {k: parameters.get(k) for k in (self.DTM, self.DSM_MAX, self.DSM_P90)}
+            missing = [k for k, v in rasters.items() if v in (None, "")]
+            if missing:
+                raise QgsProcessingException(
+                    f"the raster reference needs the DTM, DSM (maximum) and DSM (90th "
+                    f"percentile); missing: {', '.join(missing)}")
+            result = pipeline.validate_blocks(
+                blocks,
+                dtm=raster_path(self, parameters, self.DTM, context),
+                dsm_max=raster_path(self, parameters, self.DSM_MAX, context),
+                dsm_p90=raster_path(self, parameters, self.DSM_P90, context),
+                width=self.parameterAsDouble(parameters, self.WIDTH, context),
+                slope_threshold=slope, progress=progress.sub(0.1, 0.9), **kwargs)
         residuals, stats = result.residuals, result.stats
         dest = write_frame(self, parameters, self.OUTPUT, context, residuals, feedback)
         style_on_load(context, dest, "residual", "res_hmax")

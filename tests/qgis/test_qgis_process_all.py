@@ -331,3 +331,22 @@ def test_simulatewaveforms_writes_each_sensor_with_truth(qp, work, sensor, index
     ok = np.isfinite(truth)
     assert ground.min() - 1 <= truth[ok].min() and truth[ok].max() <= ground.max() + 1
 
+
+
+def test_validate_footprint_reference_equals_the_command_line(qp, blocks, work) -> None:
+    """Issue 11 item 3 / issue 12 item 11: the footprint-matched reference in QGIS's
+    validate gives the command line's residuals (validate --reference footprint)."""
+    ref = work / "cli_fp.gpkg"
+    r = subprocess.run([sys.executable, "-m", "canopyblocks", "-q", "validate", str(blocks),
+                        "--reference", "footprint", "--points", str(TILE), "--diameter", "13",
+                        "--offset", "0", "-o", str(ref)], capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 0, r.stderr
+    out = work / "qgis_fp.gpkg"
+    qp("validate", INPUT=blocks, REFERENCE=1, POINTS=TILE, DIAMETER=13, OFFSET=0, OUTPUT=out,
+       STATS=work / "qgis_fp_stats.csv")
+    got = pyogrio.read_dataframe(out).sort_values("block")
+    want = pyogrio.read_dataframe(ref, layer="residuals").sort_values("block")
+    assert list(got["block"]) == list(want["block"])
+    for col in ("ref_ground", "res_ground", "res_hmax"):
+        np.testing.assert_allclose(got[col], want[col], atol=1e-6, equal_nan=True)
