@@ -35,7 +35,8 @@ MESSAGES: list[dict[str, Any]] = []
 
 
 def _log(message: str, tag: str, level: Any) -> None:
-    if level in (Qgis.MessageLevel.Critical,) or "Traceback" in message:
+    if level in (Qgis.MessageLevel.Critical,) or "Traceback" in message or \
+            "Cannot open" in message:  # e.g. OGR trying LAS/LAZ inputs as vector layers
         MESSAGES.append({"tag": tag, "level": int(level), "message": message[:2000]})
 
 
