@@ -8,13 +8,15 @@ from qgis.core import (
     QgsProcessing,
     QgsProcessingContext,
     QgsProcessingFeedback,
+    QgsProcessingParameterEnum,
     QgsProcessingParameterFeatureSink,
+    QgsProcessingParameterFileDestination,
 )
 
 from ..core_bridge import import_core
 from ..layers import write_frame
 from .base import SEED_001, CanopyBlocksAlgorithm, optional_number, parse_lengths
-from .blockheights import parse_track
+from .blockheights import PRESET_OPTIONS, parse_track
 from .validate import raster_path
 
 __all__ = ["CalibrateAlgorithm"]
@@ -49,13 +51,27 @@ class CalibrateAlgorithm(CanopyBlocksAlgorithm):
     WIDTH = "WIDTH"
     OFFSET = "OFFSET"
     OUTPUT = "OUTPUT"
+    METHOD = "METHOD"
+    PRESET = "PRESET"
+    CALIBRATION = "CALIBRATION"
 
     def initAlgorithm(self, config: dict[str, Any] | None = None) -> None:  # noqa: N802
         self.add_photon_parameters(default_lengths="10, 25, 50")
         self.add_signal_conf_parameter()
         self.add_reference_parameters()
+        self.addParameter(QgsProcessingParameterEnum(
+            self.METHOD, "Method", options=[
+                "cut-offs: the paper's top/ground cut-offs per length (seed 001)",
+                "bias: a correction of Hmax and H90 per length and beam strength for the "
+                "chosen estimators (applied by Block canopy heights)"], defaultValue=0))
+        self.addParameter(QgsProcessingParameterEnum(
+            self.PRESET, "Estimators (bias method)",
+            options=[label for label, _ in PRESET_OPTIONS], defaultValue=1))
         self.addParameter(QgsProcessingParameterFeatureSink(
-            self.OUTPUT, "Calibrated cut-offs", type=QgsProcessing.TypeVector))
+            self.OUTPUT, "Calibration table", type=QgsProcessing.TypeVector))
+        self.addParameter(QgsProcessingParameterFileDestination(
+            self.CALIBRATION, "Bias calibration file (bias method)",
+            fileFilter="Calibration (*.json)", optional=True, createByDefault=False))
 
     def execute(self, parameters: dict[str, Any], context: QgsProcessingContext,
                 feedback: QgsProcessingFeedback, progress: Any) -> dict[str, Any]:
@@ -66,6 +82,8 @@ class CalibrateAlgorithm(CanopyBlocksAlgorithm):
             min_signal_conf=self.min_signal_conf(parameters, context))
         track = parse_track(self.parameterAsString(parameters, self.TRACK, context))
         offset = optional_number(self, parameters, self.OFFSET, context)
+        if self.parameterAsEnum(parameters, self.METHOD, context) == 1:
+            return self._bias(parameters, context, feedback, progress, params, track, offset)
         cal = calibration.calibrate_reference_rasters(
             self.parameterAsFile(parameters, self.INPUT, context), params,
             dtm=raster_path(self, parameters, self.DTM, context),
@@ -81,3 +99,35 @@ class CalibrateAlgorithm(CanopyBlocksAlgorithm):
                 f"{row.rmse_hmax_calibrated:.2f} m")
         dest = write_frame(self, parameters, self.OUTPUT, context, cal.table, feedback)
         return {self.OUTPUT: dest}
+
+    def _bias(self, parameters: dict[str, Any], context: QgsProcessingContext,
+              feedback: QgsProcessingFeedback, progress: Any, params: Any,
+              track: dict[str, Any], offset: float | None) -> dict[str, Any]:
+        """The bias method: one core call, the table as a layer, the JSON as a file."""
+        files = import_core("canopyblocks.validation.bias_calibration_files")
+        bias = import_core("canopyblocks.validation.bias_calibration")
+        est_mod = import_core("canopyblocks.blocks.estimators")
+        name = PRESET_OPTIONS[self.parameterAsEnum(parameters, self.PRESET, context)][1]
+        cal = files.calibrate_bias_file(
+            self.parameterAsFile(parameters, self.INPUT, context), params,
+            est_mod.preset(name or "paper"),
+            dtm=raster_path(self, parameters, self.DTM, context),
+            dsm_max=raster_path(self, parameters, self.DSM_MAX, context),
+            dsm_p90=raster_path(self, parameters, self.DSM_P90, context),
+            width=self.parameterAsDouble(parameters, self.WIDTH, context),
+            beams=[track["beam"]] if track.get("beam") else (),
+            channel=track.get("channel"), offset=offset, progress=progress.sub(0.0, 0.95))
+        table = cal.table()
+        for row in table.itertuples():
+            feedback.pushInfo(
+                f"{row.metric} {row.length:g} m {row.strength}: {row.slope:.3f} x + "
+                f"{row.intercept:+.2f} m; held-out RMSE {row.holdout_rmse_before:.2f} -> "
+                f"{row.holdout_rmse_after:.2f} m (n={row.n})")
+        results: dict[str, Any] = {
+            self.OUTPUT: write_frame(self, parameters, self.OUTPUT, context, table, feedback)}
+        if parameters.get(self.CALIBRATION) not in (None, ""):
+            path = self.parameterAsFileOutput(parameters, self.CALIBRATION, context)
+            bias.write_bias_calibration(cal, path)
+            results[self.CALIBRATION] = path
+        return results
+

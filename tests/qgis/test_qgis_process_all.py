@@ -350,3 +350,29 @@ def test_validate_footprint_reference_equals_the_command_line(qp, blocks, work) 
     assert list(got["block"]) == list(want["block"])
     for col in ("ref_ground", "res_ground", "res_hmax"):
         np.testing.assert_allclose(got[col], want[col], atol=1e-6, equal_nan=True)
+
+
+def test_calibrate_bias_method_writes_the_command_lines_calibration(qp, simulated, rasters,
+                                                                     work) -> None:
+    """Issue 12 item 11: the bias calibration in QGIS equals calibrate --method bias."""
+    cli = work / "cli_bias.json"
+    r = subprocess.run([sys.executable, "-m", "canopyblocks", "-q", "calibrate",
+                        str(simulated), "--method", "bias", "--preset", "icesat2", "--dtm",
+                        str(rasters["DTM"]), "--dsm-max", str(rasters["DSM_MAX"]),
+                        "--dsm-p90", str(rasters["DSM_P90"]), "--offset", "0", "--width",
+                        "13", "--length", "25", "-o", str(cli)],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    out = work / "qgis_bias.json"
+    qp("calibrate", INPUT=simulated, TRACK="gt1r", LENGTHS="25", DTM=rasters["DTM"],
+       DSM_MAX=rasters["DSM_MAX"], DSM_P90=rasters["DSM_P90"], WIDTH=13, OFFSET=0, METHOD=1,
+       PRESET=1, OUTPUT=work / "qgis_bias.csv", CALIBRATION=out)
+    got, want = json.loads(out.read_text()), json.loads(cli.read_text())
+    assert got["estimators"] == want["estimators"]
+    assert len(got["models"]) == len(want["models"])
+    for g, w in zip(got["models"], want["models"]):
+        assert {k: v for k, v in g.items() if isinstance(v, str)} == \
+            {k: v for k, v in w.items() if isinstance(v, str)}
+        for k, v in w.items():
+            if not isinstance(v, str):
+                assert g[k] == pytest.approx(v, rel=1e-9, abs=1e-9), k
