@@ -21,7 +21,7 @@ from qgis.PyQt.QtGui import QIcon
 from ..core_bridge import core_errors, feedback_logging, progress_for
 
 __all__ = ["CanopyBlocksAlgorithm", "SEED_001", "SEED_002", "parse_lengths",
-           "optional_number"]
+           "optional_number", "las_files"]
 
 SEED_001 = (
     "Gwenzi, D. & Lefsky, M.A.: Prospects of photon counting lidar for savanna ecosystem "
@@ -48,6 +48,15 @@ def parse_lengths(text: str) -> tuple[float, ...]:
             f"block lengths must be positive metres (e.g. '25, 10'), got {text!r}"
         )
     return values
+
+
+def las_files(alg: Any, parameters: dict[str, Any], name: str,
+              context: QgsProcessingContext) -> list[str]:
+    """The LAS/LAZ paths of a multiple-file parameter; QGIS's error when none is given."""
+    files = [str(f) for f in alg.parameterAsFileList(parameters, name, context)]
+    if not files:
+        raise QgsProcessingException("no LAS/LAZ file given")
+    return files
 
 
 def optional_number(alg: Any, parameters: dict[str, Any], name: str,

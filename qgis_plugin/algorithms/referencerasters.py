@@ -23,7 +23,7 @@ from qgis.core import (
 from ..core_bridge import import_core
 from ..layers import pyproj_crs
 from ..styles import load_raster_on_completion
-from .base import SEED_001, CanopyBlocksAlgorithm
+from .base import SEED_001, CanopyBlocksAlgorithm, las_files
 
 __all__ = ["ReferenceRastersAlgorithm", "pdal_status"]
 
@@ -109,9 +109,7 @@ class ReferenceRastersAlgorithm(CanopyBlocksAlgorithm):
     def execute(self, parameters: dict[str, Any], context: QgsProcessingContext,
                 feedback: QgsProcessingFeedback, progress: Any) -> dict[str, Any]:
         rasters = import_core("canopyblocks.reference.rasters")
-        files = [str(f) for f in self.parameterAsFileList(parameters, self.INPUT, context)]
-        if not files:
-            raise QgsProcessingException("no LAS/LAZ file given")
+        files = las_files(self, parameters, self.INPUT, context)
         out_dir = self.parameterAsString(parameters, self.OUTPUT_DIR, context)
         qcrs = self.parameterAsCrs(parameters, self.CRS, context)
         crs = pyproj_crs(qcrs) if qcrs.isValid() else None

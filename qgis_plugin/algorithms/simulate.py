@@ -21,9 +21,9 @@ from qgis.core import (
 from ..core_bridge import import_core
 from ..layers import qgs_crs, write_frame
 from ..styles import style_on_load
-from .base import SEED_002, CanopyBlocksAlgorithm
+from .base import SEED_002, CanopyBlocksAlgorithm, las_files
 
-__all__ = ["SimulateAlgorithm", "track_vertices"]
+__all__ = ["SimulateAlgorithm", "track_vertices", "add_tiles_and_track_parameters"]
 
 PRESETS = ("boreal", "temperate", "tropical")
 BEAMS = ("strong", "weak")
@@ -59,16 +59,7 @@ class SimulateAlgorithm(CanopyBlocksAlgorithm):
     PHOTONS = "PHOTONS"
 
     def initAlgorithm(self, config: dict[str, Any] | None = None) -> None:  # noqa: N802
-        self.addParameter(QgsProcessingParameterMultipleLayers(
-            self.INPUT, "Airborne LAS/LAZ files (one metric CRS)",
-            QgsProcessing.TypeFile))
-        self.addParameter(QgsProcessingParameterFeatureSource(
-            self.TRACK_LINE, "Track line (optional)",
-            [QgsProcessing.TypeVectorLine], optional=True))
-        self.addParameter(QgsProcessingParameterNumber(
-            self.AZIMUTH, "Track azimuth when no line is given (degrees from north)",
-            type=QgsProcessingParameterNumber.Double, defaultValue=0.0,
-            minValue=-360.0, maxValue=360.0))
+        add_tiles_and_track_parameters(self)
         self.addParameter(QgsProcessingParameterNumber(
             self.DIAMETER, "Footprint diameter (m; 13 start, 17 end of mission)",
             type=QgsProcessingParameterNumber.Double, defaultValue=13.0, minValue=0.1))
@@ -76,9 +67,6 @@ class SimulateAlgorithm(CanopyBlocksAlgorithm):
             self.PRESET, "Ecosystem photon rate", options=list(PRESETS), defaultValue=1))
         self.addParameter(QgsProcessingParameterEnum(
             self.BEAM, "Beam", options=list(BEAMS), defaultValue=0))
-        self.addParameter(QgsProcessingParameterNumber(
-            self.SEED, "Random seed", type=QgsProcessingParameterNumber.Integer,
-            defaultValue=0, minValue=0))
         self.addParameter(QgsProcessingParameterFileDestination(
             self.OUTPUT, "Simulated photons (ATL03 layout)", fileFilter="HDF5 (*.h5)"))
         self.addParameter(QgsProcessingParameterFeatureSink(
@@ -91,9 +79,7 @@ class SimulateAlgorithm(CanopyBlocksAlgorithm):
         sim_mod = import_core("canopyblocks.simulate")
         las = import_core("canopyblocks.readers.las")
         writers = import_core("canopyblocks.simulate.writers")
-        files = [str(f) for f in self.parameterAsFileList(parameters, self.INPUT, context)]
-        if not files:
-            raise QgsProcessingException("no LAS/LAZ file given")
+        files = las_files(self, parameters, self.INPUT, context)
         diameter = self.parameterAsDouble(parameters, self.DIAMETER, context)
         params = sim_mod.SimParams(
             diameter=diameter,
@@ -121,6 +107,22 @@ class SimulateAlgorithm(CanopyBlocksAlgorithm):
             azimuth = self.parameterAsDouble(parameters, self.AZIMUTH, context)
             return sim_mod.line_through(points.bounds, azimuth, inset=diameter / 2.0)
         return sim_mod.polyline_from_points(line)
+
+
+def add_tiles_and_track_parameters(alg: Any) -> None:
+    """INPUT (LAS/LAZ files), TRACK_LINE (optional line layer), AZIMUTH and SEED: the
+    parameters every simulation algorithm shares."""
+    alg.addParameter(QgsProcessingParameterMultipleLayers(
+        "INPUT", "Airborne LAS/LAZ files (one metric CRS)", QgsProcessing.TypeFile))
+    alg.addParameter(QgsProcessingParameterFeatureSource(
+        "TRACK_LINE", "Track line (optional)", [QgsProcessing.TypeVectorLine], optional=True))
+    alg.addParameter(QgsProcessingParameterNumber(
+        "AZIMUTH", "Track azimuth when no line is given (degrees from north)",
+        type=QgsProcessingParameterNumber.Double, defaultValue=0.0, minValue=-360.0,
+        maxValue=360.0))
+    alg.addParameter(QgsProcessingParameterNumber(
+        "SEED", "Random seed", type=QgsProcessingParameterNumber.Integer, defaultValue=0,
+        minValue=0))
 
 
 def track_vertices(alg: Any, parameters: dict[str, Any], name: str,

@@ -6,21 +6,16 @@ from __future__ import annotations
 from typing import Any
 
 from qgis.core import (
-    QgsProcessing,
     QgsProcessingContext,
-    QgsProcessingException,
     QgsProcessingFeedback,
     QgsProcessingParameterEnum,
-    QgsProcessingParameterFeatureSource,
     QgsProcessingParameterFileDestination,
     QgsProcessingParameterFolderDestination,
-    QgsProcessingParameterMultipleLayers,
-    QgsProcessingParameterNumber,
 )
 
 from ..core_bridge import import_core
-from .base import CanopyBlocksAlgorithm
-from .simulate import track_vertices
+from .base import CanopyBlocksAlgorithm, las_files
+from .simulate import add_tiles_and_track_parameters, track_vertices
 
 __all__ = ["SimulateWaveformsAlgorithm"]
 
@@ -63,20 +58,9 @@ class SimulateWaveformsAlgorithm(CanopyBlocksAlgorithm):
     REPORT = "REPORT"
 
     def initAlgorithm(self, config: dict[str, Any] | None = None) -> None:  # noqa: N802
-        self.addParameter(QgsProcessingParameterMultipleLayers(
-            self.INPUT, "Airborne LAS/LAZ files (one metric CRS)", QgsProcessing.TypeFile))
+        add_tiles_and_track_parameters(self)
         self.addParameter(QgsProcessingParameterEnum(
             self.SENSOR, "Sensor", options=[label for label, _ in SENSORS], defaultValue=0))
-        self.addParameter(QgsProcessingParameterFeatureSource(
-            self.TRACK_LINE, "Track line (optional)", [QgsProcessing.TypeVectorLine],
-            optional=True))
-        self.addParameter(QgsProcessingParameterNumber(
-            self.AZIMUTH, "Track azimuth when no line is given (degrees from north)",
-            type=QgsProcessingParameterNumber.Double, defaultValue=0.0, minValue=-360.0,
-            maxValue=360.0))
-        self.addParameter(QgsProcessingParameterNumber(
-            self.SEED, "Random seed", type=QgsProcessingParameterNumber.Integer,
-            defaultValue=0, minValue=0))
         self.addParameter(QgsProcessingParameterFileDestination(
             self.OUTPUT, "Simulated waveforms (HDF5)", fileFilter="HDF5 (*.h5)"))
         self.addParameter(QgsProcessingParameterFolderDestination(
@@ -88,9 +72,7 @@ class SimulateWaveformsAlgorithm(CanopyBlocksAlgorithm):
         files_mod = import_core("canopyblocks.simulate.sensor_files")
         sim_mod = import_core("canopyblocks.simulate")
         las = import_core("canopyblocks.readers.las")
-        files = [str(f) for f in self.parameterAsFileList(parameters, self.INPUT, context)]
-        if not files:
-            raise QgsProcessingException("no LAS/LAZ file given")
+        files = las_files(self, parameters, self.INPUT, context)
         sensor = SENSORS[self.parameterAsEnum(parameters, self.SENSOR, context)][1]
         line = track_vertices(self, parameters, self.TRACK_LINE, context,
                               las.las_crs(files[0]))

@@ -19,7 +19,6 @@ import logging
 import math
 import os
 import shutil
-import struct
 import subprocess
 import time
 from dataclasses import dataclass
@@ -30,6 +29,7 @@ from typing import Any
 
 from ..errors import CancelledError, DependencyError, FileFormatError, InputError, PdalError
 from ..progress import Progress
+from ..readers.las_header import check_las_file
 
 __all__ = [
     "DEFAULT_PDAL",
@@ -318,48 +318,6 @@ def run_pipeline(
     return subprocess.CompletedProcess(args, proc.returncode, out, err)
 
 
-def _check_las_header(p: Path) -> None:
-    """Refuse files that are not LAS/LAZ or are visibly truncated.
-
-    PDAL 2.2's ``info --summary`` happily prints garbage for a truncated file, so check
-    the public header ourselves: signature ``LASF``, the file reaching the point data,
-    all points of an uncompressed file present, and a LAZ chunk table inside the file.
-    """
-    size = p.stat().st_size
-    try:
-        with p.open("rb") as f:
-            head = f.read(227)
-            if len(head) < 227 or head[:4] != b"LASF":
-                raise FileFormatError(f"{p} is not a LAS/LAZ file (no LASF header) or is "
-                                      f"truncated ({size} bytes)")
-            offset = struct.unpack_from("<I", head, 96)[0]
-            fmt = head[104]
-            rec_len = struct.unpack_from("<H", head, 105)[0]
-            n_legacy = struct.unpack_from("<I", head, 107)[0]
-            n = n_legacy
-            if head[24:26] >= b"\x01\x04" and n_legacy == 0:  # LAS 1.4 64-bit count
-                f.seek(247)
-                more = f.read(8)
-                n = struct.unpack("<Q", more)[0] if len(more) == 8 else 0
-            if size < offset:
-                raise FileFormatError(f"{p} is truncated: {size} bytes, its header says the "
-                                      f"points start at byte {offset}")
-            if fmt & 0x80 or fmt & 0x40:  # LAZ: a chunk-table pointer opens the point data
-                f.seek(offset)
-                raw = f.read(8)
-                table = struct.unpack("<q", raw)[0] if len(raw) == 8 else size + 1
-                if table > size:
-                    raise FileFormatError(f"{p} is truncated: {size} bytes, its LAZ chunk "
-                                          f"table is at byte {table}")
-            elif size < offset + n * rec_len:
-                raise FileFormatError(f"{p} is truncated: {size} bytes for {n} points of "
-                                      f"{rec_len} bytes from byte {offset}")
-    except FileFormatError:
-        raise
-    except OSError as exc:
-        raise FileFormatError(f"cannot read {p}: {exc}") from None
-
-
 @dataclass(frozen=True)
 class TileInfo:
     """What ``pdal info --summary`` says about one point-cloud file.
@@ -403,7 +361,7 @@ def tile_info(path: str | os.PathLike[str], *, pdal: str | os.PathLike[str] | No
     p = Path(path)
     if not p.is_file():
         raise FileFormatError(f"point-cloud file {p} does not exist")
-    _check_las_header(p)
+    check_las_file(p)
     exe = find_pdal(pdal)
     try:
         out = subprocess.run([str(exe), "info", "--summary", str(p)], capture_output=True,
