@@ -195,8 +195,8 @@ def check_simulation_size(points: LasPoints, track: SimTrack, params: SimParams,
     """
     spacing = float(params.shot_spacing)  # type: ignore[arg-type]
     shots = track.length / spacing + 1.0
-    x0, y0, x1, y1 = points.bounds if len(points) else (0.0, 0.0, 1.0, 1.0)
-    area = max((x1 - x0) * (y1 - y0), 1.0)
+    # the points' own extent (not LasPoints.bounds, which refuses a cloud on a line)
+    area = max(float(np.ptp(points.x)) * float(np.ptp(points.y)), 1.0) if len(points) else 1.0
     per_footprint = len(points) / area * np.pi * params.radius ** 2
     below, above = params.noise_window
     z_span = float(np.ptp(points.z)) if len(points) else 0.0
