@@ -116,8 +116,14 @@ def setup_logging(verbose: int, quiet: bool) -> None:
         h._canopyblocks_cli = True  # type: ignore[attr-defined]
         logger.addHandler(h)
 
+    said: set[str] = set()
+
     def _show(message, category, filename, lineno, file=None, line=None):  # noqa: ANN001
-        click.echo(f"canopyblocks: warning: {message}", err=True)
+        text = str(message)
+        if text in said:  # the same warning from every fold or track: say it once
+            return
+        said.add(text)
+        click.echo(f"canopyblocks: warning: {text}", err=True)
 
     warnings.showwarning = _show  # one line per warning, never a source excerpt
     warnings.simplefilter("default", CanopyBlocksWarning)
