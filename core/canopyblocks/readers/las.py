@@ -30,7 +30,7 @@ from ..errors import (
 from ..geo import as_crs, require_metre_units, require_metric_crs
 from ..progress import Progress, as_progress
 from .cloud_checks import warn_if_normalised
-from .las_header import check_header_extent, check_las_file
+from .las_header import check_header_extent, check_las_file, check_nothing_beyond_count
 
 __all__ = ["LasPoints", "read_las", "las_crs", "las_bounds"]
 
@@ -331,6 +331,7 @@ def read_las(
                 raise FileFormatError(
                     f"{path}: truncated or corrupt point data after {done:,} points ({exc})"
                 ) from None
+            check_nothing_beyond_count(reader, path, done)
             if done and not check_header_extent(
                     path, hdr_ext, (ext[0], ext[1], ext[2], ext[3]),
                     tolerance=max(1.0, 2.0 * float(max(header.scales)))):

@@ -23,7 +23,8 @@ from pathlib import Path
 
 from ..errors import FileFormatError
 
-__all__ = ["check_las_file", "check_header_extent", "MAX_SCALE", "MAX_OFFSET"]
+__all__ = ["check_las_file", "check_header_extent", "check_nothing_beyond_count", "MAX_SCALE",
+           "MAX_OFFSET"]
 
 MAX_SCALE = 1.0
 """Largest plausible scale factor, metres per integer unit (surveys use 0.001-0.01)."""
@@ -129,3 +130,32 @@ def check_header_extent(path: str | Path, header: tuple[float, float, float, flo
         f"{h[3]:.2f}) but they lie in ({points[0]:.2f}, {points[1]:.2f}, {points[2]:.2f}, "
         f"{points[3]:.2f}): the header's extent or its scale/offset is corrupt; rewrite the "
         "file with a LAS tool (e.g. las2las or PDAL) after checking where it should be")
+
+
+def check_nothing_beyond_count(reader: object, path: str | Path, count: int) -> None:
+    """After ``count`` points were read from a LAZ file, check that it holds no more.
+
+    A header that counts fewer points than the file holds makes every reader stop early,
+    silently (half a tile).  The LAZ decompressor (lazrs) knows its chunks: asking it for
+    one more point raises when the file is exhausted and returns a point when the header
+    undercounts.  Uncompressed LAS files are checked by size in :func:`check_las_file`.
+
+    Raises
+    ------
+    FileFormatError
+        The file holds more points than its header counts.
+    """
+    if Path(path).suffix.lower() != ".laz":
+        return
+    source = getattr(reader, "point_source", None)
+    read_more = getattr(source, "read_n_points", None)
+    if read_more is None:  # another laspy backend: nothing to ask
+        return
+    try:
+        extra = read_more(1)
+    except Exception:  # noqa: BLE001 - lazrs raises when no chunk is left: the expected end
+        return
+    if extra is not None and len(extra) > 0:
+        raise FileFormatError(
+            f"{path}: the file holds more points than the {count} its header counts; the "
+            "header is corrupt (rewrite the file with a LAS tool, e.g. las2las or PDAL)")

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import DependencyError, FileFormatError
-from .las_header import check_las_file
+from .las_header import check_las_file, check_nothing_beyond_count
 
 __all__ = ["LasSummary", "las_summary", "NOISE_CLASSES"]
 
@@ -93,6 +93,7 @@ def las_summary(path: str | os.PathLike[str]) -> LasSummary:
                 n += c.size
                 n_noise += int(np.isin(c, NOISE_CLASSES).sum())
                 n_ground += int(np.count_nonzero(c == 2))
+            check_nothing_beyond_count(reader, p, n)
     except FileFormatError:
         raise
     except Exception as exc:  # laspy/lazrs raise several types on damaged data
