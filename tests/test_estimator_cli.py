@@ -90,7 +90,7 @@ def test_bias_calibration_from_the_command_line(site):
              "--width", "13", "-o", cal)
     assert r.returncode == 0, r.stderr
     doc = json.loads(cal.read_text())
-    assert doc["estimators"] == "noise=density,ground=surface,top=p98"
+    assert doc["estimators"] == "noise=density,ground=paper,top=p98"
     assert doc["preset"] == "icesat2" and doc["corridor_width"] == 13.0
     assert cal.with_suffix(".csv").exists()
     hmax = [m for m in doc["models"] if m["metric"] == "hmax"]

@@ -28,9 +28,9 @@ NOISE_OPTIONS = ("sigma", "none")
 #: (menu label, preset name or None for the paper's engine as it is)
 PRESET_OPTIONS = (
     ("paper: the seed-001 method (default; bit for bit)", None),
-    ("icesat2: confidence/density noise filter, ground surface, p98 top (DESIGN 1.10)",
+    ("icesat2: density noise filter, the paper's ground window, p98 top (DESIGN 1.10)",
      "icesat2"),
-    ("mabel: density noise filter, ground surface, p99 top", "mabel"),
+    ("mabel: density noise filter, ground surface, p98 top", "mabel"),
 )
 
 

@@ -55,7 +55,8 @@ def info_cmd(path: str, as_json: bool) -> None:
                    "density (DRAGANN-like: MABEL, simulated, tables), none.")
 @click.option("--preset", type=click.Choice(["paper", "icesat2", "mabel"]), default=None,
               help="Named estimator set (DESIGN 1.10): paper (seed 001, the default), "
-                   "icesat2 (density filter, ground surface, 98th-percentile top), mabel.")
+                   "icesat2 (density filter, the paper's ground window, 98th-percentile top), mabel "
+                   "(density filter, ground surface, 98th-percentile top).")
 @click.option("--ground-estimator", type=click.Choice(["paper", "surface"]), default=None,
               help="Ground: the paper's window mean, or a robust along-track surface.")
 @click.option("--top-estimator", type=click.Choice(["paper", "p95", "p98", "p99", "p100"]),
