@@ -19,7 +19,7 @@ ground``. Flags as in the paper: ``sparse`` (fewer than ``min_photons`` kept),
 
 Presets name combinations (:data:`PRESETS`): ``paper``; ``icesat2`` (density filter, the
 paper's ground window, p98 top: measured best on unseen tiles with night and day background
-noise -- bench/bench_icesat2_accuracy.py: 25 m Hmax RMSE 4.2 m strong / 4.8 m all beams with
+noise -- bench/bench_icesat2_accuracy.py: 25 m Hmax RMSE 4.25 m strong / 4.84 m all beams with
 a bias calibration, ground 1.4 m; the fitted ground surface, better without noise, followed the
 background photons below the ground there: Hmax 6.2 m, ground 5.4 m); ``mabel`` (density
 filter, ground surface, p98 top, for dense airborne photons).
