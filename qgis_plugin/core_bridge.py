@@ -65,10 +65,14 @@ def import_core(name: str = "canopyblocks") -> ModuleType:
     import importlib
 
     from .venv_guard import venv_problem
+    from .wheel_guard import wheel_problem
 
     problem = venv_problem()
     if problem is not None:
         raise QgsProcessingException(problem)
+    problem = wheel_problem()
+    if problem is not None:
+        raise QgsProcessingException(f"{problem}; {install_hint()}")
     try:
         return importlib.import_module(name)
     except ImportError as exc:

@@ -19,7 +19,7 @@ import os
 import sys
 from pathlib import Path
 
-__all__ = ["scrub_venv", "venv_problem", "VENV_ADVICE"]
+__all__ = ["in_qgis_application", "scrub_venv", "venv_problem", "VENV_ADVICE"]
 
 VENV_ADVICE = (
     "run `deactivate` in that shell (QGIS takes the first python3 on PATH and its "
@@ -29,7 +29,7 @@ VENV_ADVICE = (
 _removed: list[str] = []
 
 
-def _in_qgis_application() -> bool:
+def in_qgis_application() -> bool:
     """The process is the QGIS application or qgis_process (not a Python embedding QGIS)."""
     try:
         exe = Path(os.path.realpath("/proc/self/exe")).name.lower()
@@ -41,7 +41,7 @@ def _in_qgis_application() -> bool:
 def _venv() -> Path | None:
     """The virtualenv QGIS's Python runs in: ``$VIRTUAL_ENV``, or the prefix QGIS took from
     a venv's ``python3`` first on ``PATH`` (measured: that alone is enough)."""
-    if not _in_qgis_application():
+    if not in_qgis_application():
         return None
     v = os.environ.get("VIRTUAL_ENV")
     if v:

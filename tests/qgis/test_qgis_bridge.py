@@ -118,3 +118,24 @@ def test_core_messages_speak_qgis_not_command_line(qgis_session) -> None:
     assert "--" not in text and "'Geoid undulation raster'" in text  # ... QGIS does not
     assert qgis_words("run `canopyblocks rasters` first (CLI: --crs 3005)") == \
         "run the 'Reference rasters from airborne lidar' algorithm first"
+
+
+def test_wheel_guard_names_wheels_that_bundle_hdf5_or_proj(qgis_session, tmp_path,
+                                                          monkeypatch) -> None:
+    """A folder holding h5py with h5py.libs (as a PyPI wheel lays it out) is named before
+    anything is imported; a package without its .libs folder (Debian's) is not."""
+    from qgis_plugin import wheel_guard
+
+    for name, libs in (("h5py", True), ("pyproj", False)):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "__init__.py").write_text("raise SystemExit('imported!')\n")
+        if libs:
+            (tmp_path / f"{name}.libs").mkdir()
+    monkeypatch.syspath_prepend(str(tmp_path))
+    for name in ("h5py", "pyproj"):
+        monkeypatch.delitem(__import__("sys").modules, name, raising=False)
+    message = wheel_guard.wheel_problem(force=True)
+    assert message is not None
+    assert f"h5py in {tmp_path} bundles its own HDF5" in message
+    assert "pyproj" not in message
+    assert wheel_guard.wheel_problem() is None  # this process is Python, not QGIS
