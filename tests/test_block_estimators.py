@@ -191,3 +191,15 @@ def test_estimator_validation_messages():
     s, z, _ = _forest(rng, n=500, length=100.0)
     with pytest.raises(InputError, match="signal_conf"):
         estimate_blocks(_track(s, z), BlockParams(), Estimators(noise="conf"))
+
+
+def test_poisson_quantile_equals_scipy_stats():
+    """The density filter's threshold (numpy, no scipy.stats import) against scipy's ppf."""
+    from scipy import stats
+
+    from canopyblocks.blocks.density_filter import poisson_quantile
+
+    for q in (0.5, 0.9, 0.99, 0.999, 0.99999):
+        for mu in np.concatenate([np.geomspace(1e-5, 5000, 300), [0.5, 1, 2, 7, 100]]):
+            assert poisson_quantile(q, mu) == stats.poisson.ppf(q, mu), (q, mu)
+    assert poisson_quantile(0.99, 0.0) == 0.0

@@ -427,3 +427,38 @@ def test_numpy_nan_warnings_do_not_reach_the_user(capsys) -> None:
     err = capsys.readouterr().err
     assert "Mean of empty slice" not in err and "invalid value" not in err, err
     assert "canopyblocks: warning: something else" in err
+
+
+# ---- blocks in worker processes -----------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def six_beams(tmp_path_factory) -> Path:
+    """A 6-beam granule large enough that its workers run for a while (~2.5 M photons)."""
+    from canopyblocks.outputs.h5_layouts import Atl03BeamData, write_atl03
+
+    rng = np.random.default_rng(11)
+    beams = {}
+    for i, b in enumerate(("gt1l", "gt1r", "gt2l", "gt2r", "gt3l", "gt3r")):
+        n = 700_000 if b.endswith("l") else 150_000
+        s = np.sort(rng.random(n)) * (n / 15.0)
+        h = 2400.0 + np.where(rng.random(n) < 0.5, rng.normal(0, 0.3, n), rng.random(n) * 25)
+        beams[b] = Atl03BeamData(delta_time=s / 7000.0, lat=41.5 + s * 9e-6,
+                                 lon=-106.57 + i * 1e-3 + s * 1e-7, h=h, s=s)
+    return write_atl03(tmp_path_factory.mktemp("six") / "ATL03_six.h5", beams)
+
+
+@pytest.mark.parametrize("how", ["term", "int-group"])
+def test_blocks_with_workers_interrupted(six_beams, tmp_path, how) -> None:
+    """SIGTERM to the command alone, or Ctrl-C to its process group, while its workers
+    read and block beams: one line, exit 143/130, no output, no worker left running."""
+    out = tmp_path / "blocks.gpkg"
+    run = Run(["blocks", str(six_beams), "--length", "10", "--length", "25", "--workers",
+               "2", "-o", str(out)], tmp_path)
+    sig, group = SIGNALS[how]
+    if run.wait_until(lambda: len(_children(run.proc.pid)) >= 2):
+        time.sleep(0.2)
+        run.send(sig, group)
+    code, err = run.finish()
+    assert_interrupted_cleanly(run, sig, [out], code, err)
+    assert code != 0, "the run ended before its workers were interrupted: make it larger"

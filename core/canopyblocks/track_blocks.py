@@ -40,19 +40,27 @@ class BlocksResult:
     Attributes
     ----------
     tracks : list of PhotonTrack
-        One per beam/channel read, all in the same metric CRS.
+        One per beam/channel read, all in the same metric CRS (with ``workers`` > 1 only
+        when the photon layer or the profile needed them).
     blocks : GeoDataFrame
         The block table of all tracks (DESIGN section 5 columns).
     labels : dict
         ``labels[track_id][length]`` -> per-photon int8 labels.
     outputs : list of Path
         Files written.
+    track_ids : list of str
+        The tracks blocked, in file order.
     """
 
     tracks: list[PhotonTrack]
     blocks: gpd.GeoDataFrame
     labels: dict[str, dict[float, np.ndarray]] = field(default_factory=dict)
     outputs: list[Path] = field(default_factory=list)
+    track_ids: list[str] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        if not self.track_ids:
+            self.track_ids = [t.track for t in self.tracks]
 
 
 def select_tracks(path: str, beams: tuple[str, ...], channel: int | str | None) -> list[dict]:
@@ -97,8 +105,6 @@ def read_tracks(
         When no requested beam/channel holds usable photons (e.g. a sea-ice granule
         with ``min_signal_conf`` set: its land confidence is -1 everywhere).
     """
-    from .readers import open_track
-
     prog = as_progress(progress)
     selections = select_tracks(str(path), tuple(beams), channel)
     tracks: list[PhotonTrack] = []
@@ -106,14 +112,10 @@ def read_tracks(
     for i, sel in enumerate(selections):
         prog.update(i / max(1, len(selections)), f"reading {sel or Path(path).name}")
         try:
-            t = open_track(path, bbox=bbox, atl08=atl08, crs=crs, **sel)
+            t = read_track(path, sel, atl08=atl08, bbox=bbox, crs=crs,
+                           min_signal_conf=min_signal_conf)
         except NoUsableDataError as exc:
             problems.append(str(exc))
-            continue
-        if min_signal_conf is not None:
-            _require_signal(t, min_signal_conf)
-        if len(t) == 0:
-            problems.append(f"{t.track} of {path}: no photons")
             continue
         if crs is None:
             crs = t.crs
@@ -124,6 +126,27 @@ def read_tracks(
         warnings.warn(f"skipped: {msg}", CanopyBlocksWarning, stacklevel=2)
     prog.update(1.0)
     return tracks
+
+
+def read_track(path: str | os.PathLike[str], selection: dict, *,
+               atl08: str | os.PathLike[str] | None = None,
+               bbox: tuple[float, float, float, float] | None = None, crs: Any = None,
+               min_signal_conf: int | None = None) -> PhotonTrack:
+    """One track of a photon file (``selection``: an item of :func:`select_tracks`).
+
+    Raises
+    ------
+    NoUsableDataError
+        When it holds no photons, or none at ``min_signal_conf``.
+    """
+    from .readers import open_track
+
+    t = open_track(path, bbox=bbox, atl08=atl08, crs=crs, **selection)
+    if min_signal_conf is not None:
+        _require_signal(t, min_signal_conf)
+    if len(t) == 0:
+        raise NoUsableDataError(f"{t.track} of {path}: no photons")
+    return t
 
 
 def _require_signal(track: PhotonTrack, level: int) -> None:
@@ -158,26 +181,34 @@ def run_blocks(
     all_labels: dict[str, dict[float, np.ndarray]] = {}
     for i, t in enumerate(tracks):
         sub = prog.sub(i / len(tracks), (i + 1) / len(tracks))
-        if estimators is not None:
-            from .blocks.estimators import estimate_blocks
-
-            if labels:
-                b, lab = estimate_blocks(t, params, estimators, labels=True, progress=sub)
-                all_labels[t.track] = lab
-            else:
-                b = estimate_blocks(t, params, estimators, progress=sub)
-        elif labels:
-            b, lab = compute_blocks(t, params, labels=True, progress=sub)
+        b, lab = blocks_of_track(t, params, labels=labels, estimators=estimators, progress=sub)
+        if lab is not None:
             all_labels[t.track] = lab
-        else:
-            b = compute_blocks(t, params, progress=sub)
         frames.append(b)
-    crs = tracks[0].crs if tracks else None
+    return concat_blocks(frames, tracks[0].crs if tracks else None), all_labels
+
+
+def blocks_of_track(track: PhotonTrack, params: BlockParams, *, labels: bool = False,
+                    estimators: Estimators | None = None, progress: Progress | None = None
+                    ) -> tuple[gpd.GeoDataFrame, dict[float, np.ndarray] | None]:
+    """The block table of one track and, with ``labels``, its per-photon labels."""
+    if estimators is not None:
+        from .blocks.estimators import estimate_blocks
+
+        if labels:
+            return estimate_blocks(track, params, estimators, labels=True, progress=progress)
+        return estimate_blocks(track, params, estimators, progress=progress), None
+    if labels:
+        return compute_blocks(track, params, labels=True, progress=progress)
+    return compute_blocks(track, params, progress=progress), None
+
+
+def concat_blocks(frames: Sequence[pd.DataFrame], crs: Any) -> gpd.GeoDataFrame:
+    """The block tables of several tracks as one (an empty table with the columns when none)."""
     if not frames:
         return gpd.GeoDataFrame(columns=[*BLOCK_COLUMNS, "geometry"], geometry="geometry",
-                                crs=crs), all_labels
-    out = gpd.GeoDataFrame(pd.concat(frames, ignore_index=True), geometry="geometry", crs=crs)
-    return out, all_labels
+                                crs=crs)
+    return gpd.GeoDataFrame(pd.concat(frames, ignore_index=True), geometry="geometry", crs=crs)
 
 
 def photon_layer(tracks: Sequence[PhotonTrack],
@@ -194,16 +225,31 @@ def photon_layer(tracks: Sequence[PhotonTrack],
                             crs=tracks[0].crs)
 
 
-def track_strengths(path: str | os.PathLike[str], tracks: Sequence[PhotonTrack]
+def track_strengths(path: str | os.PathLike[str], tracks: Sequence[PhotonTrack | str]
                     ) -> dict[str, str]:
-    """Beam strength (``strong``/``weak``) of each ATL03 track; ``{}`` for other files
-    (one calibration model for all their tracks)."""
+    """Beam strength (``strong``/``weak``) of each ATL03 track (tracks or their ids);
+    ``{}`` for other files (one calibration model for all their tracks)."""
     from .readers import atl03_beams, detect_product
 
     if detect_product(str(path)) != "ATL03":
         return {}
     info = {b.name: b.strength for b in atl03_beams(path)}
-    return {t.track: info[t.track] for t in tracks if t.track in info}
+    ids = [t if isinstance(t, str) else t.track for t in tracks]
+    return {i: info[i] for i in ids if i in info}
+
+
+def _workers_for(path: str | os.PathLike[str], selections: Sequence[dict],
+                 workers: int | None) -> tuple[int, list[int]]:
+    """Processes for the beams ``selections`` of an ATL03 granule (1 for other files), and
+    the photons of each beam."""
+    from .readers import atl03_beams, detect_product
+    from .track_workers import track_workers_for
+
+    if workers == 1 or detect_product(str(path)) != "ATL03":
+        return 1, []
+    n_photons = {b.name: b.n_photons for b in atl03_beams(path)}
+    sizes = [n_photons.get(s.get("beam", ""), 0) for s in selections]
+    return track_workers_for(sizes, workers), sizes
 
 
 def calibrate_blocks(blocks: gpd.GeoDataFrame, calibration: Any,
@@ -236,6 +282,7 @@ def blocks_from_file(
     output: str | os.PathLike[str] | None = None,
     with_photons: bool = False,
     profile: str | os.PathLike[str] | None = None,
+    workers: int | None = 1,
     progress: Progress | None = None,
 ) -> BlocksResult:
     """Read a photon file, compute the block table, and write the requested outputs.
@@ -256,6 +303,11 @@ def blocks_from_file(
         ``.parquet`` or ``.csv``; written atomically.
     profile : path-like, optional
         PNG profile plot of the first track (smallest block length).
+    workers : int or None
+        Processes reading and blocking the beams of an ATL03 granule in parallel
+        (:mod:`canopyblocks.track_workers`; same table as one process); None: the
+        machine's cores, capped by the memory available.  ``tracks`` of the result are
+        then kept only when the photon layer or the profile needs them.
 
     Returns
     -------
@@ -269,14 +321,28 @@ def blocks_from_file(
     if profile is not None:
         check_writable(profile)
     prog = as_progress(progress)
-    tracks = read_tracks(path, beams=beams, channel=channel, atl08=atl08, bbox=bbox, crs=crs,
-                         min_signal_conf=params.min_signal_conf, progress=prog.sub(0.0, 0.3))
     want_labels = with_photons or profile is not None
-    blocks, labels = run_blocks(tracks, params, labels=want_labels, estimators=estimators,
-                                progress=prog.sub(0.3, 0.85))
+    selections = select_tracks(str(path), tuple(beams), channel)
+    n_workers, sizes = (1, []) if len(selections) < 2 else _workers_for(path, selections,
+                                                                       workers)
+    if n_workers > 1:
+        from .track_workers import blocks_in_workers
+
+        blocks, ids, tracks, labels = blocks_in_workers(
+            path, selections, params, workers=n_workers, sizes=sizes, estimators=estimators,
+            atl08=atl08,
+            bbox=bbox, crs=crs, min_signal_conf=params.min_signal_conf, labels=want_labels,
+            keep_tracks=want_labels, progress=prog.sub(0.0, 0.85))
+    else:
+        tracks = read_tracks(path, beams=beams, channel=channel, atl08=atl08, bbox=bbox,
+                             crs=crs, min_signal_conf=params.min_signal_conf,
+                             progress=prog.sub(0.0, 0.3))
+        blocks, labels = run_blocks(tracks, params, labels=want_labels, estimators=estimators,
+                                    progress=prog.sub(0.3, 0.85))
+        ids = [t.track for t in tracks]
     if calibration is not None:
-        blocks = calibrate_blocks(blocks, calibration, track_strengths(path, tracks))
-    result = BlocksResult(tracks=tracks, blocks=blocks, labels=labels)
+        blocks = calibrate_blocks(blocks, calibration, track_strengths(path, ids))
+    result = BlocksResult(tracks=tracks, blocks=blocks, labels=labels, track_ids=ids)
     layers: dict[str, pd.DataFrame] = {LAYER_BLOCKS: blocks}
     if output is not None and with_photons:
         if Path(output).suffix.lower() == ".gpkg":

@@ -23,7 +23,6 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import stats
 
 from ..errors import InputError
 
@@ -172,9 +171,24 @@ def density_filter(s: np.ndarray, z: np.ndarray,
         length = max(float(ss[b - 1] - ss[a]), p.along)
         lam = p.background if p.background is not None else _segment_rate(z[here], length, p)
         mu = lam * area
-        t = float(stats.poisson.ppf(p.quantile, mu)) if mu > 0 else 0.0
+        t = poisson_quantile(p.quantile, mu)
         count[here] = cnt
         rate[here] = lam
         thr[here] = t
         keep[here] = cnt - 1 > t  # the count includes the photon itself
     return DensityResult(keep, count, rate, thr)
+
+
+def poisson_quantile(q: float, mu: float) -> float:
+    """The ``q`` quantile of a Poisson distribution of mean ``mu``: the smallest count k with
+    P(X <= k) >= q (scipy.stats.poisson.ppf, without importing scipy.stats, which costs the
+    command line 0.5-0.7 s at start-up)."""
+    if not mu > 0:
+        return 0.0
+    kmax = int(mu + 12.0 * np.sqrt(mu) + 40.0)
+    k = np.arange(kmax + 1, dtype=np.float64)
+    log_fact = np.concatenate([[0.0], np.cumsum(np.log(k[1:]))])
+    log_pmf = k * np.log(mu) - mu - log_fact
+    cdf = np.cumsum(np.exp(log_pmf))
+    hit = np.flatnonzero(cdf >= q * (1.0 - 1e-12))
+    return float(hit[0]) if hit.size else float(kmax)

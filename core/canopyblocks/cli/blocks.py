@@ -78,6 +78,10 @@ def info_cmd(path: str, as_json: bool) -> None:
               help="Also write layer 'photons' with per-photon labels (GeoPackage output).")
 @click.option("--profile", type=click.Path(dir_okay=False), default=None,
               help="Write a profile plot PNG (photons, canopy top and ground per block).")
+@click.option("--workers", type=click.IntRange(1, 512), default=None,
+              help="Processes reading and blocking the beams of a granule in parallel "
+                   "(default: the machine's cores, capped by the memory available; the "
+                   "table is the same as with 1).")
 @click.pass_context
 def blocks_cmd(ctx: click.Context, path: str, output: str, beams: tuple[str, ...],
                channel: str | None, lengths: tuple[float, ...], s0: float | None, k_sigma: float,
@@ -86,7 +90,7 @@ def blocks_cmd(ctx: click.Context, path: str, output: str, beams: tuple[str, ...
                min_signal_conf: int | None, top_cutoff: float | None,
                ground_cutoff: float | None, min_photons: int, atl08: str | None,
                bbox: str | None, crs: str | None, with_photons: bool,
-               profile: str | None) -> None:
+               profile: str | None, workers: int | None) -> None:
     """Canopy top, mean ground, Hmax and H90 per along-track block (seed 001 method,
     or the estimators of --preset)."""
     from ..blocks import BlockParams
@@ -107,14 +111,14 @@ def blocks_cmd(ctx: click.Context, path: str, output: str, beams: tuple[str, ...
             beams=beams, channel=parse_channel(channel), atl08=atl08,
             bbox=parse_floats(bbox, 4, "lon_min,lat_min,lon_max,lat_max", "--bbox"),  # type: ignore[arg-type]
             crs=crs, output=output, with_photons=with_photons,
-            profile=profile, progress=progress,
+            profile=profile, workers=workers, progress=progress,
         )
     n_ok = int((result.blocks["flag"] == "ok").sum()) if len(result.blocks) else 0
     if quiet:
         return
     click.echo(
         f"canopyblocks: {len(result.blocks)} blocks ({n_ok} ok) from "
-        f"{', '.join(t.track for t in result.tracks)} -> {Path(output)}",
+        f"{', '.join(result.track_ids)} -> {Path(output)}",
         err=True,
     )
 

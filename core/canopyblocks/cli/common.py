@@ -357,8 +357,10 @@ def run_main(group: click.Group, argv: list[str] | None) -> int:
     the signal (a cancelled operation removes its partial files).  Anything else is a bug
     and keeps its traceback (exit status 1).
     """
+    from ..batch.backends import keep_freed_memory
     from ..outputs.atomic import journal_mark
 
+    keep_freed_memory()
     mark = journal_mark()
     with warnings.catch_warnings(), _signals_handled(), _quiet_unraisable_interrupts():
         _quiet_numpy()

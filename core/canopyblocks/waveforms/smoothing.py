@@ -20,7 +20,6 @@ from functools import lru_cache
 
 import numpy as np
 import numpy.typing as npt
-import scipy.fft
 
 __all__ = ["gaussian_kernel", "interpolation_kernel", "smooth_subsampled"]
 
@@ -51,6 +50,8 @@ def _kernel_spectrum(n_fft: int, factor: int, sd: float, half_width: int) -> Flo
     circ = np.zeros(length)
     circ[:h + 1] = k[h:]
     circ[length - h:] = k[:h]
+    import scipy.fft  # on first use: the photon commands import this module without it
+
     spec = scipy.fft.rfft(circ)
     return np.ascontiguousarray(spec)
 
@@ -88,6 +89,8 @@ def smooth_subsampled(resid: FloatArray, factor: int,
         return [np.zeros((n, out_len)) for _ in kernels]
     reach = max(h for _, h in kernels) + factor
     margin = -(-reach // factor) + 1
+    import scipy.fft
+
     n_fft = scipy.fft.next_fast_len(m + margin, real=True)
     spec = scipy.fft.rfft(resid, n=n_fft, axis=1)
     src, conj = _upsample_index(n_fft, factor)

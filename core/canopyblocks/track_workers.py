@@ -1,0 +1,185 @@
+"""The tracks of one photon file read and blocked in a pool of worker processes.
+
+One unit of work is one track (an ATL03 beam): it is read, checked and blocked inside a
+worker, and only its block table (and, when asked for, its labels and photons) comes back.
+h5py serialises every HDF5 call inside one process, so reading and decompressing beams in
+parallel needs processes, not threads.  The result is the table :func:`run_blocks` makes
+from :func:`read_tracks` in one process, value for value: tracks come back in the order of
+the file, every track is projected to the CRS of the first usable one (a track whose own
+UTM zone differs is read again in that CRS), and warnings raised in the workers are raised
+again here, in track order.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from .batch.backends import default_workers, run_items
+from .blocks import BlockParams
+from .errors import CanopyBlocksWarning, InputError, NoUsableDataError
+from .photons import PhotonTrack
+from .progress import Progress, as_progress
+from .track_blocks import blocks_of_track, concat_blocks, read_track
+
+if TYPE_CHECKING:
+    import geopandas as gpd
+
+    from .blocks.estimators import Estimators
+
+__all__ = ["TrackJob", "TrackOutcome", "blocks_in_workers", "track_workers_for",
+           "WORKER_BASE_BYTES", "WORKER_BYTES_PER_PHOTON"]
+
+#: Resident memory of one worker before it reads a track (its imports), bytes.
+WORKER_BASE_BYTES = 400 * 2**20
+#: Peak memory of a worker per photon of its track (reading, sorting, blocking), bytes.
+WORKER_BYTES_PER_PHOTON = 250
+
+
+@dataclass(frozen=True)
+class TrackJob:
+    """One track to read and block in a worker (every field picklable)."""
+
+    path: str
+    selection: dict
+    params: BlockParams
+    estimators: Estimators | None = None
+    atl08: str | None = None
+    bbox: tuple[float, float, float, float] | None = None
+    crs: Any = None
+    min_signal_conf: int | None = None
+    labels: bool = False
+    keep_track: bool = False
+
+
+@dataclass
+class TrackOutcome:
+    """What a worker sends back for one :class:`TrackJob`."""
+
+    job: TrackJob
+    track_id: str = ""
+    crs: Any = None
+    blocks: gpd.GeoDataFrame | None = None
+    labels: dict[float, np.ndarray] | None = None
+    track: PhotonTrack | None = None
+    problem: str | None = None
+    warnings: tuple[tuple[str, type[Warning]], ...] = ()
+
+
+def run_track_job(job: TrackJob) -> TrackOutcome:
+    """Read and block one track (runs in a worker); a track without usable photons comes
+    back as a ``problem``, any other error is raised in the caller."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            t = read_track(job.path, job.selection, atl08=job.atl08, bbox=job.bbox,
+                           crs=job.crs, min_signal_conf=job.min_signal_conf)
+        except NoUsableDataError as exc:
+            out = TrackOutcome(job, problem=str(exc))
+        else:
+            blocks, labels = blocks_of_track(t, job.params, labels=job.labels,
+                                             estimators=job.estimators)
+            out = TrackOutcome(job, track_id=t.track, crs=t.crs, blocks=blocks, labels=labels,
+                               track=t if job.keep_track else None)
+    out.warnings = tuple((str(w.message), w.category) for w in caught)
+    return out
+
+
+def track_workers_for(photons_per_track: Sequence[int], workers: int | None = None) -> int:
+    """Worker processes for tracks of these sizes: ``workers`` or the machine's cores,
+    never more than the tracks, nor than the memory available holds
+    (:data:`WORKER_BASE_BYTES` + :data:`WORKER_BYTES_PER_PHOTON` per photon of the largest
+    track each)."""
+    if workers is not None and workers < 1:
+        raise InputError(f"workers must be >= 1, got {workers}")
+    n = min(workers or default_workers(), max(1, len(photons_per_track)))
+    if workers is None and photons_per_track:
+        per = WORKER_BASE_BYTES + WORKER_BYTES_PER_PHOTON * max(photons_per_track)
+        try:
+            avail = os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+        except (ValueError, OSError, AttributeError):
+            avail = per * n
+        n = max(1, min(n, int(avail // per)))
+    return n
+
+
+def blocks_in_workers(
+    path: str | os.PathLike[str],
+    selections: Sequence[dict],
+    params: BlockParams,
+    *,
+    workers: int,
+    sizes: Sequence[int] = (),
+    estimators: Estimators | None = None,
+    atl08: str | os.PathLike[str] | None = None,
+    bbox: tuple[float, float, float, float] | None = None,
+    crs: Any = None,
+    min_signal_conf: int | None = None,
+    labels: bool = False,
+    keep_tracks: bool = False,
+    progress: Progress | None = None,
+) -> tuple[gpd.GeoDataFrame, list[str], list[PhotonTrack], dict[str, dict[float, np.ndarray]]]:
+    """Blocks of the tracks ``selections`` of ``path`` (see :func:`select_tracks`), read and
+    blocked in ``workers`` processes, the largest first (``sizes``: photons per track) so
+    that the last to finish is a small one.
+
+    Returns
+    -------
+    blocks : GeoDataFrame
+        All tracks' blocks, in file order, in one metric CRS (``crs`` or the UTM zone of the
+        first usable track), equal to ``run_blocks(read_tracks(...))``.
+    track_ids : list of str
+        The tracks blocked.
+    tracks : list of PhotonTrack
+        The tracks themselves with ``keep_tracks`` (they cost memory here), else empty.
+    labels : dict
+        ``labels[track_id][length]`` with ``labels``.
+
+    Raises
+    ------
+    NoUsableDataError
+        When no track holds usable photons.
+    """
+    prog = as_progress(progress)
+    jobs = [TrackJob(path=str(path), selection=dict(sel), params=params, estimators=estimators,
+                     atl08=None if atl08 is None else str(atl08), bbox=bbox, crs=crs,
+                     min_signal_conf=min_signal_conf, labels=labels, keep_track=keep_tracks)
+            for sel in selections]
+    finished = [0]
+
+    def done(out: TrackOutcome) -> None:  # raises CancelledError when asked to stop
+        finished[0] += 1
+        prog.update(finished[0] / max(1, len(jobs)),
+                    f"{out.track_id or out.job.selection}: blocked")
+
+    order = (sorted(range(len(jobs)), key=lambda i: -sizes[i]) if len(sizes) == len(jobs)
+             else list(range(len(jobs))))
+    ran = run_items(run_track_job, [jobs[i] for i in order], backend="processes",
+                    workers=workers, done=done, start="fork")
+    outcomes: list[TrackOutcome] = [ran[order.index(i)] for i in range(len(jobs))]
+    first = next((o for o in outcomes if o.problem is None), None)
+    ref_crs = crs if crs is not None else (first.crs if first is not None else None)
+    for i, out in enumerate(outcomes):
+        if out.problem is None and crs is None and out.crs != ref_crs:
+            # another UTM zone than the first track's: as read_tracks does, in the first's
+            outcomes[i] = run_track_job(TrackJob(**{**out.job.__dict__, "crs": ref_crs}))
+    problems = []
+    for out in outcomes:
+        for message, category in out.warnings:
+            warnings.warn(message, category, stacklevel=2)
+        if out.problem is not None:
+            problems.append(out.problem)
+    good = [o for o in outcomes if o.problem is None]
+    if not good:
+        raise NoUsableDataError("; ".join(problems) or f"{path}: no usable photons")
+    for msg in problems:
+        warnings.warn(f"skipped: {msg}", CanopyBlocksWarning, stacklevel=2)
+    blocks = concat_blocks([o.blocks for o in good if o.blocks is not None], good[0].crs)
+    tracks = [o.track for o in good if o.track is not None]
+    all_labels = {o.track_id: o.labels for o in good if o.labels is not None}
+    return blocks, [o.track_id for o in good], tracks, all_labels
