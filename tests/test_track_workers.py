@@ -133,3 +133,22 @@ def test_worker_count_respects_tracks_and_memory():
     assert track_workers_for([10] * 6, 1) == 1
     # a track of 1e12 photons would need 250 TB per worker: one process
     assert track_workers_for([10**12, 10], None) == 1
+
+
+def test_photon_layer_written_track_by_track(granule, tmp_path):
+    """The photons layer, written one track at a time, holds every photon of every beam
+    (counts from h5py) with its label, in beam order."""
+    import geopandas as gpd
+    import h5py
+
+    out = tmp_path / "b.gpkg"
+    res = blocks_from_file(granule, BlockParams(lengths=(25.0,)), output=out,
+                           with_photons=True, workers=2)
+    ph = gpd.read_file(out, layer="photons")
+    with h5py.File(granule) as f:
+        counts = [f[f"{b}/heights/h_ph"].shape[0] for b in BEAMS]
+    assert ph["track"].tolist() == sum(([b] * n for b, n in zip(BEAMS, counts)), [])
+    names = {0: "noise", 1: "ground", 2: "canopy", 3: "between", -1: "outside"}
+    want = np.concatenate([res.labels[b][25.0] for b in BEAMS])
+    assert ph["label_25m"].tolist() == [names.get(int(v), "?") for v in want]
+    assert ph.crs == res.blocks.crs

@@ -9,7 +9,7 @@ from __future__ import annotations
 import logging
 import os
 import warnings
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -343,10 +343,11 @@ def blocks_from_file(
     if calibration is not None:
         blocks = calibrate_blocks(blocks, calibration, track_strengths(path, ids))
     result = BlocksResult(tracks=tracks, blocks=blocks, labels=labels, track_ids=ids)
-    layers: dict[str, pd.DataFrame] = {LAYER_BLOCKS: blocks}
+    layers: dict[str, pd.DataFrame | Iterable[pd.DataFrame]] = {LAYER_BLOCKS: blocks}
     if output is not None and with_photons:
         if Path(output).suffix.lower() == ".gpkg":
-            layers[LAYER_PHOTONS] = photon_layer(tracks, labels)
+            # one track at a time: the photon layer is never built whole
+            layers[LAYER_PHOTONS] = (photon_layer([t], labels) for t in tracks)
         else:
             warnings.warn("--photons needs a .gpkg output; photon layer not written",
                           CanopyBlocksWarning, stacklevel=2)

@@ -32,6 +32,7 @@ from ..schema import (
 from .histogram import BlockHistograms, segment_starts, sigma_filter
 from .params import BlockParams
 from .plausibility import background_fraction, flag_implausible_blocks
+from .windows import DEFAULT_WINDOW_PHOTONS, concat_length_results, window_cuts, window_of
 
 if TYPE_CHECKING:
     import geopandas as gpd
@@ -258,18 +259,20 @@ def _labels(n: int, keep: np.ndarray | None, starts: np.ndarray, counts: np.ndar
 
 @overload
 def compute_blocks(track: PhotonTrack, params: BlockParams = ..., *,
-                   labels: Literal[False] = ..., progress: Progress | None = ...
-                   ) -> gpd.GeoDataFrame: ...
+                   labels: Literal[False] = ..., progress: Progress | None = ...,
+                   window_photons: int | None = ...) -> gpd.GeoDataFrame: ...
 
 
 @overload
 def compute_blocks(track: PhotonTrack, params: BlockParams = ..., *,
-                   labels: Literal[True], progress: Progress | None = ...
+                   labels: Literal[True], progress: Progress | None = ...,
+                   window_photons: int | None = ...
                    ) -> tuple[gpd.GeoDataFrame, dict[float, np.ndarray]]: ...
 
 
 def compute_blocks(track: PhotonTrack, params: BlockParams | None = None, *,
-                   labels: bool = False, progress: Progress | None = None
+                   labels: bool = False, progress: Progress | None = None,
+                   window_photons: int | None = DEFAULT_WINDOW_PHOTONS
                    ) -> gpd.GeoDataFrame | tuple[gpd.GeoDataFrame, dict[float, np.ndarray]]:
     """Canopy top, mean ground, Hmax and H90 per along-track block (DESIGN.md 1).
 
@@ -312,6 +315,10 @@ def compute_blocks(track: PhotonTrack, params: BlockParams | None = None, *,
     progress : Progress, optional
         Updated once per block length; cancellation raises
         :class:`~canopyblocks.errors.CancelledError`.
+    window_photons : int or None
+        The engine runs over windows of about this many photons that no block of any
+        length straddles (:mod:`.windows`): the same results in a fixed amount of scratch
+        memory.  None or 0: the whole track at once.
 
     Returns
     -------
@@ -355,8 +362,14 @@ def compute_blocks(track: PhotonTrack, params: BlockParams | None = None, *,
     frames: list[dict[str, np.ndarray]] = []
     label_out: dict[float, np.ndarray] = {}
     sparse_counts: dict[float, int] = {}
+    if window_photons is not None and window_photons < 0:
+        raise InputError(f"window_photons must be >= 0 or None, got {window_photons}")
+    cuts = (window_cuts(pt.s, pt.s0, lengths, window_photons) if window_photons
+            else np.array([0, pt.s.size]))
     for i, length in enumerate(lengths):
-        res, _ = blocks_for_length(pt, params, length, labels=labels)
+        res = concat_length_results([
+            blocks_for_length(window_of(pt, int(a), int(b)), params, length, labels=labels)[0]
+            for a, b in zip(cuts[:-1], cuts[1:])])
         n_sparse = int(np.count_nonzero(res.flag == 1))
         if n_sparse:
             sparse_counts[length] = n_sparse

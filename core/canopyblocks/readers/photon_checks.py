@@ -98,17 +98,24 @@ def valid_photon_mask(name: str, values: np.ndarray, fill: object = None) -> np.
     """
     lo, hi = PHOTON_LIMITS.get(name, (-np.inf, np.inf))
     v = np.asarray(values)
-    with np.errstate(invalid="ignore"):
-        ok = (v >= lo) & (v <= hi)  # False for NaN
-        if v.dtype.kind == "f":
-            ok &= np.abs(v) < FLOAT32_FILL * 0.999
+    fv = None
     if fill is not None:
         try:
             fv = float(np.asarray(fill).reshape(-1)[0])
         except (TypeError, ValueError, IndexError):
             fv = None
-        if fv is not None and np.isfinite(fv):
-            ok &= v != fv
+    if v.size and v.dtype.kind in "biuf":
+        # the usual case, in two reductions: every value valid (a NaN fails the test)
+        vmin, vmax = float(np.min(v)), float(np.max(v))
+        if (lo <= vmin and vmax <= hi and max(-vmin, vmax) < FLOAT32_FILL * 0.999
+                and not (fv is not None and vmin <= fv <= vmax)):
+            return np.ones(v.shape, bool)
+    with np.errstate(invalid="ignore"):
+        ok = (v >= lo) & (v <= hi)  # False for NaN
+        if v.dtype.kind == "f":
+            ok &= np.abs(v) < FLOAT32_FILL * 0.999
+    if fv is not None and np.isfinite(fv):
+        ok &= v != fv
     return ok
 
 
