@@ -462,3 +462,22 @@ def test_blocks_with_workers_interrupted(six_beams, tmp_path, how) -> None:
     code, err = run.finish()
     assert_interrupted_cleanly(run, sig, [out], code, err)
     assert code != 0, "the run ended before its workers were interrupted: make it larger"
+
+
+@pytest.mark.parametrize("forget", [False, True])
+def test_interrupt_seen_by_an_extension_keeps_our_exit_status(forget, tmp_path) -> None:
+    """A KeyboardInterrupt that went through code run with ``PyRun_*`` (as extension
+    modules do) makes CPython 3.11 kill itself with SIGINT at exit when run as ``-m``, like
+    the CLI; once reported, the CLI clears that record and exits 130 as it says (the
+    ``rasters`` run interrupted at start-up ended -2 in 5 runs of 30)."""
+    (tmp_path / "interrupted_cli.py").write_text(
+        "import ctypes, sys\n"
+        "ctypes.pythonapi.PyRun_SimpleString(b'raise KeyboardInterrupt')\n"
+        + ("from canopyblocks.cli.common import _forget_native_interrupt\n"
+           "_forget_native_interrupt()\n" if forget else "")
+        + "sys.exit(130)\n")
+    proc = subprocess.run([sys.executable, "-m", "interrupted_cli"], capture_output=True,
+                          text=True, timeout=60, cwd=tmp_path)
+    if not forget and proc.returncode == 130:
+        pytest.skip("this Python does not record interrupts seen by PyRun_*")
+    assert proc.returncode == (130 if forget else -signal.SIGINT), proc.stderr
