@@ -3,7 +3,8 @@
 Run: ``.venv/bin/python bench/bench_granule.py [--photons-per-beam 14000000] [--workdir DIR]``
 
 A 6-beam ATL03 granule written like real v006 files (gzip, chunks of 10,000 photons,
-photons in time order, geolocation segments of 20 m; by default 14 M photons per strong beam
+photons in time order with ``s`` out of order locally (``dist_ph_along`` scattered by
++-0.1 m), geolocation segments of 20 m; by default 14 M photons per strong beam
 and 3.5 M per weak beam, 52.5 M in all: the granule of issue 13) is made once (cached in
 ``--workdir``; making it takes a few minutes). Then, each in its own process:
 
@@ -75,6 +76,9 @@ def make_granule(path: Path, per_beam: int, seed: int = 3) -> Path:
         def copy(name: str, obj: object) -> None:
             if isinstance(obj, h5py.Dataset):
                 data = obj[()]
+                if name.endswith("heights/dist_ph_along"):
+                    # as in real granules: photons in time order, s out of order locally
+                    data = data + rng.uniform(-0.1, 0.1, data.shape).astype(data.dtype)
                 kw = {}
                 if obj.ndim == 1 and obj.shape[0] > 10_000:
                     kw = {"compression": "gzip", "chunks": (10_000,)}
@@ -160,7 +164,7 @@ def main() -> None:
     args = ap.parse_args()
     work = Path(args.workdir)
     work.mkdir(parents=True, exist_ok=True)
-    g = make_granule(work / f"ATL03_bench_{args.photons_per_beam}.h5", args.photons_per_beam)
+    g = make_granule(work / f"ATL03_bench_{args.photons_per_beam}_v2.h5", args.photons_per_beam)
     print(f"granule: {g} ({g.stat().st_size / 2**20:.0f} MiB)")
     script = PLAIN_READ.format(beams=BEAMS, heights=HEIGHTS, geoloc=GEOLOC)
     out = work / "blocks.parquet"

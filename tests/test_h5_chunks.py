@@ -154,3 +154,15 @@ def test_real_gedi_datasets_equal_hdf5(gedi_l1b, gedi_l2a):  # noqa: ANN001
                         taken += 1
                         np.testing.assert_array_equal(got, ds[lo:])
     assert taken > 0
+
+
+def test_many_tasks_equal_hdf5(tmp_path, inflater):  # noqa: ANN001
+    """41 chunks: several tasks of the thread pool, each a batch of chunks."""
+    data = RNG.normal(0, 1, 401_234)
+    with h5py.File(tmp_path / "f.h5", "w") as f:
+        f.create_dataset("v", data=data, chunks=(10_000,), compression="gzip", shuffle=True)
+    with h5py.File(tmp_path / "f.h5", "r") as f:
+        for lo, hi in ((0, data.size), (123_456, 398_765)):
+            got = read_chunks(f["v"], lo, hi)
+            assert got is not None
+            np.testing.assert_array_equal(got, data[lo:hi])

@@ -514,11 +514,22 @@ def _add_per_segment(arr: np.ndarray, values: np.ndarray, count: np.ndarray) -> 
 
 def _sort_by_s(cols: dict[str, np.ndarray], extra: dict[str, np.ndarray]) -> None:
     """Sort every column by ``cols["s"]`` in place in the dicts (stable: ties keep file
-    order), one column at a time so only one extra column is alive at once.  Real ATL03
-    photons are locally out of order (``dist_ph_along`` scatters by ~1 m), synthetic ones
-    often are not, so the order is checked first (one cheap comparison pass)."""
+    order).  Real ATL03 photons are only locally out of order (``dist_ph_along`` scatters
+    by ~1 m), so they are sorted window by window, in place
+    (:func:`~canopyblocks.photon_order.sort_columns_in_windows`: the same order as a
+    global stable sort, scratch memory of a few windows); synthetic ones often are in
+    order already (one cheap comparison pass)."""
+    from ..photon_order import sort_columns_in_windows
+
     s = cols["s"]
     if s.size < 2 or bool(np.all(s[1:] >= s[:-1])):
+        return
+    arrays = [*cols.values(), *extra.values()]
+    if (len({id(a) for a in arrays}) == len(arrays)
+            and all(a.ndim >= 1 and a.shape[0] == s.size and a.flags.writeable
+                    and a.base is None for a in arrays)):
+        sort_columns_in_windows({**{f"c:{k}": v for k, v in cols.items()},
+                                 **{f"e:{k}": v for k, v in extra.items()}}, "c:s")
         return
     order = stable_order(s)
     for d in (cols, extra):
