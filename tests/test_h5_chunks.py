@@ -74,6 +74,10 @@ def test_two_d_column_through_h5file(tmp_path, inflater):  # noqa: ANN001
         got = read_chunks(f["v"], 100, N)
         assert got is not None
         np.testing.assert_array_equal(got, data[100:])
+        one = read_chunks(f["v"], 9_999, N - 1, np.dtype("i2"), column=3)
+        assert one is not None and one.shape == (N - 10_000,) and one.dtype == np.int16
+        np.testing.assert_array_equal(one, data[9_999:N - 1, 3])
+        assert read_chunks(f["v"], 0, N, column=5) is None
     with open_h5(tmp_path / "c.h5") as h:
         np.testing.assert_array_equal(h.read_column("v", 7, N - 3, 2, np.int16),
                                       data[7:N - 3, 2])

@@ -187,10 +187,9 @@ class H5File:
         lo, hi, step = (sel if sel is not None else slice(None)).indices(int(shape[0]))
         if step != 1:
             return None
-        if ds.chunks is not None:
-            chunked = read_chunks(ds, lo, hi, dst)
-            if chunked is not None:
-                return chunked
+        chunked = read_chunks(ds, lo, hi, dst)
+        if chunked is not None:
+            return chunked
         out = np.empty(max(0, hi - lo), dtype=dst)
         if out.size:
             try:
@@ -215,10 +214,9 @@ class H5File:
                 raise self._fail(f"dataset /{name} has shape {shape}, expected (n, k) with "
                                  f"k > {column}; the file is not the expected product")
             return np.ascontiguousarray(arr[:, column])
-        if ds.chunks is not None:
-            chunked = read_chunks(ds, lo, hi, dst)
-            if chunked is not None:
-                return np.ascontiguousarray(chunked[:, column])
+        chunked = read_chunks(ds, lo, hi, dst, column)
+        if chunked is not None:
+            return chunked
         out = np.empty(hi - lo, dtype=dst)
         step = max(1, (1 << 22) // max(1, shape[1] * dst.itemsize))
         buf = np.empty((min(step, max(1, hi - lo)), shape[1]), dtype=dst)

@@ -522,14 +522,15 @@ def _sort_by_s(cols: dict[str, np.ndarray], extra: dict[str, np.ndarray]) -> Non
     from ..photon_order import sort_columns_in_windows
 
     s = cols["s"]
-    if s.size < 2 or bool(np.all(s[1:] >= s[:-1])):
-        return
     arrays = [*cols.values(), *extra.values()]
     if (len({id(a) for a in arrays}) == len(arrays)
             and all(a.ndim >= 1 and a.shape[0] == s.size and a.flags.writeable
                     and a.base is None for a in arrays)):
+        # (checks the order itself; touches nothing when it is already sorted)
         sort_columns_in_windows({**{f"c:{k}": v for k, v in cols.items()},
                                  **{f"e:{k}": v for k, v in extra.items()}}, "c:s")
+        return
+    if s.size < 2 or bool(np.all(s[1:] >= s[:-1])):
         return
     order = stable_order(s)
     for d in (cols, extra):

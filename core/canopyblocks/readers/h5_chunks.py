@@ -73,8 +73,9 @@ def _filters_ok(ds: Any) -> bool | None:
     return None
 
 
-def _chunk_table(ds: Any, n_expected: int) -> list[tuple[int, int, int]] | None:
-    """(first row, byte offset, size) of every chunk, in row order; None when not plain."""
+def _chunk_table(ds: Any, n_rows: int, rows: int) -> list[tuple[int, int, int]] | None:
+    """(first row, byte offset, size) of every chunk of ``rows`` rows, in row order; None
+    when not plain (a chunk missing, a filter skipped)."""
     dsid = ds.id
     infos: list[Any] = []
     try:
@@ -87,13 +88,16 @@ def _chunk_table(ds: Any, n_expected: int) -> list[tuple[int, int, int]] | None:
             infos = [dsid.get_chunk_info(i) for i in range(n)]
     except Exception:  # noqa: BLE001
         return None
-    if len(infos) != n_expected or any(int(c.filter_mask) != 0 for c in infos):
+    if any(int(c.filter_mask) != 0 for c in infos):
         return None
     table = sorted((int(c.chunk_offset[0]), int(c.byte_offset), int(c.size)) for c in infos)
+    if [t[0] for t in table] != list(range(0, n_rows, rows)):
+        return None
     return table
 
 
-def read_chunks(ds: Any, lo: int, hi: int, dtype: np.dtype | None = None) -> np.ndarray | None:
+def read_chunks(ds: Any, lo: int, hi: int, dtype: np.dtype | None = None,
+                column: int | None = None) -> np.ndarray | None:
     """Rows ``lo:hi`` of dataset ``ds`` (an open h5py dataset), inflated on threads.
 
     Parameters
@@ -103,6 +107,8 @@ def read_chunks(ds: Any, lo: int, hi: int, dtype: np.dtype | None = None) -> np.
         Row range (``0 <= lo <= hi <= len(ds)``).
     dtype : numpy dtype, optional
         Convert to it (the caller has checked that the conversion is lossless).
+    column : int, optional
+        Of a 2-D dataset only this column (a 1-D array; no full-width copy is made).
 
     Returns
     -------
@@ -112,7 +118,8 @@ def read_chunks(ds: Any, lo: int, hi: int, dtype: np.dtype | None = None) -> np.
     shape = tuple(int(v) for v in (ds.shape or ()))
     chunks = ds.chunks
     if (len(shape) not in (1, 2) or chunks is None or tuple(chunks[1:]) != shape[1:]
-            or not 0 <= lo <= hi <= shape[0]):
+            or not 0 <= lo <= hi <= shape[0]
+            or (column is not None and (len(shape) != 2 or not 0 <= column < shape[1]))):
         return None
     f = ds.file
     if getattr(f, "driver", None) != "sec2" or getattr(f, "userblock_size", 1) != 0:
@@ -127,7 +134,7 @@ def read_chunks(ds: Any, lo: int, hi: int, dtype: np.dtype | None = None) -> np.
     first, last = lo // rows, -(-hi // rows)
     if last - first < _MIN_CHUNKS:
         return None
-    table = _chunk_table(ds, -(-shape[0] // rows))
+    table = _chunk_table(ds, shape[0], rows)
     if table is None:
         return None
     per_row = int(np.prod(shape[1:], dtype=np.int64))
@@ -135,7 +142,8 @@ def read_chunks(ds: Any, lo: int, hi: int, dtype: np.dtype | None = None) -> np.
     dst = src.newbyteorder("=") if dtype is None else np.dtype(dtype)
     # converted chunk by chunk (float32 -> float64, big- -> little-endian): no full-length
     # array of the file's type
-    out = np.empty((hi - lo, *shape[1:]), dtype=dst)
+    pick = (slice(None),) if column is None else (slice(None), column)
+    out = np.empty((hi - lo, *shape[1:]) if column is None else (hi - lo,), dtype=dst)
     _name, inflate = INFLATE
     try:
         fd = os.open(f.filename, os.O_RDONLY)
@@ -154,20 +162,18 @@ def read_chunks(ds: Any, lo: int, hi: int, dtype: np.dtype | None = None) -> np.
             data = data.reshape(src.itemsize, -1).T.reshape(-1)
         values = data.view(src).reshape(rows, *shape[1:])
         a, b = max(lo, start), min(hi, start + rows)
-        out[a - lo:b - lo] = values[a - start:b - start]
+        out[a - lo:b - lo] = values[a - start:b - start][pick]
 
     def batch(i0: int) -> None:  # a batch of chunks per task: futures cost ~20 us each
         for i in range(i0, min(last, i0 + _BATCH)):
             chunk(i)
 
     try:
-        if [t[0] for t in table] != list(range(0, shape[0], rows)):
-            return None
         chunk(first)
         n_check = min(hi, (first + 1) * rows) - lo
         check = np.empty((n_check, *shape[1:]), dtype=src)
         ds.read_direct(check, np.s_[lo:lo + n_check])
-        if check.astype(dst).tobytes() != out[:n_check].tobytes():
+        if check[pick].astype(dst).tobytes() != out[:n_check].tobytes():
             return None
         pool = ThreadPoolExecutor(inflate_threads())
         try:
