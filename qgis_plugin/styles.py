@@ -2,8 +2,8 @@
 
 * residuals (``res_*``): graduated, diverging RdBu ramp, classes symmetric around 0;
 * aspect classes: categorised, one colour per compass class (+ ``flat``);
-* block heights (``hmax``): graduated green ramp from light (not white) to dark green,
-  blocks without a height (sparse) drawn as grey outlines, not hidden;
+* block heights (``hmax``): green classes from light (not white) to dark green per block
+  length, blocks without a height (sparse) drawn grey, not hidden;
 * photon labels: categorised noise / ground / canopy / between;
 * rasters: DTM in a terrain ramp with its elevation enabled, DSMs in greens.
 
@@ -33,7 +33,6 @@ from qgis.core import (
     QgsRasterShader,
     QgsRendererCategory,
     QgsRendererRange,
-    QgsRuleBasedRenderer,
     QgsSingleBandPseudoColorRenderer,
     QgsStyle,
     QgsSymbol,
@@ -153,56 +152,66 @@ def _reorder(layer: Any, context: Any) -> None:
         root.removeChildNode(node)
 
 
-def _height_rules(layer: QgsVectorLayer, field: str, values: list[float], n_classes: int,
-                  where: str = "") -> list[Any]:
-    """Graduated rules (equal intervals from 0 to the maximum of ``values``), each limited by
-    the filter ``where``; the lowest class is a visible light green, not near-white."""
-    vmax = max((v for v in values if math.isfinite(v)), default=1.0)
-    vmax = vmax if vmax > 0 else 1.0
-    ramp = QgsStyle.defaultStyle().colorRamp("Greens") or QgsGradientColorRamp(
-        QColor("#e5f5e0"), QColor("#00441b"))
-    rules = []
-    for i in range(n_classes):
-        lo, hi = vmax * i / n_classes, vmax * (i + 1) / n_classes
-        sym = QgsSymbol.defaultSymbol(layer.geometryType())
-        sym.setColor(ramp.color(0.3 + 0.7 * i / max(n_classes - 1, 1)))
-        last = i == n_classes - 1
-        expr = (f'"{field}" >= {lo!r} AND "{field}" {"<=" if last else "<"} {hi!r}'
-                + (f" AND {where}" if where else ""))
-        rules.append(QgsRuleBasedRenderer.Rule(sym, 0, 0, expr, f"{lo:.1f} to {hi:.1f} m"))
-    return rules
+def _class_expression(field: str, tops: dict[float | None, float], n_classes: int) -> str:
+    """A QGIS expression giving each feature its class key ``"<length>:<i>"`` (or ``"<i>"``
+    when there is one group): equal intervals from 0 to the group's maximum ``tops[length]``;
+    NULL for features without a value, which the renderer's catch-all category draws."""
+    def one(top: float) -> str:
+        return (f'to_string(max(0, min({n_classes - 1}, '
+                f'floor({n_classes} * "{field}" / {top!r}))))')
+
+    if None in tops:
+        return f'CASE WHEN "{field}" IS NULL THEN NULL ELSE {one(tops[None])} END'
+    whens = " ".join(f'WHEN "length" = {L!r} THEN \'{L:g}:\' || {one(top)}'
+                     for L, top in tops.items())
+    return f'CASE WHEN "{field}" IS NULL THEN NULL {whens} END'
 
 
 def height_renderer(layer: QgsVectorLayer, field: str = "hmax",
-                    n_classes: int = 5) -> QgsRuleBasedRenderer:
-    """Block heights: one group of graduated green classes per block length (each length
-    on its own scale, toggled in the legend), or one group when there is one length;
-    features without a value (sparse blocks) drawn grey under an "else" rule, not hidden."""
-    root = QgsRuleBasedRenderer.Rule(None)
+                    n_classes: int = 5) -> QgsCategorizedSymbolRenderer:
+    """Block heights: graduated green classes (equal intervals from 0 to the maximum), one
+    set per block length (each length on its own scale, toggled in the legend), or one set
+    when there is one length; features without a value (sparse blocks) drawn grey by the
+    catch-all category, not hidden.
+
+    A categorised renderer on an expression, not a rule-based one: QGIS's Elevation Profile
+    draws nothing of a rule-based layer when it respects the layer symbology (its default;
+    measured on QGIS 3.40), and draws categorised and graduated layers in their colours.
+    """
+    ramp = QgsStyle.defaultStyle().colorRamp("Greens") or QgsGradientColorRamp(
+        QColor("#e5f5e0"), QColor("#00441b"))
     lengths = sorted(float(v) for v in _values(layer, "length") if isinstance(v, (int, float)))
-    if len(lengths) > 1:
-        for L in lengths:
+    groups: list[float | None] = list(lengths) if len(lengths) > 1 else [None]
+    tops: dict[float | None, float] = {}
+    for L in groups:
+        if L is None:
+            vals = [float(v) for v in _values(layer, field) if isinstance(v, (int, float))]
+            top_v: Any = max((v for v in vals if math.isfinite(v)), default=None)
+        else:
             params = QgsAggregateCalculator.AggregateParameters()
             params.filter = f'"length" = {L!r}'
-            top, ok = layer.aggregate(Qgis.Aggregate.Max, field, params)
-            group = QgsRuleBasedRenderer.Rule(None, 0, 0, f'"length" = {L!r}', f"{L:g} m blocks")
-            vals = [float(top)] if ok and isinstance(top, (int, float)) else []
-            for rule in _height_rules(layer, field, vals, n_classes):
-                group.appendChild(rule)
-            root.appendChild(group)
-    else:
-        vals = [float(v) for v in _values(layer, field) if isinstance(v, (int, float))]
-        for rule in _height_rules(layer, field, vals, n_classes):
-            root.appendChild(rule)
+            top_v, ok = layer.aggregate(Qgis.Aggregate.Max, field, params)
+            top_v = top_v if ok and isinstance(top_v, (int, float)) else None
+        tops[L] = float(top_v) if top_v is not None and math.isfinite(top_v) and top_v > 0 \
+            else 1.0
+    cats = []
+    for L in groups:
+        for i in range(n_classes):
+            lo, hi = tops[L] * i / n_classes, tops[L] * (i + 1) / n_classes
+            sym = QgsSymbol.defaultSymbol(layer.geometryType())
+            # the lowest class a visible light green, not near-white
+            sym.setColor(ramp.color(0.3 + 0.7 * i / max(n_classes - 1, 1)))
+            key = f"{i}" if L is None else f"{L:g}:{i}"
+            label = f"{lo:.1f} to {hi:.1f} m" if L is None else \
+                f"{L:g} m blocks: {lo:.1f} to {hi:.1f} m"
+            cats.append(QgsRendererCategory(key, sym, label))
     empty = QgsSymbol.defaultSymbol(layer.geometryType())
     empty.setColor(QColor(0, 0, 0, 0) if layer.geometryType() == Qgis.GeometryType.Polygon
                    else QColor("#9e9e9e"))
     if layer.geometryType() == Qgis.GeometryType.Polygon:
         empty.symbolLayer(0).setStrokeColor(QColor("#757575"))
-    rule = QgsRuleBasedRenderer.Rule(empty, 0, 0, "ELSE", f"no {field} (sparse / no value)")
-    rule.setIsElse(True)
-    root.appendChild(rule)
-    return QgsRuleBasedRenderer(root)
+    cats.append(QgsRendererCategory(None, empty, f"no {field} (sparse / no value)"))
+    return QgsCategorizedSymbolRenderer(_class_expression(field, tops, n_classes), cats)
 
 
 _STYLERS = {

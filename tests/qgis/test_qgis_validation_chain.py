@@ -216,7 +216,14 @@ def test_aspect_map_holds_the_usable_blocks_with_their_class(chain, open_layer, 
 def test_blocks_stand_in_the_elevation_profile_and_sparse_ones_show(chain, open_layer):
     """Issue 12 items 4 and 6: blocks as bars from ground to top; no near-white class; an
     else rule draws blocks without a height."""
-    from qgis.core import Qgis, QgsMapLayerElevationProperties, QgsRuleBasedRenderer
+    from qgis.core import (
+        Qgis,
+        QgsCategorizedSymbolRenderer,
+        QgsExpression,
+        QgsExpressionContext,
+        QgsExpressionContextUtils,
+        QgsMapLayerElevationProperties,
+    )
     from qgis_plugin import styles
 
     layer = open_layer(chain["blocks"]["OUTPUT"])
@@ -228,11 +235,26 @@ def test_blocks_stand_in_the_elevation_profile_and_sparse_ones_show(chain, open_
     assert dd.property(P.ZOffset).field() == "ground"
     assert dd.property(P.ExtrusionHeight).field() == "hmax"
     r = styles.height_renderer(layer, "hmax")
-    assert isinstance(r, QgsRuleBasedRenderer)
-    rules = r.rootRule().children()
-    assert any(rule.isElse() for rule in rules)
-    first = rules[0].symbol().color()
+    assert isinstance(r, QgsCategorizedSymbolRenderer)
+    cats = r.categories()
+    assert cats[-1].value() is None or cats[-1].value() == ""  # catch-all: no height
+    first = cats[0].symbol().color()
     assert first.lightnessF() < 0.85, first.name()
+    # every block with a height falls in one of the classes, and in the class its value says
+    keys = {c.value(): c.label() for c in cats[:-1]}
+    ctx = QgsExpressionContext(QgsExpressionContextUtils.globalProjectLayerScopes(layer))
+    expr = QgsExpression(r.classAttribute())
+    for f in layer.getFeatures():
+        ctx.setFeature(f)
+        key = expr.evaluate(ctx)
+        if f["hmax"] is None or (hasattr(f["hmax"], "isNull") and f["hmax"].isNull()):
+            assert key is None or (hasattr(key, "isNull") and key.isNull())
+            continue
+        label = keys[key]
+        lo, hi = (float(v) for v in label.split(": ")[-1].replace(" m", "").split(" to "))
+        # negative heights (inverted blocks) go to the lowest class
+        assert (lo - 0.05 <= f["hmax"] or key.endswith("0")) and f["hmax"] <= hi + 0.05, \
+            (f["hmax"], label)
 
 
 def test_dtm_loads_with_elevation_and_a_ramp_over_its_values(chain, open_layer):
