@@ -175,7 +175,7 @@ def test_weighted_percentiles_with_tied_heights():
 
 @pytest.mark.parametrize("realisations, params", [
     (1, SimParams()),
-    (3, SimParams(noise_rate=0.05, geolocation_sigma=2.0)),
+    (3, SimParams(background_rate_mhz=7.5, geolocation_sigma=2.0)),
 ])
 def test_results_do_not_depend_on_chunking(monkeypatch, realisations, params):
     x, y, z = random_cloud(20000, 120.0, 4, quantum=0.01)

@@ -112,21 +112,36 @@ def test_two_layer_canopy_split():
 
 
 def test_noise_photons_rate_and_window():
+    """Background photons: uniform in the telemetry window around the coarse terrain
+    (ground at 0 m here, so -10..+10 m), at the requested MHz (1 MHz = 2e6 / c photons
+    per shot per metre)."""
     track = SimTrack.line(X0 + 10, Y0 + 30, X0 + 50, Y0 + 30)
-    params = SimParams(noise_rate=0.1, noise_window=(5.0, 15.0), mean_photons=1.0)
+    params = SimParams(background_rate_mhz=15.0, telemetry_window=10.0, mean_photons=1.0)
     sim = simulate_photons(flat_points(), track, params, realisations=100, seed=3)
     ph = sim.photons
     noise = ph["noise"]
-    window = 5.0 + 15.0  # ground 0, top 0
-    expected = 0.1 * window * sim.n_shots * 100
+    per_shot_per_m = 15.0e6 * 2.0 / 299_792_458.0
+    expected = per_shot_per_m * 20.0 * sim.n_shots * 100
     assert abs(noise.sum() - expected) < 4 * np.sqrt(expected)
     hn = ph["h"][noise]
-    assert hn.min() >= -5.0 and hn.max() <= 15.0
-    assert stats.kstest((hn + 5.0) / 20.0, "uniform").pvalue > 1e-3
+    assert hn.min() >= -10.0 and hn.max() <= 10.0
+    assert stats.kstest((hn + 10.0) / 20.0, "uniform").pvalue > 1e-3
     assert np.all(ph["src_index"][noise] == -1) and np.all(np.isnan(ph["src_z"][noise]))
     # signal photons are unchanged in number
     c = shot_counts(sim)
     assert abs(c.mean() - 1.0) < 4 * np.sqrt(1.0 / c.size)
+
+
+def test_noise_rate_is_a_deprecated_spelling_of_the_rate_in_mhz():
+    a = SimParams(noise_rate=0.02)
+    assert a.background_rate_mhz == pytest.approx(0.02 * 299_792_458.0 / 2e6)
+    assert a.noise_rate is None and a.noise_per_shot_per_m == pytest.approx(0.02)
+    with pytest.raises(InputError, match="once"):
+        SimParams(noise_rate=0.02, background_rate_mhz=1.0)
+    with pytest.raises(InputError, match="background_rate_mhz"):
+        SimParams(background_rate_mhz=-1.0)
+    with pytest.raises(InputError, match="telemetry_window"):
+        SimParams(telemetry_window=0.0)
 
 
 def test_geolocation_error():

@@ -40,7 +40,9 @@ class SimulateAlgorithm(CanopyBlocksAlgorithm):
         "Footprints every 0.7 m along a track over an airborne point cloud; the points within "
         "a footprint, weighted exp(-2 r^2 / R^2) and broadened by the 0.25 m point-spread, form "
         "a height distribution from which a Poisson number of photons per shot is drawn "
-        "(boreal 1.0, temperate 1.9, tropical 0.6 per strong-beam shot). Truth (ground, top, "
+        "(boreal 1.0, temperate 1.9, tropical 0.6 per strong-beam shot). Solar background "
+        "noise (MHz, the same for both beams) falls uniformly in a 200 m window around the "
+        "airborne ground smoothed over 1 km. Truth (ground, top, "
         "RH metrics, canopy cover) is kept per photon. Output: an ATL03-layout HDF5 file that "
         "'Block canopy heights from photons' reads, and optionally the photons as points.<br>"
         "<br>Method: " + SEED_002 + ".<br>"
@@ -54,6 +56,7 @@ class SimulateAlgorithm(CanopyBlocksAlgorithm):
     DIAMETER = "DIAMETER"
     PRESET = "PRESET"
     BEAM = "BEAM"
+    BACKGROUND_RATE = "BACKGROUND_RATE"
     SEED = "SEED"
     OUTPUT = "OUTPUT"
     PHOTONS = "PHOTONS"
@@ -67,6 +70,10 @@ class SimulateAlgorithm(CanopyBlocksAlgorithm):
             self.PRESET, "Ecosystem photon rate", options=list(PRESETS), defaultValue=1))
         self.addParameter(QgsProcessingParameterEnum(
             self.BEAM, "Beam", options=list(BEAMS), defaultValue=0))
+        self.addParameter(QgsProcessingParameterNumber(
+            self.BACKGROUND_RATE,
+            "Background noise rate (MHz; 0 off, night ~0.15, day ~3)",
+            type=QgsProcessingParameterNumber.Double, defaultValue=0.0, minValue=0.0))
         self.addParameter(QgsProcessingParameterFileDestination(
             self.OUTPUT, "Simulated photons (ATL03 layout)", fileFilter="HDF5 (*.h5)"))
         self.addParameter(QgsProcessingParameterFeatureSink(
@@ -84,7 +91,9 @@ class SimulateAlgorithm(CanopyBlocksAlgorithm):
         params = sim_mod.SimParams(
             diameter=diameter,
             preset=PRESETS[self.parameterAsEnum(parameters, self.PRESET, context)],
-            beam=BEAMS[self.parameterAsEnum(parameters, self.BEAM, context)])
+            beam=BEAMS[self.parameterAsEnum(parameters, self.BEAM, context)],
+            background_rate_mhz=self.parameterAsDouble(parameters, self.BACKGROUND_RATE,
+                                                       context))
         points = las.read_las(files, progress=progress.sub(0.0, 0.3))
         track = self._track(parameters, context, sim_mod, points, diameter)
         sim = sim_mod.simulate_photons(

@@ -49,8 +49,20 @@ log = logging.getLogger(__name__)
               show_default=True, help="The weak beam gets a quarter of the photons.")
 @click.option("--mean-photons", type=float, default=None,
               help="Poisson mean photons per shot (overrides --preset/--beam).")
-@click.option("--noise-rate", type=float, default=0.0, show_default=True,
-              help="Background photons per shot per metre of height window (0 = off).")
+@click.option("--background-rate", type=float, default=0.0, show_default=True,
+              help="Solar background noise, MHz, the same for strong and weak beams "
+                   "(0 = off; night ~0.1-0.3, day ~1-5). Noise photons fall uniformly in "
+                   "a telemetry window around the smoothed terrain.")
+@click.option("--night", "light", flag_value="night", default=None,
+              help="Night-time background: --background-rate 0.15.")
+@click.option("--day", "light", flag_value="day",
+              help="Daytime background: --background-rate 3.")
+@click.option("--telemetry-window", type=float, default=100.0, show_default=True,
+              help="Half-height of the window the background photons fill, m, around "
+                   "the airborne ground smoothed over 1 km.")
+@click.option("--noise-rate", type=float, default=None,
+              help="Deprecated: background photons per shot per metre of window; use "
+                   "--background-rate (1 MHz = 0.0067 photons per shot per metre).")
 @click.option("--geolocation-sigma", type=float, default=0.0, show_default=True,
               help="Horizontal geolocation error (Gaussian sigma), metres.")
 @click.option("--realisations", type=click.IntRange(min=1), default=100, show_default=True,
@@ -73,7 +85,8 @@ def simulate_cmd(ctx: click.Context, las: tuple[str, ...], sensor: str, azimuth:
                  diameters: tuple[float, ...],
                  instrument: Instrument, shot_spacing: float | None, preset: Ecosystem,
                  beam: Beam,
-                 mean_photons: float | None, noise_rate: float, geolocation_sigma: float,
+                 mean_photons: float | None, background_rate: float, light: str | None,
+                 telemetry_window: float, noise_rate: float | None, geolocation_sigma: float,
                  realisations: int, seed: int, crs: str | None, output: str, fmt: str | None,
                  photon_table: str | None, report: str | None) -> None:
     """Simulate lidar along a track over airborne LAS/LAZ tiles: ICESat-2/MABEL photons
@@ -93,11 +106,15 @@ def simulate_cmd(ctx: click.Context, las: tuple[str, ...], sensor: str, azimuth:
         _waveform_sensor(ctx, las, sensor, azimuth, line, polyline, centre, seed, crs,
                          output, report)
         return
+    background_rate = _background_rate(background_rate, light, noise_rate, quiet=bool(
+        ctx.obj and ctx.obj.get("quiet")))
     params = SimParams(instrument=instrument,
                        diameter=diameters[0] if diameters else None,
                        shot_spacing=shot_spacing, preset=preset,
                        beam=beam, mean_photons=mean_photons,
-                       noise_rate=noise_rate, geolocation_sigma=geolocation_sigma)
+                       background_rate_mhz=background_rate if noise_rate is None else 0.0,
+                       noise_rate=noise_rate, telemetry_window=telemetry_window,
+                       geolocation_sigma=geolocation_sigma)
     # SimParams.__post_init__ fills diameter from the instrument when it is None.
     diams = tuple(diameters) or (float(cast(float, params.diameter)),)
     out = Path(output)
@@ -172,6 +189,25 @@ def _waveform_sensor(ctx: click.Context, las: tuple[str, ...], sensor: str,
                        f"bias={r.bias:+.2f} rmse={r.rmse:.2f}", err=True)
     click.echo(f"canopyblocks: {summary['footprints']} {sensor} footprints over "
                f"{track.length:.0f} m -> {output}", err=True)
+
+
+def _background_rate(rate: float, light: str | None, noise_rate: float | None, *,
+                     quiet: bool) -> float:
+    """The background rate (MHz) from ``--background-rate``, ``--night``/``--day`` or the
+    deprecated ``--noise-rate`` (given to SimParams as is, which converts and checks it)."""
+    from ..simulate.params import BACKGROUND_PRESETS_MHZ
+
+    given = [name for name, on in (("--background-rate", rate != 0.0),
+                                   (f"--{light}", light is not None),
+                                   ("--noise-rate", noise_rate is not None)) if on]
+    if len(given) > 1:
+        raise click.UsageError(f"give the background noise once; got {' and '.join(given)}")
+    if noise_rate is not None and not quiet:
+        click.echo("canopyblocks: --noise-rate is deprecated: use --background-rate in MHz "
+                   "(1 MHz = 0.0067 photons per shot per metre)", err=True)
+    if light is not None:
+        return BACKGROUND_PRESETS_MHZ[light]
+    return rate
 
 
 def _parse(value: str, n: int, what: str) -> tuple[float, ...]:

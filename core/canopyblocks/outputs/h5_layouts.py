@@ -14,7 +14,14 @@ ATL03 layout written (names, dtypes and attributes as in v006 granules)::
     /gtXX/geolocation/{segment_id i4, segment_dist_x f8, segment_length f8,
                        ph_index_beg i8, segment_ph_cnt i4, reference_photon_index i4,
                        reference_photon_lat f8, reference_photon_lon f8, delta_time f8}
+    /gtXX/bckgrd_atlas/{delta_time f8, bckgrd_rate f4, bckgrd_counts i4,
+                        bckgrd_int_height f4, bckgrd_hist_top f4, tlm_top_band1 f4,
+                        tlm_height_band1 f4}      (when the beam has a background)
     /gtXX/<extra_group>/<name>   per-photon extra columns (not in real granules)
+
+``h_ph`` is described as WGS84 ellipsoidal height unless ``write_atl03`` is told the
+heights' vertical CRS (``height_crs``); then its description and the file attribute
+``canopyblocks_height_crs`` name it (simulated photons keep the airborne tiles' datum).
 
 Segments are 20 m long; photon ``k`` with along-track distance ``s_k`` belongs to
 segment ``floor(s_k / 20)`` and ``dist_ph_along = s_k - 20 * segment``; so the
@@ -46,6 +53,7 @@ if TYPE_CHECKING:
     import h5py  # untyped: its classes are Any to mypy
 
 __all__ = [
+    "Atl03Background",
     "Atl03BeamData",
     "MabelChannelData",
     "write_atl03",
@@ -88,6 +96,48 @@ def _extras(extra: Mapping[str, object], n: int) -> dict[str, np.ndarray]:
 
 
 @dataclass(frozen=True, eq=False)
+class Atl03Background:
+    """A beam's ``bckgrd_atlas`` group: the background rate per 50-shot sum.
+
+    Parameters
+    ----------
+    delta_time : array (m,)
+        Start of each 50-shot sum, seconds (same time base as the photons').
+    rate : array (m,)
+        Background count rate, photons per second (``bckgrd_rate``).
+    counts : array (m,), optional
+        Background photons counted in each 50-shot span (``bckgrd_counts``).
+    tlm_top, tlm_height : array (m,), optional
+        Top and height of the telemetry band (metres, the photons' vertical CRS), also
+        written as ``bckgrd_hist_top``/``bckgrd_int_height``.
+    """
+
+    delta_time: np.ndarray
+    rate: np.ndarray
+    counts: np.ndarray | None = None
+    tlm_top: np.ndarray | None = None
+    tlm_height: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        t = _column("background delta_time", self.delta_time, None)
+        m = t.size
+        rate = _column("background rate", self.rate, m)
+        if not (np.all(np.isfinite(t)) and np.all(np.isfinite(rate)) and np.all(rate >= 0)):
+            raise InputError("Atl03Background.delta_time/rate must be finite, rate >= 0 "
+                             "photons per second")
+        object.__setattr__(self, "delta_time", t)
+        object.__setattr__(self, "rate", rate)
+        for name, dtype in (("counts", np.int32), ("tlm_top", np.float64),
+                            ("tlm_height", np.float64)):
+            v = getattr(self, name)
+            if v is not None:
+                object.__setattr__(self, name, _column(f"background {name}", v, m, dtype))
+
+    def __len__(self) -> int:
+        return int(self.delta_time.size)
+
+
+@dataclass(frozen=True, eq=False)
 class Atl03BeamData:
     """Photons of one beam to write in the ATL03 layout.
 
@@ -110,6 +160,8 @@ class Atl03BeamData:
         ``gtXX/<extra_group>/<name>`` and loaded by ``read_atl03`` into ``track.extra``.
     strength : "strong", "weak" or None
         ``atlas_beam_type``; None derives it from ``sc_orient`` of :func:`write_atl03`.
+    background : Atl03Background, optional
+        Written to ``gtXX/bckgrd_atlas`` as in real granules.
     """
 
     delta_time: np.ndarray
@@ -120,6 +172,7 @@ class Atl03BeamData:
     signal_conf: np.ndarray | None = None
     extra: Mapping[str, np.ndarray] = field(default_factory=dict)
     strength: str | None = None
+    background: Atl03Background | None = None
 
     def __post_init__(self) -> None:
         t = _column("delta_time", self.delta_time, None)
@@ -155,6 +208,9 @@ class Atl03BeamData:
         object.__setattr__(self, "extra", _extras(self.extra, n))
         if self.strength not in (None, "strong", "weak"):
             raise InputError(f"strength {self.strength!r} must be 'strong', 'weak' or None")
+        if self.background is not None and not isinstance(self.background, Atl03Background):
+            raise InputError(f"background must be an Atl03Background, got "
+                             f"{type(self.background).__name__}")
 
     def __len__(self) -> int:
         return int(self.delta_time.size)
@@ -241,6 +297,7 @@ def write_atl03(
     ancillary: bool = True,
     extra_group: str = "canopyblocks_truth",
     segment_dist_x0: float = 0.0,
+    height_crs: str | None = None,
 ) -> Path:
     """Write beams of photons as an ATL03-layout HDF5 file (atomically).
 
@@ -263,6 +320,11 @@ def write_atl03(
     segment_dist_x0 : float
         ``segment_dist_x`` of the first segment (metres from the equator crossing);
         the reader's ``s`` is ``segment_dist_x0 + Atl03BeamData.s``.
+    height_crs : str, optional
+        The vertical CRS of the heights when they are not WGS84 ellipsoidal (e.g.
+        ``"EPSG:5713"`` for simulated photons over CGVD28 tiles, or ``"unknown"``):
+        stated in ``h_ph``'s description and in the file attribute
+        ``canopyblocks_height_crs``. None: WGS84 ellipsoidal heights, as ATL03.
 
     Returns
     -------
@@ -289,6 +351,8 @@ def write_atl03(
         f.attrs["description"] = ("ATL03-layout photons written by canopyblocks (simulated or "
                                   "converted); not a NASA product")
         f.attrs["Conventions"] = "CF-1.6"
+        if height_crs is not None:
+            f.attrs["canopyblocks_height_crs"] = str(height_crs)
         oi = f.create_group("orbit_info")
         _ds(oi, "sc_orient", np.array([sc_orient], np.int8), "1", "Spacecraft Orientation",
             flag_meanings="backward forward transition")
@@ -299,13 +363,50 @@ def write_atl03(
             _ds(anc, "atlas_sdp_gps_epoch", np.array([ATLAS_SDP_GPS_EPOCH]),
                 "seconds since 1980-01-06T00:00:00.000000Z", "ATLAS Epoch Offset")
         for beam, data in beams.items():
-            _write_beam(f, beam, data, sc_orient, extra_group, float(segment_dist_x0))
+            _write_beam(f, beam, data, sc_orient, extra_group, float(segment_dist_x0),
+                        height_crs)
     log.info("wrote ATL03-layout file %s (%s)", out, ", ".join(beams))
     return out
 
 
+def _h_ph_text(height_crs: str | None) -> tuple[str, str]:
+    """``long_name`` and ``description`` of ``h_ph`` for heights in ``height_crs``."""
+    if height_crs is None:
+        return "Photon WGS84 Height", "Height of each received photon, relative to the " \
+            "WGS-84 ellipsoid."
+    if height_crs.lower() in ("", "unknown"):
+        return "Photon height (unknown vertical CRS)", (
+            "Height of each received photon in the unstated vertical datum of the "
+            "airborne lidar it was simulated from; not WGS-84 ellipsoidal height.")
+    return f"Photon height ({height_crs})", (
+        f"Height of each received photon in the vertical CRS {height_crs} (that of the "
+        "airborne lidar it was simulated from); not WGS-84 ellipsoidal height.")
+
+
+def _write_background(g: h5py.Group, b: Atl03Background) -> None:
+    bg = g.create_group("bckgrd_atlas")
+    _ds(bg, "delta_time", b.delta_time, "seconds since 2018-01-01",
+        "Time at the start of ATLAS 50-shot sum",
+        description="Time at the start of each 50-shot background sum.")
+    _ds(bg, "bckgrd_rate", b.rate.astype(np.float32), "counts / second",
+        "Background count rate based on the ATLAS 50-shot sum",
+        description="The background count rate (photons per second) of each 50-shot span.")
+    if b.counts is not None:
+        _ds(bg, "bckgrd_counts", b.counts, "counts", "ATLAS 50-shot background count",
+            description="Background photons counted in the telemetry band over the span.")
+    for name, arr, long_name in (("tlm_top_band1", b.tlm_top, "Top of the telemetry band 1"),
+                                 ("tlm_height_band1", b.tlm_height,
+                                  "Height of the telemetry band 1"),
+                                 ("bckgrd_hist_top", b.tlm_top,
+                                  "Top of the altimetric range window"),
+                                 ("bckgrd_int_height", b.tlm_height,
+                                  "Altimetric range window width")):
+        if arr is not None:
+            _ds(bg, name, arr.astype(np.float32), "meters", long_name)
+
+
 def _write_beam(f: h5py.File, beam: str, d: Atl03BeamData, sc_orient: int, extra_group: str,
-                dist_x0: float) -> None:
+                dist_x0: float, height_crs: str | None = None) -> None:
     n = len(d)
     seg = np.floor(d.s / SEGMENT_LENGTH).astype(np.int64)
     order = np.lexsort((d.delta_time, seg))  # photons grouped by segment, in time order
@@ -338,7 +439,11 @@ def _write_beam(f: h5py.File, beam: str, d: Atl03BeamData, sc_orient: int, extra
         "Elapsed GPS seconds")
     _ds(hg, "lat_ph", d.lat[order], "degrees_north", "Latitude")
     _ds(hg, "lon_ph", d.lon[order], "degrees_east", "Longitude")
-    _ds(hg, "h_ph", d.h[order].astype(np.float32), "meters", "Photon WGS84 Height")
+    long_name, description = _h_ph_text(height_crs)
+    _ds(hg, "h_ph", d.h[order].astype(np.float32), "meters", long_name,
+        description=description)
+    if height_crs is not None:
+        hg["h_ph"].attrs["vertical_crs"] = str(height_crs)
     _ds(hg, "dist_ph_along", (s_sorted - seg_start[seg]).astype(np.float32), "meters",
         "Distance from equator crossing.")
     _ds(hg, "dist_ph_across", np.zeros(n, np.float32), "meters", "Distance off RGT.")
@@ -360,6 +465,8 @@ def _write_beam(f: h5py.File, beam: str, d: Atl03BeamData, sc_orient: int, extra
     _ds(gg, "reference_photon_lon", ref_lon, "degrees_east", "Segment Longitude")
     _ds(gg, "delta_time", ref_t, "seconds since 2018-01-01", "Delta Time")
 
+    if d.background is not None:
+        _write_background(g, d.background)
     if d.extra:
         eg = g.create_group(extra_group)
         eg.attrs["description"] = "per-photon columns added by canopyblocks (e.g. truth)"

@@ -24,6 +24,7 @@ from ..readers.las import LasPoints
 from .footprints import CloudIndex, _ranges
 from .params import SimParams
 from .sampling import draw_noise, pick_sources
+from .telemetry import telemetry_window
 from .tracks import SimTrack, shots_along
 from .truth import RH_LEVELS, footprint_truth
 
@@ -73,6 +74,10 @@ class Simulation:
         error), ``s``, ``h`` and truth ``noise`` (bool), ``src_index`` (the source point's
         ``LasPoints.rows``: its row in the input files, -1 for noise),
         ``src_x``, ``src_y``, ``src_z``, ``x_true``, ``y_true`` (footprint centre).
+    telemetry_bottom, telemetry_top : ndarray float64 or None
+        Per shot, the height window (metres, the cloud's vertical datum) the background
+        photons fall in: the coarse terrain -/+ ``params.telemetry_window``; NaN where
+        the track has not reached the cloud yet or has left it; None without background.
     """
 
     params: SimParams
@@ -89,6 +94,8 @@ class Simulation:
     seed: int | None = None
     source: str = ""
     meta: dict[str, object] = field(default_factory=dict)
+    telemetry_bottom: np.ndarray | None = None
+    telemetry_top: np.ndarray | None = None
 
     @property
     def n_shots(self) -> int:
@@ -183,6 +190,11 @@ MAX_SIMULATED_ITEMS = 100_000_000
 (each costs tens of bytes in several arrays: 1e8 is a few GiB)."""
 
 
+_SIZE_KNOBS = {"shot_spacing": "shot_spacing", "mean_photons": "mean_photons",
+               "background_rate_mhz": "the background noise rate background_rate_mhz "
+                                      "(or the telemetry_window)"}
+
+
 def check_simulation_size(points: LasPoints, track: SimTrack, params: SimParams,
                           realisations: int) -> None:
     """Estimate shots, photons and footprint-point pairs; refuse absurd parameters.
@@ -198,12 +210,11 @@ def check_simulation_size(points: LasPoints, track: SimTrack, params: SimParams,
     # the points' own extent (not LasPoints.bounds, which refuses a cloud on a line)
     area = max(float(np.ptp(points.x)) * float(np.ptp(points.y)), 1.0) if len(points) else 1.0
     per_footprint = len(points) / area * np.pi * params.radius ** 2
-    below, above = params.noise_window
-    z_span = float(np.ptp(points.z)) if len(points) else 0.0
     estimates = {
         "shot_spacing": shots * max(per_footprint, 1.0),
         "mean_photons": shots * realisations * params.photon_mean,
-        "noise_rate": shots * realisations * params.noise_rate * (below + above + z_span),
+        "background_rate_mhz": (shots * realisations * params.noise_per_shot_per_m
+                                * 2.0 * params.telemetry_window),
     }
     name, worst = max(estimates.items(), key=lambda kv: kv[1])
     if not worst <= MAX_SIMULATED_ITEMS:
@@ -211,7 +222,8 @@ def check_simulation_size(points: LasPoints, track: SimTrack, params: SimParams,
             f"these simulation parameters would make about {worst:.2g} "
             f"{'footprint-point pairs' if name == 'shot_spacing' else 'photons'} "
             f"({shots:.3g} shots x {realisations} realisations; limit "
-            f"{MAX_SIMULATED_ITEMS:.0e}): reduce {name} "
+            f"{MAX_SIMULATED_ITEMS:.0e}, several GiB of memory): reduce "
+            f"{_SIZE_KNOBS[name]} "
             f"(now {getattr(params, name) if name != 'mean_photons' else params.photon_mean:g})"
             ", the number of realisations or the track length")
 
@@ -235,8 +247,11 @@ def simulate_photons(
     track : SimTrack
         Polyline in the cloud's CRS, metres.
     params : SimParams, optional
-        Footprint, photon rate, PSF, noise, geolocation error (defaults: ICESat-2
-        strong beam, 13 m, temperate 1.9 photons per shot).
+        Footprint, photon rate, PSF, background noise, geolocation error (defaults:
+        ICESat-2 strong beam, 13 m, temperate 1.9 photons per shot, no background).
+        Background photons fall uniformly in a telemetry window that follows the
+        coarse terrain (:mod:`~canopyblocks.simulate.telemetry`), at
+        ``background_rate_mhz``.
     realisations : int
         Independent photon draws from the same footprint PDFs (seed 002 used 100).
     seed : int or None
@@ -320,10 +335,19 @@ def _simulate(points: LasPoints, track: SimTrack, params: SimParams, realisation
     real, shot, src = real[keep], shot[keep], src[keep]
     h = index.z[src] + h_err[keep]
     noise = np.zeros(h.size, bool)
-    if params.noise_rate > 0:
-        below, above = params.noise_window
-        nr, ns, nh = draw_noise(truth["ground"] - below, truth["top"] + above,
-                                params.noise_rate, n_real, rng)
+    t_lo = t_hi = None
+    if params.background_rate_mhz > 0:
+        # one window from the coarse terrain (never a footprint's truth), from the first
+        # shot that reaches the cloud to the last
+        t_lo, t_hi = telemetry_window(points, track, ss, half_height=params.telemetry_window,
+                                      smoothing=params.telemetry_smoothing,
+                                      exclude_classes=params.exclude_classes)
+        covered = np.flatnonzero(truth["n_points"] > 0)
+        outside = np.ones(n, bool)
+        outside[covered[0]:covered[-1] + 1] = False
+        t_lo[outside] = np.nan
+        t_hi[outside] = np.nan
+        nr, ns, nh = draw_noise(t_lo, t_hi, params.noise_per_shot_per_m, n_real, rng)
         real = np.concatenate([real, nr])
         shot = np.concatenate([shot, ns])
         h = np.concatenate([h, nh])
@@ -354,4 +378,5 @@ def _simulate(points: LasPoints, track: SimTrack, params: SimParams, realisation
         params=params, track=track, crs=points.crs, vertical_datum=points.vertical_datum,
         n_realisations=int(realisations), shot_x=sx, shot_y=sy, shot_s=ss,
         shot_time=np.arange(n) / float(params.pulse_rate),  # type: ignore[arg-type]
-        truth=truth, photons=photons, seed=seed, source=";".join(points.sources))
+        truth=truth, photons=photons, seed=seed, source=";".join(points.sources),
+        telemetry_bottom=t_lo, telemetry_top=t_hi)

@@ -16,6 +16,9 @@ __all__ = [
     "Instrument",
     "Ecosystem",
     "Beam",
+    "SPEED_OF_LIGHT",
+    "PHOTONS_PER_SHOT_PER_M_PER_MHZ",
+    "BACKGROUND_PRESETS_MHZ",
 ]
 
 Instrument = Literal["icesat2", "mabel"]
@@ -27,6 +30,18 @@ POISSON_MEANS: dict[str, float] = {"boreal": 1.0, "temperate": 1.9, "tropical": 
 
 #: Weak beam energy relative to the strong beam (seed 002: 4:1 ratio).
 WEAK_BEAM_RATIO = 0.25
+
+#: Speed of light in vacuum, m/s.
+SPEED_OF_LIGHT = 299_792_458.0
+
+#: Background photons per shot per metre of height window for a rate of 1 MHz: a window
+#: ``dh`` metres tall lasts ``2 dh / c`` seconds of two-way travel, so a rate ``r``
+#: (photons/s) gives ``r * 2 / c`` photons per shot per metre (1 MHz = 0.00667).
+PHOTONS_PER_SHOT_PER_M_PER_MHZ = 1e6 * 2.0 / SPEED_OF_LIGHT
+
+#: Background rates (MHz) of the ``night`` and ``day`` presets: ICESat-2 night-time
+#: rates are ~0.1-0.3 MHz, daytime ~1-5 MHz (the bundled real daytime clip: 0.9-3.7 MHz).
+BACKGROUND_PRESETS_MHZ: dict[str, float] = {"night": 0.15, "day": 3.0}
 
 #: Instrument presets: footprint diameter (m), shot spacing (m), pulse rate (Hz).
 #: ICESat-2: 13 m at the start of the mission (17 m at the end), 0.7 m, 10 kHz.
@@ -101,12 +116,26 @@ class SimParams:
         User Poisson mean per shot (for the chosen beam), overriding preset/beam.
     psf : float
         Instrument point-spread (Gaussian sigma), metres (ATLAS: 0.25).
-    noise_rate : float
-        Solar background: mean noise photons per shot per metre of the height window
-        (0 = off, the default; seed 002 lists noise as future work).
-    noise_window : (float, float)
-        The window extends this far below the footprint's truth ground and above its
-        truth top, metres.
+    background_rate_mhz : float
+        Solar background rate, MHz (10^6 photons per second), the same for strong and
+        weak beams (0 = off, the default; seed 002 lists noise as future work). Night
+        ~0.1-0.3, day ~1-5 (:data:`BACKGROUND_PRESETS_MHZ`). Background photons fall
+        uniformly in the telemetry window, ``rate x 2 / c`` per shot per metre of it.
+    noise_rate : float or None
+        Deprecated spelling of the background rate in photons per shot per metre of
+        window (1 MHz = 0.00667); converted to ``background_rate_mhz`` and then set
+        to None (so ``dataclasses.replace`` with a new rate works);
+        :attr:`noise_per_shot_per_m` gives the per-shot-per-metre rate.
+    telemetry_window : float
+        Half-height of the telemetry window, metres: background photons fall between
+        ``coarse terrain - telemetry_window`` and ``coarse terrain + telemetry_window``
+        (default 100 m, a 200 m tall window; real ATL03 windows over land are tens to
+        hundreds of metres tall). It knows nothing of the footprints' canopy.
+    telemetry_smoothing : float
+        Scale of the coarse terrain the window follows, metres (default 1000): the
+        airborne ground points (class 2; the lowest point per cell when the cloud has
+        no ground class) smoothed along the track with a Gaussian of standard deviation
+        ``telemetry_smoothing / 4``, as ATL03 sets its window from a coarse DEM.
     geolocation_sigma : float
         Horizontal geolocation error: each shot's reported position is moved by a
         Gaussian of this sigma (metres) in x and y; 0 = exact footprint centre.
@@ -124,8 +153,10 @@ class SimParams:
     beam: Beam = "strong"
     mean_photons: float | None = None
     psf: float = 0.25
-    noise_rate: float = 0.0
-    noise_window: tuple[float, float] = (10.0, 10.0)
+    background_rate_mhz: float = 0.0
+    noise_rate: float | None = None
+    telemetry_window: float = 100.0
+    telemetry_smoothing: float = 1000.0
     geolocation_sigma: float = 0.0
     exclude_classes: tuple[int, ...] = (7, 18)
     truth: TruthParams = field(default_factory=TruthParams)
@@ -154,20 +185,43 @@ class SimParams:
                 math.isfinite(self.mean_photons) and self.mean_photons >= 0):
             raise InputError(
                 f"mean_photons must be >= 0 photons per shot; got {self.mean_photons!r}")
-        if not (math.isfinite(self.noise_rate) and self.noise_rate >= 0):
-            raise InputError(
-                f"noise_rate must be >= 0 photons per shot per metre; got {self.noise_rate!r}")
-        if len(self.noise_window) != 2 or not all(
-                math.isfinite(v) and v >= 0 for v in self.noise_window):
-            raise InputError(
-                f"noise_window must be two metres >= 0 (below ground, above top); "
-                f"got {self.noise_window!r}")
+        self._check_background()
         if not (math.isfinite(self.geolocation_sigma) and self.geolocation_sigma >= 0):
             raise InputError(
                 f"geolocation_sigma must be >= 0 metres; got {self.geolocation_sigma!r}")
         if not isinstance(self.truth, TruthParams):
             raise InputError("truth must be a TruthParams")
         object.__setattr__(self, "exclude_classes", tuple(int(c) for c in self.exclude_classes))
+
+    def _check_background(self) -> None:
+        """Validate the background rate (MHz or the deprecated per-shot-per-metre form)
+        and the telemetry window; fill both rate spellings."""
+        mhz = self.background_rate_mhz
+        if not (isinstance(mhz, (int, float)) and math.isfinite(mhz) and mhz >= 0):
+            raise InputError(f"background_rate_mhz must be >= 0 MHz (night ~0.15, day ~3); "
+                             f"got {mhz!r}")
+        nr = self.noise_rate
+        if nr is not None:
+            if not (isinstance(nr, (int, float)) and math.isfinite(nr) and nr >= 0):
+                raise InputError(f"noise_rate must be >= 0 photons per shot per metre "
+                                 f"(deprecated: use background_rate_mhz); got {nr!r}")
+            from_nr = float(nr) / PHOTONS_PER_SHOT_PER_M_PER_MHZ
+            if mhz > 0 and not math.isclose(from_nr, mhz, rel_tol=1e-9):
+                raise InputError(
+                    f"give the background rate once: background_rate_mhz={mhz!r} and "
+                    f"noise_rate={nr!r} (= {from_nr:.4g} MHz) disagree")
+            mhz = from_nr
+        object.__setattr__(self, "background_rate_mhz", float(mhz))
+        object.__setattr__(self, "noise_rate", None)
+        for name in ("telemetry_window", "telemetry_smoothing"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise InputError(f"{name} must be a positive number of metres; got {v!r}")
+
+    @property
+    def noise_per_shot_per_m(self) -> float:
+        """Mean background photons per shot per metre of telemetry window."""
+        return self.background_rate_mhz * PHOTONS_PER_SHOT_PER_M_PER_MHZ
 
     @property
     def radius(self) -> float:

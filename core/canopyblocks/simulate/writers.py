@@ -4,8 +4,15 @@ The HDF5 layouts come from :mod:`canopyblocks.outputs.h5_layouts` (shared with e
 other writer), so ``read_atl03``/``read_mabel`` read the files like real granules.
 Positions are converted from the cloud's CRS to WGS84 lat/lon; heights are written
 as simulated, i.e. **in the airborne cloud's vertical datum**, not the WGS84
-ellipsoid a real granule uses.  Keep track of that datum (``Simulation.vertical_datum``,
-e.g. ``EPSG:5713`` for CGVD28) when comparing the photons with other data.
+ellipsoid a real granule uses.  The ATL03-layout file says so: ``h_ph``'s description
+and the file attribute ``canopyblocks_height_crs`` name that datum
+(``Simulation.vertical_datum``, e.g. ``EPSG:5713`` for CGVD28).
+
+ATL03-layout files also carry, as real granules do, ``orbit_info/sc_orient`` chosen so
+that the beams carry the simulated strength under the real layout's rule (backward:
+left beams strong; forward: right beams strong), ``signal_conf_ph`` graded from the
+photons alone (:mod:`~canopyblocks.simulate.confidence`) and ``bckgrd_atlas`` with the
+background rate per 50-shot span.
 """
 
 from __future__ import annotations
@@ -21,10 +28,17 @@ import numpy as np
 from ..errors import InputError
 from ..geo import from_metric
 from ..outputs.atomic import atomic_outputs, check_writable
-from ..outputs.h5_layouts import Atl03BeamData, MabelChannelData, write_atl03, write_mabel
+from ..outputs.h5_layouts import (
+    Atl03Background,
+    Atl03BeamData,
+    MabelChannelData,
+    write_atl03,
+    write_mabel,
+)
 from ..outputs.tables import check_output_path, write_table
 from ..progress import Progress, as_progress
 from ..schema import LAYER_PHOTONS
+from .confidence import signal_confidence
 from .engine import PHOTON_TRUTH_COLUMNS, Simulation
 
 if TYPE_CHECKING:
@@ -41,6 +55,36 @@ log = logging.getLogger(__name__)
 
 _ATL03_BEAMS = ("gt1l", "gt1r", "gt2l", "gt2r", "gt3l", "gt3r")
 
+SHOTS_PER_BACKGROUND_SUM = 50
+"""ATLAS sums the background over 50 shots (200 Hz): one ``bckgrd_atlas`` row each."""
+
+
+def sc_orient_for(beam: str, strength: str) -> int:
+    """``orbit_info/sc_orient`` under which ``beam`` has ``strength`` in real granules
+    (0 backward: left beams strong; 1 forward: right beams strong)."""
+    return 1 if (strength == "strong") == beam.endswith("r") else 0
+
+
+def background_of(sim: Simulation, realisation: int = 0) -> Atl03Background:
+    """The ``bckgrd_atlas`` rows of one realisation: per 50 shots, the start time, the
+    rate (photons/s), the background photons counted and the telemetry window."""
+    n = sim.n_shots
+    k = SHOTS_PER_BACKGROUND_SUM
+    first = np.arange(0, n, k)
+    c = sim.photon_columns(realisation)
+    noisy = np.asarray(c["noise"], bool)
+    counts = np.bincount(c["shot"][noisy] // k, minlength=first.size)[:first.size]
+    top = height = None
+    if sim.telemetry_top is not None and sim.telemetry_bottom is not None:
+        ok = np.isfinite(sim.telemetry_top)
+        shots = np.flatnonzero(ok)
+        if shots.size:  # spans before/after the cloud keep the nearest window
+            top = np.interp(first, shots, sim.telemetry_top[ok])
+            height = np.interp(first, shots, (sim.telemetry_top - sim.telemetry_bottom)[ok])
+    rate = np.full(first.size, sim.params.background_rate_mhz * 1e6)
+    return Atl03Background(delta_time=sim.shot_time[first], rate=rate, counts=counts,
+                           tlm_top=top, tlm_height=height)
+
 
 def truth_extra(cols: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """Per-photon truth columns for a file (booleans stored as int8 0/1)."""
@@ -56,13 +100,17 @@ def atl03_beam_data(sim: Simulation, realisation: int = 0) -> Atl03BeamData:
 
     ``delta_time`` = shot index / pulse rate (seconds from the first shot), ``s`` =
     distance along the simulated track (metres), lat/lon = the reported footprint
-    centre in WGS84, ``signal_conf`` = 4 for every photon (no signal finding is
-    simulated; the ``noise`` truth column tells noise photons apart).
+    centre in WGS84, ``signal_conf`` graded from the photons alone
+    (:func:`~canopyblocks.simulate.confidence.signal_confidence`, never the truth;
+    the ``noise`` truth column tells noise photons apart), ``background`` the
+    background rate per 50 shots (:func:`background_of`).
     """
     c = sim.photon_columns(realisation)
     lon, lat = from_metric(c["x"], c["y"], sim.crs)
     return Atl03BeamData(delta_time=c["time"], lat=lat, lon=lon, h=c["h"], s=c["s"],
-                         signal_conf=None, extra=truth_extra(c), strength=sim.params.beam)
+                         signal_conf=signal_confidence(c["s"], c["h"]),
+                         extra=truth_extra(c), strength=sim.params.beam,
+                         background=background_of(sim, realisation))
 
 
 def write_simulation_atl03(sim: Simulation, path: str | os.PathLike[str], *,
@@ -79,16 +127,24 @@ def write_simulation_atl03(sim: Simulation, path: str | os.PathLike[str], *,
         Which realisations to write (default the first), one beam each.
     beams : sequence of str, optional
         Beam names, one per realisation; default the track's name for the first
-        (``gt1r``) and the remaining ATL03 beams in order for the others.
+        (``gt1r``), then the other beams of the same side (which carry the same
+        strength in a real granule), then the rest.
 
+    ``orbit_info/sc_orient`` is chosen so that the first beam carries the simulated
+    strength under the real layout's rule (a strong ``gt1r``: forward, 1). Beams of
+    the other side hold photons of the same simulated strength: ``atlas_beam_type``
+    states that strength and a log warning says the layout rule is broken for them.
     The file is byte-identical for the same simulation (no timestamps are stored).
     """
     reals = list(realisations)
     if not reals:
         raise InputError("give at least one realisation to write")
+    strength = sim.params.beam
     if beams is None:
         first = sim.track.name if sim.track.name in _ATL03_BEAMS else "gt1r"
-        names = [first] + [b for b in _ATL03_BEAMS if b != first]
+        side = first[-1]
+        names = ([first] + [b for b in _ATL03_BEAMS if b != first and b[-1] == side]
+                 + [b for b in _ATL03_BEAMS if b[-1] != side])
         if len(reals) > len(names):
             raise InputError(f"an ATL03 file holds at most 6 beams; got {len(reals)} "
                              "realisations: write several files")
@@ -96,7 +152,13 @@ def write_simulation_atl03(sim: Simulation, path: str | os.PathLike[str], *,
     if len(beams) != len(reals):
         raise InputError(f"{len(beams)} beam names for {len(reals)} realisations")
     data = {b: atl03_beam_data(sim, r) for b, r in zip(beams, reals)}
-    out = write_atl03(path, data, sc_orient=0 if sim.params.beam == "strong" else 1)
+    orient = sc_orient_for(beams[0], strength) if beams[0] in _ATL03_BEAMS else 0
+    other = [b for b in beams if b in _ATL03_BEAMS and sc_orient_for(b, strength) != orient]
+    if other:
+        log.warning("%s: %s hold %s-beam photons although a real granule of this "
+                    "orientation has %s beams there", path, ", ".join(other), strength,
+                    "weak" if strength == "strong" else "strong")
+    out = write_atl03(path, data, sc_orient=orient, height_crs=sim.vertical_datum)
     log.info("wrote simulated ATL03-layout photons to %s", out)
     return out
 
