@@ -58,6 +58,7 @@ def test_additive_bias_recovered_and_applied():
     assert (out["calibration"] == "bias:additive").all()
 
 
+@pytest.mark.filterwarnings("ignore:.*bounded to 0 <= H90 <= Hmax")  # 1 synthetic block
 def test_linear_bias_and_strengths():
     rng = np.random.default_rng(1)
     a = _table(rng, n=150, bias=0.0, tracks=("gt1l",))
@@ -141,3 +142,63 @@ def test_holdout_error_predicts_the_other_site(sample):
     # the error found there (both are out-of-sample estimates of one quantity)
     assert after < 0.6 * before
     assert after == pytest.approx(m.holdout_rmse_after, rel=0.35)
+
+
+# ---- calibrated heights stay physical (issue 23, item 5) ------------------------------------
+
+
+@pytest.mark.filterwarnings("ignore:.*bounded to 0 <= H90 <= Hmax")
+def test_fitting_then_applying_on_the_same_table_is_accepted():
+    rng = np.random.default_rng(5)
+    table = _table(rng).drop(columns=["estimators"], errors="ignore")
+    cal = fit_bias_calibration(table)
+    out = apply_bias_calibration(table, cal)  # no estimators column on either side
+    assert np.isfinite(out["hmax"]).all()
+
+
+def test_readme_example_keeps_h90_below_hmax(sample, pdal_bin, tmp_path, capsys):
+    """The README's steps: simulate over lasR_bcts_1, rasters, a bias calibration of the
+    icesat2 preset at 25 m, then ``blocks --calibration`` on the same photons.  Before
+    the fix 3 of its 10 blocks had calibrated H90 above Hmax; the yardstick is the raw
+    blocks plus the intercepts the JSON records, computed here."""
+    import geopandas as gpd
+
+    from canopyblocks.cli import main
+
+    t = str(sample("als/lasR_bcts_1.laz"))
+    out = tmp_path / "out"
+    steps = [
+        ["simulate", t, "--azimuth", "10", "--diameter", "13", "--preset", "temperate",
+         "--seed", "1", "-o", str(out / "sim_atl03.h5")],
+        ["rasters", t, "-o", str(out / "rasters"), "--resolution", "2"],
+        ["calibrate", str(out / "sim_atl03.h5"), "--method", "bias", "--preset", "icesat2",
+         "--length", "25", "--dtm", str(out / "rasters/dtm.tif"), "--dsm-max",
+         str(out / "rasters/dsm_max.tif"), "--dsm-p90", str(out / "rasters/dsm_p90.tif"),
+         "--width", "13", "--offset", "0", "--photon-vcrs", "EPSG:5713",
+         "-o", str(out / "cal.json")],
+        ["blocks", str(out / "sim_atl03.h5"), "--crs", "EPSG:3005", "--preset", "icesat2",
+         "--length", "25", "-o", str(out / "raw.gpkg")],
+        ["blocks", str(out / "sim_atl03.h5"), "--crs", "EPSG:3005", "--preset", "icesat2",
+         "--length", "25", "--calibration", str(out / "cal.json"), "-o", str(out / "cal.gpkg")],
+    ]
+    for args in steps[:-1]:
+        assert main(["-q", *args]) == 0, args
+    capsys.readouterr()
+    assert main(["-q", *steps[-1]]) == 0
+    assert "bounded to 0 <= H90 <= Hmax" in capsys.readouterr().err
+    raw = gpd.read_file(out / "raw.gpkg", layer="blocks")
+    got = gpd.read_file(out / "cal.gpkg", layer="blocks")
+    doc = json.loads((out / "cal.json").read_text())
+    b = {m["metric"]: m["intercept"] for m in doc["models"]}
+    want_hmax = raw["hmax"].to_numpy() + b["hmax"]
+    want_h90 = raw["h90"].to_numpy() + b["h90"]
+    crossing = want_h90 > want_hmax
+    ok = np.isfinite(got["hmax"].to_numpy())
+    assert crossing.sum() >= 1  # the example does produce crossing corrections
+    assert (got["h90"][ok] <= got["hmax"][ok] + 1e-9).all()
+    assert (got["top"][ok] >= got["ground"][ok] - 1e-9).all()
+    assert ((got["calibration"] == "bias:additive:bounded").to_numpy() == crossing).all()
+    # the blocks that needed no bound carry the correction exactly
+    keep = ~crossing & ok
+    np.testing.assert_allclose(got["hmax"][keep], want_hmax[keep], atol=1e-6)
+    np.testing.assert_allclose(got["h90"][keep], want_h90[keep], atol=1e-6)

@@ -188,9 +188,14 @@ def run_chain(
                 tiles, out, azimuth=azimuth, diameter=diameter, preset=preset, seed=seed,
                 realisations=realisations, progress=prog.sub(0.0, 0.25))
             # simulated heights are the tiles' own heights: same vertical datum by construction
-            offset, geoid, photon_vcrs = 0.0, None, crs
+            offset, geoid, photon_vcrs = 0.0, None, _tiles_crs(tiles) or crs
             width = diameter if width is None else width
         width = 2.0 if width is None else width
+        ref_vcrs = _tiles_crs(tiles)
+        if not simulated:  # the one datum rule, before minutes of work (validate applies it too)
+            from .reference.datum import check_vertical_datums
+
+            check_vertical_datums("EPSG:4979", ref_vcrs, geoid=geoid, offset=offset)
         plots_dir = out / "plots"
         prog.update(0.25, "block heights")
         res = blocks_from_file(photons, params, estimators=estimators, calibration=calibration,
@@ -204,8 +209,7 @@ def run_chain(
                                          progress=prog.sub(0.4, 0.75))
         prog.update(0.75, "validation")
         # the rasters were made in the blocks' (horizontal) CRS: their heights keep the
-        # tiles' vertical datum, which the one datum rule (DESIGN 2.6) must see
-        ref_vcrs = _tiles_crs(tiles)
+        # tiles' vertical datum (ref_vcrs), which the one datum rule (DESIGN 2.6) must see
         vkw: dict[str, Any] = {"width": width, "geoid": geoid, "offset": offset,
                                "photon_vertical_crs": photon_vcrs,
                                "reference_vertical_crs": ref_vcrs}
@@ -272,15 +276,12 @@ def run_chain(
 
 
 def _tiles_crs(tiles: Sequence[Path]) -> Any:
-    """The tiles' full (compound) CRS as their header states it: the vertical datum of
-    every raster made from them, also after reprojection; None when unstated."""
-    try:
-        import laspy
+    """The tiles' full (compound) CRS as their header states it (WKT or GeoTIFF keys,
+    read by the one LAS CRS reader): the vertical datum of every raster made from them,
+    also after reprojection; None when unstated."""
+    from .readers.las_crs import las_file_crs
 
-        with laspy.open(tiles[0]) as reader:
-            return reader.header.parse_crs()
-    except Exception:  # noqa: BLE001 - unreadable tiles were reported by the rasters step
-        return None
+    return las_file_crs(tiles[0]).crs
 
 
 def _coregistered(blocks: Any, tracks: Any, rasters: Any, out: Path, vkw: dict[str, Any],

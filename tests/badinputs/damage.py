@@ -195,3 +195,36 @@ def write_cloud(path: Path, x: np.ndarray, y: np.ndarray, z: np.ndarray, c: np.n
     las.classification = c
     las.write(path)
     return path
+
+
+def write_cloud_geokeys(path: Path, x: np.ndarray, y: np.ndarray, z: np.ndarray,
+                        c: np.ndarray, keys: list[tuple[int, int]], *, version: str = "1.2",
+                        scale: float = 0.01) -> Path:
+    """A LAS/LAZ whose CRS is only GeoTIFF keys ``[(key id, inline value)]``, e.g.
+    ``[(3072, 32613), (4096, 6360), (4099, 9003)]`` (UTM 13N + NAVD88 height in US survey
+    feet), as LAS 1.2 writers state it (laspy's own ``add_crs`` writes no vertical key)."""
+    import laspy
+    from laspy.vlrs.known import GeoKeyDirectoryVlr, GeoKeyEntryStruct, GeoKeysHeaderStructs
+
+    vlr = GeoKeyDirectoryVlr()
+    head = GeoKeysHeaderStructs()
+    head.key_directory_version, head.key_revision, head.minor_revision = 1, 1, 0
+    head.number_of_keys = len(keys)
+    vlr.geo_keys_header = head
+    entries = []
+    for kid, value in keys:
+        e = GeoKeyEntryStruct()
+        e.id, e.tiff_tag_location, e.count, e.value_offset = kid, 0, 1, value
+        entries.append(e)
+    vlr.geo_keys = entries
+    h = laspy.LasHeader(point_format=6 if version == "1.4" else 1, version=version)
+    if len(x):
+        h.offsets = [float(np.floor(np.min(x))), float(np.floor(np.min(y))),
+                     float(np.floor(np.min(z)))]
+    h.scales = [scale, scale, scale]
+    h.vlrs.append(vlr)
+    las = laspy.LasData(h)
+    las.x, las.y, las.z = x, y, z
+    las.classification = c
+    las.write(path)
+    return path

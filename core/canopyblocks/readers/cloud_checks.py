@@ -5,17 +5,112 @@ heights above ground, not elevations: its DTM is 0 everywhere and a validation a
 photon elevations would report the terrain height as bias.  It is detected from the ground
 points (ASPRS class 2, or the lowest points when unclassified) and warned about; a tile truly
 at sea level may trigger it, so it is a warning, not a refusal.
+
+Heights that cannot be on Earth are refused (:class:`HeightTally`): a tile whose terrain
+lies at 100 km (a wrong z offset or scale) or below -500 m (nothing on land is lower:
+the Dead Sea shore is at -430 m; ellipsoidal and orthometric heights differ by at most
+about 110 m).
 """
 
 from __future__ import annotations
 
+import math
 import warnings
+from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import CanopyBlocksWarning
+from ..errors import CanopyBlocksWarning, NoUsableDataError
 
-__all__ = ["NormalisedCloudWarning", "looks_normalised", "warn_if_normalised"]
+__all__ = ["NormalisedCloudWarning", "looks_normalised", "warn_if_normalised",
+           "PLAUSIBLE_HEIGHTS", "HeightTally"]
+
+PLAUSIBLE_HEIGHTS = (-500.0, 9000.0)
+"""Lowest and highest terrain height (m, any vertical datum) a survey on Earth can have:
+below the Dead Sea shore (-430 m) less the largest geoid undulation, above Everest
+(8849 m)."""
+
+_NOISE = (7, 18)
+
+
+@dataclass
+class HeightTally:
+    """Counts of points outside :data:`PLAUSIBLE_HEIGHTS`, accumulated chunk by chunk.
+
+    Ground points (ASPRS class 2) stand for the terrain; when a file has none, every
+    point that is not classed noise (7, 18) does.  Noise points are not counted.
+    """
+
+    n_ground: int = 0
+    n_ground_out: int = 0
+    n_other: int = 0
+    n_other_out: int = 0
+    zmin: float = math.inf
+    zmax: float = -math.inf
+
+    def add(self, z: np.ndarray, classification: np.ndarray) -> None:
+        """Count one chunk: heights ``z`` (m) and their classes."""
+        z = np.asarray(z)
+        c = np.asarray(classification)
+        keep = ~np.isin(c, _NOISE)
+        out = ((z < PLAUSIBLE_HEIGHTS[0]) | (z > PLAUSIBLE_HEIGHTS[1])) & keep
+        ground = c == 2
+        self.n_ground += int(np.count_nonzero(ground))
+        self.n_ground_out += int(np.count_nonzero(out & ground))
+        self.n_other += int(np.count_nonzero(keep & ~ground))
+        self.n_other_out += int(np.count_nonzero(out & ~ground))
+        if keep.any():
+            zk = z[keep]
+            self.zmin = min(self.zmin, float(zk.min()))
+            self.zmax = max(self.zmax, float(zk.max()))
+
+    def add_scaled(self, zi: np.ndarray, classification: np.ndarray, scale: float,
+                   offset: float) -> None:
+        """Count one chunk of integer LAS heights (``z = zi * scale + offset``, scale > 0)."""
+        zi = np.asarray(zi)
+        lo = math.ceil((PLAUSIBLE_HEIGHTS[0] - offset) / scale)
+        hi = math.floor((PLAUSIBLE_HEIGHTS[1] - offset) / scale)
+        # the integer test equals the float one; extremes converted only for the message
+        c = np.asarray(classification)
+        keep = ~np.isin(c, _NOISE)
+        out = ((zi < lo) | (zi > hi)) & keep
+        ground = c == 2
+        self.n_ground += int(np.count_nonzero(ground))
+        self.n_ground_out += int(np.count_nonzero(out & ground))
+        self.n_other += int(np.count_nonzero(keep & ~ground))
+        self.n_other_out += int(np.count_nonzero(out & ~ground))
+        if keep.any():
+            zk = zi[keep]
+            self.zmin = min(self.zmin, float(zk.min()) * scale + offset)
+            self.zmax = max(self.zmax, float(zk.max()) * scale + offset)
+
+    def check(self, what: str) -> None:
+        """Refuse terrain off the Earth; warn about a minority of points off it.
+
+        Raises
+        ------
+        NoUsableDataError
+            Most of the terrain points (ground, else all non-noise points) lie outside
+            :data:`PLAUSIBLE_HEIGHTS`; the message names ``what`` and the heights found.
+        """
+        lo, hi = PLAUSIBLE_HEIGHTS
+        n, n_out = ((self.n_ground, self.n_ground_out) if self.n_ground
+                    else (self.n_other, self.n_other_out))
+        found = f"z from {self.zmin:.2f} to {self.zmax:.2f} m"
+        if n and 2 * n_out > n:
+            kind = "ground points" if self.n_ground else "points"
+            raise NoUsableDataError(
+                f"{what}: {n_out:,} of its {n:,} {kind} lie outside the heights a survey on "
+                f"Earth can have ({lo:g} to {hi:g} m; {found}): the heights are not metres "
+                "above a datum; check the file's z scale, z offset and vertical unit (e.g. "
+                "with pdal info --metadata)")
+        total_out = self.n_ground_out + self.n_other_out
+        if total_out:
+            warnings.warn(
+                f"{what}: {total_out:,} point(s) not classed noise lie outside the heights a "
+                f"survey on Earth can have ({lo:g} to {hi:g} m; {found}); they are used as "
+                "they are: class them noise (7 or 18) if they are errors",
+                CanopyBlocksWarning, stacklevel=3)
 
 
 class NormalisedCloudWarning(CanopyBlocksWarning):

@@ -29,7 +29,8 @@ from ..errors import (
 )
 from ..geo import as_crs, require_metre_units, require_metric_crs
 from ..progress import Progress, as_progress
-from .cloud_checks import warn_if_normalised
+from .cloud_checks import HeightTally, warn_if_normalised
+from .las_crs import las_file_crs
 from .las_header import check_header_extent, check_las_file, check_nothing_beyond_count
 
 __all__ = ["LasPoints", "read_las", "las_crs", "las_bounds"]
@@ -139,17 +140,11 @@ def _laspy():  # noqa: ANN202
 
 
 def las_crs(path: str | os.PathLike[str]) -> pyproj.CRS | None:
-    """The horizontal CRS stated in a LAS/LAZ header (WKT or GeoTIFF keys), or None."""
-    laspy = _laspy()
-    p = Path(path)
-    try:
-        with laspy.open(p) as reader:
-            crs = reader.header.parse_crs()
-    except FileNotFoundError:
-        raise FileFormatError(f"{p}: no such file") from None
-    except Exception as exc:  # laspy raises several types for corrupt headers
-        raise FileFormatError(f"{p}: not a readable LAS/LAZ file ({exc})") from None
-    return _horizontal(crs) if crs is not None else None
+    """The horizontal CRS stated in a LAS/LAZ header (WKT or GeoTIFF keys), or None.
+
+    The whole CRS (vertical part and units) is :func:`~canopyblocks.readers.las_crs.las_file_crs`.
+    """
+    return las_file_crs(path).horizontal
 
 
 def las_bounds(paths: str | os.PathLike[str] | Sequence[str | os.PathLike[str]]
@@ -182,29 +177,6 @@ def las_bounds(paths: str | os.PathLike[str] | Sequence[str | os.PathLike[str]]
         raise NoUsableDataError(
             f"no points in {', '.join(str(p) for p in paths)}; give tiles that hold points")
     return float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1])
-
-
-def _horizontal(crs: pyproj.CRS) -> pyproj.CRS:
-    if crs.is_compound:
-        for sub in crs.sub_crs_list:
-            if sub.is_projected or sub.is_geographic:
-                return sub
-    return crs
-
-
-def _vertical_name(crs: pyproj.CRS | None, header: object = None) -> str:
-    """``"EPSG:nnnn"`` (or the name) of the file's vertical CRS, else ``"unknown"``."""
-    if crs is not None and crs.is_compound:
-        for sub in crs.sub_crs_list:
-            if sub.is_vertical:
-                epsg = sub.to_epsg()
-                return f"EPSG:{epsg}" if epsg else sub.name
-    for vlr in getattr(header, "vlrs", []) or []:
-        for key in getattr(vlr, "geo_keys", []) or []:
-            # VerticalCSTypeGeoKey (4096): an EPSG vertical CRS code stored inline
-            if key.id == 4096 and key.tiff_tag_location == 0 and 1024 <= key.value_offset < 32767:
-                return f"EPSG:{key.value_offset}"
-    return "unknown"
 
 
 def read_las(
@@ -242,9 +214,12 @@ def read_las(
     FileFormatError
         Missing or unreadable file.
     CRSError
-        No CRS in a file and none given; tiles in different CRSs; a non-metric CRS.
+        No CRS in a file and none given; tiles in different CRSs; a non-metric CRS;
+        positions or heights the file states in feet.
     NoUsableDataError
-        No point left (empty files, or the box misses every tile).
+        No point left (empty files, or the box misses every tile); a tile whose terrain
+        lies outside the heights found on Earth
+        (:data:`~canopyblocks.readers.cloud_checks.PLAUSIBLE_HEIGHTS`).
     """
     if isinstance(paths, (str, os.PathLike)):
         paths = [paths]
@@ -273,6 +248,8 @@ def read_las(
         if not path.exists():
             raise FileFormatError(f"{path}: no such file")
         check_las_file(path)
+        stated = las_file_crs(path)  # the one reading of a tile's CRS (vertical part, units)
+        stated.require_metres()
         try:
             reader_cm = laspy.open(path)
         except FileNotFoundError:
@@ -281,12 +258,8 @@ def read_las(
             raise FileFormatError(f"{path}: not a readable LAS/LAZ file ({exc})") from None
         with reader_cm as reader:
             header = reader.header
-            try:
-                file_crs_full = header.parse_crs()
-            except Exception as exc:  # noqa: BLE001 - malformed CRS records
-                log.warning("%s: cannot parse the CRS records (%s)", path, exc)
-                file_crs_full = None
-            file_crs = _horizontal(file_crs_full) if file_crs_full is not None else None
+            file_crs_full = stated.crs
+            file_crs = stated.horizontal
             if file_crs is None:
                 if given is None:
                     raise CRSError(
@@ -302,7 +275,7 @@ def read_las(
                 require_metre_units(file_crs_full, f"tile {path}")
             if used_crs is None:
                 used_crs = require_metric_crs(file_crs, f"{path} CRS")
-                vdatum = _vertical_name(file_crs_full, header)
+                vdatum = stated.vertical_name
             elif not file_crs.equals(used_crs, ignore_axis_order=True):
                 raise CRSError(
                     f"{path}: CRS {file_crs.to_string()} differs from the first tile's "
@@ -318,9 +291,10 @@ def read_las(
             total = max(int(header.point_count), 1)
             done = 0
             ext = [np.inf, np.inf, -np.inf, -np.inf]  # the points' own extent
+            heights = HeightTally()
             try:
                 for chunk in reader.chunk_iterator(_CHUNK):
-                    e = _append_chunk(chunk, parts, bbox, excl, offset + done)
+                    e = _append_chunk(chunk, parts, bbox, excl, offset + done, heights)
                     ext = [min(ext[0], e[0]), min(ext[1], e[1]), max(ext[2], e[2]),
                            max(ext[3], e[3])]
                     done += len(chunk)
@@ -332,6 +306,7 @@ def read_las(
                     f"{path}: truncated or corrupt point data after {done:,} points ({exc})"
                 ) from None
             check_nothing_beyond_count(reader, path, done)
+            heights.check(str(path))
             if done and not check_header_extent(
                     path, hdr_ext, (ext[0], ext[1], ext[2], ext[3]),
                     tolerance=max(1.0, 2.0 * float(max(header.scales)))):
@@ -358,15 +333,16 @@ def read_las(
 
 def _append_chunk(chunk: Any, parts: dict[str, list[np.ndarray]],
                   bbox: tuple[float, float, float, float] | None, excl: np.ndarray,
-                  first_row: int) -> tuple[float, float, float, float]:
+                  first_row: int, heights: HeightTally) -> tuple[float, float, float, float]:
     """Append the kept points of one laspy point record (untyped: ``Any``) to ``parts``;
-    return the extent of all its points (kept or not)."""
+    count its heights in ``heights``; return the extent of all its points (kept or not)."""
     x = np.asarray(chunk.x, dtype=np.float64)
     y = np.asarray(chunk.y, dtype=np.float64)
     z = np.asarray(chunk.z, dtype=np.float64)
     c = np.asarray(chunk.classification, dtype=np.uint8)
     r = np.asarray(chunk.return_number, dtype=np.uint8)
     n = np.asarray(chunk.number_of_returns, dtype=np.uint8)
+    heights.add(z, c)
     keep = np.isfinite(x) & np.isfinite(y) & np.isfinite(z)
     if bbox is not None:
         keep &= (x >= bbox[0]) & (x <= bbox[2]) & (y >= bbox[1]) & (y <= bbox[3])

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import DependencyError, FileFormatError
+from .cloud_checks import HeightTally
 from .las_header import check_las_file, check_nothing_beyond_count
 
 __all__ = ["LasSummary", "las_summary", "NOISE_CLASSES"]
@@ -67,6 +68,9 @@ def las_summary(path: str | os.PathLike[str]) -> LasSummary:
     ------
     FileFormatError
         A damaged or truncated file (see :func:`~canopyblocks.readers.las_header.check_las_file`).
+    NoUsableDataError
+        Terrain outside the heights a survey on Earth can have
+        (:class:`~canopyblocks.readers.cloud_checks.HeightTally`).
     """
     laspy = _laspy()
     p = Path(path)
@@ -76,6 +80,7 @@ def las_summary(path: str | os.PathLike[str]) -> LasSummary:
     lo = np.full(3, np.iinfo(np.int64).max)
     hi = np.full(3, np.iinfo(np.int64).min)
     n = n_noise = n_ground = 0
+    heights = HeightTally()
     try:
         with laspy.open(p) as reader:
             h = reader.header
@@ -90,6 +95,7 @@ def las_summary(path: str | os.PathLike[str]) -> LasSummary:
                     lo[k] = min(lo[k], int(a.min()))
                     hi[k] = max(hi[k], int(a.max()))
                 c = np.asarray(chunk.classification)
+                heights.add_scaled(np.asarray(chunk["Z"]), c, float(scale[2]), float(offset[2]))
                 n += c.size
                 n_noise += int(np.isin(c, NOISE_CLASSES).sum())
                 n_ground += int(np.count_nonzero(c == 2))
@@ -99,6 +105,7 @@ def las_summary(path: str | os.PathLike[str]) -> LasSummary:
     except Exception as exc:  # laspy/lazrs raise several types on damaged data
         raise FileFormatError(f"{p}: cannot read its points ({exc}); the file is damaged "
                               "or truncated") from None
+    heights.check(str(p))
     if n == 0:
         nan = float("nan")
         return LasSummary(p, (nan, nan, nan, nan), (nan, nan), 0, 0, 0, hb)

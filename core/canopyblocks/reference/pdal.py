@@ -27,7 +27,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from ..errors import CancelledError, DependencyError, FileFormatError, InputError, PdalError
+from ..errors import DependencyError, FileFormatError, InputError, PdalError
 from ..progress import Progress
 from ..readers.las_header import check_las_file
 
@@ -304,7 +304,7 @@ def run_pipeline(
                 if timeout is not None and time.monotonic() - start > timeout:
                     raise PdalError(f"PDAL did not finish {path} within {timeout:g} s; "
                                     "crop to smaller bounds or raise the timeout") from None
-    except (CancelledError, PdalError, KeyboardInterrupt):
+    except BaseException:  # cancelled, timed out, Ctrl-C, a worker's SIGTERM (SystemExit)
         proc.kill()
         proc.communicate()
         raise

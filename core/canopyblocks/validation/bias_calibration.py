@@ -7,6 +7,13 @@ heights above ground, ``hmax' = a * hmax + b`` and ``h90' = a90 * h90 + b90`` (a
 ``a = 1``), against reference blocks; the absolute heights follow (``top' = ground +
 hmax'``, ``z90' = ground + h90'``), so the corrected table stays consistent.
 
+The two corrections are fitted apart, so on a block whose H90 lies close to its Hmax the
+corrected H90 can exceed the corrected Hmax (measured on the README's example: 3 of 10
+blocks at 25 m, Hmax +7.18 m, H90 +9.58 m), and a negative correction can put the top
+below the ground.  Neither can be: a corrected block keeps ``0 <= h90 <= hmax`` (so
+``ground <= z90 <= top``) by bounding the corrected values, and such a block is marked
+``bias:<kind>:bounded`` in the ``calibration`` column (a warning gives the count).
+
 The held-out error is a parity split by block index: corrections fitted on the even
 blocks are scored on the odd ones and the other way round, pooled. The file records what
 the correction is only valid for: the estimators (preset), block lengths, beam
@@ -19,6 +26,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import warnings
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -26,7 +34,7 @@ from typing import Literal
 import numpy as np
 import pandas as pd
 
-from ..errors import FileFormatError, InputError, NoUsableDataError
+from ..errors import CanopyBlocksWarning, FileFormatError, InputError, NoUsableDataError
 from ..outputs.atomic import atomic_output
 
 __all__ = ["BiasModel", "BiasCalibration", "fit_bias_calibration", "apply_bias_calibration",
@@ -39,6 +47,16 @@ BiasKind = Literal["additive", "linear"]
 CALIBRATED_METRICS: tuple[str, ...] = ("hmax", "h90")
 _FORMAT = "canopyblocks-bias-calibration/1"
 _MIN_BLOCKS = 6
+#: What a table without an ``estimators`` column was made with (the paper's estimators).
+_PAPER_LABEL = "noise=sigma,ground=paper,top=paper"
+
+
+def _same_estimators(a: str, b: str) -> bool:
+    """Labels naming the same estimators (parts in any order; ``paper`` = the paper's)."""
+    def parts(label: str) -> frozenset[str]:
+        label = _PAPER_LABEL if label.strip() == "paper" else label
+        return frozenset(p.strip() for p in label.split(",") if p.strip())
+    return parts(a) == parts(b)
 
 
 @dataclass(frozen=True)
@@ -142,11 +160,12 @@ def fit_bias_calibration(residuals: pd.DataFrame, *, kind: BiasKind = "additive"
     df = residuals
     use = df["use"].to_numpy(bool) if "use" in df.columns else (df.get("flag") == "ok").to_numpy()
     df = df[use]
-    labels = df["estimators"].unique() if "estimators" in df.columns else np.array(["paper"])
+    labels = (df["estimators"].unique() if "estimators" in df.columns
+              else np.array([_PAPER_LABEL]))
     if len(labels) > 1:
         raise InputError(f"the blocks were made with several estimators ({', '.join(labels)}); "
                          "fit one calibration per estimator set")
-    estimators = str(labels[0]) if len(labels) else "noise=sigma,ground=paper,top=paper"
+    estimators = str(labels[0]) if len(labels) else _PAPER_LABEL
     strength = (df["track"].map(strengths).fillna("unknown").to_numpy()
                 if strengths else np.full(len(df), "all", dtype=object))
     models = []
@@ -193,14 +212,17 @@ def apply_bias_calibration(blocks: pd.DataFrame, cal: BiasCalibration, *,
                            source: str = "the calibration") -> pd.DataFrame:
     """A copy of ``blocks`` with hmax/h90 corrected and top/z90 following.
 
-    Adds ``calibration`` (``"bias:<kind>"``). Refuses blocks made with other estimators
-    than the calibration, and lengths or strengths it has no model for.
+    Adds ``calibration``: ``"bias:<kind>"``, or ``"bias:<kind>:bounded"`` for a block whose
+    corrected values had to be bounded to ``0 <= h90 <= hmax`` (top not below the ground,
+    H90 not above Hmax; a :class:`~canopyblocks.errors.CanopyBlocksWarning` gives the
+    count).  Refuses blocks made with other estimators than the calibration, and lengths
+    or strengths it has no model for.
     """
-    label = (blocks["estimators"].iloc[0] if "estimators" in blocks.columns and len(blocks)
-             else "noise=sigma,ground=paper,top=paper")
+    label = (str(blocks["estimators"].iloc[0]) if "estimators" in blocks.columns and len(blocks)
+             else _PAPER_LABEL)
     if "estimators" in blocks.columns and blocks["estimators"].nunique() > 1:
         raise InputError("the blocks were made with several estimator sets; calibrate each")
-    if label != cal.estimators:
+    if not _same_estimators(label, cal.estimators):
         raise InputError(
             f"{source} was fitted on blocks made with {cal.estimators} (preset {cal.preset}) "
             f"but these blocks were made with {label}; use the same estimators/preset or "
@@ -211,16 +233,30 @@ def apply_bias_calibration(blocks: pd.DataFrame, cal: BiasCalibration, *,
     if "all" in cal.strengths:
         strength = np.full(len(out), "all", dtype=object)
     ground = out["ground"].to_numpy(float)
-    for metric, absolute in (("hmax", "top"), ("h90", "z90")):
+    corrected = {}
+    for metric in ("hmax", "h90"):
         vals = out[metric].to_numpy(float).copy()
         for length in np.unique(out["length"].to_numpy(float)):
             for st in np.unique(strength):
                 sel = (out["length"].to_numpy(float) == length) & (strength == st)
                 m = cal.model(metric, float(length), str(st))
                 vals[sel] = m.slope * vals[sel] + m.intercept
-        out[metric] = vals
-        out[absolute] = ground + vals
-    out["calibration"] = f"bias:{cal.kind}"
+        corrected[metric] = vals
+    hmax, h90 = corrected["hmax"], corrected["h90"]
+    with np.errstate(invalid="ignore"):
+        bounded = (hmax < 0) | (h90 < 0) | (h90 > hmax)
+        hmax = np.where(hmax < 0, 0.0, hmax)
+        h90 = np.clip(h90, 0.0, hmax)
+    out["hmax"], out["top"] = hmax, ground + hmax
+    out["h90"], out["z90"] = h90, ground + h90
+    out["calibration"] = np.where(bounded, f"bias:{cal.kind}:bounded", f"bias:{cal.kind}")
+    if bounded.any():
+        warnings.warn(
+            f"{int(bounded.sum())} of {len(out)} calibrated blocks had H90 above Hmax or the "
+            "top below the ground after the correction (the Hmax and H90 corrections are "
+            "fitted apart); they were bounded to 0 <= H90 <= Hmax and are marked "
+            f"'bias:{cal.kind}:bounded' in the calibration column",
+            CanopyBlocksWarning, stacklevel=2)
     return out
 
 
