@@ -20,11 +20,56 @@ from .geo import WGS84, from_metric, require_metric_crs, to_metric
 if TYPE_CHECKING:
     import geopandas as gpd
 
-__all__ = ["PhotonTrack", "along_track_distance"]
+__all__ = ["PhotonTrack", "BackgroundRate", "along_track_distance", "SPEED_OF_LIGHT"]
 
 log = logging.getLogger(__name__)
 
 _FLOAT_FIELDS = ("time", "lat", "lon", "h", "x", "y", "s")
+
+SPEED_OF_LIGHT = 299_792_458.0
+"""Metres per second: a background rate of R photons/s gives R * 2 / c photons per metre
+of height per shot (1 MHz = 0.0067 photons/shot/m)."""
+
+
+@dataclass(frozen=True, eq=False)
+class BackgroundRate:
+    """Solar background photon rate of a track over time (ATL03 ``bckgrd_atlas``).
+
+    Attributes
+    ----------
+    time : ndarray float64
+        Seconds, the same clock as ``PhotonTrack.time`` (ATL03 ``delta_time``),
+        increasing.
+    rate : ndarray float64
+        Background photons per second (Hz) seen by the beam's detector at ``time``
+        (``bckgrd_atlas/bckgrd_rate``); 1e6 = 1 MHz.
+    """
+
+    time: np.ndarray
+    rate: np.ndarray
+
+    def __post_init__(self) -> None:
+        t = np.asarray(self.time, np.float64)
+        r = np.asarray(self.rate, np.float64)
+        if t.ndim != 1 or t.shape != r.shape or t.size == 0:
+            raise InputError(f"background rate: time and rate must be equal-length 1-D arrays "
+                             f"with at least one value; got shapes {t.shape} and {r.shape}")
+        if not (np.all(np.isfinite(t)) and np.all(np.isfinite(r)) and np.all(r >= 0)):
+            raise InputError("background rate: times and rates must be finite and rates >= 0 "
+                             "photons/s")
+        if t.size > 1 and not bool(np.all(t[1:] >= t[:-1])):
+            order = np.argsort(t, kind="stable")
+            t, r = t[order], r[order]
+        object.__setattr__(self, "time", t)
+        object.__setattr__(self, "rate", r)
+
+    def at(self, time: np.ndarray) -> np.ndarray:
+        """Rate (photons/s) at ``time`` (linear between records, the end values beyond)."""
+        return np.interp(np.asarray(time, np.float64), self.time, self.rate)
+
+    def per_shot_metre(self, time: np.ndarray) -> np.ndarray:
+        """Expected background photons per shot per metre of height at ``time``."""
+        return self.at(time) * (2.0 / SPEED_OF_LIGHT)
 
 
 def along_track_distance(x: np.ndarray, y: np.ndarray, time: np.ndarray | None = None
@@ -116,6 +161,9 @@ class PhotonTrack:
         File the photons came from.
     vertical_datum : str
         Vertical reference of ``h`` (``"EPSG:4979"`` = WGS84 ellipsoid).
+    background : BackgroundRate or None
+        The solar background rate over the track's time (ATL03
+        ``bckgrd_atlas/bckgrd_rate``) when the file has it; a subset keeps it whole.
     """
 
     time: np.ndarray
@@ -132,6 +180,7 @@ class PhotonTrack:
     extra: dict[str, np.ndarray] = field(default_factory=dict)
     source: str = ""
     vertical_datum: str = "EPSG:4979"
+    background: BackgroundRate | None = None
 
     # ------------------------------------------------------------------ build
     @classmethod

@@ -51,6 +51,10 @@ class DensityParams:
         Known background rate (photons per m along-track per m height); None: estimated.
     min_range : float
         Minimum height range (m) of a segment to estimate a background in it (60 m).
+    edge_correction : bool
+        Scale the counts of photons within ``along`` of the track's ends by the share of
+        their box inside the track (otherwise half a box of neighbours is missing there and
+        signal at the ends is lost); off by default (the ``density`` estimator's behaviour).
     """
 
     along: float = 10.0
@@ -59,6 +63,7 @@ class DensityParams:
     segment: float = 200.0
     background: float | None = None
     min_range: float = 60.0
+    edge_correction: bool = False
 
     def __post_init__(self) -> None:
         for name in ("along", "height", "segment", "min_range"):
@@ -125,7 +130,8 @@ def _segment_rate(z: np.ndarray, length: float, p: DensityParams) -> float:
 
 
 def density_filter(s: np.ndarray, z: np.ndarray,
-                   params: DensityParams | None = None) -> DensityResult:
+                   params: DensityParams | None = None, *,
+                   rate: np.ndarray | None = None) -> DensityResult:
     """Keep photons denser than background (DRAGANN-like).
 
     Parameters
@@ -133,6 +139,10 @@ def density_filter(s: np.ndarray, z: np.ndarray,
     s, z : ndarray
         Along-track distance and height (m) of the photons, any order.
     params : DensityParams, optional
+    rate : ndarray, optional
+        Known background per photon (photons per m along-track per m of height, e.g.
+        from ATL03 ``bckgrd_rate``): each segment uses the mean over its photons
+        instead of an estimate (``params.background``, when set, still wins).
 
     Returns
     -------
@@ -144,14 +154,19 @@ def density_filter(s: np.ndarray, z: np.ndarray,
     z = np.asarray(z, float)
     if s.shape != z.shape:
         raise InputError(f"s and z differ in shape: {s.shape} vs {z.shape}")
+    if rate is not None:
+        rate = np.asarray(rate, float)
+        if rate.shape != s.shape:
+            raise InputError(f"rate has shape {rate.shape}; one value per photon {s.shape} "
+                             "is needed")
     n = s.size
     keep = np.zeros(n, bool)
     count = np.zeros(n, np.int64)
-    rate = np.zeros(n)
+    rates = np.zeros(n)
     thr = np.zeros(n)
     ok = np.flatnonzero(np.isfinite(s) & np.isfinite(z))
     if ok.size == 0:
-        return DensityResult(keep, count, rate, thr)
+        return DensityResult(keep, count, rates, thr)
     order = ok[np.argsort(s[ok], kind="stable")]
     ss = s[order]
     seg = np.floor((ss - ss[0]) / p.segment).astype(np.int64)
@@ -168,15 +183,24 @@ def density_filter(s: np.ndarray, z: np.ndarray,
         idx = order[lo:hi]
         cnt = _box_counts(s[idx], z[idx], p)[a - lo:b - lo]
         here = order[a:b]
+        if p.edge_correction:
+            inside = (np.minimum(ss[a:b] - ss[0], p.along) + np.minimum(ss[-1] - ss[a:b], p.along)
+                      ) / (2.0 * p.along)
+            cnt = np.rint(1 + (cnt - 1) / np.maximum(inside, 0.5)).astype(np.int64)
         length = max(float(ss[b - 1] - ss[a]), p.along)
-        lam = p.background if p.background is not None else _segment_rate(z[here], length, p)
+        if p.background is not None:
+            lam = p.background
+        elif rate is not None:
+            lam = float(np.mean(rate[here]))
+        else:
+            lam = _segment_rate(z[here], length, p)
         mu = lam * area
         t = poisson_quantile(p.quantile, mu)
         count[here] = cnt
-        rate[here] = lam
+        rates[here] = lam
         thr[here] = t
         keep[here] = cnt - 1 > t  # the count includes the photon itself
-    return DensityResult(keep, count, rate, thr)
+    return DensityResult(keep, count, rates, thr)
 
 
 def poisson_quantile(q: float, mu: float) -> float:

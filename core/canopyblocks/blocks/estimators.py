@@ -5,12 +5,15 @@ options replace its parts where sparse ICESat-2 photons defeat it:
 
 - ``noise``: ``sigma`` (the paper's per-block 2.5-sigma filter), ``conf`` (ATL03
   ``signal_conf_ph >= min_signal_conf``), ``density`` (DRAGANN-like,
-  :mod:`.density_filter`, for data without a confidence flag), ``none``;
-- ``ground``: ``paper`` (upper edge of the expansion window) or ``surface`` (mean of a
-  robust along-track ground surface over the block, :mod:`.ground_surface`);
-- ``top``: ``paper`` (lower edge of the top window) or ``p95``/``p98``/``p99``/``p100``
+  :mod:`.density_filter`, for data without a confidence flag), ``atl08`` (the ATL08-style
+  classifier, :mod:`.atl08_classify`: photons classed noise are removed), ``none``;
+- ``ground``: ``paper`` (upper edge of the expansion window), ``surface`` (mean of a
+  robust along-track ground surface over the block, :mod:`.ground_surface`) or ``atl08``
+  (mean of the ATL08-style classifier's ground surface; needs ``noise="atl08"``);
+- ``top``: ``paper`` (lower edge of the top window), ``p95``/``p98``/``p99``/``p100``
   (percentile of the kept photons' heights in the block, numpy's linear interpolation;
-  p100 = the highest kept photon).
+  p100 = the highest kept photon) or ``atl08`` (98th percentile of the canopy photons'
+  heights above the ground surface, :mod:`.atl08_blocks`; needs ``ground="atl08"``).
 
 ``hmax = top - ground``; ``z90`` is the paper's 90th percentile (index
 ``floor(0.9 (n - 1))``) of the kept photons with ``ground <= z <= top``; ``h90 = z90 -
@@ -22,7 +25,9 @@ paper's ground window, p98 top: measured best on unseen tiles with night and day
 noise -- bench/bench_icesat2_accuracy.py: 25 m Hmax RMSE 4.25 m strong / 4.84 m all beams with
 a bias calibration, ground 1.4 m; the fitted ground surface, better without noise, followed the
 background photons below the ground there: Hmax 6.2 m, ground 5.4 m); ``mabel`` (density
-filter, ground surface, p98 top, for dense airborne photons).
+filter, ground surface, p98 top, for dense airborne photons); ``atl08`` (the ATL08-style
+classifier for noise, ground and canopy, DESIGN 1.11). :data:`RECOMMENDED_PRESET` names
+the preset the project recommends for ICESat-2.
 """
 
 from __future__ import annotations
@@ -34,8 +39,9 @@ from typing import TYPE_CHECKING, Literal, overload
 
 import numpy as np
 
-from ..errors import InputError
+from ..errors import InputError, SparseBlockWarning
 from ..schema import LABEL_BETWEEN, LABEL_CANOPY, LABEL_GROUND, LABEL_NOISE
+from .atl08_classify import CLASS_COLUMN, Atl08Params, classify_photons
 from .density_filter import DensityParams, density_filter
 from .ground_surface import GroundSurfaceParams, block_mean_ground, fit_ground_surface
 from .params import BlockParams
@@ -48,16 +54,16 @@ if TYPE_CHECKING:
     from ..progress import Progress
 
 __all__ = ["Estimators", "PRESETS", "preset", "estimate_blocks", "percentile_by_block",
-           "GROUND_ESTIMATORS", "TOP_ESTIMATORS", "NOISE_ESTIMATORS"]
+           "GROUND_ESTIMATORS", "TOP_ESTIMATORS", "NOISE_ESTIMATORS", "RECOMMENDED_PRESET"]
 
 log = logging.getLogger(__name__)
 
-GroundEstimator = Literal["paper", "surface"]
-TopEstimator = Literal["paper", "p95", "p98", "p99", "p100"]
-NoiseEstimator = Literal["sigma", "conf", "density", "none"]
-GROUND_ESTIMATORS: tuple[str, ...] = ("paper", "surface")
-TOP_ESTIMATORS: tuple[str, ...] = ("paper", "p95", "p98", "p99", "p100")
-NOISE_ESTIMATORS: tuple[str, ...] = ("sigma", "conf", "density", "none")
+GroundEstimator = Literal["paper", "surface", "atl08"]
+TopEstimator = Literal["paper", "p95", "p98", "p99", "p100", "atl08"]
+NoiseEstimator = Literal["sigma", "conf", "density", "atl08", "none"]
+GROUND_ESTIMATORS: tuple[str, ...] = ("paper", "surface", "atl08")
+TOP_ESTIMATORS: tuple[str, ...] = ("paper", "p95", "p98", "p99", "p100", "atl08")
+NOISE_ESTIMATORS: tuple[str, ...] = ("sigma", "conf", "density", "atl08", "none")
 
 
 @dataclass(frozen=True)
@@ -66,13 +72,15 @@ class Estimators:
 
     Attributes
     ----------
-    noise : "sigma", "conf", "density" or "none"
-    ground : "paper" or "surface"
-    top : "paper", "p95", "p98", "p99" or "p100"
+    noise : "sigma", "conf", "density", "atl08" or "none"
+    ground : "paper", "surface" or "atl08" (needs noise "atl08")
+    top : "paper", "p95", "p98", "p99", "p100" or "atl08" (needs ground "atl08")
     min_signal_conf : int
         ATL03 land confidence kept by ``noise="conf"`` (default 2, "low" and above).
     surface : GroundSurfaceParams
     density : DensityParams
+    atl08 : Atl08Params
+        The ATL08-style classifier's parameters (``noise="atl08"``).
     name : str
         The preset name these came from, or "custom".
     """
@@ -83,6 +91,7 @@ class Estimators:
     min_signal_conf: int = 2
     surface: GroundSurfaceParams = field(default_factory=GroundSurfaceParams)
     density: DensityParams = field(default_factory=DensityParams)
+    atl08: Atl08Params = field(default_factory=Atl08Params)
     name: str = "custom"
 
     def __post_init__(self) -> None:
@@ -92,6 +101,13 @@ class Estimators:
             if value not in allowed:
                 raise InputError(f"{what} estimator must be one of {', '.join(allowed)}; "
                                  f"got {value!r}")
+        if self.ground == "atl08" and self.noise != "atl08":
+            raise InputError(f"ground estimator 'atl08' needs noise 'atl08' (the classifier "
+                             f"finds the ground surface); got noise {self.noise!r}")
+        if (self.top == "atl08") != (self.ground == "atl08"):
+            raise InputError(f"top 'atl08' and ground 'atl08' go together (canopy heights are "
+                             f"taken above the classifier's ground); got ground "
+                             f"{self.ground!r}, top {self.top!r}")
         if not (isinstance(self.min_signal_conf, int) and -2 <= self.min_signal_conf <= 4):
             raise InputError(f"min_signal_conf must be an integer -2..4, got "
                              f"{self.min_signal_conf!r}")
@@ -116,11 +132,15 @@ PRESETS: dict[str, Estimators] = {
     "paper": Estimators(name="paper"),
     "icesat2": Estimators(noise="density", ground="paper", top="p98", name="icesat2"),
     "mabel": Estimators(noise="density", ground="surface", top="p98", name="mabel"),
+    "atl08": Estimators(noise="atl08", ground="atl08", top="atl08", name="atl08"),
 }
+
+RECOMMENDED_PRESET = "icesat2"
+"""The estimator preset the project recommends for ICESat-2 photons."""
 
 
 def preset(name: str) -> Estimators:
-    """The named preset (``paper``, ``icesat2``, ``mabel``)."""
+    """The named preset (``paper``, ``icesat2``, ``mabel``, ``atl08``)."""
     try:
         return PRESETS[name]
     except KeyError:
@@ -202,6 +222,24 @@ def estimate_blocks(track: PhotonTrack, params: BlockParams | None = None,
                          f"got {type(est).__name__}")
     work = track
     removed = None
+    if est.noise == "atl08":
+        classes = classify_photons(track, est.atl08)
+        if labels:  # the photon layer's ATL08-style column (classed_pc_flag)
+            track.extra[CLASS_COLUMN] = classes.classes
+        if est.ground == "atl08":
+            from .atl08_blocks import atl08_block_table
+
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", SparseBlockWarning)
+                warnings.simplefilter("ignore", ImplausibleBlockWarning)
+                blocks, lab = atl08_block_table(track, params, classes, labels=labels,
+                                                progress=progress)
+            _warn_sparse(blocks, track.track, params.min_photons)
+            blocks["estimators"] = est.label()
+            flag_implausible_blocks(blocks, track.track)
+            return (blocks, lab) if labels else blocks
+        removed = classes.classes <= 0
+        work = track.subset(~removed)
     if est.noise == "conf" and track.signal_conf is None:
         raise InputError(f"noise='conf' needs ATL03 signal_conf_ph, which track {track.track} "
                          "lacks; use noise='density' for MABEL, simulated or table photons")
@@ -287,6 +325,14 @@ def estimate_blocks(track: PhotonTrack, params: BlockParams | None = None,
     if labels:
         return blocks, out_labels
     return blocks
+
+
+def _warn_sparse(blocks: gpd.GeoDataFrame, track_id: str, min_photons: int) -> None:
+    n = int((blocks["flag"] == "sparse").sum())
+    if n:
+        warnings.warn(f"track {track_id}: {n} of {len(blocks)} blocks hold fewer than "
+                      f"min_photons={min_photons} signal photons; they are flagged 'sparse' "
+                      "with NaN metrics", SparseBlockWarning, stacklevel=3)
 
 
 def _expand(lab: np.ndarray, removed: np.ndarray | None) -> np.ndarray:

@@ -16,6 +16,7 @@ from . import (
     coregister,
     footprint_validation,
     reference,
+    segments,
     simulate,
     validate,
     waveforms,
@@ -40,7 +41,7 @@ def cli(ctx: click.Context, verbose: int, quiet: bool) -> None:
 
 
 for _module in (blocks, reference, validate, footprint_validation, coregister, calibrate,
-                simulate, chain, batch, waveforms):
+                simulate, chain, batch, waveforms, segments):
     _module.register(cli)
 
 

@@ -50,13 +50,18 @@ def info_cmd(path: str, as_json: bool) -> None:
               help="Block origin along track, m (default: the track start).")
 @click.option("--k", "k_sigma", type=float, default=2.5, show_default=True,
               help="Noise filter: keep |z - mean| <= k * std per block.")
-@click.option("--noise", type=click.Choice(["sigma", "conf", "density", "none"]), default=None,
+@click.option("--noise", type=click.Choice(["sigma", "conf", "density", "atl08", "none"]),
+              default=None,
               help="Noise filter: sigma (paper, default), conf (ATL03 signal_conf_ph), "
-                   "density (DRAGANN-like: MABEL, simulated, tables), none.")
-@click.option("--preset", type=click.Choice(["paper", "icesat2", "mabel"]), default=None,
-              help="Named estimator set (DESIGN 1.10): paper (seed 001, the default), "
+                   "density (DRAGANN-like: MABEL, simulated, tables), atl08 (the ATL08-style "
+                   "classifier, with the file's background rate when it has one), none.")
+@click.option("--preset", type=click.Choice(["paper", "icesat2", "mabel", "atl08"]),
+              default=None,
+              help="Named estimator set: paper (seed 001, the default), "
                    "icesat2 (density filter, the paper's ground window, 98th-percentile top), mabel "
-                   "(density filter, ground surface, 98th-percentile top).")
+                   "(density filter, ground surface, 98th-percentile top), atl08 (photons "
+                   "classified as ATL08 does; ground = its ground surface, Hmax = 98th "
+                   "percentile of the canopy heights above it).")
 @click.option("--ground-estimator", type=click.Choice(["paper", "surface"]), default=None,
               help="Ground: the paper's window mean, or a robust along-track surface.")
 @click.option("--top-estimator", type=click.Choice(["paper", "p95", "p98", "p99", "p100"]),
@@ -75,7 +80,9 @@ def info_cmd(path: str, as_json: bool) -> None:
 @click.option("--bbox", default=None, help="lon_min,lat_min,lon_max,lat_max (degrees) subset.")
 @click.option("--crs", default=None, help="Metric CRS for x/y (default: UTM zone of the track).")
 @click.option("--photons", "with_photons", is_flag=True,
-              help="Also write layer 'photons' with per-photon labels (GeoPackage output).")
+              help="Also write layer 'photons' with per-photon labels (GeoPackage output; "
+                   "with --noise atl08 also classed_pc_flag: 0 noise, 1 ground, 2 canopy, "
+                   "3 top of canopy).")
 @click.option("--profile", type=click.Path(dir_okay=False), default=None,
               help="Write a profile plot PNG (photons, canopy top and ground per block).")
 @click.option("--workers", type=click.IntRange(1, 512), default=None,

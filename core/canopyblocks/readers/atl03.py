@@ -34,6 +34,7 @@ from ..photons import PhotonTrack, stable_order
 from ..progress import Progress, as_progress
 from ._common import bbox_mask, check_bbox, check_s_range, s_mask
 from ._h5 import H5File, open_h5
+from .atl03_background import read_background_rate
 from .atl08 import BEAMS, join_atl08, read_atl08_photons
 from .photon_checks import (
     PHOTON_LIMITS,
@@ -337,7 +338,8 @@ def read_atl03(
     PhotonTrack
         ``time`` = ``delta_time`` (s since the ATLAS SDP epoch), ``h`` = ``h_ph``
         (m above the WGS84 ellipsoid, ``vertical_datum="EPSG:4979"``),
-        ``s = segment_dist_x + dist_ph_along`` (m), ``signal_conf`` = land column;
+        ``s = segment_dist_x + dist_ph_along`` (m), ``signal_conf`` = land column,
+        ``background`` = ``bckgrd_atlas/bckgrd_rate`` (photons/s) when present;
         sorted by ``s``.
 
     Raises
@@ -476,6 +478,8 @@ def read_atl03(
         keep = None
         rgt_cycle = (f.scalar("orbit_info/rgt"), f.scalar("orbit_info/cycle_number"))
         src = str(f.path)
+        background = read_background_rate(f, beam, float(np.min(cols["time"])),
+                                          float(np.max(cols["time"])))
     if atl08 is not None and seg_ids is not None and within_k is not None:
         prog.update(0.7, "joining ATL08 classes")
         a8 = read_atl08_photons(atl08, beam)
@@ -491,7 +495,7 @@ def read_atl03(
         time=cols["time"], lat=cols["lat"], lon=cols["lon"], h=cols["h"], x=x, y=y,
         s=cols["s"], track=beam, crs=used, signal_conf=cols.get("signal_conf"),
         classification=cols.get("classification"), extra=extra, source=src,
-        vertical_datum="EPSG:4979",
+        vertical_datum="EPSG:4979", background=background,
     )
     prog.update(1.0, f"{beam}: {len(track)} photons")
     log.info("read %d photons of %s from %s", len(track), beam, src)

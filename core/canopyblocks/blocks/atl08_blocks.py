@@ -1,0 +1,96 @@
+"""Block metrics from ATL08-style classes (the ``atl08`` preset, DESIGN 1.11).
+
+Per block of the engine's table (same blocks, rows, centres and photon counts as the
+paper's engine on all photons):
+
+- ``ground``: the mean of the classifier's ground surface over the block (m);
+- ``hmax``: the 98th percentile of the canopy photons' heights above the surface (classes
+  2 and 3; ATL08's ``h_canopy`` definition), 0 when the block holds signal but no canopy
+  photon (bare ground); ``top = ground + hmax``;
+- ``h90``: the 90th percentile of the same heights; ``z90 = ground + h90``;
+- ``n_kept``: signal photons (classes 1-3), ``n_between``: canopy photons (classes 2-3);
+- ``flag``: ``sparse`` when fewer than ``min_photons`` signal photons (metrics NaN), else ``ok``.
+
+Labels (per length, as the engine's): noise, ground, between (canopy, class 2), canopy
+(top of canopy, class 3); photons in no block are -1.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ..schema import LABEL_BETWEEN, LABEL_CANOPY, LABEL_GROUND, LABEL_NOISE
+from .atl08_classify import CLASS_CANOPY, CLASS_NOISE, CLASS_TOP, Atl08Classes
+from .ground_surface import block_mean_ground
+from .grouped import percentiles_by_group
+from .params import BlockParams
+
+if TYPE_CHECKING:
+    import geopandas as gpd
+
+    from ..photons import PhotonTrack
+    from ..progress import Progress
+
+__all__ = ["atl08_block_table", "HMAX_PERCENTILE"]
+
+HMAX_PERCENTILE = 98.0
+"""Percentile of the canopy heights giving a block's Hmax (ATL08's ``h_canopy``)."""
+
+_LABEL_OF_CLASS = np.array([-1, LABEL_NOISE, LABEL_GROUND, LABEL_BETWEEN, LABEL_CANOPY],
+                           np.int8)  # index: class + 1
+
+
+def atl08_block_table(track: PhotonTrack, params: BlockParams, classes: Atl08Classes, *,
+                      labels: bool = False, progress: Progress | None = None
+                      ) -> tuple[gpd.GeoDataFrame, dict[float, np.ndarray]]:
+    """The block table (DESIGN 5 columns) from the classes; labels per length if asked."""
+    from .engine import compute_blocks
+
+    skeleton = compute_blocks(track, replace(params, noise="none", min_signal_conf=None),
+                              progress=progress)
+    blocks = skeleton.copy()
+    cls = classes.classes
+    s = np.asarray(track.s, float)
+    hrel = classes.height
+    out_labels: dict[float, np.ndarray] = {}
+    for length in sorted(params.lengths):
+        rows = np.flatnonzero(blocks["length"].to_numpy() == length)
+        sub = blocks.iloc[rows]
+        if len(sub) == 0:
+            continue
+        nums = sub["block"].to_numpy()
+        s0 = float(sub["s_start"].iloc[0] - nums[0] * length)
+        with np.errstate(invalid="ignore"):
+            bidx = np.floor((s - s0) / length)
+        pos = np.searchsorted(nums, bidx)
+        inrow = (cls >= 0) & (pos < len(nums)) & (nums[np.minimum(pos, len(nums) - 1)] == bidx)
+        prow = pos[inrow]
+        c = cls[inrow]
+        n = len(sub)
+        sig = c > CLASS_NOISE
+        can = (c == CLASS_CANOPY) | (c == CLASS_TOP)
+        n_kept = np.bincount(prow[sig], minlength=n)
+        n_can = np.bincount(prow[can], minlength=n)
+        rh = percentiles_by_group(prow[can], hrel[inrow][can], (HMAX_PERCENTILE, 90.0), n)
+        ground = block_mean_ground(classes.surface, sub["s_start"].to_numpy(float),
+                                   sub["s_end"].to_numpy(float))
+        hmax = np.where(n_can > 0, rh[:, 0], 0.0)
+        h90 = np.where(n_can > 0, rh[:, 1], 0.0)
+        sparse = n_kept < params.min_photons
+        idx = blocks.index[rows]
+        blocks.loc[idx, "n_kept"] = n_kept
+        blocks.loc[idx, "n_between"] = np.where(sparse, 0, n_can)
+        blocks.loc[idx, "ground"] = np.where(sparse, np.nan, ground)
+        blocks.loc[idx, "top"] = np.where(sparse, np.nan, ground + hmax)
+        blocks.loc[idx, "hmax"] = np.where(sparse, np.nan, hmax)
+        blocks.loc[idx, "z90"] = np.where(sparse, np.nan, ground + h90)
+        blocks.loc[idx, "h90"] = np.where(sparse, np.nan, h90)
+        blocks.loc[idx, "flag"] = np.where(sparse, "sparse", "ok")
+        if labels:
+            lab = _LABEL_OF_CLASS[cls.astype(np.int64) + 1]
+            lab[~inrow] = -1
+            out_labels[length] = lab
+    return blocks, out_labels

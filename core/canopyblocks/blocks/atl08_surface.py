@@ -1,0 +1,158 @@
+"""The ground surface of the ATL08-style classifier (DESIGN 1.11): an iterated along-track
+surface fitted to the signal photons (noise removed first).
+
+1. start: a low percentile (``start_percentile``, 5) of the photons' heights in each
+   along-track window of ``window`` metres (30 m), a running median over three windows
+   (a window whose low photons are stray noise is ignored), joined linearly;
+2. passes: for each band half-width in ``bands`` (a narrowing sequence, e.g. 3, 2, 1,
+   0.6 m), the photons within the band around the current surface are weighted by Tukey's
+   biweight of their residual (scale = the band) -- photons above the surface by
+   ``above_weight`` less, since understory sits above the ground and never below it (except
+   in the last, narrowest pass, which is symmetric so the surface is not biased low) -- and
+   a Gaussian-kernel local linear fit along the track (``bandwidth``, the smoothing) gives
+   the next surface (the fit of :mod:`.ground_surface`, on 1 m nodes, linear in photons and
+   track length).
+
+Stretches without photons near the surface are bridged linearly from their neighbours.
+Heights are in the photons' vertical datum (m), ``s`` along-track (m).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import InputError, NoUsableDataError
+from .ground_surface import GroundSurface, _bridge, _kernel, _local_linear
+from .grouped import percentile_by_group
+
+__all__ = ["SurfaceParams", "fit_atl08_surface"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class SurfaceParams:
+    """Parameters of :func:`fit_atl08_surface` (metres unless stated).
+
+    Attributes
+    ----------
+    window : float
+        Along-track window of the starting low percentile (30 m).
+    start_percentile : float
+        The starting percentile of the heights in each window, 0-100 (5).
+    bands : tuple of float
+        Half-widths of the bands of the successive passes, narrowing (3, 2, 1, 0.6 m).
+    above_weight : float
+        Weight factor (0-1] of photons above the surface in a pass (0.2).
+    bandwidth : float
+        Gaussian kernel sigma of the along-track fit (5 m).
+    min_support : float
+        Nodes whose kernel weight sum is below this many photons are bridged (0.3).
+    """
+
+    window: float = 30.0
+    start_percentile: float = 5.0
+    bands: tuple[float, ...] = (3.0, 2.0, 1.0, 0.6)
+    above_weight: float = 0.2
+    bandwidth: float = 5.0
+    min_support: float = 0.3
+
+    def __post_init__(self) -> None:
+        for name in ("window", "bandwidth", "min_support"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
+                raise InputError(f"ground surface {name} must be a positive number of metres, "
+                                 f"got {v!r}")
+        if not (isinstance(self.start_percentile, (int, float))
+                and 0 <= self.start_percentile <= 100):
+            raise InputError(f"ground surface start_percentile must be 0..100, got "
+                             f"{self.start_percentile!r}")
+        bands = tuple(self.bands) if isinstance(self.bands, (tuple, list)) else None
+        if not bands or not all(isinstance(b, (int, float)) and np.isfinite(b) and b > 0
+                                for b in bands):
+            raise InputError(f"ground surface bands must be one or more positive band "
+                             f"half-widths in metres, e.g. (3, 2, 1, 0.6); got {self.bands!r}")
+        object.__setattr__(self, "bands", tuple(float(b) for b in bands))
+        if not (isinstance(self.above_weight, (int, float)) and 0 < self.above_weight <= 1):
+            raise InputError(f"ground surface above_weight must be in (0, 1], got "
+                             f"{self.above_weight!r}")
+
+
+_NODE = 1.0  # m between surface nodes
+
+
+def _start(ss: np.ndarray, zz: np.ndarray, p: SurfaceParams, nodes: np.ndarray) -> np.ndarray:
+    """Low percentile per window, placed at the window centres and joined linearly."""
+    win = np.floor((ss - ss[0]) / p.window).astype(np.int64)
+    n_win = int(win[-1]) + 1
+    low = percentile_by_group(win, zz, p.start_percentile, n_win)
+    centre = ss[0] + (np.arange(n_win) + 0.5) * p.window
+    good = np.isfinite(low)
+    low, centre = low[good], centre[good]
+    if low.size >= 3:  # a running median of 3 windows: one window on stray noise is ignored
+        padded = np.concatenate([low[:1], low, low[-1:]])
+        low = np.median(np.stack([padded[:-2], padded[1:-1], padded[2:]]), axis=0)
+    return np.interp(nodes, centre, low)
+
+
+def fit_atl08_surface(s: np.ndarray, z: np.ndarray,
+                      params: SurfaceParams | None = None) -> GroundSurface:
+    """Fit the ground surface to signal photons.
+
+    Parameters
+    ----------
+    s : ndarray
+        Along-track distance (m), any order.
+    z : ndarray
+        Heights (m) of the photons kept by the noise filter.
+    params : SurfaceParams, optional
+
+    Returns
+    -------
+    GroundSurface
+        Heights at 1 m nodes; ``candidates`` marks the photons of the last pass.
+
+    Raises
+    ------
+    NoUsableDataError
+        Fewer than 2 photons with finite values.
+    """
+    p = params or SurfaceParams()
+    s = np.asarray(s, float)
+    z = np.asarray(z, float)
+    if s.shape != z.shape:
+        raise InputError(f"s and z differ in shape: {s.shape} vs {z.shape}")
+    ok = np.isfinite(s) & np.isfinite(z)
+    if int(ok.sum()) < 2:
+        raise NoUsableDataError("fewer than 2 signal photons with a finite position and "
+                                "height: no ground surface")
+    idx = np.flatnonzero(ok)
+    if bool(np.all(np.diff(s[idx]) >= 0)):
+        order = idx
+    else:
+        order = idx[np.argsort(s[idx], kind="stable")]
+    ss, zz = s[order], z[order]
+    nodes = np.arange(ss[0], ss[-1] + _NODE, _NODE)
+    surf = _start(ss, zz, p, nodes)
+    kernel = _kernel(p.bandwidth, _NODE)
+    support = np.zeros(nodes.size)
+    w = np.zeros(ss.size)
+    for k, band in enumerate(p.bands):
+        r = zz - np.interp(ss, nodes, surf)
+        u = r / band
+        w = np.where(np.abs(u) < 1.0, (1.0 - u * u) ** 2, 0.0)
+        if k < len(p.bands) - 1:  # the last, narrowest pass is symmetric: no bias
+            w = np.where(r > 0, w * p.above_weight, w)
+        if not (w > 0).any():
+            break
+        level, support = _local_linear(ss, zz, w, nodes, _NODE, kernel)
+        try:
+            surf = _bridge(nodes, level, support >= p.min_support)
+        except NoUsableDataError:
+            break
+    used = np.zeros(s.size, bool)
+    used[order] = w > 0
+    return GroundSurface(nodes, surf, support >= p.min_support, used)
