@@ -103,6 +103,8 @@ FOOTPRINT_COLUMNS: tuple[str, ...] = (
 )
 FOOTPRINT_FLAGS: tuple[str, ...] = (
     "ok", "no_signal", "too_many_modes", "degraded", "stale", "terrain_outlier",
+    "invalid_shot",  # impossible L1B values (bin spacing, sample pool, amplitude, position):
+                     # heights and position not given (readers/gedi_geometry.py)
 )
 
 #: Per-photon labels (``compute_blocks(..., labels=True)``).

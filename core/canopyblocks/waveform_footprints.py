@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import logging
 import os
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -22,12 +23,12 @@ import geopandas as gpd
 import numpy as np
 import pandas as pd
 
-from .errors import InputError, NoUsableDataError
+from .errors import CanopyBlocksWarning, InputError, NoUsableDataError
 from .progress import Progress, as_progress
 from .schema import LAYER_FOOTPRINTS
 
 __all__ = ["FootprintRunSummary", "footprints_from_l1b", "footprints_to_file",
-           "compare_with_l2a", "GEDI_VERTICAL_DATUM"]
+           "compare_with_l2a", "flag_invalid_shots", "GEDI_VERTICAL_DATUM"]
 
 log = logging.getLogger(__name__)
 
@@ -45,6 +46,43 @@ class FootprintRunSummary:
     flags: dict[str, int]
     comparison: pd.DataFrame | None = None
     plots: list[Path] = field(default_factory=list)
+
+
+#: Columns of an ``invalid_shot`` footprint that are not given (NaN).
+_NOT_GIVEN = ("lon", "lat", "ground", "top", "cover", "penetration", "ground_gauss")
+
+
+def flag_invalid_shots(table: pd.DataFrame, batch: Any) -> pd.DataFrame:
+    """Flag ``invalid_shot`` the shots whose L1B values are impossible (the reader's
+    ``extra["invalid_shot"]`` bits) and the shots processing called ``ok`` whose ground,
+    top or position came out non-finite; their heights and position are set to NaN."""
+    from .readers.gedi_geometry import INVALID_SHOT
+
+    bits = batch.extra.get(INVALID_SHOT) if hasattr(batch, "extra") else None
+    bad = np.zeros(len(table), dtype=bool) if bits is None else np.asarray(bits) != 0
+    flag = table["flag"].to_numpy(object).copy()
+    vals = table[["ground", "top", "lon", "lat"]].to_numpy(float)
+    bad |= (flag == "ok") & ~np.isfinite(vals).all(axis=1)
+    if not bad.any():
+        return table
+    flag[bad] = INVALID_SHOT
+    out = table.assign(flag=flag)
+    cols = [c for c in out.columns if c in _NOT_GIVEN or (c.startswith("rh") and
+                                                          c[2:].isdigit())]
+    out.loc[bad, cols] = np.nan
+    return out
+
+
+def _refuse_if_all_invalid(path: Any, table: pd.DataFrame, problems: int) -> None:
+    from .errors import FileFormatError
+    from .readers.gedi_geometry import INVALID_SHOT, PROBLEM_NAMES
+
+    if len(table) and (table["flag"].to_numpy(object) == INVALID_SHOT).all():
+        kinds = [name for bit, name in PROBLEM_NAMES.items() if problems & bit] or \
+            ["heights or position not finite"]
+        raise FileFormatError(f"{path}: every shot read has impossible L1B values "
+                              f"({', '.join(kinds)}); the file is damaged or not a GEDI "
+                              "L1B product")
 
 
 def _terrain_filter(table: pd.DataFrame) -> pd.DataFrame:
@@ -124,10 +162,12 @@ def footprints_from_l1b(
     per_beam: dict[str, list[pd.DataFrame]] = {}
     plots: list[Path] = []
     plotted: dict[str, int] = {}
+    problems = 0
     reading = prog.sub(0.0, 0.9)
     for batch in iter_gedi_l1b(path, beams, bbox=bbox, quality=quality,
                                chunk_shots=chunk_shots, progress=reading):
-        table = process_waveforms(batch, chunk_params)
+        table = flag_invalid_shots(process_waveforms(batch, chunk_params), batch)
+        problems |= int(np.bitwise_or.reduce(batch.extra.get("invalid_shot", [0]), initial=0))
         per_beam.setdefault(batch.beam, []).append(table)
         if plots_dir is not None:
             plots += _plot(batch, table, wanted, plotted, Path(plots_dir), base, shot_details)
@@ -140,6 +180,7 @@ def footprints_from_l1b(
         t = pd.concat(parts, ignore_index=True)
         frames.append(_terrain_filter(t) if base.terrain_filter else t)
     table = pd.concat(frames, ignore_index=True)
+    _refuse_if_all_invalid(path, table, problems)
     prog.update(0.92, "footprint geometry")
     lon, lat = table["lon"].to_numpy(float), table["lat"].to_numpy(float)
     fin = np.isfinite(lon) & np.isfinite(lat)
@@ -177,6 +218,26 @@ def _plot(batch: Any, table: pd.DataFrame, wanted: set[int] | None, plotted: dic
     return out
 
 
+class UnmatchedShotsWarning(CanopyBlocksWarning):
+    """Some footprints have no shot of the same number in the L2A/L2B file compared with."""
+
+
+def _check_same_shots(ours: np.ndarray, theirs: np.ndarray, path: Any, product: str) -> None:
+    """Refuse an L2A/L2B file that holds none of the footprints' shots; warn when it holds
+    only some."""
+    found = np.isin(ours, theirs)
+    n = int(found.sum())
+    if ours.size and n == 0:
+        raise NoUsableDataError(
+            f"{path}: none of the {ours.size} footprints' shot numbers is in this GEDI "
+            f"{product} file (its {theirs.size} shots are others: another orbit, track or "
+            f"subset); give the {product} granule of the same orbit as the L1B")
+    if n < ours.size:
+        warnings.warn(f"{path}: {ours.size - n} of {ours.size} footprints have no shot in "
+                      f"this GEDI {product} file; they are left out of the comparison",
+                      UnmatchedShotsWarning, stacklevel=3)
+
+
 def compare_with_l2a(footprints: pd.DataFrame, l2a: str | os.PathLike[str] | None = None,
                      l2b: str | os.PathLike[str] | None = None, *,
                      setting: str = "a1") -> tuple[pd.DataFrame, pd.DataFrame]:
@@ -198,10 +259,11 @@ def compare_with_l2a(footprints: pd.DataFrame, l2a: str | os.PathLike[str] | Non
 
     out = footprints.copy()
     metrics = ["ground", "rh50", "rh98", "top"]
+    sn = out["shot_number"].to_numpy(np.int64)
     if l2a is not None:
         ref = read_gedi_l2a(l2a, setting=setting)
         ref = ref.drop_duplicates("shot_number").set_index("shot_number")
-        sn = out["shot_number"].to_numpy(np.int64)
+        _check_same_shots(sn, ref.index.to_numpy(np.int64), l2a, "L2A")
         for m in metrics:
             out[f"l2a_{m}"] = ref[m].reindex(sn).to_numpy(float)
             out[f"d_{m}"] = out[m].to_numpy(float) - out[f"l2a_{m}"].to_numpy(float)
@@ -210,6 +272,7 @@ def compare_with_l2a(footprints: pd.DataFrame, l2a: str | os.PathLike[str] | Non
         out["l2a_valid"] = valid & (out["flag"].to_numpy(object) == "ok")
     if l2b is not None:
         cov = read_gedi_l2b(l2b).drop_duplicates("shot_number").set_index("shot_number")
+        _check_same_shots(sn, cov.index.to_numpy(np.int64), l2b, "L2B")
         out["l2b_cover"] = cov["cover"].reindex(out["shot_number"].to_numpy(np.int64)) \
             .to_numpy(float)
         out["d_cover"] = out["cover"].to_numpy(float) - out["l2b_cover"].to_numpy(float)
@@ -225,7 +288,8 @@ def compare_with_l2a(footprints: pd.DataFrame, l2a: str | os.PathLike[str] | Non
                     continue
                 d = out[f"d_{m}"].to_numpy(float)[sel]
                 d = d[np.isfinite(d)]
-                rows.append({"beam": beam, "metric": m, "n": int(d.size),
+                rows.append({"beam": beam, "metric": m,
+                             "product": "L2B" if m == "cover" else "L2A", "n": int(d.size),
                              "bias": float(d.mean()) if d.size else np.nan,
                              "rmse": float(np.sqrt(np.mean(d * d))) if d.size else np.nan,
                              "within_0.10": float(np.mean(np.abs(d) <= 0.10)) if d.size

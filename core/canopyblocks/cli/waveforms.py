@@ -63,10 +63,11 @@ def waveforms_cmd(ctx: click.Context, path: str, output: str, beams: tuple[str, 
     if quiet:
         return
     if res.comparison is not None and len(res.comparison):
-        for row in res.comparison[res.comparison["beam"] == "all"].itertuples():
-            click.echo(f"  vs L2A {row.metric:<6} n={row.n:<5} bias={row.bias:+.3f} "
-                       f"rmse={row.rmse:.3f} m  within 0.10 m: {100 * row[6]:.1f} %",
-                       err=True)
+        for row in res.comparison[res.comparison["beam"] == "all"].to_dict("records"):
+            unit = "" if row["metric"] == "cover" else " m"
+            click.echo(f"  vs {row['product']} {row['metric']:<6} n={row['n']:<5} "
+                       f"bias={row['bias']:+.3f} rmse={row['rmse']:.3f}{unit}  within 0.10"
+                       f"{unit}: {100 * row['within_0.10']:.1f} %", err=True)
     flags = ", ".join(f"{k} {v}" for k, v in sorted(res.flags.items()))
     click.echo(f"canopyblocks: {len(res.footprints)} footprints ({flags}) -> {res.output}",
                err=True)

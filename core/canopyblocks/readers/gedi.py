@@ -12,6 +12,11 @@ Memory stays bounded: the per-shot 1-D arrays of a beam are read whole (subset f
 keep the source chunking, so one read per dataset is much faster than many), and
 ``rxwaveform`` in slices of ``chunk_shots`` shots, gathered into the padded 2-D array
 without a Python loop over shots.
+
+Every shot's geometry is checked (:mod:`.gedi_geometry`): bin spacing, sample pool,
+positions, amplitudes. The problem bits travel with the batch as
+``extra["invalid_shot"]`` (0 for a sound shot) and become the footprint flag
+``invalid_shot``; a beam without any sound shot is refused.
 """
 
 from __future__ import annotations
@@ -19,6 +24,7 @@ from __future__ import annotations
 import logging
 import os
 import re
+import warnings
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,12 +33,20 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from ..errors import FileFormatError, InputError, NoUsableDataError
+from ..errors import CanopyBlocksWarning, FileFormatError, InputError, NoUsableDataError
 from ..progress import Progress, as_progress
 from ..waveforms.batch import WaveformBatch
 from ._h5 import H5File, decode_attr, open_h5
+from .gedi_geometry import (
+    DIGITISER_RANGE,
+    INVALID_SHOT,
+    InvalidShotWarning,
+    amplitude_problems,
+    describe_problems,
+    geometry_problems,
+)
 
-__all__ = ["GEDI_BEAMS", "GediBeamInfo", "gedi_beams", "gedi_beam_info", "is_gedi_l1b",
+__all__ = ["GEDI_BEAMS", "GediBeamInfo", "SkippedBeamWarning", "gedi_beams", "gedi_beam_info", "is_gedi_l1b",
            "read_gedi_l1b", "iter_gedi_l1b", "gedi_file_info"]
 
 log = logging.getLogger(__name__)
@@ -60,6 +74,21 @@ _PER_SHOT = {
     "degraded": "geolocation/degrade",
 }
 _OPTIONAL = ("geolocation/degrade",)
+#: dtype kinds accepted per column (default: any number); counts and indices are integers.
+_KINDS = {"shot_number": "iu", "n_samples": "iu", "start": "iu", "stale": "iub",
+          "degraded": "iub"}
+_KIND_WORDS = {"iu": "integer", "iub": "integer", "iufb": "number"}
+
+
+def _describe(shape: tuple[int, ...], dtype: np.dtype) -> str:
+    kind = {"S": "strings", "U": "strings", "O": "objects", "V": "compound records"}.get(
+        dtype.kind, f"{dtype} values")
+    dims = "1-D" if len(shape) == 1 else f"{len(shape)}-D, shape {tuple(shape)},"
+    return f"a {dims} array of {kind}"
+
+
+class SkippedBeamWarning(CanopyBlocksWarning):
+    """A beam group of the file has no waveforms and was not read."""
 
 
 @dataclass(frozen=True)
@@ -161,6 +190,13 @@ def _check_beam(f: H5File, beam: str) -> None:
     if missing:
         raise FileFormatError(f"{f.path}: {beam} lacks {', '.join(missing)}; not a complete "
                               "GEDI L1B beam (was the subset made without these datasets?)")
+    rx = f"{beam}/rxwaveform"
+    shape, kind = f.shape(rx), f.dtype(rx).kind
+    if len(shape) != 1 or kind not in "iuf":
+        raise FileFormatError(
+            f"{f.path}: {rx} is {_describe(shape, f.dtype(rx))}; GEDI L1B keeps every "
+            "shot's samples end to end in one 1-D array of numbers (the file is damaged "
+            "or not a GEDI L1B product)")
 
 
 def _read_shots(f: H5File, beam: str) -> dict[str, np.ndarray]:
@@ -171,9 +207,11 @@ def _read_shots(f: H5File, beam: str) -> dict[str, np.ndarray]:
         if name in _OPTIONAL and not f.is_dataset(path):
             continue
         a = f.read(path)
-        if a.ndim != 1:
-            raise FileFormatError(f"{f.path}: {path} has shape {a.shape}; expected one value "
-                                  "per shot")
+        if a.ndim != 1 or a.dtype.kind not in _KINDS.get(key, "iufb"):
+            raise FileFormatError(
+                f"{f.path}: {path} is {_describe(a.shape, a.dtype)}; expected one "
+                f"{_KIND_WORDS[_KINDS.get(key, 'iufb')]} per shot (the file is damaged or "
+                "not a GEDI L1B product)")
         if n is None:
             n = a.shape[0]
         elif a.shape[0] != n:
@@ -219,17 +257,13 @@ def _gather(rx: np.ndarray, rel: np.ndarray, count: np.ndarray,
     return wf
 
 
-def _batches(f: H5File, beam: str, mask: np.ndarray, cols: dict[str, np.ndarray],
-             chunk_shots: int, source: str, prog: Progress) -> Iterator[WaveformBatch]:
-    rx_name = f"{beam}/rxwaveform"
-    n_rx = int(f.shape(rx_name)[0])
+def _relative_starts(f: H5File, beam: str, cols: dict[str, np.ndarray]) -> np.ndarray:
+    """Each shot's first sample within ``rxwaveform`` (0-based); refuses the file when a
+    shot's samples lie outside it."""
+    n_rx = int(f.shape(f"{beam}/rxwaveform")[0])
     count = cols["n_samples"].astype(np.int64)
     start = cols["start"].astype(np.int64)
-    if count.size and start.size:
-        first = int(start.min())
-        rel_all = start - first
-    else:
-        rel_all = start
+    rel_all = start - int(start.min()) if count.size and start.size else start
     bad = (count > 0) & ((rel_all < 0) | (rel_all + count > n_rx))
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
@@ -238,6 +272,36 @@ def _batches(f: H5File, beam: str, mask: np.ndarray, cols: dict[str, np.ndarray]
             f"{int(rel_all[i])}..{int(rel_all[i] + count[i])} of an rxwaveform of {n_rx}; "
             "rx_sample_start_index/rx_sample_count do not match rxwaveform (truncated or "
             "inconsistent subset)")
+    return rel_all
+
+
+def _problems(f: H5File, beam: str, cols: dict[str, np.ndarray]) -> np.ndarray:
+    """Geometry problem bits per shot; refuses the beam when no shot with samples is sound,
+    warns when some are not."""
+    count = cols["n_samples"].astype(np.int64)
+    e0, e1 = _float(cols["elev_bin0"]), _float(cols["elev_lastbin"])
+    problems = geometry_problems(count, cols["start"].astype(np.int64), e0, e1,
+                                 _float(cols["lat_bin0"]), _float(cols["lat_lastbin"]),
+                                 _float(cols["lon_bin0"]), _float(cols["lon_lastbin"]))
+    bad = problems != 0
+    if not bad.any():
+        return problems
+    what = describe_problems(problems, cols["shot_number"], count, e0, e1)
+    if not (~bad & (count > 0)).any():
+        raise FileFormatError(
+            f"{f.path}: no shot of {beam} has sound L1B values: {what}; the file is "
+            "damaged or not a GEDI L1B product")
+    warnings.warn(f"{f.path}: {int(bad.sum())} of {bad.size} shots of {beam} flagged "
+                  f"{INVALID_SHOT}, their heights not given: {what}", InvalidShotWarning,
+                  stacklevel=4)
+    return problems
+
+
+def _batches(f: H5File, beam: str, mask: np.ndarray, cols: dict[str, np.ndarray],
+             chunk_shots: int, source: str, prog: Progress) -> Iterator[WaveformBatch]:
+    rx_name = f"{beam}/rxwaveform"
+    count = cols["n_samples"].astype(np.int64)
+    rel_all = _relative_starts(f, beam, cols)
     power = _power(f, beam)
     sel = np.flatnonzero(mask)
     n_chunks = max(1, -(-sel.size // chunk_shots))
@@ -254,6 +318,14 @@ def _batches(f: H5File, beam: str, mask: np.ndarray, cols: dict[str, np.ndarray]
               else np.zeros(0, np.float32))
         nm = _float(cols["noise_mean"][rows])
         wf = _gather(rx, np.where(has, rel - lo, 0), cnt, np.nan_to_num(nm, nan=0.0))
+        amp = amplitude_problems(wf, cnt)
+        if amp.any():
+            warnings.warn(
+                f"{f.path}: {int(np.count_nonzero(amp))} of {rows.size} shots of {beam} have "
+                f"samples outside {DIGITISER_RANGE[0]:g}..{DIGITISER_RANGE[1]:g} digitiser "
+                f"counts (largest {float(np.nanmax(np.abs(wf[amp > 0]))):.4g}); they are "
+                f"flagged {INVALID_SHOT} and their heights are not given",
+                InvalidShotWarning, stacklevel=3)
         yield WaveformBatch(
             beam=beam,
             shot_number=np.asarray(cols["shot_number"][rows], dtype=np.uint64),
@@ -272,6 +344,7 @@ def _batches(f: H5File, beam: str, mask: np.ndarray, cols: dict[str, np.ndarray]
             degraded=np.asarray(cols["degraded"][rows]) != 0,
             power=power,
             source=source,
+            extra={INVALID_SHOT: cols["problems"][rows] | amp},
         )
         prog.update((c + 1) / n_chunks, f"{beam}: {int(rows[-1]) + 1} shots read")
 
@@ -313,9 +386,16 @@ def iter_gedi_l1b(path: str | os.PathLike[str], beams: Sequence[str] | str | Non
                                   "an L1B granule (GEDI01_B_*.h5)")
         wanted = ([beams] if isinstance(beams, str) else list(beams)) if beams else \
             [b for b in present if f.is_dataset(f"{b}/rxwaveform")]
+        if not beams and len(wanted) < len(present):
+            skipped = [b for b in present if b not in wanted]
+            warnings.warn(f"{p}: {', '.join(skipped)} {'has' if len(skipped) == 1 else 'have'}"
+                          " no rxwaveform dataset (not an L1B beam or a damaged subset); "
+                          f"read {', '.join(wanted)} only", SkippedBeamWarning, stacklevel=2)
         for i, beam in enumerate(wanted):
             _check_beam(f, beam)
             cols = _read_shots(f, beam)
+            _relative_starts(f, beam, cols)   # the pool first: a refusal, not a flag
+            cols["problems"] = _problems(f, beam, cols)
             mask = _bbox_mask(cols, bbox)
             if quality:
                 mask &= (cols["stale"] == 0) & (np.asarray(cols["degraded"]) == 0)
