@@ -38,6 +38,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from badinputs.gedi_corpus import RUNNERS as GEDI_RUNNERS  # noqa: E402
 from badinputs.make_corpus import (  # noqa: E402
     SUBPROCESS_SAMPLE,
     Base,
@@ -332,7 +333,7 @@ def check_rasters(case: Case, i: dict[str, Any], res: Any, ws: list[str]) -> Non
     ext = (t["x"].max() - t["x"].min(), t["y"].max() - t["y"].min())
     w_max, h_max = ext[0] / 2.0 + 3, ext[1] / 2.0 + 3
     out = {p.name for p in (i["folder"] / "rasters").iterdir()}
-    assert out == {"dtm.tif", "dsm_max.tif", "dsm_p90.tif"}, out
+    assert out == {"dtm.tif", "dsm_max.tif", "dsm_p90.tif", "dtm_fill_mask.tif"}, out
     for p in (res.dtm, res.dsm_max, res.dsm_p90):
         with rasterio.open(p) as src:
             a = src.read(1, masked=True)
@@ -519,6 +520,7 @@ RUNNERS = {"atl03": (run_atl03, check_atl03), "atl08": (run_atl08, check_atl08),
            "las": (run_las, check_las), "simulate": (run_simulate, check_simulate),
            "rasters": (run_rasters, check_rasters), "validate": (run_validate, check_validate),
            "table": (run_table, check_table), "param": (run_param, check_param)}
+RUNNERS.update(GEDI_RUNNERS)  # damaged GEDI L1B files (badinputs/gedi_corpus.py)
 
 
 def judge_api(case: Case, inputs: dict[str, Any], folder: Path) -> str:

@@ -1,0 +1,85 @@
+"""Corpus cases of damaged GEDI L1B files (:mod:`badinputs.gedi_damage`), through the API
+(``footprints_from_l1b``, judged against the official L2A of the same shots) and a sample
+through the command line (``waveforms``: exit 2 with one line, or exit 0 with the warning).
+
+Registered in :func:`badinputs.make_corpus.all_cases`; the runner ``gedi`` is added to the
+corpus test's runners through :data:`RUNNERS`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from .gedi_damage import (
+    DAMAGES,
+    GediDamage,
+    check_footprints,
+    damaged,
+    damaged_shot_numbers,
+    l2a_truth,
+    unzipped,
+)
+
+__all__ = ["gedi_cases", "RUNNERS", "CLI_SAMPLE"]
+
+#: damages also fed to ``canopyblocks waveforms`` (in-process)
+CLI_SAMPLE = ("bin0-lastbin-swapped", "starts-swapped", "sample-1e6", "lat-200", "bin0-fill",
+              "all-swapped", "rx-scaled-1000", "count-strings", "rxwaveform-2d",
+              "beam-without-rxwaveform")
+
+
+def _make(d: GediDamage) -> Callable[[Path, Any], dict[str, Any]]:
+    def make(folder: Path, base: Any) -> dict[str, Any]:
+        l1b, l2a = unzipped(base.data_file, base.folder / "gedi")
+        path = damaged(l1b, folder / f"gedi_{d.name}.h5", d.edit)
+        return {"path": path, "l2a": l2a, "beams": d.beams,
+                "bad": damaged_shot_numbers(l1b, d.shots)}
+    return make
+
+
+def _make_cli(d: GediDamage) -> Callable[[Path, Any], dict[str, Any]]:
+    inner = _make(d)
+
+    def make(folder: Path, base: Any) -> dict[str, Any]:
+        i = inner(folder, base)
+        out = folder / "out" / "footprints.gpkg"
+        i["args"] = ["waveforms", str(i["path"]), "-o", str(out)] + \
+            [a for b in (d.beams or ()) for a in ("--beam", b)]
+        i["outputs"] = [out]
+        return i
+    return make
+
+
+def run_gedi(i: dict[str, Any], folder: Path) -> Any:
+    from canopyblocks.waveform_footprints import footprints_from_l1b
+
+    return footprints_from_l1b(i["path"], beams=i["beams"])[0]
+
+
+def check_gedi(case: Any, i: dict[str, Any], table: Any, ws: list[str]) -> None:
+    check_footprints(table, l2a_truth(i["l2a"]), i["bad"])
+    if case.warn_words:
+        said = " ".join(ws).lower()
+        assert any(w.lower() in said for w in case.warn_words), \
+            f"no warning about {case.warn_words}: {ws}"
+
+
+RUNNERS: dict[str, tuple[Callable[..., Any], Callable[..., None]]] = {
+    "gedi": (run_gedi, check_gedi)}
+
+
+def gedi_cases() -> list[Any]:
+    from .make_corpus import Case
+
+    cases = [Case(f"gedi-{d.name}", "gedi", _make(d), needles=d.needles,
+                  warn_words=d.warn_words, must_refuse=d.refuse) for d in DAMAGES]
+    baseline = GediDamage("baseline", lambda f: None, warn_words=(), beams=None)
+    cases.append(Case("baseline-gedi", "gedi", _make(baseline), must_accept=True))
+    for d in DAMAGES:
+        if d.name in CLI_SAMPLE:
+            cases.append(Case(f"cli-waveforms-gedi-{d.name}", "cli", _make_cli(d),
+                              needles=d.needles, warn_words=d.warn_words,
+                              must_refuse=d.refuse))
+    return cases
