@@ -150,8 +150,8 @@ def test_make_reference_rasters_cancelled_at_the_very_end(sample, tmp_path) -> N
     out.mkdir()
     res = make_reference_rasters([sample(TOPO)], out, resolution=4.0, progress=Progress(
         cancelled=lambda: (out / "dtm.tif").exists()))
-    assert files_under(out) == {"dtm.tif", "dsm_max.tif", "dsm_p90.tif"}
-    for p in (res.dtm, res.dsm_max, res.dsm_p90):
+    assert files_under(out) == {"dtm.tif", "dsm_max.tif", "dsm_p90.tif", "dtm_fill_mask.tif"}
+    for p in (res.dtm, res.dsm_max, res.dsm_p90, res.dtm_fill_mask):
         with rasterio.open(p) as src:
             assert src.read(1).shape == (res.grid.height, res.grid.width)
 

@@ -169,7 +169,12 @@ def test_dtm_dsm_p90_match_numpy_oracle(bcts_run) -> None:  # noqa: ANN001
     dtm, src = _band(result.dtm)
     shape, tr = dtm.shape, src.transform
     g = c == 2
-    _assert_same(dtm, _oracle(x[g], y[g], z[g], tr, shape, 2.0, np.mean))
+    expected = _oracle(x[g], y[g], z[g], tr, shape, 2.0, np.mean)
+    # the cells with ground points hold their mean; the others were filled and are marked
+    mask, _ = _band(result.dtm_fill_mask)
+    assert np.isnan(expected).any()  # the sample has holes under the canopy
+    assert np.array_equal(mask == 1, np.isnan(expected))
+    _assert_same(np.where(mask == 1, np.nan, dtm), expected)
     keep = (c != 7) & (c != 18)
     dsm, _ = _band(result.dsm_max)
     _assert_same(dsm, _oracle(x[keep], y[keep], z[keep], tr, shape, 2.0, np.max))
@@ -177,7 +182,7 @@ def test_dtm_dsm_p90_match_numpy_oracle(bcts_run) -> None:  # noqa: ANN001
     _assert_same(p90, _oracle(x[keep], y[keep], z[keep], tr, shape, 2.0,
                               lambda v: np.percentile(v, 90.0)))
     # sanity of the sample: canopy above ground, p90 between ground and max
-    ok = ~np.isnan(dtm) & ~np.isnan(dsm)
+    ok = ~np.isnan(expected) & ~np.isnan(dsm)
     assert np.all(p90[ok] <= dsm[ok] + 1e-4)
     assert np.nanmax(dsm - dtm) > 10.0
 
@@ -356,3 +361,106 @@ def test_cancel_leaves_no_rasters(tmp_path: Path, pdal_bin: str, sample) -> None
                                progress=prog)
     assert any("dtm done" in m for m in msgs)  # the DTM is made first, then the DSMs
     assert not list((tmp_path / "o").iterdir())
+
+
+# ------------------------------------------------------------- filled DTM, CRS codes
+def test_fill_reproduces_a_plane_and_leaves_the_outside_empty() -> None:
+    """Linear interpolation of a plane is the plane: holes inside come back exactly; a hole
+    on the edge of the measured cells takes its nearest cell; cells outside the survey (no
+    point, not enclosed) stay empty."""
+    from canopyblocks.reference.dtm_fill import fill_dtm_holes
+
+    rows, cols = np.mgrid[0:30, 0:40]
+    plane = 100.0 + 0.5 * cols - 0.25 * rows
+    rng = np.random.default_rng(22)
+    dtm = plane.copy()
+    holes = rng.random(plane.shape) < 0.25
+    holes[:, -5:] = False
+    dtm[holes] = np.nan
+    dtm[:, -5:] = np.nan  # the survey's last 5 columns: no point at all ...
+    support = np.ones(plane.shape, bool)
+    support[:, -5:] = False
+    support[:, -5] = True  # ... except the first of them: points, no ground
+    filled, mask = fill_dtm_holes(dtm, support)
+    assert np.array_equal(mask[:, :-5], holes[:, :-5])
+    inner = holes.copy()
+    inner[:, [0, -6]] = False
+    inner[[0, -1], :] = False
+    np.testing.assert_allclose(filled[inner], plane[inner], atol=1e-9)
+    assert mask[:, -5].all() and not mask[:, -4:].any()
+    assert np.isnan(filled[:, -4:]).all()
+    beside = ~holes[:, -6]  # the nearest measured cell is the one beside it
+    np.testing.assert_array_equal(filled[beside, -5], plane[beside, -6])
+    # an enclosed gap without any point is a hole of the survey: filled
+    support2 = np.ones(plane.shape, bool)
+    support2[10:13, 10:13] = False
+    dtm2 = plane.copy()
+    dtm2[10:13, 10:13] = np.nan
+    filled2, mask2 = fill_dtm_holes(dtm2, support2)
+    assert mask2.sum() == 9
+    np.testing.assert_allclose(filled2[10:13, 10:13], plane[10:13, 10:13], atol=1e-9)
+
+
+def _raw_pdal_dtm(pdal_bin: str, tiles: list[Path], grid, out: Path) -> np.ndarray:  # noqa: ANN001
+    """PDAL's DTM written here by a pipeline of its own (not the library's): mean of class 2
+    within the cell circle, nodata -9999 -- the raw DTM before any filling."""
+    import json
+    import subprocess
+
+    stages: list[object] = [{"type": "readers.las", "filename": str(t)} for t in tiles]
+    stages += [{"type": "filters.range", "limits": "Classification[2:2]"},
+               {"type": "writers.gdal", "filename": str(out), "output_type": "mean",
+                "resolution": grid.resolution, "radius": grid.radius,
+                "origin_x": grid.origin_x, "origin_y": grid.origin_y,
+                "width": grid.width, "height": grid.height, "nodata": -9999,
+                "window_size": 0}]
+    r = subprocess.run([pdal_bin, "pipeline", "--stdin"], input=json.dumps(stages),
+                       text=True, capture_output=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    with rasterio.open(out) as src:
+        return src.read(1)
+
+
+def test_filled_dtm_has_no_holes_and_the_mask_marks_exactly_pdals_empty_cells(
+        bcts_run, pdal_bin, tmp_path: Path) -> None:  # noqa: ANN001
+    result, paths = bcts_run
+    raw = _raw_pdal_dtm(pdal_bin, paths, result.grid, tmp_path / "raw.tif")
+    with rasterio.open(result.dtm) as d, rasterio.open(result.dtm_fill_mask) as m, \
+            rasterio.open(result.dsm_max) as s:
+        dtm, mask, dsm = d.read(1), m.read(1), s.read(1)
+        assert m.dtypes[0] == "uint8" and m.nodata == 255 and m.transform == d.transform
+    empty = raw == -9999
+    assert 0 < empty.sum() < empty.size  # PDAL left holes under the canopy
+    assert (dsm != NODATA).all()  # the whole area holds points: every cell must have ground
+    assert (dtm != NODATA).all()
+    assert int((mask == 1).sum()) == int(empty.sum())
+    assert np.array_equal(mask == 1, empty) and np.array_equal(mask == 0, ~empty)
+    np.testing.assert_allclose(dtm[~empty], raw[~empty], atol=1e-3)
+    assert result.stats["dtm_filled"] == int(empty.sum())
+    # a filled value lies between the lowest and highest measured ground around it
+    from scipy import ndimage
+
+    lo = ndimage.minimum_filter(np.where(empty, np.inf, raw), size=7, mode="nearest")
+    hi = ndimage.maximum_filter(np.where(empty, -np.inf, raw), size=7, mode="nearest")
+    assert np.all((dtm[empty] >= lo[empty] - 1e-3) & (dtm[empty] <= hi[empty] + 1e-3))
+
+
+@pytest.mark.parametrize("tile,expected", [
+    ("als/lasR_bcts_1.laz", ("EPSG:3005", "EPSG:5713")),  # NAD83 / BC Albers + CGVD28 height
+    ("als/pyfor_test.laz", ("EPSG:32617", None)),  # vertical CRS unknown in the file
+])
+def test_rasters_carry_authority_codes(tmp_path: Path, pdal_bin: str, sample, tile,  # noqa: ANN001
+                                       expected) -> None:
+    las = laspy.read(sample(tile))
+    x0, y0 = float(np.median(las.x)), float(np.median(las.y))
+    r = make_reference_rasters([sample(tile)], tmp_path, bounds=(x0, y0, x0 + 20, y0 + 20),
+                               pdal=pdal_bin)
+    for p in (r.dtm, r.dsm_max, r.dsm_p90, r.dtm_fill_mask):
+        with rasterio.open(p) as src:
+            crs = pyproj.CRS.from_wkt(src.crs.to_wkt())
+        h = crs.sub_crs_list[0] if crs.is_compound else crs
+        assert f"EPSG:{h.to_epsg()}" == expected[0]
+        assert "unknown" not in crs.name.split(" + ")[0].lower()
+        if expected[1] is not None:
+            assert f"EPSG:{crs.sub_crs_list[1].to_epsg()}" == expected[1]
+    assert r.crs.sub_crs_list[0].to_epsg() == int(expected[0].split(":")[1])

@@ -30,14 +30,13 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import math
 import os
 import tempfile
 import warnings
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from pathlib import Path
-from typing import Any, Literal, cast
+from typing import Any, cast
 
 import numpy as np
 import pyproj
@@ -46,19 +45,19 @@ from ..errors import (
     CanopyBlocksWarning,
     CoverageError,
     CRSError,
-    DependencyError,
     FileFormatError,
     InputError,
     NoUsableDataError,
     PdalError,
 )
-from ..geo import as_crs, require_metre_units, require_metric_crs
+from ..geo import as_crs, require_metric_crs
 from ..outputs.atomic import atomic_output
 from ..progress import Progress, as_progress
 from ..readers.cloud_checks import NormalisedCloudWarning, warn_if_normalised
 from ..readers.las import read_las
 from ..readers.las_header import check_header_extent
 from ..readers.las_summary import LasSummary, las_summary
+from .dtm_fill import fill_and_write_dtm, grid_crs, rasterio_module, write_grid
 from .lidar_points import (
     cell_max_and_percentile,
     cell_neighbourhoods,
@@ -75,203 +74,25 @@ from .pdal import (
     tile_info,
     write_pipeline,
 )
+from .raster_grid import (
+    NODATA,
+    Grid,
+    GroundMethod,
+    RasterParams,
+    ReferenceRasters,
+    check_tile_crs,
+    crs_label,
+)
+from .raster_grid import fmt_bounds as _fmt
+from .raster_grid import horizontal_crs as _horizontal
 
 __all__ = ["NODATA", "Grid", "RasterParams", "ReferenceRasters", "make_reference_rasters",
            "check_tile_crs", "crs_label"]
 
 log = logging.getLogger(__name__)
 
-NODATA = -9999.0
-GroundMethod = Literal["class2", "smrf"]
 _SMRF_BUFFER = 20.0  # metres of extra context around the grid for SMRF's morphology
 _MAX_CELLS = 100_000_000
-
-
-@dataclass(frozen=True)
-class Grid:
-    """A north-up raster grid.
-
-    Attributes
-    ----------
-    origin_x, origin_y : float
-        West and **south** edges, metres (writers.gdal's origin is the lower-left corner).
-    width, height : int
-        Columns and rows.
-    resolution : float
-        Cell size, metres.
-    crs_wkt : str
-        The grid's CRS (WKT).
-    """
-
-    origin_x: float
-    origin_y: float
-    width: int
-    height: int
-    resolution: float
-    crs_wkt: str
-
-    def __post_init__(self) -> None:
-        if not (self.width > 0 and self.height > 0):
-            raise InputError(f"grid must have at least one cell, got {self.width} x {self.height}")
-        if not (self.resolution > 0 and math.isfinite(self.resolution)):
-            raise InputError(f"grid resolution must be > 0 m, got {self.resolution}")
-
-    @classmethod
-    def from_bounds(cls, bounds: Sequence[float], resolution: float, crs_wkt: str) -> Grid:
-        """The smallest grid with edges on multiples of ``resolution`` covering ``bounds``."""
-        minx, miny, maxx, maxy = (float(v) for v in bounds)
-        x0 = math.floor(minx / resolution) * resolution
-        y0 = math.floor(miny / resolution) * resolution
-        width = max(1, math.ceil(round((maxx - x0) / resolution, 9)))
-        height = max(1, math.ceil(round((maxy - y0) / resolution, 9)))
-        return cls(x0, y0, int(width), int(height), float(resolution), crs_wkt)
-
-    @property
-    def top_y(self) -> float:
-        """North edge, metres."""
-        return self.origin_y + self.height * self.resolution
-
-    @property
-    def bounds(self) -> tuple[float, float, float, float]:
-        """``(minx, miny, maxx, maxy)`` in metres."""
-        return (self.origin_x, self.origin_y,
-                self.origin_x + self.width * self.resolution, self.top_y)
-
-    @property
-    def transform(self) -> tuple[float, float, float, float, float, float]:
-        """GDAL geotransform ``(x0, res, 0, top, 0, -res)``."""
-        return (self.origin_x, self.resolution, 0.0, self.top_y, 0.0, -self.resolution)
-
-    @property
-    def radius(self) -> float:
-        """The cell rule's radius, ``resolution * sqrt(2) / 2`` (metres)."""
-        return self.resolution * math.sqrt(2.0) / 2.0
-
-    def writer_options(self) -> dict[str, object]:
-        """writers.gdal overrides putting PDAL's raster exactly on this grid."""
-        return {
-            "writers.gdal.resolution": self.resolution,
-            "writers.gdal.radius": self.radius,
-            "writers.gdal.origin_x": self.origin_x,
-            "writers.gdal.origin_y": self.origin_y,
-            "writers.gdal.width": self.width,
-            "writers.gdal.height": self.height,
-            "writers.gdal.nodata": NODATA,
-        }
-
-
-@dataclass(frozen=True)
-class RasterParams:
-    """Parameters of :func:`make_reference_rasters`, validated once.
-
-    Attributes
-    ----------
-    resolution : float
-        Cell size in metres (> 0).
-    ground : {"class2", "smrf"}
-        Ground points: the file's class 2, or re-classified by PDAL's SMRF.
-    bounds : tuple of float or None
-        ``(minx, miny, maxx, maxy)`` in the output CRS, metres.
-    """
-
-    resolution: float = 2.0
-    ground: GroundMethod = "class2"
-    bounds: tuple[float, float, float, float] | None = None
-
-    def __post_init__(self) -> None:
-        if not (isinstance(self.resolution, (int, float)) and math.isfinite(self.resolution)
-                and self.resolution > 0):
-            raise InputError(f"resolution must be a positive number of metres, "
-                             f"got {self.resolution!r}")
-        if self.ground not in ("class2", "smrf"):
-            raise InputError(f"ground must be 'class2' or 'smrf', got {self.ground!r}")
-        if self.bounds is not None:
-            b = tuple(float(v) for v in self.bounds)
-            if len(b) != 4 or not all(math.isfinite(v) for v in b) or b[0] >= b[2] \
-                    or b[1] >= b[3]:
-                raise InputError(f"bounds must be (minx, miny, maxx, maxy) with min < max, "
-                                 f"got {self.bounds!r}")
-            object.__setattr__(self, "bounds", b)
-
-
-@dataclass(frozen=True)
-class ReferenceRasters:
-    """The three rasters of one run and their shared grid."""
-
-    dtm: Path
-    dsm_max: Path
-    dsm_p90: Path
-    grid: Grid
-    crs: pyproj.CRS
-    tiles: tuple[Path, ...]
-    ground: GroundMethod
-    pdal_version: str = ""
-    stats: dict[str, Any] = field(default_factory=dict, compare=False)
-
-    @property
-    def crs_label(self) -> str:
-        """The horizontal CRS's name and EPSG code, for messages."""
-        return crs_label(self.crs)
-
-
-def check_tile_crs(info: TileInfo, assigned: pyproj.CRS | None) -> tuple[pyproj.CRS, bool]:
-    """A tile's CRS, checked: metric horizontal and vertical units.
-
-    Returns
-    -------
-    crs : pyproj.CRS
-        The tile's CRS: PDAL's reading, else laspy's (PDAL 2.2 ignores GeoTIFF keys in
-        LAS 1.4 files), else ``assigned``.
-    override : bool
-        True when PDAL did not see this CRS, so the pipeline must set it on the reader
-        (``spatialreference``).
-
-    Raises
-    ------
-    CRSError
-        No CRS and nothing assigned; a CRS in feet (horizontal or vertical).
-    """
-    wkt, override = info.crs_wkt, False
-    if wkt is None:
-        wkt, override = _laspy_crs_wkt(info.path), True
-        if wkt is not None:
-            log.info("PDAL read no CRS in %s; using the one laspy finds in its header",
-                     info.path)
-    if wkt is None:
-        if assigned is None:
-            raise CRSError(f"tile {info.path} has no CRS; give the CRS its coordinates are in "
-                           "(--crs EPSG:XXXX in rasters, crs=... in Python) or write it into "
-                           "the file (pdal translate with writers.las.a_srs) for `run`")
-        log.warning("tile %s has no CRS; reading it as %s (the given crs)", info.path,
-                    assigned.to_string())
-        return assigned, True
-    crs = as_crs(wkt, f"CRS of tile {info.path}")
-    require_metre_units(crs, f"tile {info.path}")
-    return crs, override
-
-
-def _laspy_crs_wkt(path: Path) -> str | None:
-    """The CRS laspy finds in the header VLRs (PDAL 2.2 misses GeoTIFF keys in LAS 1.4)."""
-    try:
-        import laspy
-        with laspy.open(path) as f:
-            crs = f.header.parse_crs()
-    except Exception:  # noqa: BLE001 - optional second opinion only
-        return None
-    return crs.to_wkt() if crs is not None else None
-
-
-def _horizontal(crs: pyproj.CRS) -> pyproj.CRS:
-    if crs.is_compound and crs.sub_crs_list:
-        return crs.sub_crs_list[0]
-    return crs
-
-
-def crs_label(crs: pyproj.CRS) -> str:
-    """A short name for messages: the horizontal CRS's name and EPSG code when known."""
-    h = _horizontal(crs)
-    code = h.to_epsg(min_confidence=70)
-    return f"{h.name} (EPSG:{code})" if code else h.name
 
 
 def _union_bounds(infos: list[TileInfo], crss: list[pyproj.CRS],
@@ -306,10 +127,6 @@ def _trust_points(info: TileInfo, summary: LasSummary, resolution: float) -> Til
         return replace(info, bounds=summary.bounds, n_points=summary.n_points,
                        z_range=summary.z_range)
     return info
-
-
-def _fmt(bounds: Sequence[float]) -> tuple[float, ...]:
-    return tuple(round(float(v), 2) for v in bounds)
 
 
 def _intersects(a: Sequence[float], b: Sequence[float]) -> bool:
@@ -462,6 +279,7 @@ def make_reference_rasters(
         dtm_path = stack.enter_context(atomic_output(out / "dtm.tif"))
         max_path = stack.enter_context(atomic_output(out / "dsm_max.tif"))
         p90_path = stack.enter_context(atomic_output(out / "dsm_p90.tif"))
+        mask_path = stack.enter_context(atomic_output(out / "dtm_fill_mask.tif"))
 
         smrf = params.ground == "smrf"
         no_points = CoverageError(
@@ -479,6 +297,7 @@ def make_reference_rasters(
                                     f"{_fmt(grid.bounds)}"
                                     + ("" if smrf else "; the files may be unclassified: use "
                                        "ground='smrf' (--smrf)")) from None
+        out_crs = grid_crs(dtm_path, grid)  # PDAL's CRS with its authority codes
         if reproject:  # PDAL reprojects the points: two more PDAL passes
             try:
                 run("dsm_max", {"filters.crop.bounds": crop(grid.radius),
@@ -488,6 +307,7 @@ def make_reference_rasters(
                 if "no points" not in str(exc):
                     raise
                 raise no_points from None
+            top = _read_band(max_path)
             pts_path = tmp / "points.csv"
             run("points_for_p90", {"filters.crop.bounds": crop(grid.radius),
                                    "writers.text.filename": pts_path},
@@ -500,17 +320,29 @@ def make_reference_rasters(
                                             if any_override else None, prog.sub(0.45, 0.9))
             if not np.isfinite(top).any():
                 raise no_points
-            _write_grid(max_path, top, grid, dtm_path)
-            prog.update(0.9, "dsm_max done")
-        dsm_crs = _write_grid(p90_path, p90, grid, dtm_path)
-        prog.update(0.95, "dsm_p90 done")
+        write_grid(max_path, top, grid, out_crs)
+        prog.update(0.9, "dsm_max done")
+        write_grid(p90_path, p90, grid, out_crs)
+        prog.update(0.93, "dsm_p90 done")
         stats.update(_check_outputs(dtm_path, max_path, grid, params, paths))
+        stats["dtm_filled"] = fill_and_write_dtm(dtm_path, mask_path, np.isfinite(top), grid,
+                                                 out_crs)
+        prog.update(0.97, "DTM holes filled")
     log.info("reference rasters in %s: %s", out, stats)
     prog.report(1.0, "done")  # outputs are committed: too late to cancel
     return ReferenceRasters(dtm=out / "dtm.tif", dsm_max=out / "dsm_max.tif",
-                            dsm_p90=out / "dsm_p90.tif", grid=grid, crs=dsm_crs,
+                            dsm_p90=out / "dsm_p90.tif", grid=grid, crs=out_crs,
                             tiles=tuple(paths), ground=params.ground,
-                            pdal_version=infos[0].pdal_version, stats=stats)
+                            pdal_version=infos[0].pdal_version,
+                            dtm_fill_mask=out / "dtm_fill_mask.tif", stats=stats)
+
+
+def _read_band(path: Path) -> np.ndarray:
+    """Band 1 of a raster PDAL wrote, float64 with NaN for nodata."""
+    with rasterio_module().open(path) as src:
+        a = src.read(1).astype(np.float64)
+    a[(a == NODATA) | ~np.isfinite(a)] = np.nan
+    return a
 
 
 def _surfaces_from_tiles(paths: list[Path], grid: Grid, crs: pyproj.CRS | None,
@@ -548,39 +380,10 @@ def _p90_grid(points_csv: Path, grid: Grid) -> np.ndarray:
     return cell_percentile(cell, pts.z[idx], n_cells, 90.0).reshape(grid.height, grid.width)
 
 
-def _rasterio() -> Any:
-    try:
-        import rasterio
-    except ImportError:
-        raise DependencyError("writing reference rasters needs rasterio: "
-                              "pip install 'canopyblocks[raster]'") from None
-    return rasterio
-
-
-def _write_grid(path: Path, values: np.ndarray, grid: Grid, like: Path) -> pyproj.CRS:
-    """Write a (height, width) grid as a float32 GeoTIFF (nodata -9999) with the CRS PDAL
-    wrote into ``like``, so all three rasters carry the same CRS."""
-    rasterio = _rasterio()
-    from rasterio.transform import Affine
-
-    with rasterio.open(like) as src:
-        crs = src.crs
-        if (src.width, src.height) != (grid.width, grid.height):
-            raise RuntimeError(f"PDAL wrote a {src.width} x {src.height} raster, expected "
-                               f"{grid.width} x {grid.height}")
-    data = np.where(np.isfinite(values), values, NODATA).astype(np.float32)
-    profile = dict(driver="GTiff", width=grid.width, height=grid.height, count=1,
-                   dtype="float32", nodata=NODATA, crs=crs,
-                   transform=Affine.from_gdal(*grid.transform))
-    with rasterio.open(path, "w", **profile) as dst:
-        dst.write(data, 1)
-    return pyproj.CRS.from_wkt(crs.to_wkt()) if crs is not None else as_crs(grid.crs_wkt)
-
-
 def _check_outputs(dtm: Path, dsm: Path, grid: Grid, params: RasterParams,
                    paths: list[Path]) -> dict[str, Any]:
     """Refuse empty rasters with a clear message; return valid-cell counts."""
-    rasterio = _rasterio()
+    rasterio = rasterio_module()
     counts = {}
     for name, p in (("dtm", dtm), ("dsm_max", dsm)):
         with rasterio.open(p) as src:
