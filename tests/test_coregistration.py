@@ -19,7 +19,7 @@ import pytest
 from scipy import ndimage
 from scipy.interpolate import RegularGridInterpolator
 
-from canopyblocks.errors import InputError, NoUsableDataError
+from canopyblocks.errors import CoverageError, InputError
 from canopyblocks.photons import PhotonTrack
 from canopyblocks.readers.las import read_las
 from canopyblocks.reference.raster_sampling import RasterSurface, read_surface
@@ -230,7 +230,7 @@ def test_no_target_on_the_raster_is_an_error():
     s = np.arange(100.0)
     t = CoregTargets(s + 1e6, s, s * 0, s, np.zeros(100, np.int8),
                      np.full(100, "a", dtype=object), np.zeros(100, np.int64), crs)
-    with pytest.raises(NoUsableDataError, match="cover the track"):
+    with pytest.raises(CoverageError, match=r"cover 0 of 1 blocks \(0 %\)"):
         coregister(t, dtm)
 
 

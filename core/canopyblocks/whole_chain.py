@@ -296,7 +296,7 @@ def _coregistered(blocks: Any, tracks: Any, rasters: Any, out: Path, vkw: dict[s
     from .reference.raster_sampling import read_surface
     from .validation.block_validation import validate_blocks
     from .validation.coregistration import coregister
-    from .validation.coregistration_files import vertical_shift, write_offsets
+    from .validation.coregistration_files import offset_to_apply, vertical_shift, write_offsets
     from .validation.coregistration_targets import CoregTargets, apply_offset, targets_from_photons
 
     dtm = read_surface(rasters.dtm, what="DTM")
@@ -311,14 +311,8 @@ def _coregistered(blocks: Any, tracks: Any, rasters: Any, out: Path, vkw: dict[s
     result = coregister(CoregTargets.concat(parts), dtm, dsm, progress=prog)
     write_offsets(result, out / "offsets.json")
     doc = result.to_dict()
-    joint = result.offsets.get("all") or next(iter(result.offsets.values()))
-    if not joint.determined:
-        import warnings
-
-        from .errors import CanopyBlocksWarning
-
-        warnings.warn(f"geolocation offset undetermined ({joint.reason}); validated without "
-                      "co-registration", CanopyBlocksWarning, stacklevel=3)
+    joint = offset_to_apply(result, "photons")
+    if joint is None:
         return blocks, doc, None
     before = validate_blocks(blocks, dtm=rasters.dtm, dsm_max=rasters.dsm_max,
                              dsm_p90=rasters.dsm_p90, **vkw).stats

@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 
 import click
+import numpy as np
 
 from ..errors import InputError
 from .common import min_signal_conf_option, vertical_options
@@ -50,11 +51,19 @@ def coregister(ctx: click.Context, source: str, dtm: str, dsm_max: str | None,
     """Find the along-track, cross-track and vertical shift that aligns a track
     (photons, blocks or GEDI footprints) with the airborne DTM (and DSM).
 
-    Prints the offsets: the shift to ADD to the reported positions and heights.
+    Prints the offsets: the shift to ADD to the reported positions and heights, with
+    the horizontal uncertainty (+-, m). An offset is 'ok' only when, fitted on some
+    stretches of the track, it also improves the held-out stretches significantly;
+    otherwise it is 'undetermined' (a warning says why) and must not be applied. Rasters
+    that cover too little of the track are refused.
     """
     from ..outputs.atomic import check_writable
     from ..validation.coregistration import CoregParams
-    from ..validation.coregistration_files import coregister_file, write_offsets
+    from ..validation.coregistration_files import (
+        coregister_file,
+        offset_to_apply,
+        write_offsets,
+    )
     from .common import progress_bar
 
     if not output.lower().endswith(".json"):
@@ -74,13 +83,14 @@ def coregister(ctx: click.Context, source: str, dtm: str, dsm_max: str | None,
 
         write_cost_surfaces(result, plot)
     write_offsets(result, output)
+    offset_to_apply(result, source, applying=False)
     if not quiet:
-        click.echo(f"{'track':<10} {'along':>7} {'cross':>7} {'east':>7} {'north':>7} "
-                   f"{'vert':>7} {'rmse before':>11} {'after':>6}  status")
+        click.echo(f"{'track':<10} {'along':>7} {'cross':>7} {'+-':>5} {'east':>7} "
+                   f"{'north':>7} {'vert':>7} {'rmse before':>11} {'after':>6}  status")
         for name, o in result.offsets.items():
-            status = "ok" if o.determined else f"undetermined: {o.reason}"
-            click.echo(f"{name:<10} {o.along_track:+7.2f} {o.cross_track:+7.2f} "
+            sd = float(np.hypot(o.along_track_sd, o.cross_track_sd))
+            click.echo(f"{name:<10} {o.along_track:+7.2f} {o.cross_track:+7.2f} {sd:5.2f} "
                        f"{o.east:+7.2f} {o.north:+7.2f} {o.vertical:+7.2f} "
-                       f"{o.rmse_before:11.2f} {o.rmse_after:6.2f}  {status}")
+                       f"{o.rmse_before:11.2f} {o.rmse_after:6.2f}  {o.status}")
     if not quiet:
         click.echo(f"offsets -> {output}", err=True)

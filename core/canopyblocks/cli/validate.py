@@ -103,10 +103,12 @@ def validate(ctx: click.Context, blocks_path: str, dtm: str | None, dsm_max: str
     if result.coregistration is not None and not quiet:
         for name, o in result.coregistration.offsets.items():
             status = "applied" if name == result.applied else (
-                "" if o.determined else f"undetermined: {o.reason}")
+                "" if o.determined else "undetermined, not applied")
             click.echo(f"offset {name}: along {o.along_track:+.2f} cross {o.cross_track:+.2f} "
-                       f"vertical {o.vertical:+.2f} m; ground RMSE {o.rmse_before:.2f} -> "
-                       f"{o.rmse_after:.2f} m {status}".rstrip(), err=True)
+                       f"(+-{o.along_track_sd:.2f}/{o.cross_track_sd:.2f}) vertical "
+                       f"{o.vertical:+.2f} m; held-out ground RMSE "
+                       f"{o.heldout_rmse_before:.2f} -> {o.heldout_rmse_after:.2f} m "
+                       f"{status}".rstrip(), err=True)
         if result.stats_before is not None:
             _print_before_after(result.stats_before, result.stats)
     if not quiet:

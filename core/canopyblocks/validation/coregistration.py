@@ -15,17 +15,21 @@ Method
    sampled bilinearly at the shifted positions (one vectorised lookup for all
    candidates of a chunk) and the residuals ``r = z - DTM(p + shift)`` formed.
 3. The vertical shift is solved in closed form at each candidate as minus the robust
-   location of the ground residuals (histogram mode, then two trimmed means); the
-   cost is a truncated quadratic ``mean(min(((r - m) / scale)^2, T^2))`` with a fixed
+   location of the ground residuals; the cost is a truncated quadratic with a fixed
    scale (0.5 m ground, 2 m top), so that a few outlying blocks, vegetation photons in
    a ground window, or positions shifted off the raster cost a bounded, equal amount at
-   every candidate. Top residuals have their own free location (a canopy-top estimate
-   is biased low against a DSM maximum); their cost is added with a weight.
+   every candidate (:mod:`~canopyblocks.validation.coregistration_cost`). Top residuals
+   have their own free location; their cost is added with a weight.
 4. A coarse grid (default +-15 m by 1 m) then a fine grid around its minimum (+-3 m by
-   0.25 m). Uncertainties: a bootstrap over blocks (groups of targets) reweighting the
-   fine-grid residuals. The optimum is *determined* only when the cost surface has
-   contrast and the bootstrap spread of both horizontal components is small; over flat
-   terrain the result says so instead of reporting noise.
+   0.25 m).
+5. Checks (:mod:`~canopyblocks.validation.coregistration_checks`): the rasters must
+   cover enough of the track (else the search is refused); the offset is *determined*
+   only when, fitted on some stretches of the track, it improves the misfit of the
+   held-out stretches significantly without making their ground RMSE worse, the surface
+   has contrast and the uncertainty is small. The uncertainty is the larger of a
+   bootstrap over stretches and the linearised (curvature against noise) one; three
+   standard deviations are the minimum detectable offset over this terrain.
+   An undetermined offset is reported, never applied.
 
 Sign convention: ``east``, ``north``, ``along_track``, ``cross_track``, ``vertical`` are
 the shift (m) to ADD to the track's reported positions and heights. Cross-track is
@@ -39,10 +43,21 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 import numpy as np
+import pandas as pd
 
-from ..errors import InputError, NoUsableDataError
+from ..errors import CoverageError, InputError, NoUsableDataError
 from ..progress import Progress, as_progress
 from ..reference.raster_sampling import RasterSurface
+from .coregistration_checks import (
+    DETECTABLE_SDS,
+    Coverage,
+    bootstrap_sd,
+    coverage_of,
+    held_out_test,
+    linearised_sd,
+    segments_along,
+)
+from .coregistration_cost import Kind, residuals, segment_costs
 from .coregistration_targets import KIND_GROUND, KIND_TOP, CoregTargets
 
 __all__ = ["CoregParams", "CoregOffset", "CoregResult", "coregister", "track_direction"]
@@ -50,9 +65,6 @@ __all__ = ["CoregParams", "CoregOffset", "CoregResult", "coregister", "track_dir
 log = logging.getLogger(__name__)
 
 UseTop = Literal["auto", "yes", "no"]
-_CHUNK_ELEMENTS = 4_000_000  # candidate x target residuals held at once
-_MODE_BINS = 400
-_MEAN_SHIFT_ITERATIONS = 8
 
 
 @dataclass(frozen=True)
@@ -81,7 +93,7 @@ class CoregParams:
         Truncation of the cost, in scales (residuals farther than ``truncate * scale``
         from the location count as outliers).
     bootstrap : int
-        Bootstrap replicates over groups for the uncertainties (0: none).
+        Bootstrap replicates over stretches of the track for the uncertainties (0: none).
     seed : int
         Random seed of the bootstrap and of target subsampling.
     max_targets : int
@@ -90,11 +102,21 @@ class CoregParams:
     min_ground : int
         Fewer usable ground targets: the ground alone is not enough.
     max_sd : float
-        Largest bootstrap standard deviation (m) of a horizontal component for the
-        optimum to count as determined.
+        Largest standard deviation (m) of a horizontal component for the optimum to
+        count as determined.
     min_contrast : float
         Smallest relative cost contrast ``(median - min) / min`` of the coarse surface
         for the optimum to count as determined.
+    segment : float
+        Length (m) of the stretches of track that are held out together and resampled
+        by the bootstrap (25 m: longer than an ICESat-2 footprint and a block).
+    folds : int
+        Number of interleaved folds of stretches for the held-out test.
+    significance : float
+        One-sided significance level of the held-out improvement.
+    min_segments : int
+        Fewer stretches of track on valid raster cells: the rasters cover too little of
+        the track and the search is refused.
     """
 
     search_range: float = 15.0
@@ -106,16 +128,20 @@ class CoregParams:
     ground_scale: float = 0.5
     top_scale: float = 2.0
     truncate: float = 3.0
-    bootstrap: int = 50
+    bootstrap: int = 200
     seed: int = 0
     max_targets: int = 30_000
     min_ground: int = 30
     max_sd: float = 1.5
     min_contrast: float = 0.05
+    segment: float = 25.0
+    folds: int = 5
+    significance: float = 0.01
+    min_segments: int = 6
 
     def __post_init__(self) -> None:
         for name in ("search_range", "step", "fine_step", "fine_range", "ground_scale",
-                     "top_scale", "truncate", "max_sd"):
+                     "top_scale", "truncate", "max_sd", "segment"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
                 raise InputError(f"coregistration {name} must be a positive number of "
@@ -133,7 +159,8 @@ class CoregParams:
             raise InputError(f"use_top must be 'auto', 'yes' or 'no', got {self.use_top!r}")
         if not (np.isfinite(self.top_weight) and self.top_weight >= 0):
             raise InputError(f"top_weight must be >= 0, got {self.top_weight!r}")
-        for name in ("bootstrap", "max_targets", "min_ground", "seed"):
+        for name in ("bootstrap", "max_targets", "min_ground", "seed", "folds",
+                     "min_segments"):
             v = getattr(self, name)
             if not isinstance(v, (int, np.integer)) or isinstance(v, bool) or v < 0:
                 raise InputError(f"coregistration {name} must be a whole number >= 0, got {v!r}")
@@ -141,6 +168,14 @@ class CoregParams:
             raise InputError(f"max_targets must be at least 10, got {self.max_targets}")
         if not (np.isfinite(self.min_contrast) and self.min_contrast >= 0):
             raise InputError(f"min_contrast must be >= 0, got {self.min_contrast!r}")
+        if self.folds < 2:
+            raise InputError(f"coregistration folds must be at least 2, got {self.folds}")
+        if self.min_segments < 4:
+            raise InputError(f"coregistration min_segments must be at least 4, got "
+                             f"{self.min_segments}")
+        if not (isinstance(self.significance, float) and 0 < self.significance < 0.5):
+            raise InputError(f"coregistration significance must be between 0 and 0.5, got "
+                             f"{self.significance!r}")
 
 
 @dataclass(frozen=True)
@@ -148,9 +183,16 @@ class CoregOffset:
     """The offset found for one track (or for all tracks together).
 
     All distances in metres; the shift to ADD to reported positions and heights.
-    ``*_sd`` are bootstrap standard deviations (NaN without bootstrap). ``rmse_before``
-    and ``rmse_after`` are the RMSE of the ground residuals (target minus DTM) of the
-    targets inside the raster, before and after applying the shift (the same targets).
+    ``*_sd`` are standard deviations: the larger of the bootstrap over stretches of track
+    and the linearised one. ``rmse_before`` and ``rmse_after`` are the RMSE of the ground
+    residuals (target minus DTM) of the targets inside the raster, before and after
+    applying the whole shift (the same targets). ``determined`` False: the offset is
+    not significant on held-out stretches (or not constrained); ``reason`` says why, and
+    it must not be applied. ``detectable_*``: the minimum detectable offset (m) along and
+    across the track over this terrain (three standard deviations);
+    ``heldout_*``: the held-out test (t statistic, its critical value, held-out ground
+    RMSE at no shift and at the offsets fitted without them); ``coverage``: blocks and
+    stretches of the track on valid raster cells.
     """
 
     name: str
@@ -178,6 +220,19 @@ class CoregOffset:
     cross_grid: np.ndarray = field(repr=False, default_factory=lambda: np.zeros(0))
     cost: np.ndarray = field(repr=False, default_factory=lambda: np.zeros((0, 0)))
     direction: tuple[float, float] = (0.0, 1.0)
+    detectable_along: float = float("nan")
+    detectable_cross: float = float("nan")
+    coverage: Coverage | None = None
+    heldout_t: float = float("nan")
+    heldout_critical: float = float("nan")
+    heldout_rmse_before: float = float("nan")
+    heldout_rmse_after: float = float("nan")
+    n_segments: int = 0
+
+    @property
+    def status(self) -> str:
+        """``"ok"`` or ``"undetermined"``."""
+        return "ok" if self.determined else "undetermined"
 
     def to_dict(self) -> dict[str, object]:
         """JSON-ready summary (no cost surface)."""
@@ -196,7 +251,17 @@ class CoregOffset:
             "bias_before": num(self.bias_before), "bias_after": num(self.bias_after),
             "n_ground": int(self.n_ground), "n_top": int(self.n_top),
             "used_top": bool(self.used_top), "determined": bool(self.determined),
-            "reason": self.reason,
+            "status": self.status, "reason": self.reason,
+            "minimum_detectable": {"along_track": num(self.detectable_along),
+                                   "cross_track": num(self.detectable_cross)},
+            "held_out": {"t": num(self.heldout_t), "critical_t": num(self.heldout_critical),
+                         "rmse_before": num(self.heldout_rmse_before),
+                         "rmse_after": num(self.heldout_rmse_after),
+                         "stretches": int(self.n_segments)},
+            "coverage": None if self.coverage is None else {
+                "blocks": self.coverage.blocks,
+                "blocks_on_rasters": self.coverage.blocks_covered,
+                "share": round(self.coverage.share, 4)},
             "along_track_direction": [round(self.direction[0], 6), round(self.direction[1], 6)],
         }
 
@@ -243,96 +308,11 @@ def _cross_of(a: tuple[float, float]) -> tuple[float, float]:
     return a[1], -a[0]
 
 
-# ---------------------------------------------------------------- cost
-def _robust_location(r: np.ndarray, scale: float, trunc: float) -> np.ndarray:
-    """Per row of ``r`` (candidates x targets; NaN ignored): mode, then trimmed means."""
-    k, n = r.shape
-    fin = np.isfinite(r)
-    has = fin.any(axis=1)
-    rowmin = np.where(has, np.nanmin(np.where(fin, r, np.inf), axis=1), 0.0)
-    width = scale
-    b = np.floor((r - rowmin[:, None]) / width)
-    b = np.where(fin, np.clip(b, 0, _MODE_BINS - 1), 0).astype(np.int64)
-    counts = np.bincount((np.arange(k)[:, None] * _MODE_BINS + b)[fin],
-                         minlength=k * _MODE_BINS).reshape(k, _MODE_BINS)
-    # smooth the histogram by 3 bins so a cluster split over two bins is found
-    sm = counts.astype(float)
-    sm[:, 1:] += counts[:, :-1]
-    sm[:, :-1] += counts[:, 1:]
-    m = rowmin + (np.argmax(sm, axis=1) + 0.5) * width
-    # mean shift with a narrow Gaussian kernel: converges on the mode, so a one-sided
-    # tail (understory photons above the ground, canopy below a DSM maximum) does not
-    # pull the location the way a mean would
-    bw = 0.5 * scale
-    rr = np.where(fin, r, 0.0)
-    for _ in range(_MEAN_SHIFT_ITERATIONS):
-        u = (rr - m[:, None]) / bw
-        w = np.where(fin & (np.abs(u) < 4.0), np.exp(-0.5 * u * u), 0.0)
-        sw = w.sum(axis=1)
-        m = np.where(sw > 0, (w * rr).sum(axis=1) / np.maximum(sw, 1e-300), m)
-    return np.where(has, m, np.nan)
-
-
-def _rho(r: np.ndarray, m: np.ndarray, scale: float, trunc: float) -> np.ndarray:
-    """Truncated quadratic per element; NaN residuals cost the truncation."""
-    u = (r - m[:, None]) / scale
-    with np.errstate(invalid="ignore"):
-        rho = np.minimum(u * u, trunc * trunc)
-    return np.where(np.isfinite(rho), rho, trunc * trunc)
-
-
-@dataclass
-class _Kind:
-    x: np.ndarray
-    y: np.ndarray
-    z: np.ndarray
-    group: np.ndarray
-    surface: RasterSurface
-    scale: float
-
-
-def _residuals(kind: _Kind, a: tuple[float, float], c: tuple[float, float],
-               da: np.ndarray, dc: np.ndarray) -> np.ndarray:
-    sx = da * a[0] + dc * c[0]
-    sy = da * a[1] + dc * c[1]
-    vals = kind.surface.bilinear(kind.x[None, :] + sx[:, None], kind.y[None, :] + sy[:, None])
-    return kind.z[None, :] - vals
-
-
-def _surface_costs(kinds: list[tuple[_Kind, float]], a: tuple[float, float],
-                   c: tuple[float, float], da: np.ndarray, dc: np.ndarray, trunc: float,
-                   progress: Progress) -> tuple[np.ndarray, np.ndarray]:
-    """Cost and ground location for each candidate (flattened grids ``da``, ``dc``)."""
-    n_el = max(sum(len(k.z) for k, _ in kinds), 1)
-    chunk = max(1, _CHUNK_ELEMENTS // n_el)
-    cost = np.zeros(len(da))
-    loc = np.full(len(da), np.nan)
-    for i0 in range(0, len(da), chunk):
-        progress.update(i0 / len(da), "searching offsets")
-        sl = slice(i0, i0 + chunk)
-        for j, (kind, weight) in enumerate(kinds):
-            r = _residuals(kind, a, c, da[sl], dc[sl])
-            m = _robust_location(r, kind.scale, trunc)
-            cost[sl] += weight * _rho(r, m, kind.scale, trunc).mean(axis=1)
-            if j == 0:
-                loc[sl] = m
-    return cost, loc
-
-
-def _fine_matrices(kinds: list[tuple[_Kind, float]], a: tuple[float, float],
-                   c: tuple[float, float], da: np.ndarray, dc: np.ndarray,
-                   trunc: float) -> tuple[list[np.ndarray], np.ndarray, np.ndarray]:
-    """Per kind the rho matrix (candidates x targets), the ground residuals and location."""
-    rhos = []
-    r_ground = np.zeros((0, 0))
-    loc = np.zeros(0)
-    for j, (kind, _w) in enumerate(kinds):
-        r = _residuals(kind, a, c, da, dc)
-        m = _robust_location(r, kind.scale, trunc)
-        rhos.append(_rho(r, m, kind.scale, trunc))
-        if j == 0:
-            r_ground, loc = r, m
-    return rhos, r_ground, loc
+# ---------------------------------------------------------------- search
+def _subsample(idx: np.ndarray, limit: int, rng: np.random.Generator) -> np.ndarray:
+    if len(idx) <= limit:
+        return idx
+    return np.sort(rng.choice(idx, size=limit, replace=False))
 
 
 def _rmse_bias(r: np.ndarray, shift: float = 0.0) -> tuple[float, float]:
@@ -342,74 +322,106 @@ def _rmse_bias(r: np.ndarray, shift: float = 0.0) -> tuple[float, float]:
     return float(np.sqrt(np.mean(v * v))), float(np.mean(v))
 
 
-# ---------------------------------------------------------------- search
-def _subsample(idx: np.ndarray, limit: int, rng: np.random.Generator) -> np.ndarray:
-    if len(idx) <= limit:
-        return idx
-    return np.sort(rng.choice(idx, size=limit, replace=False))
+def _contrast(cost: np.ndarray) -> float:
+    lo = float(np.nanmin(cost))
+    med = float(np.nanmedian(cost))
+    return (med - lo) / lo if lo > 0 else (np.inf if med > 0 else 0.0)
+
+
+def _not_covered(name: str, cov: Coverage, p: CoregParams) -> str:
+    return (f"the rasters cover {cov.describe()} of track {name}: "
+            f"{cov.segments_covered} stretch(es) of {p.segment:g} m, at least "
+            f"{p.min_segments} are needed to test an offset")
 
 
 def _search_one(name: str, t: CoregTargets, dtm: RasterSurface, dsm: RasterSurface | None,
-                direction: tuple[float, float], p: CoregParams, progress: Progress
-                ) -> CoregOffset:
+                direction: tuple[float, float], p: CoregParams, progress: Progress,
+                refuse: bool = True) -> CoregOffset:
+    """The offset of the targets ``t`` (one track, or all together); see the module notes.
+
+    Raises CoverageError (``refuse``) or returns an undetermined offset when the rasters
+    cover too little of the track."""
     rng = np.random.default_rng(p.seed)
-    g_idx = np.flatnonzero((t.kind == KIND_GROUND) & np.isfinite(t.z))
-    t_idx = np.flatnonzero((t.kind == KIND_TOP) & np.isfinite(t.z))
-    g_idx = _subsample(g_idx, p.max_targets, rng)
-    t_idx = _subsample(t_idx, p.max_targets, rng)
-    ground = _Kind(t.x[g_idx], t.y[g_idx], t.z[g_idx], t.group[g_idx], dtm, p.ground_scale)
-    top = (_Kind(t.x[t_idx], t.y[t_idx], t.z[t_idx], t.group[t_idx], dsm, p.top_scale)
-           if dsm is not None and len(t_idx) else None)
-    r0 = ground.z - dtm.bilinear(ground.x, ground.y)
-    n_ground = int(np.isfinite(r0).sum())
-    if n_ground == 0 and top is None:
-        raise NoUsableDataError(
-            f"track {name}: no ground target lies on the DTM (and no DSM/top targets); "
-            "check that the rasters cover the track and share its CRS")
     a = direction
     c = _cross_of(a)
+    codes = pd.factorize(t.track)[0]
+    seg_all = segments_along(t.x, t.y, codes, a, p.segment)
+    is_g = (t.kind == KIND_GROUND) & np.isfinite(t.z)
+    is_t = (t.kind == KIND_TOP) & np.isfinite(t.z) & (dsm is not None)
+    valid = np.zeros(len(t), bool)
+    valid[is_g] = np.isfinite(dtm.bilinear(t.x[is_g], t.y[is_g]))
+    if dsm is not None and is_t.any():
+        valid[is_t] = np.isfinite(dsm.bilinear(t.x[is_t], t.y[is_t]))
+    cov = coverage_of(valid, t.group, seg_all)
+    if cov.segments_covered < p.min_segments:
+        msg = _not_covered(name, cov, p)
+        if refuse:
+            raise CoverageError(msg + "; give rasters that cover the track (in the track's "
+                                "CRS or one it can be transformed to)")
+        return _undetermined(name, dtm, a, cov, msg)
+    # segments without a valid target carry no information: leave them out
+    keep_seg = np.zeros(int(seg_all.max()) + 1, bool)
+    keep_seg[seg_all[valid]] = True
+    seg_ids = np.cumsum(keep_seg) - 1
+    n_seg = int(keep_seg.sum())
+    g_idx = _subsample(np.flatnonzero(is_g & keep_seg[seg_all]), p.max_targets, rng)
+    t_idx = _subsample(np.flatnonzero(is_t & keep_seg[seg_all]), p.max_targets, rng)
+    ground = Kind(t.x[g_idx], t.y[g_idx], t.z[g_idx], seg_ids[seg_all[g_idx]], dtm,
+                  p.ground_scale)
+    top = (Kind(t.x[t_idx], t.y[t_idx], t.z[t_idx], seg_ids[seg_all[t_idx]], dsm,
+                p.top_scale, p.top_weight) if dsm is not None and len(t_idx) else None)
+    r0 = ground.z - dtm.bilinear(ground.x, ground.y)
+    n_ground = int(np.isfinite(r0).sum())
     coarse = np.arange(-p.search_range, p.search_range + 1e-9, p.step)
     ga, gc = np.meshgrid(coarse, coarse, indexing="ij")  # [along, cross]
 
-    def run(use_top: bool, prog: Progress) -> tuple[np.ndarray, np.ndarray]:
-        kinds: list[tuple[_Kind, float]] = []
-        if n_ground:
-            kinds.append((ground, 1.0))
+    def kinds_for(use_top: bool) -> list[Kind]:
+        ks = [ground]
         if use_top and top is not None:
-            kinds.append((top, p.top_weight if n_ground else 1.0))
-        return _surface_costs(kinds, a, c, ga.ravel(), gc.ravel(), p.truncate, prog)
+            top.weight = p.top_weight if n_ground else 1.0
+            ks.append(top)
+        return ks
 
     want_top = p.use_top == "yes" or (p.use_top == "auto" and n_ground < p.min_ground)
     used_top = bool(want_top and top is not None)
-    cost, _ = run(used_top, progress.sub(0.0, 0.45))
-    contrast = _contrast(cost)
+    seg_cost, _ = segment_costs(kinds_for(used_top), a, c, ga.ravel(), gc.ravel(), n_seg,
+                                p.truncate, progress.sub(0.0, 0.45))
+    contrast = _contrast(seg_cost.sum(axis=1))
     if (p.use_top == "auto" and not used_top and top is not None
             and contrast < p.min_contrast):
         log.info("track %s: ground alone gives no contrast (%.3f); adding the canopy top",
                  name, contrast)
         used_top = True
-        cost, _ = run(True, progress.sub(0.45, 0.8))
-        contrast = _contrast(cost)
+        seg_cost, _ = segment_costs(kinds_for(True), a, c, ga.ravel(), gc.ravel(), n_seg,
+                                    p.truncate, progress.sub(0.45, 0.8))
+        contrast = _contrast(seg_cost.sum(axis=1))
+    cost = seg_cost.sum(axis=1)
     k = int(np.nanargmin(cost))
     ca, cc = float(ga.ravel()[k]), float(gc.ravel()[k])
 
+    # fine grid around the coarse minimum, and the no-shift candidate (the last one)
     fine = np.arange(-p.fine_range, p.fine_range + 1e-9, p.fine_step)
     fa, fc = np.meshgrid(ca + fine, cc + fine, indexing="ij")
-    kinds: list[tuple[_Kind, float]] = []
-    if n_ground:
-        kinds.append((ground, 1.0))
-    if used_top and top is not None:
-        kinds.append((top, p.top_weight if n_ground else 1.0))
-    rhos, r_ground, loc = _fine_matrices(kinds, a, c, fa.ravel(), fc.ravel(), p.truncate)
-    weights = [w for _, w in kinds]
-    fcost = sum(w * rho.mean(axis=1) for w, rho in zip(weights, rhos))
-    kf = int(np.nanargmin(fcost))
-    along, cross = float(fa.ravel()[kf]), float(fc.ravel()[kf])
-    vertical = -float(loc[kf]) if n_ground else 0.0
-    progress.update(0.85, "bootstrap")
+    kinds = kinds_for(used_top)
+    fda = np.concatenate([fa.ravel(), [0.0]])
+    fdc = np.concatenate([fc.ravel(), [0.0]])
+    fine_cost, fine_loc = segment_costs(kinds, a, c, fda, fdc, n_seg, p.truncate)
+    kf = int(np.nanargmin(fine_cost[:-1].sum(axis=1)))
+    along, cross = float(fda[kf]), float(fdc[kf])
+    vertical = -float(fine_loc[kf]) if n_ground else 0.0
+    progress.update(0.85, "held-out test")
 
-    sd = _bootstrap(kinds, rhos, weights, r_ground, loc, fa.ravel(), fc.ravel(), p, rng)
-    along_sd, cross_sd, vertical_sd = sd
+    all_cost = np.vstack([seg_cost, fine_cost])
+    all_da = np.concatenate([ga.ravel(), fda])
+    all_dc = np.concatenate([gc.ravel(), fdc])
+    held = held_out_test(all_cost, len(all_da) - 1, all_da, all_dc, ground, a, c,
+                         p.folds, p.significance)
+    boot_a, boot_c = bootstrap_sd(all_cost, all_da, all_dc, p.bootstrap, rng)
+    lin_a, lin_c, vertical_sd = linearised_sd(kinds, a, c, along, cross, p.truncate, n_seg)
+    along_sd = float(np.nanmax([boot_a, lin_a])) if np.isfinite([boot_a, lin_a]).any() \
+        else float("nan")
+    cross_sd = float(np.nanmax([boot_c, lin_c])) if np.isfinite([boot_c, lin_c]).any() \
+        else float("nan")
     east = along * a[0] + cross * c[0]
     north = along * a[1] + cross * c[1]
     # east/north variances from the along/cross ones (taken as independent)
@@ -420,18 +432,23 @@ def _search_one(name: str, t: CoregTargets, dtm: RasterSurface, dsm: RasterSurfa
     if contrast < p.min_contrast:
         reasons.append(f"the cost surface is flat (contrast {contrast:.3f} < "
                        f"{p.min_contrast}): the terrain does not constrain the position")
-    if p.bootstrap and not (np.isfinite(along_sd) and along_sd <= p.max_sd):
+    if not held.significant:
+        reasons.append(f"no significant improvement on held-out blocks (t {held.t:.1f}, "
+                       f"needs > {held.critical:.1f}, over {held.n_segments} stretches of "
+                       f"{p.segment:g} m)")
+    if held.worse:
+        reasons.append(f"the held-out ground RMSE gets worse ({held.rmse_before:.2f} -> "
+                       f"{held.rmse_after:.2f} m)")
+    if not (np.isfinite(along_sd) and along_sd <= p.max_sd):
         reasons.append(f"along-track uncertainty {along_sd:.2f} m > {p.max_sd} m")
-    if p.bootstrap and not (np.isfinite(cross_sd) and cross_sd <= p.max_sd):
+    if not (np.isfinite(cross_sd) and cross_sd <= p.max_sd):
         reasons.append(f"cross-track uncertainty {cross_sd:.2f} m > {p.max_sd} m")
     edge = p.search_range - p.step / 2
     if abs(ca) >= edge or abs(cc) >= edge:
-        reasons.append(f"the minimum lies on the edge of the +-{p.search_range} m grid; "
-                       "widen the search range")
-    determined = not reasons
+        reasons.append(f"the minimum lies on the edge of the +-{p.search_range:g} m grid")
+    mdo_a, mdo_c = DETECTABLE_SDS * along_sd, DETECTABLE_SDS * cross_sd
     if n_ground:
-        before = _rmse_bias(r0)
-        r_after = r_ground[kf]
+        r_after = residuals(ground, a, c, np.array([along]), np.array([cross]))[0]
         ok = np.isfinite(r0) & np.isfinite(r_after)
         after = _rmse_bias(r_after[ok], vertical)
         before = _rmse_bias(r0[ok])
@@ -443,50 +460,26 @@ def _search_one(name: str, t: CoregTargets, dtm: RasterSurface, dsm: RasterSurfa
         cross_track_sd=cross_sd, vertical_sd=vertical_sd,
         rmse_before=before[0], rmse_after=after[0], bias_before=before[1],
         bias_after=after[1], n_ground=n_ground, n_top=len(t_idx) if used_top else 0,
-        used_top=used_top, determined=determined,
+        used_top=used_top, determined=not reasons,
         reason="; ".join(reasons) if reasons else "ok",
         crs_wkt=dtm.horizontal_crs.to_wkt(), along_grid=coarse, cross_grid=coarse,
         cost=cost.reshape(ga.shape), direction=a,
+        detectable_along=mdo_a, detectable_cross=mdo_c, coverage=cov,
+        heldout_t=held.t, heldout_critical=held.critical,
+        heldout_rmse_before=held.rmse_before, heldout_rmse_after=held.rmse_after,
+        n_segments=n_seg,
     )
 
 
-def _contrast(cost: np.ndarray) -> float:
-    lo = float(np.nanmin(cost))
-    med = float(np.nanmedian(cost))
-    return (med - lo) / lo if lo > 0 else (np.inf if med > 0 else 0.0)
-
-
-def _bootstrap(kinds: list[tuple[_Kind, float]], rhos: list[np.ndarray], weights: list[float],
-               r_ground: np.ndarray, loc: np.ndarray, fa: np.ndarray, fc: np.ndarray,
-               p: CoregParams, rng: np.random.Generator) -> tuple[float, float, float]:
-    """Bootstrap over groups (blocks): reweight the fine-grid costs, take the argmin."""
-    if p.bootstrap == 0 or not kinds:
-        return float("nan"), float("nan"), float("nan")
-    groups = np.unique(np.concatenate([k.group for k, _ in kinds]))
-    draws = rng.integers(0, len(groups), size=(p.bootstrap, len(groups)))
-    counts = np.zeros((p.bootstrap, len(groups)))
-    np.add.at(counts, (np.repeat(np.arange(p.bootstrap), len(groups)), draws.ravel()), 1.0)
-    total = np.zeros((p.bootstrap, len(fa)))
-    wts_ground = None
-    for (kind, _), rho, w in zip(kinds, rhos, weights):
-        wt = counts[:, np.searchsorted(groups, kind.group)]  # replicates x targets
-        denom = np.maximum(wt.sum(axis=1, keepdims=True), 1.0)
-        total += w * (wt @ rho.T) / denom
-        if wts_ground is None:
-            wts_ground = wt
-    best = np.argmin(total, axis=1)
-    along = fa[best]
-    cross = fc[best]
-    vert = np.full(p.bootstrap, np.nan)
-    if wts_ground is not None and r_ground.size:
-        r = r_ground[best]  # replicates x ground targets
-        inl = np.isfinite(r) & (np.abs(r - loc[best][:, None])
-                                <= p.truncate * kinds[0][0].scale)
-        wsum = (wts_ground * inl).sum(axis=1)
-        vert = -np.where(wsum > 0, (wts_ground * np.where(inl, r, 0.0)).sum(axis=1)
-                         / np.maximum(wsum, 1e-12), np.nan)
-    return (float(np.std(along, ddof=1)), float(np.std(cross, ddof=1)),
-            float(np.nanstd(vert, ddof=1)) if np.isfinite(vert).sum() > 1 else float("nan"))
+def _undetermined(name: str, dtm: RasterSurface, a: tuple[float, float], cov: Coverage,
+                  reason: str) -> CoregOffset:
+    nan = float("nan")
+    return CoregOffset(
+        name=name, east=nan, north=nan, along_track=nan, cross_track=nan, vertical=nan,
+        east_sd=nan, north_sd=nan, along_track_sd=nan, cross_track_sd=nan, vertical_sd=nan,
+        rmse_before=nan, rmse_after=nan, bias_before=nan, bias_after=nan, n_ground=0,
+        n_top=0, used_top=False, determined=False, reason=reason,
+        crs_wkt=dtm.horizontal_crs.to_wkt(), direction=a, coverage=cov)
 
 
 def coregister(targets: CoregTargets, dtm: RasterSurface, dsm: RasterSurface | None = None,
@@ -512,6 +505,12 @@ def coregister(targets: CoregTargets, dtm: RasterSurface, dsm: RasterSurface | N
     -------
     CoregResult
         ``offsets[track]`` per track and ``offsets["all"]``.
+
+    Raises
+    ------
+    CoverageError
+        The rasters cover too little of the track (of every track together), naming the
+        share of its blocks on valid cells.
     """
     p = params or CoregParams()
     prog = as_progress(progress)
@@ -525,8 +524,15 @@ def coregister(targets: CoregTargets, dtm: RasterSurface, dsm: RasterSurface | N
         sel = targets.track == name
         sub = targets.subset(sel)
         directions[name] = track_direction(sub.x, sub.y, sub.s)
+        # with several tracks, one that misses the rasters is reported undetermined;
+        # the joint search (or a single track) refuses
         out[name] = _search_one(name, sub, dtm, dsm, directions[name], p,
-                                prog.sub(i / n_jobs, (i + 1) / n_jobs))
+                                prog.sub(i / n_jobs, (i + 1) / n_jobs),
+                                refuse=len(names) == 1)
+    if len(names) > 1 and not joint and not any(
+            o.coverage is not None and o.coverage.segments_covered >= p.min_segments
+            for o in out.values()):
+        raise CoverageError(f"{out[names[0]].reason}; give rasters that cover the tracks")
     if joint:
         if len(names) == 1:
             out["all"] = _renamed(out[names[0]], "all")

@@ -22,11 +22,11 @@ from ..progress import Progress, as_progress
 from ..reference.datum import check_vertical_datums, sample_geoid
 from ..reference.raster_sampling import read_surface
 from ..schema import LAYER_BLOCKS, LAYER_FOOTPRINTS
-from .coregistration import CoregParams, CoregResult, coregister
+from .coregistration import CoregOffset, CoregParams, CoregResult, coregister
 from .coregistration_targets import CoregTargets, targets_from_photons, targets_from_table
 
 __all__ = ["coregister_file", "table_targets", "write_offsets",
-           "vertical_shift",
+           "vertical_shift", "offset_to_apply",
            "read_table_for_coregistration"]
 
 log = logging.getLogger(__name__)
@@ -135,6 +135,34 @@ def coregister_file(
                                               min_signal_conf=min_signal_conf, track_index=i))
         targets = CoregTargets.concat(parts)
     return coregister(targets, surface, dsm, params, progress=prog.sub(0.2, 1.0))
+
+
+def offset_to_apply(result: CoregResult, source: object, *, applying: bool = True
+                    ) -> CoregOffset | None:
+    """The joint offset (``all``, or the one track's) when it is determined; otherwise
+    None, with a warning naming ``source`` and why (the one rule of every command).
+
+    Parameters
+    ----------
+    result : CoregResult
+    source : object
+        What was co-registered (a path or a name), for the warning.
+    applying : bool
+        The caller would apply the offset (the warning says it was not); False for a
+        command that only reports it.
+    """
+    import warnings
+
+    from ..errors import CanopyBlocksWarning
+
+    joint = result.offsets.get("all") or next(iter(result.offsets.values()))
+    if joint.determined:
+        return joint
+    tail = ("validated without co-registration" if applying
+            else "the offsets are reported as undetermined; do not apply them")
+    warnings.warn(f"{source}: geolocation offset undetermined ({joint.reason}); {tail}",
+                  CanopyBlocksWarning, stacklevel=2)
+    return None
 
 
 def table_targets(table: pd.DataFrame, raster_crs: Any, *, beams: tuple[str, ...] = (),

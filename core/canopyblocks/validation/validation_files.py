@@ -228,7 +228,7 @@ def validate_file(
     applied = ""
     stats_before = None
     if coregister:
-        from .coregistration_files import coregister_file
+        from .coregistration_files import coregister_file, offset_to_apply
         from .coregistration_targets import apply_offset
 
         prog.update(0.0, "co-registration")
@@ -238,8 +238,8 @@ def validate_file(
                                  photon_vertical_crs=photon_vertical_crs,
                                  reference_vertical_crs=reference_vertical_crs,
                                  params=coreg_params, progress=prog.sub(0.0, 0.3))
-        joint = coreg.offsets.get("all") or next(iter(coreg.offsets.values()))
-        if joint.determined:
+        joint = offset_to_apply(coreg, path)
+        if joint is not None:
             before = _validate(kind, table, reference, dtm, dsm_max, dsm_p90, atl08, points,
                                footprint_params, width, geoid, offset,
                                reference_vertical_crs, photon_vertical_crs,
@@ -248,14 +248,6 @@ def validate_file(
             shift = joint if coregister_vertical else replace(joint, vertical=0.0)
             table = apply_offset(table, shift, crs=table_crs)
             applied = joint.name
-        else:
-            import warnings
-
-            from ..errors import CanopyBlocksWarning
-
-            warnings.warn(f"{path}: the geolocation offset is undetermined ({joint.reason}); "
-                          "validated without co-registration", CanopyBlocksWarning,
-                          stacklevel=2)
     residuals, stats, datum = _validate(kind, table, reference, dtm, dsm_max, dsm_p90, atl08,
                                         points, footprint_params, width, geoid, offset,
                                         reference_vertical_crs, photon_vertical_crs,
