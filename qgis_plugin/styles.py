@@ -5,7 +5,8 @@
 * block heights (``hmax``): green classes from light (not white) to dark green per block
   length, blocks without a height (sparse) drawn grey, not hidden;
 * photon labels: categorised noise / ground / canopy / between;
-* rasters: DTM in a terrain ramp with its elevation enabled, DSMs in greens.
+* rasters: DTM in a terrain ramp with its elevation enabled, DSMs in greens, the DTM's
+  fill mask with its filled cells in orange over the DTM.
 
 Elevation (QGIS 3.26+ Elevation Profile): photons at their height ``h``; blocks and
 footprints as vertical bars from ``ground`` up by ``hmax`` / ``rh98`` (absolute clamping,
@@ -25,6 +26,7 @@ from qgis.core import (
     QgsGradientColorRamp,
     QgsGraduatedSymbolRenderer,
     QgsMapLayerElevationProperties,
+    QgsPalettedRasterRenderer,
     QgsProcessingContext,
     QgsProcessingLayerPostProcessorInterface,
     QgsProcessingUtils,
@@ -294,6 +296,15 @@ class _RasterPostProcessor(QgsProcessingLayerPostProcessorInterface):
     def postProcessLayer(self, layer: Any, context: Any, feedback: Any) -> None:  # noqa: N802
         if not isinstance(layer, QgsRasterLayer):
             return
+        if self.kind == "raster_mask":  # filled cells in orange, measured ones not drawn
+            classes = [QgsPalettedRasterRenderer.Class(1, QColor(255, 127, 0, 200),
+                                                       "DTM cell filled by interpolation"),
+                       QgsPalettedRasterRenderer.Class(0, QColor(0, 0, 0, 0),
+                                                       "DTM cell from ground points")]
+            layer.setRenderer(QgsPalettedRasterRenderer(layer.dataProvider(), 1, classes))
+            _reorder(layer, context)
+            layer.triggerRepaint()
+            return
         stats = layer.dataProvider().bandStatistics(1)
         lo, hi = float(stats.minimumValue), float(stats.maximumValue)
         ramp_name = "Spectral" if self.kind == "raster_dtm" else "Greens"
@@ -319,7 +330,7 @@ class _RasterPostProcessor(QgsProcessingLayerPostProcessorInterface):
 def load_raster_on_completion(context: QgsProcessingContext, path: str, name: str,
                               output_name: str, kind: str) -> None:
     """Load raster ``path`` into the project when the algorithm ends, styled by ``kind``
-    (``raster_dtm`` or ``raster_dsm``)."""
+    (``raster_dtm``, ``raster_dsm`` or ``raster_mask``)."""
     details = QgsProcessingContext.LayerDetails(name, context.project(), output_name,
                                                 QgsProcessingUtils.LayerHint.Raster)
     details.setPostProcessor(_RasterPostProcessor.create(kind))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import re
 from typing import Any
 
@@ -21,7 +22,7 @@ from qgis.PyQt.QtGui import QIcon
 from ..core_bridge import core_errors, feedback_logging, progress_for
 
 __all__ = ["CanopyBlocksAlgorithm", "SEED_001", "SEED_002", "parse_lengths",
-           "optional_number", "las_files"]
+           "optional_number", "las_files", "input_label"]
 
 SEED_001 = (
     "Gwenzi, D. & Lefsky, M.A.: Prospects of photon counting lidar for savanna ecosystem "
@@ -57,6 +58,25 @@ def las_files(alg: Any, parameters: dict[str, Any], name: str,
     if not files:
         raise QgsProcessingException("no LAS/LAZ file given")
     return files
+
+
+def input_label(paths: Any, *extra: str) -> str:
+    """What a layer was made from, for its name: the first input's file name without its
+    extension ("+ N more" for several), then ``extra`` parts (beam, block lengths), e.g.
+    ``"ATL03_2019 gt1r 25 m"``."""
+    from pathlib import Path
+
+    items = [paths] if isinstance(paths, (str, os.PathLike)) else list(paths)
+    names = [Path(str(p)).name for p in items if str(p)]
+    stem = names[0] if names else ""
+    for suffix in (".zip", ".laz", ".las", ".h5", ".hdf5", ".he5", ".gpkg", ".csv",
+                   ".parquet", ".json", ".tif"):
+        if stem.lower().endswith(suffix):
+            stem = stem[: -len(suffix)]
+            break
+    if len(names) > 1:
+        stem += f" + {len(names) - 1} more"
+    return " ".join(p for p in (stem, *extra) if p)
 
 
 def optional_number(alg: Any, parameters: dict[str, Any], name: str,

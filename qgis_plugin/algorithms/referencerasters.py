@@ -23,7 +23,7 @@ from qgis.core import (
 from ..core_bridge import import_core
 from ..layers import pyproj_crs
 from ..styles import load_raster_on_completion
-from .base import SEED_001, CanopyBlocksAlgorithm, las_files
+from .base import SEED_001, CanopyBlocksAlgorithm, input_label, las_files
 
 __all__ = ["ReferenceRastersAlgorithm", "pdal_status"]
 
@@ -62,6 +62,9 @@ class ReferenceRastersAlgorithm(CanopyBlocksAlgorithm):
         "maximum and a DSM of the 90th percentile of point elevations per cell, on one "
         "aligned grid, through the pdal command line (PDAL is run in a subprocess; the 90th "
         "percentile is computed by canopyblocks).<br><br>"
+        "DTM cells with points but no ground point (under dense canopy) are filled by linear "
+        "interpolation between the measured cells around them; the <b>DTM fill mask</b> "
+        "marks them (1 = filled, 0 = measured).<br>"
         "Method: " + SEED_001 + ", section 2.3 (2 m rasters).<br>"
         "Needs the <b>pdal</b> command: " + PDAL_HINT + ".<br>"
         "Heights stay in the point cloud's vertical datum."
@@ -76,6 +79,7 @@ class ReferenceRastersAlgorithm(CanopyBlocksAlgorithm):
     DTM = "DTM"
     DSM_MAX = "DSM_MAX"
     DSM_P90 = "DSM_P90"
+    DTM_FILL_MASK = "DTM_FILL_MASK"
 
     def initAlgorithm(self, config: dict[str, Any] | None = None) -> None:  # noqa: N802
         self.addParameter(QgsProcessingParameterMultipleLayers(
@@ -91,10 +95,12 @@ class ReferenceRastersAlgorithm(CanopyBlocksAlgorithm):
         self.addParameter(QgsProcessingParameterExtent(
             self.EXTENT, "Area to grid (empty = all tiles)", optional=True))
         self.addParameter(QgsProcessingParameterFolderDestination(
-            self.OUTPUT_DIR, "Output folder (dtm.tif, dsm_max.tif, dsm_p90.tif)"))
+            self.OUTPUT_DIR,
+            "Output folder (dtm.tif, dsm_max.tif, dsm_p90.tif, dtm_fill_mask.tif)"))
         self.addOutput(QgsProcessingOutputRasterLayer(self.DTM, "DTM"))
         self.addOutput(QgsProcessingOutputRasterLayer(self.DSM_MAX, "DSM (maximum)"))
         self.addOutput(QgsProcessingOutputRasterLayer(self.DSM_P90, "DSM (90th percentile)"))
+        self.addOutput(QgsProcessingOutputRasterLayer(self.DTM_FILL_MASK, "DTM fill mask"))
 
     def canExecute(self) -> tuple[bool, str]:  # noqa: N802 - QGIS API
         return pdal_status()
@@ -127,12 +133,17 @@ class ReferenceRastersAlgorithm(CanopyBlocksAlgorithm):
             crs=crs, bounds=bounds,
             ground=GROUND_OPTIONS[self.parameterAsEnum(parameters, self.GROUND, context)][1],
             progress=progress)
-        feedback.pushInfo(f"PDAL {made.pdal_version}: {made.grid}")
-        for out, name, kind in ((self.DTM, "DTM", "raster_dtm"),
-                                (self.DSM_MAX, "DSM (maximum)", "raster_dsm"),
-                                (self.DSM_P90, "DSM (90th percentile)", "raster_dsm")):
-            path = {self.DTM: made.dtm, self.DSM_MAX: made.dsm_max,
-                    self.DSM_P90: made.dsm_p90}[out]
-            load_raster_on_completion(context, str(path), name, out, kind)
-        return {self.OUTPUT_DIR: out_dir, self.DTM: str(made.dtm),
-                self.DSM_MAX: str(made.dsm_max), self.DSM_P90: str(made.dsm_p90)}
+        filled, cells = made.stats.get("dtm_filled", 0), made.stats.get("cells", 0)
+        feedback.pushInfo(f"PDAL {made.pdal_version}: {made.grid.width} x {made.grid.height} "
+                          f"cells of {made.grid.resolution:g} m; DTM cells filled by "
+                          f"interpolation: {filled} of {cells}")
+        source = input_label(files)
+        outputs = ((self.DTM, "DTM", "raster_dtm", made.dtm),
+                   (self.DSM_MAX, "DSM (maximum)", "raster_dsm", made.dsm_max),
+                   (self.DSM_P90, "DSM (90th percentile)", "raster_dsm", made.dsm_p90),
+                   (self.DTM_FILL_MASK, "DTM fill mask", "raster_mask", made.dtm_fill_mask))
+        results: dict[str, Any] = {self.OUTPUT_DIR: out_dir}
+        for out, name, kind, path in outputs:
+            load_raster_on_completion(context, str(path), f"{name} - {source}", out, kind)
+            results[out] = str(path)
+        return results
