@@ -291,3 +291,32 @@ def test_undetermined_photon_offset_is_a_warning_not_an_error(files):
         assert "undetermined" in stdout
     for k in ("DESIGN", "issue", "seed 0"):
         assert k not in err + stdout
+
+
+def test_a_track_off_the_rasters_is_undetermined_beside_covered_ones(tmp_path):
+    """Two tracks, one 10 km away from the raster: that one is undetermined (naming its
+    coverage), the joint search goes on, and the cost plot draws both."""
+    from canopyblocks.outputs.coregistration_plot import write_cost_surfaces
+
+    crs = pyproj.CRS(32610)
+    yy, xx = np.mgrid[0:300, 0:150] * RES
+    z = 500 + 6 * np.sin(xx / 23.0) * np.cos(yy / 31.0)
+    dtm = RasterSurface(z.astype(float), 0.0, 600.0, RES, RES, crs)
+    rng = np.random.default_rng(1)
+    parts = []
+    for i, x0 in enumerate((150.0, 10_150.0)):
+        s = np.sort(rng.uniform(20, 580, 800))
+        x = np.full(s.size, x0)
+        y = 600.0 - s
+        zz = dtm.bilinear(np.full(s.size, 150.0), y) + rng.normal(0, 0.3, s.size)
+        parts.append(CoregTargets(x, y, zz, s, np.zeros(s.size, np.int8),
+                                  np.full(s.size, f"gt{i + 1}l", dtype=object),
+                                  (s // 10).astype(np.int64) + 10_000_000 * i, crs))
+    res = coregister(CoregTargets.concat(parts), dtm, params=CoregParams(bootstrap=20))
+    off = res.offsets["gt2l"]
+    assert not off.determined and "cover 0 of" in off.reason
+    assert np.isnan(off.along_track)
+    assert res.offsets["gt1l"].coverage is not None
+    assert res.offsets["gt1l"].coverage.share == 1.0
+    png = write_cost_surfaces(res, tmp_path / "cost.png")
+    assert png.stat().st_size > 5_000

@@ -36,8 +36,12 @@ class CoregisterAlgorithm(CanopyBlocksAlgorithm):
         "top-window photons), block tables or GEDI footprint tables. Writes offsets.json: "
         "one entry per track and 'all' (one offset for every track together), each with "
         "east, north, along_track, cross_track and vertical (metres to ADD to the reported "
-        "positions and heights), bootstrap uncertainties and the ground RMSE before and "
-        "after; a flat or featureless reference is reported as undetermined, not as noise."
+        "positions and heights), their uncertainties and the ground RMSE before and "
+        "after. An offset is 'ok' only when, fitted on some stretches of the track, it "
+        "also improves the held-out stretches significantly; otherwise it is "
+        "'undetermined' (a warning says why, with the smallest offset this terrain can "
+        "reveal) and must not be applied. Rasters that cover too little of the track are "
+        "refused."
     )
 
     INPUT = "INPUT"
@@ -99,9 +103,12 @@ class CoregisterAlgorithm(CanopyBlocksAlgorithm):
             plots = import_core("canopyblocks.outputs.coregistration_plot")
             plots.write_cost_surfaces(result, plot)
             results[self.PLOT] = plot
+        # the one rule of every command: an undetermined offset is a warning, not applied
+        files.offset_to_apply(result, self.parameterAsFile(parameters, self.INPUT, context),
+                              applying=False)
         for name, o in result.offsets.items():
-            state = "" if o.determined else f" (undetermined: {o.reason})"
             feedback.pushInfo(f"{name}: along {o.along_track:+.2f} m, cross "
-                              f"{o.cross_track:+.2f} m, vertical {o.vertical:+.2f} m; ground "
-                              f"RMSE {o.rmse_before:.2f} -> {o.rmse_after:.2f} m{state}")
+                              f"{o.cross_track:+.2f} m (+-{o.along_track_sd:.2f}/"
+                              f"{o.cross_track_sd:.2f}), vertical {o.vertical:+.2f} m; ground "
+                              f"RMSE {o.rmse_before:.2f} -> {o.rmse_after:.2f} m; {o.status}")
         return results

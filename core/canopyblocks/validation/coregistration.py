@@ -447,6 +447,9 @@ def _search_one(name: str, t: CoregTargets, dtm: RasterSurface, dsm: RasterSurfa
     if abs(ca) >= edge or abs(cc) >= edge:
         reasons.append(f"the minimum lies on the edge of the +-{p.search_range:g} m grid")
     mdo_a, mdo_c = DETECTABLE_SDS * along_sd, DETECTABLE_SDS * cross_sd
+    if reasons and np.isfinite(mdo_a) and np.isfinite(mdo_c):
+        reasons.append(f"offsets under {mdo_a:.1f} m along and {mdo_c:.1f} m across the "
+                       "track cannot be detected here")
     if n_ground:
         r_after = residuals(ground, a, c, np.array([along]), np.array([cross]))[0]
         ok = np.isfinite(r0) & np.isfinite(r_after)
