@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from ..errors import CRSError, FileFormatError, InputError
+from ..errors import CoverageError, CRSError, FileFormatError, InputError
 from ..geo import as_crs
 from ..outputs.atomic import atomic_output
 from ..progress import Progress, as_progress
@@ -111,6 +111,9 @@ def coregister_file(
     params : CoregParams, optional
     progress : Progress, optional
     """
+    from ..arguments import check_path, check_path_or_frame
+    check_path_or_frame(path, "coregister_file: path", "a photon/block/footprint file path or a table (DataFrame)")
+    check_path(dtm, "coregister_file: dtm", "a raster path")
     prog = as_progress(progress)
     surface = read_surface(dtm, what="DTM")
     dsm = read_surface(dsm_max, what="DSM") if dsm_max is not None else None
@@ -134,7 +137,11 @@ def coregister_file(
             parts.append(targets_from_photons(t, surface.crs, length=length, heights=t.h - n,
                                               min_signal_conf=min_signal_conf, track_index=i))
         targets = CoregTargets.concat(parts)
-    return coregister(targets, surface, dsm, params, progress=prog.sub(0.2, 1.0))
+    try:
+        return coregister(targets, surface, dsm, params, progress=prog.sub(0.2, 1.0))
+    except CoverageError as exc:  # name the files: the core knows only tracks
+        src = "the table" if isinstance(path, pd.DataFrame) else str(path)
+        raise CoverageError(f"{dtm} against {src}: {exc}") from None
 
 
 def offset_to_apply(result: CoregResult, source: object, *, applying: bool = True
@@ -198,6 +205,9 @@ def table_targets(table: pd.DataFrame, raster_crs: Any, *, beams: tuple[str, ...
 def write_offsets(result: CoregResult, path: str | os.PathLike[str]) -> Path:
     """``offsets.json``: one entry per track and ``all`` (see :class:`CoregOffset`), plus
     ``_meta`` (sign convention, CRS, parameters); written atomically."""
+    from ..arguments import check_instance, check_path
+    check_instance(result, CoregResult, "write_offsets: result", "a CoregResult (coregister or coregister_file)")
+    check_path(path, "write_offsets: path", "a .csv or .json path")
     p = Path(path)
     doc: dict[str, object] = dict(result.to_dict())
     doc["_meta"] = {
