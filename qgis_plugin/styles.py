@@ -277,11 +277,15 @@ class _StylePostProcessor(QgsProcessingLayerPostProcessorInterface):
 
 
 def style_on_load(context: QgsProcessingContext, dest_id: str | None, kind: str,
-                  field: str) -> None:
-    """Ask QGIS to style output ``dest_id`` with ``kind`` on ``field`` when it loads it."""
+                  field: str, name: str | None = None) -> None:
+    """Ask QGIS to style output ``dest_id`` with ``kind`` on ``field`` when it loads it,
+    under the layer name ``name`` (what it was made from: two runs, two names)."""
     if dest_id and context.willLoadLayerOnCompletion(dest_id):
         details = context.layerToLoadOnCompletionDetails(dest_id)
         details.setPostProcessor(_StylePostProcessor.create(kind, field))
+        if name:
+            details.name = name
+            details.forceName = True
 
 
 class _RasterPostProcessor(QgsProcessingLayerPostProcessorInterface):

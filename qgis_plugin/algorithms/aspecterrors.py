@@ -80,6 +80,7 @@ class AspectErrorsAlgorithm(CanopyBlocksAlgorithm):
                                 "use", "geometry") if c in residuals.columns]
             used = residuals[residuals["use"]] if "use" in residuals.columns else residuals
             mdest = write_frame(self, parameters, self.MAP, context, used[keep], feedback)
-            style_on_load(context, mdest, "aspect", "aspect_class")
+            style_on_load(context, mdest, "aspect", "aspect_class", name="Errors by aspect - "
+                          + self.source_name(parameters, self.INPUT, context))
             results[self.MAP] = mdest
         return results

@@ -11,6 +11,7 @@ from qgis.core import (
     QgsProcessingContext,
     QgsProcessingException,
     QgsProcessingFeedback,
+    QgsProcessingParameterDefinition,
     QgsProcessingParameterFile,
     QgsProcessingParameterNumber,
     QgsProcessingParameterRasterLayer,
@@ -124,6 +125,46 @@ def plain_help(html: str) -> str:
     return re.sub(r"<[^>]+>", "", text)
 
 
+_OPTIONAL_WORDS = re.compile(r"\s*\((?:optional|optional, ([^)]*)|([^)]*?);\s*optional)\)",
+                             re.IGNORECASE)
+
+
+def _label_without_optional(text: str) -> str:
+    """``"Track line (optional)"`` -> ``"Track line"``; ``"X (what; optional)"`` ->
+    ``"X (what)"``: QGIS adds "[optional]" to optional parameters itself."""
+    def keep(m: re.Match[str]) -> str:
+        inner = m.group(1) or m.group(2)
+        return f" ({inner})" if inner else ""
+
+    return _OPTIONAL_WORDS.sub(keep, text)
+
+
+def plain_decimals(value: float | None) -> int:
+    """Decimals that show ``value`` without trailing zeros (at least 1, at most 6; 3 when
+    there is no default, e.g. a fraction such as 0.075)."""
+    if value is None:
+        return 3
+    text = f"{float(value):.6f}".rstrip("0")
+    return max(1, min(6, len(text.split(".")[1]) if "." in text else 1))
+
+
+def tidy_parameter(parameter: Any, advanced: bool) -> None:
+    """The dialog rules of :meth:`CanopyBlocksAlgorithm.addParameter` for one parameter."""
+    if advanced:
+        parameter.setFlags(parameter.flags() | QgsProcessingParameterDefinition.FlagAdvanced)
+    if parameter.flags() & QgsProcessingParameterDefinition.FlagOptional:
+        parameter.setDescription(_label_without_optional(parameter.description()))
+    if isinstance(parameter, QgsProcessingParameterNumber) and \
+            parameter.dataType() == QgsProcessingParameterNumber.Double:
+        meta = dict(parameter.metadata() or {})
+        wrapper = dict(meta.get("widget_wrapper") or {})
+        default = parameter.defaultValue()
+        wrapper.setdefault("decimals", plain_decimals(default if isinstance(
+            default, (int, float)) else None))
+        meta["widget_wrapper"] = wrapper
+        parameter.setMetadata(meta)
+
+
 class CanopyBlocksAlgorithm(QgsProcessingAlgorithm):
     """Base: subclasses set ``ALG_ID``, ``DISPLAY``, ``HELP`` and implement :meth:`execute`."""
 
@@ -133,8 +174,18 @@ class CanopyBlocksAlgorithm(QgsProcessingAlgorithm):
     GROUP = "Photon-counting lidar"
     GROUP_ID = "photons"
 
+    #: Parameter names shown under the dialog's "Advanced Parameters" group.
+    ADVANCED: tuple[str, ...] = ()
+
     def name(self) -> str:
         return self.ALG_ID
+
+    def addParameter(self, parameter: Any, createOutput: bool = True) -> bool:  # noqa: N802,N803
+        """QGIS's addParameter, after the plugin's dialog rules: parameters named in
+        :attr:`ADVANCED` flagged advanced; numbers shown plain ("2.5", not "2.500000");
+        no "optional" wording in a label (QGIS marks optional parameters itself)."""
+        tidy_parameter(parameter, parameter.name() in self.ADVANCED)
+        return super().addParameter(parameter, createOutput)
 
     @staticmethod
     def tr(text: str) -> str:
@@ -160,7 +211,9 @@ class CanopyBlocksAlgorithm(QgsProcessingAlgorithm):
         return self.tr(plain_help(self.HELP))
 
     def helpUrl(self) -> str:  # noqa: N802 - QGIS API
-        return HELP_URL
+        from ..help_pages import help_url
+
+        return help_url(self.ALG_ID) if self.ALG_ID else HELP_URL
 
     def icon(self) -> QIcon:
         from ..provider import ICON
@@ -193,6 +246,15 @@ class CanopyBlocksAlgorithm(QgsProcessingAlgorithm):
         if source is None:
             raise QgsProcessingException(self.invalidSourceError(parameters, name))
         return source_to_frame(source, feedback)
+
+    def source_name(self, parameters: dict[str, Any], name: str,
+                    context: QgsProcessingContext) -> str:
+        """The name of the layer or file given to feature-source parameter ``name``."""
+        layer = self.parameterAsVectorLayer(parameters, name, context)
+        if layer is not None and layer.name():
+            return layer.name()
+        source = self.parameterAsSource(parameters, name, context)
+        return input_label(source.sourceName()) if source is not None else ""
 
     # ---- parameter groups shared by several algorithms (names are the class constants)
     def add_photon_parameters(self, default_lengths: str) -> None:

@@ -20,17 +20,17 @@ from qgis.core import (
 from ..core_bridge import import_core
 from ..layers import pyproj_crs, write_frame
 from ..styles import style_on_load
-from .base import SEED_001, CanopyBlocksAlgorithm, optional_number, parse_lengths
+from .base import SEED_001, CanopyBlocksAlgorithm, input_label, optional_number, parse_lengths
 
 __all__ = ["BlockHeightsAlgorithm"]
 
 NOISE_OPTIONS = ("sigma", "none")
 #: (menu label, preset name or None for the paper's engine as it is)
 PRESET_OPTIONS = (
-    ("paper: the seed-001 method (default; bit for bit)", None),
-    ("icesat2: density noise filter, the paper's ground window, p98 top (DESIGN 1.10)",
+    ("paper: k-sigma noise filter, the paper's top and ground windows", None),
+    ("icesat2: density noise filter, the paper's ground window, 98th-percentile top",
      "icesat2"),
-    ("mabel: density noise filter, ground surface, p98 top", "mabel"),
+    ("mabel: density noise filter, ground surface, 98th-percentile top", "mabel"),
 )
 
 
@@ -87,6 +87,8 @@ class BlockHeightsAlgorithm(CanopyBlocksAlgorithm):
     PRESET = "PRESET"
     CALIBRATION = "CALIBRATION"
     PROFILE = "PROFILE"
+    ADVANCED = (S0, NOISE, K_SIGMA, TOP_CUTOFF, GROUND_CUTOFF, MIN_PHOTONS, MIN_SIGNAL_CONF,
+                ATL08, CALIBRATION, CRS)
 
     def initAlgorithm(self, config: dict[str, Any] | None = None) -> None:  # noqa: N802
         self.add_photon_parameters(default_lengths="25")
@@ -112,14 +114,14 @@ class BlockHeightsAlgorithm(CanopyBlocksAlgorithm):
             type=QgsProcessingParameterNumber.Integer, defaultValue=10, minValue=1))
         self.add_signal_conf_parameter()
         self.addParameter(QgsProcessingParameterFile(
-            self.ATL08, "Matching ATL08 file (adds photon classes; optional)",
+            self.ATL08, "Matching ATL08 file (adds photon classes)",
             behavior=QgsProcessingParameterFile.File, optional=True,
             fileFilter="HDF5 (*.h5 *.hdf5);;All files (*.*)"))
         self.addParameter(QgsProcessingParameterEnum(
             self.PRESET, "Estimators", options=[label for label, _ in PRESET_OPTIONS],
             defaultValue=0))
         self.addParameter(QgsProcessingParameterFile(
-            self.CALIBRATION, "Bias calibration (JSON from Calibrate, bias method; optional)",
+            self.CALIBRATION, "Bias calibration (JSON from Calibrate, bias method)",
             behavior=QgsProcessingParameterFile.File, fileFilter="Calibration (*.json)",
             optional=True))
         self.addParameter(QgsProcessingParameterCrs(
@@ -186,13 +188,16 @@ class BlockHeightsAlgorithm(CanopyBlocksAlgorithm):
         results: dict[str, Any] = {}
         dest = write_frame(self, parameters, self.OUTPUT, context, blocks, feedback)
         results[self.OUTPUT] = dest
-        style_on_load(context, dest, "height", "hmax")
+        lengths_text = ", ".join(f"{v:g}" for v in lengths) + " m"
+        source = input_label(path, str(track.track), lengths_text)
+        style_on_load(context, dest, "height", "hmax", name=f"Blocks - {source}")
         if want_photons and labels is not None:
             pipeline = import_core("canopyblocks.track_blocks")
             photons = pipeline.photon_layer([track], {track.track: labels})
             pdest = write_frame(self, parameters, self.PHOTONS, context, photons, feedback)
             results[self.PHOTONS] = pdest
-            style_on_load(context, pdest, "label", f"label_{min(labels):g}m")
+            style_on_load(context, pdest, "label", f"label_{min(labels):g}m",
+                          name=f"Photons with labels - {source}")
         progress.update(0.95, "written")
         if profile:
             plots = import_core("canopyblocks.outputs.profile_plot")

@@ -61,7 +61,7 @@ class CalibrateAlgorithm(CanopyBlocksAlgorithm):
         self.add_reference_parameters()
         self.addParameter(QgsProcessingParameterEnum(
             self.METHOD, "Method", options=[
-                "cut-offs: the paper's top/ground cut-offs per length (seed 001)",
+                "cut-offs: the paper's top/ground cut-offs per length",
                 "bias: a correction of Hmax and H90 per length and beam strength for the "
                 "chosen estimators (applied by Block canopy heights)"], defaultValue=0))
         self.addParameter(QgsProcessingParameterEnum(

@@ -52,6 +52,7 @@ class CoregisterAlgorithm(CanopyBlocksAlgorithm):
     RANGE = "RANGE"
     OUTPUT = "OUTPUT"
     PLOT = "PLOT"
+    ADVANCED = (CRS, RANGE)
 
     def initAlgorithm(self, config: dict[str, Any] | None = None) -> None:  # noqa: N802
         self.addParameter(QgsProcessingParameterFile(
@@ -60,7 +61,7 @@ class CoregisterAlgorithm(CanopyBlocksAlgorithm):
             fileFilter="Tracks (*.h5 *.hdf5 *.gpkg *.parquet *.csv);;All files (*.*)"))
         self.addParameter(QgsProcessingParameterRasterLayer(self.DTM, "DTM"))
         self.addParameter(QgsProcessingParameterRasterLayer(
-            self.DSM_MAX, "DSM (maximum; optional: also align the canopy top)",
+            self.DSM_MAX, "DSM (maximum; also aligns the canopy top)",
             optional=True))
         self.addParameter(QgsProcessingParameterNumber(
             self.OFFSET, "Vertical offset N = h_track - H_reference (m; empty = none)",

@@ -76,6 +76,7 @@ class FootprintValidationAlgorithm(CanopyBlocksAlgorithm):
         result = val.validate_footprints(footprints, tiles, params=params,
                                          progress=progress.sub(0.1, 0.9), **kwargs)
         dest = write_frame(self, parameters, self.OUTPUT, context, result.residuals, feedback)
-        style_on_load(context, dest, "residual", "res_rh98")
+        style_on_load(context, dest, "residual", "res_rh98", name="Footprint residuals - "
+                      + self.source_name(parameters, self.INPUT, context))
         sdest = write_frame(self, parameters, self.STATS, context, result.stats, feedback)
         return {self.OUTPUT: dest, self.STATS: sdest}

@@ -21,7 +21,7 @@ from qgis.core import (
 from ..core_bridge import import_core
 from ..layers import qgs_crs, write_frame
 from ..styles import style_on_load
-from .base import SEED_002, CanopyBlocksAlgorithm, las_files
+from .base import SEED_002, CanopyBlocksAlgorithm, input_label, las_files
 
 __all__ = ["SimulateAlgorithm", "track_vertices", "add_tiles_and_track_parameters"]
 
@@ -106,7 +106,8 @@ class SimulateAlgorithm(CanopyBlocksAlgorithm):
             photons = sim.photon_track().to_geodataframe()
             results[self.PHOTONS] = write_frame(self, parameters, self.PHOTONS, context,
                                                 photons, feedback)
-            style_on_load(context, results[self.PHOTONS], "truth", "noise")
+            style_on_load(context, results[self.PHOTONS], "truth", "noise",
+                          name=f"Simulated photons - {input_label(out)}")
         return results
 
     def _track(self, parameters: dict[str, Any], context: QgsProcessingContext,
@@ -124,7 +125,7 @@ def add_tiles_and_track_parameters(alg: Any) -> None:
     alg.addParameter(QgsProcessingParameterMultipleLayers(
         "INPUT", "Airborne LAS/LAZ files (one metric CRS)", QgsProcessing.TypeFile))
     alg.addParameter(QgsProcessingParameterFeatureSource(
-        "TRACK_LINE", "Track line (optional)", [QgsProcessing.TypeVectorLine], optional=True))
+        "TRACK_LINE", "Track line", [QgsProcessing.TypeVectorLine], optional=True))
     alg.addParameter(QgsProcessingParameterNumber(
         "AZIMUTH", "Track azimuth when no line is given (degrees from north)",
         type=QgsProcessingParameterNumber.Double, defaultValue=0.0, minValue=-360.0,

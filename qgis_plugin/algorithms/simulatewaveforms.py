@@ -23,8 +23,8 @@ __all__ = ["SimulateWaveformsAlgorithm"]
 SENSORS = (
     ("GEDI (L1B layout: any GEDI reader, and the GEDI footprints algorithm, open it)",
      "gedi"),
-    ("ESFL flash focal-plane array data cubes (seed 003)", "esfl"),
-    ("dual-wavelength visible / near-infrared waveform pairs (seed 004)", "dual"),
+    ("ESFL flash focal-plane array data cubes", "esfl"),
+    ("dual-wavelength visible / near-infrared waveform pairs", "dual"),
 )
 
 
@@ -38,13 +38,13 @@ class SimulateWaveformsAlgorithm(CanopyBlocksAlgorithm):
     HELP = (
         "Simulates full-waveform lidar along a track over airborne LAS/LAZ tiles (one metric "
         "CRS): Gaussian footprints and pulses over the points, ground and canopy kept apart "
-        "for truth (DESIGN 4.9).<br>"
+        "for truth.<br>"
         "GEDI: written in the GEDI L1B layout (BEAMxxxx/rxwaveform, shot_number, geolocation, "
         "noise) with the truth per footprint in BEAMxxxx/canopyblocks_truth; run 'GEDI "
         "footprints from L1B waveforms' on it to see what GEDI processing recovers.<br>"
         "ESFL: flash data cubes (8.4 m footprints on 12 x 12 pixels, 0.75 m bins) and the "
-        "energy-threshold study of seed 003 in the report folder.<br>"
-        "dual: visible/NIR waveform pairs and the ratio-method ground of seed 004 against "
+        "energy-threshold study of the flash-lidar method in the report folder.<br>"
+        "dual: visible/NIR waveform pairs and the ratio-method ground of the dual-wavelength method against "
         "cover in the report folder.<br>"
         "Heights stay in the tiles' vertical datum. The same seed gives the same file."
     )
@@ -64,7 +64,7 @@ class SimulateWaveformsAlgorithm(CanopyBlocksAlgorithm):
         self.addParameter(QgsProcessingParameterFileDestination(
             self.OUTPUT, "Simulated waveforms (HDF5)", fileFilter="HDF5 (*.h5)"))
         self.addParameter(QgsProcessingParameterFolderDestination(
-            self.REPORT, "Report folder (the method's study; optional)", optional=True,
+            self.REPORT, "Report folder (the method's study)", optional=True,
             createByDefault=False))
 
     def execute(self, parameters: dict[str, Any], context: QgsProcessingContext,

@@ -76,9 +76,9 @@ class ValidateAlgorithm(CanopyBlocksAlgorithm):
             self.INPUT, "Blocks", [QgsProcessing.TypeVectorPoint]))
         self.addParameter(QgsProcessingParameterEnum(
             self.REFERENCE, "Reference", options=[
-                "rasters: corridor statistics of the DTM and DSMs (seed 001)",
+                "rasters: corridor statistics of the DTM and DSMs (as in the paper)",
                 "footprint-matched: Gaussian-weighted airborne points in each footprint "
-                "(DESIGN 2.7; needs the LAS/LAZ tiles)"], defaultValue=0))
+                "(needs the LAS/LAZ tiles)"], defaultValue=0))
         self.add_reference_parameters(optional=True)
         self.addParameter(QgsProcessingParameterMultipleLayers(
             self.POINTS, "Airborne LAS/LAZ tiles (footprint-matched reference)",
@@ -87,7 +87,7 @@ class ValidateAlgorithm(CanopyBlocksAlgorithm):
             self.DIAMETER, "Footprint diameter for the footprint-matched reference (m)",
             type=QgsProcessingParameterNumber.Double, defaultValue=13.0, minValue=0.5))
         self.addParameter(QgsProcessingParameterRasterLayer(
-            self.GEOID, "Geoid undulation raster (optional)", optional=True))
+            self.GEOID, "Geoid undulation raster", optional=True))
         self.addParameter(QgsProcessingParameterString(
             self.PHOTON_VCRS, "Photons' vertical CRS (e.g. EPSG:4979 for ATL03/GEDI ellipsoid "
             "heights, EPSG:5703 for NAVD88; empty = what the blocks record)", optional=True))
@@ -143,6 +143,7 @@ class ValidateAlgorithm(CanopyBlocksAlgorithm):
                 slope_threshold=slope, progress=progress.sub(0.1, 0.9), **kwargs)
         residuals, stats = result.residuals, result.stats
         dest = write_frame(self, parameters, self.OUTPUT, context, residuals, feedback)
-        style_on_load(context, dest, "residual", "res_hmax")
+        style_on_load(context, dest, "residual", "res_hmax",
+                      name=f"Residuals - {self.source_name(parameters, self.INPUT, context)}")
         sdest = write_frame(self, parameters, self.STATS, context, stats, feedback)
         return {self.OUTPUT: dest, self.STATS: sdest}
