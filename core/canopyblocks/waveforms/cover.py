@@ -23,6 +23,7 @@ IntArray = npt.NDArray[np.int64]
 
 
 def cover_and_penetration(from_bottom: FloatArray, total: FloatArray, ground: IntArray,
+                          bottom: IntArray, span: IntArray,
                           subsample_spacing: FloatArray, rho_ratio: float,
                           height: float) -> tuple[FloatArray, FloatArray]:
     """Cover and penetration (fractions 0..1) per shot; NaN where there is no ground.
@@ -30,9 +31,12 @@ def cover_and_penetration(from_bottom: FloatArray, total: FloatArray, ground: In
     Parameters
     ----------
     from_bottom, total : ndarray
-        From :func:`canopyblocks.waveforms.rh.signal_energy`.
+        From :func:`canopyblocks.waveforms.rh.signal_energy` (bottom first: column
+        ``j`` is sub-sample ``bottom + 1 - j``).
     ground : ndarray of int64, shape (n,)
-        Ground sub-sample (-1 where none).
+        Ground sub-sample of the whole waveform (-1 where none).
+    bottom, span : ndarray of int64, shape (n,)
+        Signal bottom (sub-sample of the whole waveform) and ``bottom - top``.
     subsample_spacing : ndarray, shape (n,)
         Vertical distance between sub-samples (m, positive).
     rho_ratio : float
@@ -40,7 +44,7 @@ def cover_and_penetration(from_bottom: FloatArray, total: FloatArray, ground: In
     height : float
         Penetration height above the ground (m).
     """
-    n, k = from_bottom.shape
+    n, w = from_bottom.shape
     cover = np.full(n, np.nan)
     penetration = np.full(n, np.nan)
     ok = (ground >= 0) & (total > 0)
@@ -48,15 +52,21 @@ def cover_and_penetration(from_bottom: FloatArray, total: FloatArray, ground: In
         return cover, penetration
     rows = np.nonzero(ok)[0]
     g = ground[ok]
+    b = bottom[ok]
     tot = total[ok]
-    at_ground = from_bottom[rows, g]
-    below = from_bottom[rows, np.minimum(g + 1, k - 1)]
-    below = np.where(g + 1 <= k - 1, below, 0.0)
+    col = b + 1 - g                      # the ground's column; the one below is col - 1
+    at_ground = from_bottom[rows, col]
+    below = from_bottom[rows, col - 1]
     r_g = np.clip(at_ground + below, 0.0, tot)
     r_v = tot - r_g
     denom = r_v + rho_ratio * r_g
     cover[rows] = np.where(denom > 0, r_v / np.where(denom > 0, denom, 1.0), np.nan)
-    steps = height / subsample_spacing[ok]
-    start = np.clip(np.ceil(g - steps - 1e-9).astype(np.int64), 0, k - 1)
-    penetration[rows] = np.clip(from_bottom[rows, start] / tot, 0.0, 1.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        steps = height / subsample_spacing[ok]
+        start = np.ceil(g - steps - 1e-9)
+    top = b - span[ok]
+    above_top = ~(start >= top)           # everything from the top down: the total
+    start_col = np.where(above_top, 1, b + 1 - np.where(above_top, b, start).astype(np.int64))
+    at_start = np.where(above_top, tot, from_bottom[rows, start_col])
+    penetration[rows] = np.clip(at_start / tot, 0.0, 1.0)
     return cover, penetration

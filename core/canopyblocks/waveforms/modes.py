@@ -5,6 +5,10 @@ rise out of it (``s[i] - s[i-1] > 0`` and ``s[i+1] - s[i] <= 0``; L2A's zero cro
 of the first derivative), lies above the back threshold, and lies between the signal
 top (inclusive) and the signal bottom (exclusive). The ground is the lowest mode
 (the largest index), L2A's ``elev_lowestmode``.
+
+The arrays hold each shot's signal *bottom first* (see :mod:`.profile`): column ``j``
+is sub-sample ``bottom + 1 - j``, so the signal bottom is column 1, the top column
+``span + 1`` (``span = bottom - top``), and the lowest mode is the first one found.
 """
 
 from __future__ import annotations
@@ -18,35 +22,43 @@ IntArray = npt.NDArray[np.int64]
 BoolArray = npt.NDArray[np.bool_]
 
 
-def mode_mask(smoothed: npt.NDArray[np.float64], top: IntArray, bottom: IntArray,
+def column_index(width: int) -> npt.NDArray[np.signedinteger]:
+    """``0 .. width - 1`` in the narrowest integer type (cheap broadcast comparisons)."""
+    dtype = np.int16 if width < 2**15 - 1 else np.int64
+    return np.arange(width, dtype=dtype)
+
+
+def mode_mask(profile: npt.NDArray[np.float64], span: IntArray,
               back: npt.NDArray[np.float64]) -> BoolArray:
-    """Boolean (n, k): True at each mode.
+    """Boolean (n, w): True at each mode.
 
     Parameters
     ----------
-    smoothed : ndarray, shape (n, k)
-        Mode-search smoothing of the residual waveform, sub-sample grid (counts).
-    top, bottom : ndarray of int64, shape (n,)
-        Signal top and bottom (sub-sample indices).
+    profile : ndarray, shape (n, w)
+        Mode-search smoothing of the residual waveform, bottom first (counts); ``w``
+        at least ``span + 3``.
+    span : ndarray of int64, shape (n,)
+        ``bottom - top`` in sub-samples; -1 (or less) where there is no signal.
     back : ndarray, shape (n,)
         Back threshold as a residual (counts).
     """
-    n, k = smoothed.shape
-    mask = np.zeros((n, k), dtype=bool)
-    if k < 3:
+    n, w = profile.shape
+    mask = np.zeros((n, w), dtype=bool)
+    if w < 3:
         return mask
-    d = np.diff(smoothed, axis=1)
-    inner = (d[:, :-1] > 0) & (d[:, 1:] <= 0) & (smoothed[:, 1:-1] > back[:, None])
-    cols = np.arange(1, k - 1)
-    inner &= (cols[None, :] >= top[:, None]) & (cols[None, :] < bottom[:, None])
+    # s[i] - s[i-1] = -(r[j+1] - r[j]) and s[i+1] - s[i] = -(r[j] - r[j-1]), exactly
+    d = np.diff(profile, axis=1)
+    inner = (d[:, 1:] < 0) & (d[:, :-1] >= 0) & (profile[:, 1:-1] > back[:, None])
+    cols = column_index(w)[1:-1]
+    inner &= (cols[None, :] >= 2) & (cols[None, :] <= (span + 1).astype(cols.dtype)[:, None])
     mask[:, 1:-1] = inner
     return mask
 
 
 def lowest_mode(mask: BoolArray) -> tuple[IntArray, IntArray]:
-    """Index of the lowest mode (-1 where none) and the number of modes, per shot."""
-    count = mask.sum(axis=1).astype(np.int64)
-    idx = mask.shape[1] - 1 - np.argmax(mask[:, ::-1], axis=1)
+    """Column of the lowest mode (-1 where none) and the number of modes, per shot."""
+    count = np.count_nonzero(mask, axis=1).astype(np.int64)
+    idx = np.argmax(mask, axis=1)
     return np.where(count > 0, idx, -1).astype(np.int64), count
 
 

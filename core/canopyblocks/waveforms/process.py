@@ -30,12 +30,15 @@ import pandas as pd
 from ..errors import CanopyBlocksWarning, DependencyError, InputError
 from ..progress import Progress, as_progress
 from ..schema import FOOTPRINT_COLUMNS
+from .arguments import check_waveform_args
 from .batch import WaveformBatch
 from .cover import cover_and_penetration
 from .details import ShotDetails
-from .extent import search_window, signal_extent
+from .extent import signal_extent
 from .modes import energetic_modes, lowest_mode, mode_mask
+from .profile import bottom_first
 from .rh import energy_positions, signal_energy, truncate_cm
+from .scan import Scan, scan_shots
 from .settings import WaveformParams
 from .smoothing import smooth_subsampled
 from .terrain_filter import terrain_outliers
@@ -62,21 +65,6 @@ class UnusableWaveformWarning(CanopyBlocksWarning):
     samples; they are flagged ``no_signal``."""
 
 
-def _unusable(batch: WaveformBatch) -> npt.NDArray[np.bool_]:
-    """Shots whose noise statistics or samples make the thresholds meaningless."""
-    mean = np.asarray(batch.noise_mean, dtype=np.float64)
-    sd = np.asarray(batch.noise_sd, dtype=np.float64)
-    with np.errstate(invalid="ignore"):
-        bad = ~np.isfinite(mean) | ~np.isfinite(sd) | ~(sd > 0)
-    m = batch.waveforms.shape[1]
-    block = 4 * CHUNK_SHOTS
-    for a in range(0, len(batch), block):
-        sl = slice(a, min(a + block, len(batch)))
-        valid = np.arange(m)[None, :] < batch.n_samples[sl][:, None]
-        bad[sl] |= (~np.isfinite(batch.waveforms[sl]) & valid).any(axis=1)
-    return bad
-
-
 @dataclass
 class _Chunk:
     """Per-shot results of one chunk (positions in sub-samples, -1 where none)."""
@@ -93,12 +81,10 @@ class _Chunk:
 
 @dataclass
 class _Intermediate:
-    """Smoothed arrays and modes of one chunk (for :func:`shot_details`)."""
+    """Modes of one chunk (for :func:`shot_details`)."""
 
-    located: npt.NDArray[np.float64]
-    searched: npt.NDArray[np.float64]
-    modes: npt.NDArray[np.bool_]
-    offset: int  # sub-sample index of the whole waveform at column 0
+    modes: npt.NDArray[np.bool_]   # bottom first
+    offset: npt.NDArray[np.int64]  # sub-sample of the whole waveform at column 0
 
 
 def _reach(params: WaveformParams) -> int:
@@ -109,47 +95,49 @@ def _reach(params: WaveformParams) -> int:
     return -(-(max(halves) + f) // f) + 1
 
 
-def _windows(batch: WaveformBatch, params: WaveformParams
-             ) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64], npt.NDArray[np.bool_]]:
-    """Search window (samples, inclusive) of every shot, in blocks of shots."""
-    n = len(batch)
-    start = np.zeros(n, dtype=np.int64)
-    end = np.zeros(n, dtype=np.int64)
-    found = np.zeros(n, dtype=bool)
-    block = 4 * CHUNK_SHOTS
-    m = batch.waveforms.shape[1]
-    for a in range(0, n, block):
-        sl = slice(a, min(a + block, n))
-        valid = np.arange(m)[None, :] < batch.n_samples[sl][:, None]
-        with np.errstate(invalid="ignore", over="ignore"):
-            resid = batch.waveforms[sl].astype(np.float64) - batch.noise_mean[sl][:, None]
-            start[sl], end[sl], found[sl] = search_window(
-                resid, valid, batch.noise_sd[sl].astype(np.float64),
-                params.preprocessor_threshold, params.search_size,
-                batch.n_samples[sl].astype(np.int64))
-    found &= batch.n_samples >= 2
-    return start, end, found
+def _scan(batch: WaveformBatch, params: WaveformParams) -> Scan:
+    """Usability, search window and signal bounds of every shot (:mod:`.scan`)."""
+    group = params.group
+    return scan_shots(batch, params.preprocessor_threshold, params.search_size,
+                      min(group.front_threshold, group.back_threshold),
+                      group.back_threshold, _reach(params))
 
 
 def _cropped_residuals(batch: WaveformBatch, rows: npt.NDArray[np.intp],
                        first: npt.NDArray[np.int64], width: int) -> npt.NDArray[np.float64]:
     """Residual waveforms of ``rows`` from sample ``first`` on, ``width`` samples, 0 outside."""
+    wf = batch.waveforms
+    m = wf.shape[1]
     idx = first[:, None] + np.arange(width)[None, :]
-    inside = (idx >= 0) & (idx < batch.n_samples[rows][:, None])
-    values = batch.waveforms[rows[:, None], np.clip(idx, 0, batch.waveforms.shape[1] - 1)]
-    resid = values.astype(np.float64) - batch.noise_mean[rows][:, None]
-    return np.where(inside, resid, 0.0)
+    count = batch.n_samples[rows]
+    clipped = (first < 0) | (first + width > count)
+    if m == 0:
+        return np.zeros((len(rows), width))
+    cols = np.clip(idx, 0, m - 1) if clipped.any() else idx
+    if wf.flags.c_contiguous:
+        values = wf.ravel().take(cols + (rows.astype(np.int64) * m)[:, None])
+    else:
+        values = wf[rows[:, None], cols]
+    resid = np.subtract(values, np.asarray(batch.noise_mean)[rows][:, None], dtype=np.float64)
+    if clipped.any():
+        sub = np.nonzero(clipped)[0]
+        inside = (idx[sub] >= 0) & (idx[sub] < count[sub][:, None])
+        resid[sub] = np.where(inside, resid[sub], 0.0)
+    return resid
 
 
 def _process_chunk(batch: WaveformBatch, rows: npt.NDArray[np.intp], window_start:
                    npt.NDArray[np.int64], window_end: npt.NDArray[np.int64],
                    params: WaveformParams, percents: tuple[int, ...], keep: bool = False
                    ) -> tuple[_Chunk, _Intermediate | None]:
-    """Process the shots ``rows`` (all with a search window) on their cropped windows.
+    """Process the shots ``rows`` on their cropped windows.
 
-    Only the search window plus the kernels' reach is smoothed: the results inside the
-    window are the same as smoothing the whole waveform. Positions returned are
-    sub-sample indices of the whole waveform.
+    ``window_start`` .. ``window_end`` (samples, inclusive) is where the signal top and
+    bottom are searched: the search window, or the part of it where a signal can lie
+    (:mod:`.scan`). Only that plus the kernels' reach is smoothed: the results inside
+    are the same as smoothing the whole waveform. The modes, energies and RH then work
+    on the signal alone (top - 1 .. bottom + 1). Positions returned are sub-sample
+    indices of the whole waveform.
     """
     f = params.subsamples
     group = params.group
@@ -171,30 +159,28 @@ def _process_chunk(batch: WaveformBatch, rows: npt.NDArray[np.intp], window_star
     lo = np.full(len(rows), reach * f, dtype=np.int64)
     hi = (window_end - first) * f
     top, bottom, found = signal_extent(located, lo, hi, front, back)
-    top = np.where(found, top, -1)
-    bottom = np.where(found, bottom, -1)
-
-    modes = mode_mask(searched, top, bottom, back)
-    modes &= found[:, None]
-    ground, n_modes = lowest_mode(modes)
-    from_bottom, total = signal_energy(searched, top, bottom)
+    # the signal alone, bottom first: column j is sub-sample bottom + 1 - j
+    span = np.where(found, bottom - top, -1)
+    profile = bottom_first(searched, np.where(found, bottom, 0), int(span.max(initial=0)) + 3)
+    modes = mode_mask(profile, span, back)
+    ground_col, n_modes = lowest_mode(modes)
+    from_bottom, total = signal_energy(profile, span)
     if group.ground_min_energy > 0:
-        ground, _ = lowest_mode(energetic_modes(modes, from_bottom, total,
-                                                group.ground_min_energy))
-    found &= (ground >= 0) & (total > 0)
+        ground_col, _ = lowest_mode(energetic_modes(modes, from_bottom, total,
+                                                    group.ground_min_energy))
+    found &= (ground_col >= 0) & (total > 0)
     total = np.where(found, total, 0.0)
-    ground = np.where(found, ground, -1)
-    rh_pos = energy_positions(from_bottom, total, top, bottom, percents)
+    shift = first * f
+    bottom = bottom + shift
+    ground = np.where(found, bottom + 1 - ground_col, -1)
+    rh_pos = energy_positions(from_bottom, total, bottom, span, percents)
     spacing = batch.sample_spacing()[rows] / f
     cover, penetration = cover_and_penetration(
-        from_bottom, total, ground, spacing, params.rho_ratio, params.penetration_height)
-    shift = (first * f)[:, None]
-    chunk = _Chunk(found, np.where(found, top + shift[:, 0], -1),
-                   np.where(found, bottom + shift[:, 0], -1),
-                   np.where(found, ground + shift[:, 0], -1), n_modes,
-                   np.where(found[:, None] & (rh_pos >= 0), rh_pos + shift, -1),
-                   cover, penetration)
-    inter = _Intermediate(located, searched, modes, int(first[0] * f)) if keep else None
+        from_bottom, total, ground, bottom, span, spacing, params.rho_ratio,
+        params.penetration_height)
+    chunk = _Chunk(found, np.where(found, top + shift, -1), np.where(found, bottom, -1),
+                   ground, n_modes, np.where(found[:, None], rh_pos, -1), cover, penetration)
+    inter = _Intermediate(modes, bottom + 1) if keep else None
     return chunk, inter
 
 
@@ -258,6 +244,7 @@ def process_waveforms(batch: WaveformBatch, params: WaveformParams | None = None
         ``params.all_rh``; ``ground_gauss`` (m) with ``params.decompose``. Values of
         ``no_signal`` shots are NaN; ``stale``/``degraded`` shots keep their values.
     """
+    check_waveform_args(batch, params, "process_waveforms")
     params = params if params is not None else WaveformParams()
     prog = as_progress(progress)
     n = len(batch)
@@ -271,15 +258,15 @@ def process_waveforms(batch: WaveformBatch, params: WaveformParams | None = None
     cover = np.full(n, np.nan)
     penetration = np.full(n, np.nan)
     span = 0.8 if params.decompose else 1.0
-    unusable = _unusable(batch)
+    scan = _scan(batch, params)
+    unusable = scan.unusable
     if unusable.any():
         warnings.warn(
             f"{batch.source or batch.beam}: {int(unusable.sum())} of {n} shots of "
             f"{batch.beam} have non-finite or non-positive noise statistics or non-finite "
             "samples; they are flagged no_signal", UnusableWaveformWarning, stacklevel=2)
-    w_start, w_end, has_window = _windows(batch, params)
-    has_window &= ~unusable
-    candidates = np.nonzero(has_window)[0]
+    w_start, w_end = scan.bound_start, scan.bound_end
+    candidates = np.nonzero(scan.may_have_signal)[0]
     chunks = [candidates[c] for c in _chunks((w_end - w_start)[candidates], CHUNK_SHOTS)]
     done = 0
     for rows in chunks:
@@ -360,10 +347,9 @@ def shot_details(batch: WaveformBatch, index: int, params: WaveformParams | None
     f = params.subsamples
     rows = np.array([i], dtype=np.intp)
     one = batch.subset(rows)
-    w_start, w_end, has_window = _windows(one, params)
-    has_window &= ~_unusable(one)
-    if not has_window[0]:
-        w_start = w_end = np.zeros(1, dtype=np.int64)
+    scan = _scan(one, params)
+    has_window = scan.may_have_signal
+    w_start, w_end = scan.bound_start, scan.bound_end
     res, inter = _process_chunk(batch, rows, w_start, w_end, params, ALL_RH, keep=True)
     if inter is None:  # pragma: no cover - keep=True always returns them
         raise RuntimeError("internal: intermediates missing")
@@ -375,7 +361,7 @@ def shot_details(batch: WaveformBatch, index: int, params: WaveformParams | None
     k = f * (m - 1) + 1 if m else 0
     sub_elev = one.elevation((np.arange(k) / f)[None, :].T).T[0]
     found = bool(res.found[0])
-    mode_idx = np.nonzero(inter.modes[0])[0] + inter.offset
+    mode_idx = inter.offset[0] - np.nonzero(inter.modes[0])[0][::-1]
 
     def elev(pos: float) -> float:
         return float(one.elevation(np.array([pos / f]))[0])

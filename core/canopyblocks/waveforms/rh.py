@@ -6,9 +6,11 @@ The position of RH_k is one sub-sample below the first sub-sample (going up) whe
 accumulated energy reaches k % of the total -- the convention that reproduces L2A's
 ``rx_cumulative`` -- with RH0 at the signal bottom and RH100 at the signal top.
 
-Vectorised without a loop over shots or percentiles: the running maximum of the
-accumulated energy (from the bottom) is monotone, so every row is searched at once with
-one ``numpy.searchsorted`` over the rows laid end to end.
+The arrays hold each shot's signal bottom first (:mod:`.modes`, :mod:`.profile`):
+column ``j`` is sub-sample ``bottom + 1 - j``, the top column ``span + 1``. The
+accumulation runs along the row as stored, and the highest sub-sample whose share
+reaches k % is the first column, counted from the bottom, that reaches it: one
+comparison and a first-True search per percentile, exact, no loop over shots.
 """
 
 from __future__ import annotations
@@ -22,54 +24,76 @@ IntArray = npt.NDArray[np.int64]
 FloatArray = npt.NDArray[np.float64]
 
 
-def signal_energy(smoothed: FloatArray, top: IntArray, bottom: IntArray
-                  ) -> tuple[FloatArray, FloatArray]:
+def signal_energy(profile: FloatArray, span: IntArray) -> tuple[FloatArray, FloatArray]:
     """Energy accumulated from the bottom up, and the total, per shot.
+
+    Parameters
+    ----------
+    profile : ndarray, shape (n, w)
+        Residual (counts) bottom first; ``w`` at least ``span + 3``.
+    span : ndarray of int64, shape (n,)
+        ``bottom - top`` (sub-samples); negative where there is no signal.
 
     Returns
     -------
-    from_bottom : ndarray, shape (n, k)
-        ``from_bottom[i, j]`` = sum of the residual over sub-samples ``j .. bottom``
-        restricted to ``top .. bottom`` (counts x sub-samples); 0 below the bottom.
+    from_bottom : ndarray, shape (n, w)
+        ``from_bottom[i, j]`` = sum of the residual from the bottom (column 1) up to
+        column ``j`` (counts x sub-samples); 0 in column 0. Columns above the top
+        (``j > span + 1``) hold no meaning.
     total : ndarray, shape (n,)
-        Energy between top and bottom.
+        Energy between top and bottom (0 where there is no signal).
     """
-    n, k = smoothed.shape
-    cols = np.arange(k)
-    inside = (cols[None, :] >= top[:, None]) & (cols[None, :] <= bottom[:, None])
-    energy = np.where(inside, smoothed, 0.0)
-    from_bottom = np.cumsum(energy[:, ::-1], axis=1)[:, ::-1]
-    total = from_bottom[np.arange(n), np.clip(top, 0, max(k - 1, 0))] if k else np.zeros(n)
-    return from_bottom, np.asarray(total, dtype=np.float64)
+    n, w = profile.shape
+    from_bottom = np.zeros((n, w), dtype=np.float64)
+    if w > 1:
+        np.cumsum(profile[:, 1:], axis=1, out=from_bottom[:, 1:])
+    ok = span >= 0
+    total = np.zeros(n, dtype=np.float64)
+    total[ok] = from_bottom[np.nonzero(ok)[0], span[ok] + 1]
+    return from_bottom, total
 
 
-def energy_positions(from_bottom: FloatArray, total: FloatArray, top: IntArray,
-                     bottom: IntArray, percents: npt.ArrayLike) -> IntArray:
-    """Sub-sample position of each RH percentile, shape (n, len(percents)).
+def _first_reaching(share: FloatArray, level: float) -> IntArray:
+    """First column per row with ``share >= level`` (``level`` <= 1: the top column's
+    share is exactly 1, so there is one)."""
+    return np.argmax(share >= level, axis=1)
 
-    Rows whose total energy is not positive get -1.
+
+def energy_positions(from_bottom: FloatArray, total: FloatArray, bottom: IntArray,
+                     span: IntArray, percents: npt.ArrayLike) -> IntArray:
+    """Sub-sample position (of the whole waveform) of each RH percentile.
+
+    Parameters
+    ----------
+    from_bottom, total : ndarray
+        From :func:`signal_energy`.
+    bottom, span : ndarray of int64, shape (n,)
+        Signal bottom (sub-sample of the whole waveform) and ``bottom - top``.
+    percents : array_like
+        RH percentiles (0 = bottom, 100 = top).
+
+    Returns
+    -------
+    ndarray of int64, shape (n, len(percents))
+        -1 in rows whose total energy is not positive.
     """
     pct = np.asarray(percents, dtype=np.float64)
-    n, k = from_bottom.shape
+    n, w = from_bottom.shape
     out = np.full((n, len(pct)), -1, dtype=np.int64)
-    good = total > 0
-    if not good.any() or k == 0:
+    good = (total > 0) & (span >= 0)
+    if not good.any() or w == 0:
         return out
-    fb = from_bottom[good]
-    tot = total[good]
-    # Running maximum from the bottom: the largest j with from_bottom[j] >= v equals
-    # the largest j with running_max[j] >= v, and running_max is non-increasing in j.
-    running = np.maximum.accumulate(fb[:, ::-1], axis=1)[:, ::-1] / tot[:, None]
-    rows = np.arange(len(tot))
-    offset = float(np.max(running)) + 2.0
-    keys = (rows * offset)[:, None] - running          # non-decreasing when flattened
-    queries = (rows * offset)[:, None] - pct[None, :] / 100.0
-    idx = np.searchsorted(keys.ravel(), queries.ravel(), side="right").reshape(queries.shape)
-    counts = idx - (rows * k)[:, None]                  # sub-samples with energy >= k %
-    pos = counts.astype(np.int64)                       # one below the last of them
-    pos = np.where(pct[None, :] <= 0, bottom[good][:, None], pos)
-    pos = np.where(pct[None, :] >= 100, top[good][:, None], pos)
-    out[good] = pos
+    share = from_bottom[good] / total[good][:, None]
+    b = bottom[good]
+    top = b - span[good]
+    for k, p in enumerate(pct):
+        if p <= 0:
+            out[good, k] = b
+        elif p >= 100:
+            out[good, k] = top
+        else:
+            # the highest sub-sample reaching p % is bottom + 1 - j; RH is one below it
+            out[good, k] = b + 2 - _first_reaching(share, p / 100.0)
     return out
 
 

@@ -81,7 +81,8 @@ def smooth_subsampled(resid: FloatArray, factor: int,
     Returns
     -------
     list of ndarray, each shape (n, factor * (m - 1) + 1)
-        The smoothed residual on the sub-sample grid, one per kernel.
+        The smoothed residual on the sub-sample grid, one per kernel (views into a
+        wider array: each row is contiguous, rows are not adjacent).
     """
     n, m = resid.shape
     out_len = factor * (m - 1) + 1 if m else 0
@@ -96,11 +97,11 @@ def smooth_subsampled(resid: FloatArray, factor: int,
     src, conj = _upsample_index(n_fft, factor)
     up = spec[:, src]
     if conj.any():
-        up[:, conj] = np.conjugate(up[:, conj])
+        np.conjugate(up, out=up, where=conj[None, :])
     results = []
     for sd, half in kernels:
         prod = up * _kernel_spectrum(n_fft, factor, float(sd), int(half))
         smoothed = scipy.fft.irfft(prod, n=factor * n_fft, axis=1)
-        results.append(np.ascontiguousarray(smoothed[:, :out_len]))
+        results.append(smoothed[:, :out_len])   # a view: rows stay contiguous
     return results
 
