@@ -1,0 +1,50 @@
+"""The door of the waveform processing: argument types and a waveform's orientation."""
+
+from __future__ import annotations
+
+import warnings
+from typing import Any
+
+import numpy as np
+
+from ..arguments import check_instance, check_optional
+from ..errors import CanopyBlocksWarning, InputError
+from .batch import WaveformBatch
+from .settings import WaveformParams
+
+__all__ = ["check_waveform_args", "UpsideDownWaveformWarning"]
+
+
+class UpsideDownWaveformWarning(CanopyBlocksWarning):
+    """Some shots have their first sample below their last (elevations swapped)."""
+
+
+def check_waveform_args(batch: Any, params: Any, name: str) -> None:
+    """``batch`` a :class:`WaveformBatch` whose shots run downwards (sample 0 the highest,
+    as received), ``params`` a :class:`WaveformParams` or None.
+
+    Raises
+    ------
+    InputError
+        Wrong types, or every shot with samples upside down (``elev_bin0`` below
+        ``elev_lastbin``). Some shots upside down: :class:`UpsideDownWaveformWarning`.
+    """
+    check_instance(batch, WaveformBatch, f"{name}: batch",
+                   "a WaveformBatch (read_gedi_l1b, or the simulator)")
+    check_optional(params, WaveformParams, f"{name}: params",
+                   "a WaveformParams (e.g. WaveformParams(setting='a1')) or None")
+    two = batch.n_samples >= 2
+    with np.errstate(invalid="ignore"):
+        up = two & (np.asarray(batch.elev_bin0) < np.asarray(batch.elev_lastbin))
+    if not up.any():
+        return
+    i = int(np.flatnonzero(up)[0])
+    what = (f"elev_bin0 {float(batch.elev_bin0[i]):.2f} m lies below elev_lastbin "
+            f"{float(batch.elev_lastbin[i]):.2f} m (shot {int(batch.shot_number[i])})")
+    if int(up.sum()) == int(two.sum()):
+        raise InputError(f"{name}: every shot of {batch.beam} is upside down: {what}; sample "
+                         "0 is the first received, the highest -- swap elev_bin0 and "
+                         "elev_lastbin (and the lat/lon pairs) or reverse the waveforms")
+    warnings.warn(f"{name}: {int(up.sum())} of {len(batch)} shots of {batch.beam} are upside "
+                  f"down ({what}); their heights are wrong", UpsideDownWaveformWarning,
+                  stacklevel=3)
