@@ -34,7 +34,15 @@ if TYPE_CHECKING:  # loaded on first use, see __getattr__
         compute_blocks,
         default_cutoffs,
     )
-    from .blocks.estimators import PRESETS, Estimators, estimate_blocks, preset
+    from .blocks.atl08_classify import classify_photons
+    from .blocks.atl08_segments import atl08_segments
+    from .blocks.estimators import (
+        PRESETS,
+        RECOMMENDED_PRESET,
+        Estimators,
+        estimate_blocks,
+        preset,
+    )
     from .geo import utm_crs_for
     from .outputs.atomic import atomic_output
     from .outputs.h5_layouts import Atl03BeamData, MabelChannelData, write_atl03, write_mabel
@@ -78,6 +86,7 @@ if TYPE_CHECKING:  # loaded on first use, see __getattr__
         simulate_photons,
     )
     from .track_blocks import BlocksResult, blocks_from_file, read_tracks
+    from .track_segments import segments_from_file
     from .validation import (
         BiasCalibration,
         CoregParams,
@@ -192,6 +201,10 @@ _LAZY: dict[str, str] = {
     "PRESETS": ".blocks.estimators",
     "preset": ".blocks.estimators",
     "estimate_blocks": ".blocks.estimators",
+    "RECOMMENDED_PRESET": ".blocks.estimators",
+    "classify_photons": ".blocks.atl08_classify",
+    "atl08_segments": ".blocks.atl08_segments",
+    "segments_from_file": ".track_segments",
     "BatchConfig": ".batch",
     "BatchResult": ".batch",
     "run_batch": ".batch",
@@ -262,6 +275,10 @@ __all__ = [
     "PRESETS",
     "preset",
     "estimate_blocks",
+    "RECOMMENDED_PRESET",
+    "classify_photons",
+    "atl08_segments",
+    "segments_from_file",
     # waveforms (GEDI and the seed-003/004 instruments)
     "WaveformBatch",
     "WaveformParams",

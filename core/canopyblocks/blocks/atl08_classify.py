@@ -85,7 +85,8 @@ class Atl08Params:
     ground_below : float
         Photons up to this far below the surface are ground; lower ones are noise (1.0).
     max_gap : float
-        Largest vertical gap between canopy photons of a window (5).
+        Largest vertical gap between canopy photons of a window (10; 5 m lost a third of
+        the weak-beam canopy photons at night on the calibration tiles).
     top_window : float
         Along-track window of the gap rule and the top of canopy (15).
     toc_depth : float
@@ -101,7 +102,7 @@ class Atl08Params:
     shot_spacing: float = ICESAT2_SHOT_SPACING
     ground_buffer: float = 0.6
     ground_below: float = 1.0
-    max_gap: float = 5.0
+    max_gap: float = 10.0
     top_window: float = 15.0
     toc_depth: float = 2.0
 

@@ -135,12 +135,14 @@ PRESETS: dict[str, Estimators] = {
     "atl08": Estimators(noise="atl08", ground="atl08", top="atl08", name="atl08"),
 }
 
-RECOMMENDED_PRESET = "icesat2"
+RECOMMENDED_PRESET = "atl08"
 """The estimator preset the project recommends for ICESat-2 photons."""
 
 
 def preset(name: str) -> Estimators:
     """The named preset (``paper``, ``icesat2``, ``mabel``, ``atl08``)."""
+    from ..arguments import check_instance
+    check_instance(name, str, "preset: name", "a preset name (paper, icesat2, mabel, atl08)")
     try:
         return PRESETS[name]
     except KeyError:
@@ -213,6 +215,16 @@ def estimate_blocks(track: PhotonTrack, params: BlockParams | None = None,
     GeoDataFrame (and labels)
         The DESIGN 5 block columns plus ``estimators`` (the :meth:`Estimators.label`).
     """
+    from ..arguments import check_instance, check_optional
+    from ..photons import PhotonTrack
+    check_instance(track, PhotonTrack, "estimate_blocks: track")
+    check_optional(params, BlockParams, "estimate_blocks: params")
+    check_optional(
+        estimators,
+        Estimators,
+        "estimate_blocks: estimators",
+        "an Estimators (e.g. preset('icesat2')) or None",
+    )
     from .engine import compute_blocks
 
     params = BlockParams() if params is None else params
