@@ -31,6 +31,8 @@ PRESET_OPTIONS = (
     ("icesat2: density noise filter, the paper's ground window, 98th-percentile top",
      "icesat2"),
     ("mabel: density noise filter, ground surface, 98th-percentile top", "mabel"),
+    ("atl08: photons classified as ATL08 does, its ground surface, 98th percentile of the "
+     "canopy heights", "atl08"),
 )
 
 
@@ -66,7 +68,13 @@ class BlockHeightsAlgorithm(CanopyBlocksAlgorithm):
         "s_start, s_end, x, y, lon, lat, n_photons, n_kept, n_between, top, ground, hmax, z90, "
         "h90, flag (ok / sparse / inverted / implausible: Hmax above 130 m, taller than any "
         "tree); optionally the photons with their labels per block length (text: 'noise', "
-        "'ground', 'canopy', 'between', 'outside') and a profile PNG. "
+        "'ground', 'canopy', 'between', 'outside'; with the atl08 estimators also "
+        "classed_pc_flag: 0 noise, 1 ground, 2 canopy, 3 top of canopy) and a profile PNG. "
+        "Optionally ATL08-style segments of the given length (100 m like ATL08) from photons "
+        "classified as ATL08 does, with ATL08's field names: h_te_mean, h_te_median, "
+        "h_te_best_fit, h_canopy (98th percentile of the canopy heights), h_mean_canopy, "
+        "canopy_h_metrics_10..95, canopy_openness, n_te_photons, n_ca_photons, "
+        "n_toc_photons. "
         "Heights are in the input's vertical datum (ellipsoidal for ATL03/MABEL)."
     )
 
@@ -87,8 +95,10 @@ class BlockHeightsAlgorithm(CanopyBlocksAlgorithm):
     PRESET = "PRESET"
     CALIBRATION = "CALIBRATION"
     PROFILE = "PROFILE"
+    SEGMENTS = "SEGMENTS"
+    SEGMENT_LENGTH = "SEGMENT_LENGTH"
     ADVANCED = (S0, NOISE, K_SIGMA, TOP_CUTOFF, GROUND_CUTOFF, MIN_PHOTONS, MIN_SIGNAL_CONF,
-                ATL08, CALIBRATION, CRS)
+                ATL08, CALIBRATION, CRS, SEGMENT_LENGTH)
 
     def initAlgorithm(self, config: dict[str, Any] | None = None) -> None:  # noqa: N802
         self.add_photon_parameters(default_lengths="25")
@@ -135,6 +145,12 @@ class BlockHeightsAlgorithm(CanopyBlocksAlgorithm):
         self.addParameter(QgsProcessingParameterFileDestination(
             self.PROFILE, "Profile plot", fileFilter="PNG (*.png)", optional=True,
             createByDefault=False))
+        self.addParameter(QgsProcessingParameterNumber(
+            self.SEGMENT_LENGTH, "ATL08-style segment length (m)",
+            type=QgsProcessingParameterNumber.Double, defaultValue=100.0, minValue=0.001))
+        self.addParameter(QgsProcessingParameterFeatureSink(
+            self.SEGMENTS, "ATL08-style segments", type=QgsProcessing.TypeVectorPoint,
+            optional=True, createByDefault=False))
 
     def execute(self, parameters: dict[str, Any], context: QgsProcessingContext,
                 feedback: QgsProcessingFeedback, progress: Any) -> dict[str, Any]:
@@ -198,6 +214,14 @@ class BlockHeightsAlgorithm(CanopyBlocksAlgorithm):
             results[self.PHOTONS] = pdest
             style_on_load(context, pdest, "label", f"label_{min(labels):g}m",
                           name=f"Photons with labels - {source}")
+        if parameters.get(self.SEGMENTS) is not None:
+            a8 = import_core("canopyblocks.blocks.atl08_classify")
+            a8seg = import_core("canopyblocks.blocks.atl08_segments")
+            seg_len = self.parameterAsDouble(parameters, self.SEGMENT_LENGTH, context)
+            segments = a8seg.atl08_segments(track, a8.classify_photons(track), seg_len,
+                                            params.s0)
+            results[self.SEGMENTS] = write_frame(self, parameters, self.SEGMENTS, context,
+                                                 segments, feedback)
         progress.update(0.95, "written")
         if profile:
             plots = import_core("canopyblocks.outputs.profile_plot")
