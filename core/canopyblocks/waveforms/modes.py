@@ -46,12 +46,16 @@ def mode_mask(profile: npt.NDArray[np.float64], span: IntArray,
     mask = np.zeros((n, w), dtype=bool)
     if w < 3:
         return mask
-    # s[i] - s[i-1] = -(r[j+1] - r[j]) and s[i+1] - s[i] = -(r[j] - r[j-1]), exactly
-    d = np.diff(profile, axis=1)
-    inner = (d[:, 1:] < 0) & (d[:, :-1] >= 0) & (profile[:, 1:-1] > back[:, None])
+    # s[i] - s[i-1] > 0 and s[i+1] - s[i] <= 0, with s[i] = r[j], s[i-1] = r[j+1] and
+    # s[i+1] = r[j-1]: r[j+1] < r[j] and not r[j] < r[j-1] (a difference of two finite
+    # floats has the sign of their comparison)
+    falls = profile[:, 1:] < profile[:, :-1]
+    inner = mask[:, 1:-1]
+    np.greater(profile[:, 1:-1], back[:, None], out=inner)
+    inner &= falls[:, 1:]
+    inner &= ~falls[:, :-1]
     cols = column_index(w)[1:-1]
     inner &= (cols[None, :] >= 2) & (cols[None, :] <= (span + 1).astype(cols.dtype)[:, None])
-    mask[:, 1:-1] = inner
     return mask
 
 

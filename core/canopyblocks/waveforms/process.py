@@ -57,7 +57,7 @@ FLAG_CODES: tuple[str, ...] = ("ok", "stale", "degraded", "no_signal", "too_many
                                "terrain_outlier")
 _OK, _STALE, _DEGRADED, _NO_SIGNAL, _TOO_MANY, _TERRAIN = range(6)
 #: Shots per chunk: bounds memory (about 30 MB per 1,000-sample shot-chunk array).
-CHUNK_SHOTS = 256
+CHUNK_SHOTS = 512
 
 
 class UnusableWaveformWarning(CanopyBlocksWarning):
@@ -174,7 +174,8 @@ def _process_chunk(batch: WaveformBatch, rows: npt.NDArray[np.intp], window_star
     bottom = bottom + shift
     ground = np.where(found, bottom + 1 - ground_col, -1)
     rh_pos = energy_positions(from_bottom, total, bottom, span, percents)
-    spacing = batch.sample_spacing()[rows] / f
+    denom = np.maximum(batch.n_samples[rows] - 1, 1).astype(np.float64)
+    spacing = np.abs(batch.elev_bin0[rows] - batch.elev_lastbin[rows]) / denom / f
     cover, penetration = cover_and_penetration(
         from_bottom, total, ground, bottom, span, spacing, params.rho_ratio,
         params.penetration_height)

@@ -34,7 +34,9 @@ def bottom_first(smoothed: npt.NDArray[np.float64], bottom: npt.NDArray[np.int64
     n, k = smoothed.shape
     if n == 0 or k == 0:
         return np.zeros((n, width))
-    cols = np.clip((bottom + 1)[:, None] - np.arange(width)[None, :], 0, k - 1)
+    cols = (bottom + 1)[:, None] - np.arange(width)[None, :]
+    if int(bottom.min()) + 2 < width or int(bottom.max()) + 1 > k - 1:
+        np.clip(cols, 0, k - 1, out=cols)
     if smoothed.strides[1] == smoothed.itemsize and smoothed.strides[0] % smoothed.itemsize == 0:
         row_step = smoothed.strides[0] // smoothed.itemsize
         base = np.lib.stride_tricks.as_strided(smoothed, shape=(n * row_step,),
