@@ -53,7 +53,10 @@ def _describe(layer: Any) -> dict[str, Any]:
                  else None,
                  has_z=QgsWkbTypes.hasZ(layer.wkbType()),
                  rules=[r.label() for r in layer.renderer().rootRule().children()]
-                 if layer.renderer() and layer.renderer().type() == "RuleRenderer" else [])
+                 if layer.renderer() and layer.renderer().type() == "RuleRenderer" else
+                 [c.label() for c in layer.renderer().categories()]
+                 if layer.renderer() and layer.renderer().type() == "categorizedSymbol"
+                 else [])
     elif isinstance(layer, QgsRasterLayer):
         d.update(kind="raster", renderer=layer.renderer().type() if layer.renderer() else None,
                  elevation=layer.elevationProperties().isEnabled())
@@ -67,7 +70,7 @@ def _render(layers: list[Any], path: Path) -> None:
     settings.setOutputSize(QSize(1200, 900))
     dtm = next(lyr for lyr in layers if isinstance(lyr, QgsRasterLayer))
     settings.setDestinationCrs(dtm.crs())
-    blocks = next(lyr for lyr in layers if lyr.name() == "Blocks")
+    blocks = next(lyr for lyr in layers if lyr.name().startswith("Blocks"))
     extent = settings.layerExtentToOutputExtent(blocks, blocks.extent())
     extent.scale(1.3)
     settings.setExtent(extent)
@@ -75,6 +78,98 @@ def _render(layers: list[Any], path: Path) -> None:
     job.start()
     job.waitForFinished()
     job.renderedImage().save(str(path), "png")
+
+
+def _bars_profile(blocks: Any, path: Path) -> dict[str, Any]:
+    """The Elevation Profile of the loaded, plugin-styled blocks (QGIS's own profile engine
+    with the layer's elevation properties as loaded, "respect layer symbology" as QGIS
+    leaves it), and where each 25 m block's bar must be: (column, top row, ground row)
+    computed from its attributes alone."""
+    from qgis.core import (
+        QgsFeatureRequest,
+        QgsGeometry,
+        QgsLineString,
+        QgsPoint,
+        QgsProfilePlotRenderer,
+        QgsProfileRequest,
+    )
+
+    feats = [f for f in blocks.getFeatures(QgsFeatureRequest().setFilterExpression(
+        '"length" = 25'))]
+    feats.sort(key=lambda f: f["s_start"])
+    pts = [f.geometry().asPoint() for f in feats]
+    line = QgsLineString([QgsPoint(pts[0].x(), pts[0].y()), QgsPoint(pts[-1].x(),
+                                                                      pts[-1].y())])
+    length = line.length()
+    grounds = [float(f["ground"]) for f in feats if f["hmax"] is not None
+               and not (hasattr(f["hmax"], "isNull") and f["hmax"].isNull())]
+    tops = [float(f["ground"]) + float(f["hmax"]) for f in feats if f["hmax"] is not None
+            and not (hasattr(f["hmax"], "isNull") and f["hmax"].isNull())]
+    z0, z1 = min(grounds) - 5.0, max(tops) + 5.0
+    w, h = 1200, 600
+    req = QgsProfileRequest(line.clone())
+    req.setCrs(blocks.crs())
+    req.setTolerance(5.0)
+    renderer = QgsProfilePlotRenderer([blocks], req)
+    renderer.startGeneration()
+    renderer.waitForFinished()
+    img = renderer.renderToImage(w, h, 0.0, length, z0, z1)
+    img.save(str(path), "png")
+    geom = QgsGeometry(line.clone())
+    bars = []
+    for f in feats:
+        hm = f["hmax"]
+        if hm is None or (hasattr(hm, "isNull") and hm.isNull()) or float(hm) < 2.0:
+            continue
+        d = geom.lineLocatePoint(f.geometry())
+        g = float(f["ground"])
+        bars.append({"col": round(d / length * w), "top_row": round((z1 - g - float(hm)) /
+                     (z1 - z0) * h), "ground_row": round((z1 - g) / (z1 - z0) * h),
+                     "hmax": float(hm)})
+    return {"respect_symbology": blocks.elevationProperties().respectLayerSymbology(),
+            "bars": bars}
+
+
+def _canvas_screenshot(layers: list[Any], blocks: Any, path: Path) -> dict[str, Any]:
+    """The desktop's own map canvas with the loaded layers, grabbed to a PNG; and the canvas
+    pixel of each block point (from its coordinates)."""
+    import time
+
+    from qgis.core import QgsCoordinateTransform
+    from qgis.utils import iface
+
+    iface.mainWindow().showMaximized()
+    end = time.monotonic() + 2.0
+    while time.monotonic() < end:  # let the window take the screen
+        QgsApplication.processEvents()
+        time.sleep(0.05)
+    QgsProject.instance().setCrs(blocks.crs())
+    canvas = iface.mapCanvas()
+    canvas.setDestinationCrs(blocks.crs())
+    canvas.setLayers(layers)
+    ext = canvas.mapSettings().layerExtentToOutputExtent(blocks, blocks.extent())
+    ext.scale(1.2)
+    canvas.setExtent(ext)
+    done: list[bool] = []
+    canvas.mapCanvasRefreshed.connect(lambda: done.append(True))
+    canvas.refreshAllLayers()
+    end = time.monotonic() + 30.0
+    while not done and time.monotonic() < end:  # the canvas renders in the event loop
+        QgsApplication.processEvents()
+        time.sleep(0.05)
+    canvas.waitWhileRendering()
+    QgsApplication.processEvents()
+    canvas.grab().save(str(path), "png")
+    xform = canvas.getCoordinateTransform()
+    tr = QgsCoordinateTransform(blocks.crs(), canvas.mapSettings().destinationCrs(),
+                                QgsProject.instance())
+    points = []
+    for f in blocks.getFeatures():
+        p = xform.transform(tr.transform(f.geometry().asPoint()))
+        hm = f["hmax"]
+        points.append({"x": round(p.x()), "y": round(p.y()), "length": float(f["length"]),
+                       "has_hmax": not (hm is None or (hasattr(hm, "isNull") and hm.isNull()))})
+    return {"size": [canvas.width(), canvas.height()], "points": points}
 
 
 def run() -> None:
@@ -116,6 +211,12 @@ def run() -> None:
         track_layers = [lyr for lyr in ordered if "GEDI" not in lyr.name()
                         and lyr.isSpatial()]
         _render(track_layers, OUT / "map.png")
+        blocks = next(lyr for lyr in ordered if lyr.name().startswith("Blocks"))
+        result["profile"] = _bars_profile(blocks, OUT / "profile.png")
+        result["canvas"] = _canvas_screenshot(track_layers, blocks, OUT / "canvas.png")
+        from qgis.utils import iface
+
+        iface.mainWindow().grab().save(str(OUT / "window.png"), "png")
     except Exception:  # noqa: BLE001 - reported to the test
         result["error"] = traceback.format_exc()
     result["messages"] = MESSAGES

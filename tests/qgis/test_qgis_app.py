@@ -73,9 +73,10 @@ def app_run(built_zip, gedi_l1b, pdal_bin, tmp_path_factory, qgis_process_env) -
     assert result_file.exists(), f"QGIS wrote no result (exit {r.returncode}):\n{r.stderr[-3000:]}"
     result = json.loads(result_file.read_text())
     artifacts = Path(os.environ.get("CANOPYBLOCKS_ARTIFACTS", ROOT / "tests" / "artifacts"))
-    if (out / "map.png").exists():
-        artifacts.mkdir(parents=True, exist_ok=True)
-        shutil.copy(out / "map.png", artifacts / "qgis_app_map.png")
+    for name in ("map.png", "profile.png", "canvas.png", "window.png"):
+        if (out / name).exists():
+            artifacts.mkdir(parents=True, exist_ok=True)
+            shutil.copy(out / name, artifacts / f"qgis_app_{name}")
     result["out"] = str(out)
     return result
 
@@ -93,15 +94,21 @@ def test_the_chain_runs_and_loads_without_python_errors(app_run) -> None:
     names = {lyr["name"] for lyr in app_run["layers"]}
     # every output of the chain is in the project: vectors and the three rasters
     for part in ("Blocks", "Photons", "Residuals", "DTM", "DSM (maximum)",
-                 "DSM (90th percentile)", "aspect", "GEDI footprints"):
+                 "DSM (90th percentile)", "aspect", "GEDI footprints", "DTM fill mask"):
         assert any(part.lower() in n.lower() for n in names), (part, names)
+    # names say what a layer was made from: input, beam and block lengths
+    assert "Blocks - sim gt1r 25, 10 m" in names, names
+    assert "Photons with labels - sim gt1r 25, 10 m" in names, names
+    assert any(n.startswith("DTM - lasR_bcts_1") for n in names), names
+    assert len(names) == len(app_run["layers"])  # no two layers share a name
 
 
 def test_outputs_are_styled_by_the_plugin(app_run) -> None:
     blocks = _layer(app_run, "Blocks")
-    assert blocks["renderer"] == "RuleRenderer"
-    # one group (own colour scale) per block length, and a rule for blocks without height
-    assert blocks["rules"][:2] == ["10 m blocks", "25 m blocks"]
+    assert blocks["renderer"] == "categorizedSymbol"
+    # classes per block length (each its own colour scale), and one for blocks without height
+    assert blocks["rules"][0].startswith("10 m blocks: 0.0 to ")
+    assert blocks["rules"][5].startswith("25 m blocks: 0.0 to ")
     assert blocks["rules"][-1].startswith("no hmax")
     assert _layer(app_run, "Residuals")["renderer"] == "graduatedSymbol"
     assert _layer(app_run, "aspect")["renderer"] == "categorizedSymbol"
@@ -122,9 +129,69 @@ def test_draw_order_rasters_below_points_on_top(app_run) -> None:
     rasters = [i for i, (k, _) in enumerate(kinds) if k == "raster"]
     assert rasters and min(rasters) > max(i for i, (k, _) in enumerate(kinds) if k == "vector")
     names = [n for _, n in kinds]
-    assert names.index("Blocks") < names.index("Photons with labels") < names.index("Residuals")
+    first = [next(i for i, n in enumerate(names) if n.startswith(part))
+             for part in ("Blocks", "Photons with labels", "Residuals")]
+    assert first == sorted(first), names
 
 
 def test_a_map_was_rendered(app_run) -> None:
     png = Path(app_run["out"]) / "map.png"
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 20_000
+
+
+def _png(path: Path):  # noqa: ANN202
+    import numpy as np
+    from PIL import Image
+
+    return np.asarray(Image.open(path).convert("RGBA")).astype(int)
+
+
+def test_the_elevation_profile_draws_the_block_bars(app_run) -> None:
+    """The profile of the loaded layer, QGIS's default 'respect layer symbology' on: each
+    block's bar where its ground and Hmax put it, in a green class colour."""
+    import numpy as np
+
+    prof = app_run["profile"]
+    assert prof["respect_symbology"] is True
+    img = _png(Path(app_run["out"]) / "profile.png")
+    drawn = img[..., 3] > 0
+    bars = prof["bars"]
+    assert len(bars) >= 5
+    hits = 0
+    for b in bars:
+        c = b["col"]
+        band = drawn[:, max(c - 2, 0):c + 3].any(axis=1)
+        top, ground = b["top_row"], b["ground_row"]
+        if ground - top < 8:
+            continue
+        inside = band[top + 2:ground - 2]
+        assert inside.mean() > 0.9, (b, inside.mean())
+        row = img[(top + ground) // 2, max(c - 2, 0):c + 3]
+        px = row[np.argmax(row[:, 3])]
+        assert px[1] > px[0] and px[1] > px[2], (b, px)  # a green class colour
+        hits += 1
+    assert hits >= 5
+
+
+def test_the_map_canvas_shows_the_styled_blocks(app_run) -> None:
+    """A screenshot of the desktop's map canvas: at each block point, its style's colour
+    (a green class for blocks with a height, grey for the others), not the background."""
+    import numpy as np
+
+    img = _png(Path(app_run["out"]) / "canvas.png")
+    h, w = img.shape[:2]
+    checked = 0
+    for p in app_run["canvas"]["points"]:
+        x, y = p["x"], p["y"]
+        if not (3 <= x < w - 3 and 3 <= y < h - 3):
+            continue
+        patch = img[y - 1:y + 2, x - 1:x + 2, :3].reshape(-1, 3)
+        if p["has_hmax"]:
+            assert any(g > r + 10 and g > b for r, g, b in patch), (p, patch.tolist())
+        else:
+            assert any(abs(r - g) < 12 and abs(g - b) < 12 and r < 200 for r, g, b in patch)
+        checked += 1
+    assert checked >= 10
+    # and the canvas is not blank: more than 2 % of its pixels are not the background
+    bg = img[0, 0, :3]
+    assert (np.abs(img[..., :3] - bg).sum(axis=2) > 30).mean() > 0.02
