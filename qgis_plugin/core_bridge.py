@@ -78,6 +78,14 @@ def import_core(name: str = "canopyblocks") -> ModuleType:
     except ImportError as exc:
         missing = getattr(exc, "name", None) or str(exc)
         if name != "canopyblocks" and core_available():
+            top = str(missing).split(".")[0]
+            if top != "canopyblocks":  # a third-party package the core needs
+                from .dependencies import install_command
+
+                raise QgsProcessingException(
+                    f"the Python package {top} is missing in the Python that runs QGIS "
+                    f"(canopyblocks needs it for {name}); install it: "
+                    f"{install_command([top])}; then restart QGIS") from exc
             raise QgsProcessingException(
                 f"canopyblocks is installed but {name} could not be imported ({exc}); "
                 f"this plugin needs a matching canopyblocks version; " + install_hint()

@@ -59,6 +59,34 @@ class CanopyBlocksProvider(QgsProcessingProvider):
     def svgIconPath(self) -> str:  # noqa: N802 - QGIS API
         return str(ICON)
 
+    def load(self) -> bool:
+        """Add the provider's settings page (Settings > Options > Processing > Providers >
+        canopyblocks: the pdal executable), as the LAStools and WhiteboxTools providers
+        do, then load the algorithms."""
+        try:
+            from processing.core.ProcessingConfig import ProcessingConfig, Setting
+        except ImportError:  # pragma: no cover - Processing ships with QGIS
+            return super().load()
+        from .dependencies import PDAL_SETTING
+
+        ProcessingConfig.settingIcons[self.name()] = self.icon()
+        ProcessingConfig.addSetting(Setting(
+            self.name(), PDAL_SETTING,
+            "pdal executable (empty: $CANOPYBLOCKS_PDAL, PATH, /opt/canopyblocks-pdal/bin/pdal)",
+            "", valuetype=Setting.FILE))
+        ProcessingConfig.readSettings()
+        self.refreshAlgorithms()
+        return True
+
+    def unload(self) -> None:
+        try:
+            from processing.core.ProcessingConfig import ProcessingConfig
+        except ImportError:  # pragma: no cover
+            return
+        from .dependencies import PDAL_SETTING
+
+        ProcessingConfig.removeSetting(PDAL_SETTING)
+
     def loadAlgorithms(self) -> None:  # noqa: N802 - QGIS API
         for cls in ALGORITHMS:
             self.addAlgorithm(cls())

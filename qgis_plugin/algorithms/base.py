@@ -220,6 +220,14 @@ class CanopyBlocksAlgorithm(QgsProcessingAlgorithm):
 
         return QIcon(str(ICON))
 
+    def canExecute(self) -> tuple[bool, str]:  # noqa: N802 - QGIS API
+        """False, with what to install, when a package this algorithm needs is missing
+        (the dialog shows the message instead of failing on Run)."""
+        from ..dependencies import dependency_problem
+
+        problem = dependency_problem(self.ALG_ID, self.displayName())
+        return (False, problem) if problem is not None else (True, "")
+
     def createInstance(self) -> CanopyBlocksAlgorithm:  # noqa: N802 - QGIS API
         return type(self)()
 
@@ -229,7 +237,14 @@ class CanopyBlocksAlgorithm(QgsProcessingAlgorithm):
         context: QgsProcessingContext,
         feedback: QgsProcessingFeedback,
     ) -> dict[str, Any]:
-        """Route logging/warnings to ``feedback``, map core errors, call :meth:`execute`."""
+        """Check the packages this algorithm needs, route logging/warnings to ``feedback``,
+        map core errors, call :meth:`execute`."""
+        from ..dependencies import apply_pdal_setting, dependency_problem
+
+        problem = dependency_problem(self.ALG_ID, self.displayName())
+        if problem is not None:
+            raise QgsProcessingException(problem)
+        apply_pdal_setting()
         with feedback_logging(feedback), core_errors():
             return self.execute(parameters, context, feedback, progress_for(feedback))
 

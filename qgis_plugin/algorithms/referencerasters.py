@@ -28,11 +28,21 @@ from .base import SEED_001, CanopyBlocksAlgorithm, input_label, las_files
 __all__ = ["ReferenceRastersAlgorithm", "pdal_status"]
 
 GROUND_OPTIONS = (("class 2 of the files", "class2"), ("classified by PDAL's SMRF", "smrf"))
-PDAL_HINT = "run scripts/install_pdal.sh or set CANOPYBLOCKS_PDAL to the pdal executable"
+PDAL_HINT = ("run scripts/install_pdal.sh, or set the pdal executable in Settings > Options > "
+             "Processing > Providers > canopyblocks (or CANOPYBLOCKS_PDAL)")
 
 
 def pdal_status() -> tuple[bool, str]:
-    """(available, message): is the ``pdal`` command line usable from this process?"""
+    """(available, message): is the ``pdal`` command line usable from this process?
+    The provider's settings page (PDAL executable) comes first."""
+    from ..dependencies import apply_pdal_setting, pdal_setting
+
+    apply_pdal_setting()
+    chosen = pdal_setting()
+    if chosen and not os.path.isfile(chosen):
+        return False, (f"the pdal executable set in Settings > Options > Processing > "
+                       f"Providers > canopyblocks does not exist: {chosen}; correct it or "
+                       "clear it to use the pdal found on PATH")
     try:
         pdal = import_core("canopyblocks.reference.pdal")
     except QgsProcessingException:
@@ -103,7 +113,8 @@ class ReferenceRastersAlgorithm(CanopyBlocksAlgorithm):
         self.addOutput(QgsProcessingOutputRasterLayer(self.DTM_FILL_MASK, "DTM fill mask"))
 
     def canExecute(self) -> tuple[bool, str]:  # noqa: N802 - QGIS API
-        return pdal_status()
+        ok, msg = super().canExecute()
+        return pdal_status() if ok else (ok, msg)
 
     def checkParameterValues(self, parameters: dict[str, Any],  # noqa: N802 - QGIS API
                              context: QgsProcessingContext) -> tuple[bool, str]:
