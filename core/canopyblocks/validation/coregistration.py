@@ -27,8 +27,9 @@ Method
    only when, fitted on some stretches of the track, it improves the misfit of the
    held-out stretches significantly without making their ground RMSE worse, the surface
    has contrast and the uncertainty is small. The uncertainty is the larger of a
-   bootstrap over stretches and the linearised (curvature against noise) one; three
-   standard deviations are the minimum detectable offset over this terrain.
+   bootstrap over stretches and the linearised (curvature against noise) one, with the
+   DTM's resolution floor (cell / sqrt(12)) added in quadrature; three standard
+   deviations are the minimum detectable offset over this terrain.
    An undetermined offset is reported, never applied.
 
 Sign convention: ``east``, ``north``, ``along_track``, ``cross_track``, ``vertical`` are
@@ -102,8 +103,8 @@ class CoregParams:
     min_ground : int
         Fewer usable ground targets: the ground alone is not enough.
     max_sd : float
-        Largest standard deviation (m) of a horizontal component for the optimum to
-        count as determined.
+        Largest standard deviation (m) of a horizontal component (with the DTM's
+        resolution floor) for the optimum to count as determined.
     min_contrast : float
         Smallest relative cost contrast ``(median - min) / min`` of the coarse surface
         for the optimum to count as determined.
@@ -132,7 +133,7 @@ class CoregParams:
     seed: int = 0
     max_targets: int = 30_000
     min_ground: int = 30
-    max_sd: float = 1.5
+    max_sd: float = 2.0
     min_contrast: float = 0.05
     segment: float = 25.0
     folds: int = 5
@@ -184,9 +185,10 @@ class CoregOffset:
 
     All distances in metres; the shift to ADD to reported positions and heights.
     ``*_sd`` are standard deviations: the larger of the bootstrap over stretches of track
-    and the linearised one. ``rmse_before`` and ``rmse_after`` are the RMSE of the ground
-    residuals (target minus DTM) of the targets inside the raster, before and after
-    applying the whole shift (the same targets). ``determined`` False: the offset is
+    and the linearised one, combined with the DTM's resolution floor (cell / sqrt(12)).
+    ``rmse_before`` and ``rmse_after`` are the RMSE of the ground residuals (target minus
+    DTM) of the targets inside the raster, before and after applying the whole shift
+    (the same targets). ``determined`` False: the offset is
     not significant on held-out stretches (or not constrained); ``reason`` says why, and
     it must not be applied. ``detectable_*``: the minimum detectable offset (m) along and
     across the track over this terrain (three standard deviations);
@@ -418,10 +420,13 @@ def _search_one(name: str, t: CoregTargets, dtm: RasterSurface, dsm: RasterSurfa
                          p.folds, p.significance)
     boot_a, boot_c = bootstrap_sd(all_cost, all_da, all_dc, p.bootstrap, rng)
     lin_a, lin_c, vertical_sd = linearised_sd(kinds, a, c, along, cross, p.truncate, n_seg)
-    along_sd = float(np.nanmax([boot_a, lin_a])) if np.isfinite([boot_a, lin_a]).any() \
-        else float("nan")
-    cross_sd = float(np.nanmax([boot_c, lin_c])) if np.isfinite([boot_c, lin_c]).any() \
-        else float("nan")
+    # the DTM's cells are averages: where the terrain lies inside a cell is unknown, a
+    # floor of cell / sqrt(12) (a uniform position error over one cell) in quadrature
+    floor = max(abs(dtm.dx), abs(dtm.dy)) / np.sqrt(12.0)
+    along_sd = float(np.hypot(np.nanmax([boot_a, lin_a]), floor)) \
+        if np.isfinite([boot_a, lin_a]).any() else float("nan")
+    cross_sd = float(np.hypot(np.nanmax([boot_c, lin_c]), floor)) \
+        if np.isfinite([boot_c, lin_c]).any() else float("nan")
     east = along * a[0] + cross * c[0]
     north = along * a[1] + cross * c[1]
     # east/north variances from the along/cross ones (taken as independent)
@@ -515,6 +520,10 @@ def coregister(targets: CoregTargets, dtm: RasterSurface, dsm: RasterSurface | N
         The rasters cover too little of the track (of every track together), naming the
         share of its blocks on valid cells.
     """
+    from ..arguments import check_instance, check_optional
+    check_instance(targets, CoregTargets, "coregister: targets", "CoregTargets (targets_from_photons / targets_from_table)")
+    check_instance(dtm, RasterSurface, "coregister: dtm", "a RasterSurface (open the DTM raster)")
+    check_optional(params, CoregParams, "coregister: params")
     p = params or CoregParams()
     prog = as_progress(progress)
     names = list(dict.fromkeys(targets.track.tolist()))
