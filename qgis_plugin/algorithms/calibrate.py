@@ -2,12 +2,14 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 from qgis.core import (
     QgsProcessing,
     QgsProcessingContext,
     QgsProcessingFeedback,
+    QgsProcessingOutputFile,
     QgsProcessingParameterEnum,
     QgsProcessingParameterFeatureSink,
     QgsProcessingParameterFileDestination,
@@ -54,6 +56,7 @@ class CalibrateAlgorithm(CanopyBlocksAlgorithm):
     METHOD = "METHOD"
     PRESET = "PRESET"
     CALIBRATION = "CALIBRATION"
+    CALIBRATION_TABLE = "CALIBRATION_TABLE"
 
     def initAlgorithm(self, config: dict[str, Any] | None = None) -> None:  # noqa: N802
         self.add_photon_parameters(default_lengths="10, 25, 50")
@@ -72,6 +75,8 @@ class CalibrateAlgorithm(CanopyBlocksAlgorithm):
         self.addParameter(QgsProcessingParameterFileDestination(
             self.CALIBRATION, "Bias calibration file (bias method)",
             fileFilter="Calibration (*.json)", optional=True, createByDefault=False))
+        self.addOutput(QgsProcessingOutputFile(
+            self.CALIBRATION_TABLE, "Bias calibration summary (CSV beside the file)"))
 
     def execute(self, parameters: dict[str, Any], context: QgsProcessingContext,
                 feedback: QgsProcessingFeedback, progress: Any) -> dict[str, Any]:
@@ -129,5 +134,7 @@ class CalibrateAlgorithm(CanopyBlocksAlgorithm):
             path = self.parameterAsFileOutput(parameters, self.CALIBRATION, context)
             bias.write_bias_calibration(cal, path)
             results[self.CALIBRATION] = path
+            # the summary table written beside the JSON
+            results[self.CALIBRATION_TABLE] = str(Path(path).with_suffix(".csv"))
         return results
 

@@ -6,16 +6,20 @@ from pathlib import Path
 from typing import Any
 
 from qgis.core import (
+    QgsFeatureRequest,
+    QgsProcessing,
     QgsProcessingContext,
     QgsProcessingException,
     QgsProcessingFeedback,
+    QgsProcessingOutputMultipleLayers,
+    QgsProcessingParameterFeatureSource,
     QgsProcessingParameterFileDestination,
     QgsProcessingParameterString,
 )
 
 from ..core_bridge import import_core
 from .base import CanopyBlocksAlgorithm
-from .gedifootprints import SETTINGS, add_l1b_parameters
+from .gedifootprints import SETTINGS, add_l1b_parameters, gedi_file
 
 __all__ = ["WaveformPlotAlgorithm"]
 
@@ -28,25 +32,36 @@ class WaveformPlotAlgorithm(CanopyBlocksAlgorithm):
     GROUP = "Full-waveform lidar"
     GROUP_ID = "waveforms"
     HELP = (
-        "Draws the received waveform of each chosen shot (shot numbers from the footprints "
-        "layer's shot_number field) against elevation, with the noise mean, the front and "
+        "Draws the received waveform of each chosen shot against elevation, with the noise mean, the front and "
         "back thresholds, the smoothed waveform, the modes, the ground (lowest mode), the "
         "signal top and bottom and RH25/50/75/98, as processed with the chosen L2A setting "
         "group. Writes one HTML page with every plot and its numbers, and a PNG per shot "
-        "beside it."
+        "beside it.<br><br>"
+        "<b>Footprints</b>: select the footprints on the map (a layer from 'GEDI footprints "
+        "from L1B waveforms') and tick 'Selected features only'; their shot_number field "
+        "says which shots to draw. Or type shot numbers instead."
     )
 
     INPUT = "INPUT"
+    FOOTPRINTS = "FOOTPRINTS"
     SHOTS = "SHOTS"
+    PLOTS = "PLOTS"
+    ADVANCED = ("SHOTS",)
     SETTING = "SETTING"
     OUTPUT = "OUTPUT"
 
     def initAlgorithm(self, config: dict[str, Any] | None = None) -> None:  # noqa: N802
         add_l1b_parameters(self, self.INPUT, self.SETTING)
+        self.addParameter(QgsProcessingParameterFeatureSource(
+            self.FOOTPRINTS, "Footprints (their shot_number; selected features only)",
+            [QgsProcessing.TypeVectorPoint], optional=True))
         self.addParameter(QgsProcessingParameterString(
-            self.SHOTS, "Shot numbers (comma separated)"))
+            self.SHOTS, "Shot numbers, comma separated (instead of footprints)",
+            optional=True))
         self.addParameter(QgsProcessingParameterFileDestination(
             self.OUTPUT, "Waveform view (HTML)", fileFilter="HTML (*.html)"))
+        self.addOutput(QgsProcessingOutputMultipleLayers(
+            self.PLOTS, "Waveform plots (one PNG per shot)"))
 
     def execute(self, parameters: dict[str, Any], context: QgsProcessingContext,
                 feedback: QgsProcessingFeedback, progress: Any) -> dict[str, Any]:
@@ -54,15 +69,8 @@ class WaveformPlotAlgorithm(CanopyBlocksAlgorithm):
         process = import_core("canopyblocks.waveforms.process")
         settings = import_core("canopyblocks.waveforms.settings")
         plots = import_core("canopyblocks.outputs.waveform_plot")
-        path = self.parameterAsFile(parameters, self.INPUT, context)
-        text = self.parameterAsString(parameters, self.SHOTS, context)
-        try:
-            wanted = {int(s) for s in text.replace(";", ",").split(",") if s.strip()}
-        except ValueError:
-            raise QgsProcessingException(
-                f"shot numbers must be integers separated by commas; got {text!r}") from None
-        if not wanted:
-            raise QgsProcessingException("give at least one shot number")
+        path = gedi_file(self.parameterAsFile(parameters, self.INPUT, context))
+        wanted = self._shots(parameters, context)
         params = settings.WaveformParams(
             setting=SETTINGS[self.parameterAsEnum(parameters, self.SETTING, context)])
         details = []
@@ -75,8 +83,43 @@ class WaveformPlotAlgorithm(CanopyBlocksAlgorithm):
             raise QgsProcessingException(
                 f"shot(s) {', '.join(map(str, sorted(missing)))} are not in {path}")
         out = Path(self.parameterAsFileOutput(parameters, self.OUTPUT, context))
+        pngs = []
         for d in details:
-            plots.plot_waveform(d, out.with_name(f"{out.stem}_{d.shot_number}.png"))
+            png = out.with_name(f"{out.stem}_{d.shot_number}.png")
+            plots.plot_waveform(d, png)
+            pngs.append(str(png))
         plots.waveform_html(details, out)
-        feedback.pushInfo(f"{len(details)} waveform(s) -> {out}")
-        return {self.OUTPUT: str(out)}
+        feedback.pushInfo(f"{len(details)} waveform(s) -> {out} and {len(pngs)} PNG file(s)")
+        return {self.OUTPUT: str(out), self.PLOTS: pngs}
+
+    def _shots(self, parameters: dict[str, Any], context: QgsProcessingContext) -> set[int]:
+        """The shot numbers of the (selected) footprints, else of the typed list."""
+        wanted: set[int] = set()
+        if parameters.get(self.FOOTPRINTS) not in (None, ""):
+            source = self.parameterAsSource(parameters, self.FOOTPRINTS, context)
+            if source is None:
+                raise QgsProcessingException(
+                    self.invalidSourceError(parameters, self.FOOTPRINTS))
+            idx = source.fields().indexOf("shot_number")
+            if idx < 0:
+                raise QgsProcessingException(
+                    f"the footprints layer {source.sourceName()} has no shot_number field; "
+                    "use a layer from 'GEDI footprints from L1B waveforms'")
+            request = QgsFeatureRequest().setSubsetOfAttributes([idx])
+            request.setFlags(QgsFeatureRequest.NoGeometry)
+            wanted = {int(f.attributes()[idx]) for f in source.getFeatures(request)
+                      if f.attributes()[idx] is not None}
+        text = self.parameterAsString(parameters, self.SHOTS, context) or ""
+        try:
+            wanted |= {int(s) for s in text.replace(";", ",").split(",") if s.strip()}
+        except ValueError:
+            raise QgsProcessingException(
+                f"shot numbers must be integers separated by commas; got {text!r}") from None
+        if not wanted:
+            raise QgsProcessingException(
+                "choose footprints (select them on the map and tick 'Selected features "
+                "only') or type shot numbers")
+        if len(wanted) > 200:
+            raise QgsProcessingException(
+                f"{len(wanted)} shots chosen; select at most 200 footprints to plot")
+        return wanted

@@ -47,7 +47,7 @@ def test_zip_holds_plugin_folder_and_metadata(build_plugin, tmp_path):
     g = cp["general"]
     assert g["name"] == "canopyblocks"
     assert g["version"] == canopyblocks.__version__
-    assert g["qgisMinimumVersion"] == "3.22"
+    assert g["qgisMinimumVersion"] == "3.36"
     assert g["license"] == "GPL-3.0-or-later"
     assert g["hasProcessingProvider"] == "yes"
     for key in ("tracker", "repository", "homepage", "email", "about"):

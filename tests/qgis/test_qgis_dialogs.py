@@ -87,3 +87,27 @@ def test_each_algorithm_has_its_own_help_page(qgis_session) -> None:
         assert page.exists(), f"{page} missing: run python -m qgis_plugin.help_pages docs/qgis"
         assert page.read_text(encoding="utf-8") == help_page(alg), (
             f"{page} is out of date: run python -m qgis_plugin.help_pages docs/qgis")
+
+
+#: QGIS API the plugin calls that newer releases added, with the release that added it.
+NEWER_API = {
+    "Qgis.Aggregate": (3, 36),  # was QgsAggregateCalculator.Aggregate
+    "QgsMapLayerElevationProperties.Property": (3, 36),  # scoped enum
+    "Qgis.GeometryType": (3, 30),  # was QgsWkbTypes.GeometryType
+    "Qgis.AltitudeClamping": (3, 26),
+    "QgsProcessingOutputVariant": (3, 24),
+    "respectLayerSymbology": (3, 26),
+}
+
+
+def test_minimum_qgis_version_is_true_to_the_api_called() -> None:
+    """metadata.txt's qgisMinimumVersion is the newest release whose API the plugin calls."""
+    source = "\n".join(p.read_text(encoding="utf-8")
+                       for p in (ROOT / "qgis_plugin").rglob("*.py"))
+    used = {name: v for name, v in NEWER_API.items() if name in source}
+    assert used, "the inventory of newer API found nothing: update NEWER_API"
+    need = max(used.values())
+    meta = (ROOT / "metadata.txt").read_text(encoding="utf-8")
+    stated = re.search(r"^qgisMinimumVersion=(\d+)\.(\d+)", meta, re.MULTILINE)
+    assert stated is not None
+    assert (int(stated.group(1)), int(stated.group(2))) == need, (stated.group(0), used)
