@@ -191,3 +191,18 @@ def test_cli_background_rate_given_twice_is_refused(tmp_path, capsys):
     assert rc == 2
     assert "once" in capsys.readouterr().err
     assert not (tmp_path / "x.h5").exists()
+
+
+@pytest.mark.parametrize("opt, value, needle", [("--background-rate", "nan", "background_rate_mhz"),
+                                                ("--background-rate", "-1", "background_rate_mhz"),
+                                                ("--telemetry-window", "0", "telemetry_window"),
+                                                ("--noise-rate", "-1", "noise_rate")])
+def test_cli_bad_background_numbers_are_refused(tmp_path, capsys, opt, value, needle):
+    from canopyblocks.cli import main
+
+    out = tmp_path / "x.h5"
+    rc = main(["simulate", str(TILES[0]), "--azimuth", "0", opt, value, "-o", str(out)])
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert needle in err and "Traceback" not in err
+    assert not out.exists()
