@@ -5,9 +5,11 @@ from __future__ import annotations
 from typing import Any
 
 from qgis.core import (
+    QgsProcessing,
     QgsProcessingContext,
     QgsProcessingFeedback,
     QgsProcessingParameterCrs,
+    QgsProcessingParameterFeatureSink,
     QgsProcessingParameterFile,
     QgsProcessingParameterFileDestination,
     QgsProcessingParameterNumber,
@@ -15,10 +17,29 @@ from qgis.core import (
 )
 
 from ..core_bridge import import_core
+from ..layers import write_frame
 from .base import CanopyBlocksAlgorithm, optional_number
 from .validate import raster_path
 
-__all__ = ["CoregisterAlgorithm"]
+__all__ = ["CoregisterAlgorithm", "offsets_table"]
+
+_TABLE_FIELDS = ("east", "north", "along_track", "cross_track", "vertical", "east_sd",
+                 "north_sd", "along_track_sd", "cross_track_sd", "vertical_sd", "rmse_before",
+                 "rmse_after", "bias_before", "bias_after", "n_ground", "n_top", "reason")
+
+
+def offsets_table(result: Any) -> Any:
+    """One row per track (and 'all'): the offsets (m to ADD), their uncertainties, the
+    ground RMSE before/after and the status ('ok' or 'undetermined')."""
+    import pandas as pd
+
+    rows = []
+    for name, o in result.offsets.items():
+        row: dict[str, Any] = {"track": name,
+                               "status": "ok" if o.determined else "undetermined"}
+        row.update({f: getattr(o, f) for f in _TABLE_FIELDS})
+        rows.append(row)
+    return pd.DataFrame(rows)
 
 
 class CoregisterAlgorithm(CanopyBlocksAlgorithm):
@@ -52,6 +73,7 @@ class CoregisterAlgorithm(CanopyBlocksAlgorithm):
     RANGE = "RANGE"
     OUTPUT = "OUTPUT"
     PLOT = "PLOT"
+    OFFSETS = "OFFSETS"
     ADVANCED = (CRS, RANGE)
 
     def initAlgorithm(self, config: dict[str, Any] | None = None) -> None:  # noqa: N802
@@ -76,6 +98,8 @@ class CoregisterAlgorithm(CanopyBlocksAlgorithm):
         self.addParameter(QgsProcessingParameterFileDestination(
             self.PLOT, "Cost surface (PNG)", fileFilter="PNG (*.png)", optional=True,
             createByDefault=False))
+        self.addParameter(QgsProcessingParameterFeatureSink(
+            self.OFFSETS, "Offsets per track", type=QgsProcessing.TypeVector, optional=True))
 
     def execute(self, parameters: dict[str, Any], context: QgsProcessingContext,
                 feedback: QgsProcessingFeedback, progress: Any) -> dict[str, Any]:
@@ -99,6 +123,9 @@ class CoregisterAlgorithm(CanopyBlocksAlgorithm):
         out = self.parameterAsFileOutput(parameters, self.OUTPUT, context)
         files.write_offsets(result, out)
         results: dict[str, Any] = {self.OUTPUT: out}
+        if parameters.get(self.OFFSETS) is not None:
+            results[self.OFFSETS] = write_frame(self, parameters, self.OFFSETS, context,
+                                                offsets_table(result), feedback)
         plot = self.parameterAsFileOutput(parameters, self.PLOT, context)
         if plot:
             plots = import_core("canopyblocks.outputs.coregistration_plot")

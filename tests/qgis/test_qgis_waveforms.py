@@ -97,7 +97,16 @@ def test_coregister_algorithm(run_alg, sample, tmp_path):
     write_simulation_atl03(sim, h5)
     out = run_alg("canopyblocks:coregister", {
         "INPUT": str(h5), "DTM": str(tif), "OFFSET": 0.0, "CRS": "EPSG:3005", "RANGE": 10.0,
-        "OUTPUT": str(tmp_path / "offsets.json")})
+        "OUTPUT": str(tmp_path / "offsets.json"), "OFFSETS": str(tmp_path / "offsets.gpkg")})
     doc = json.loads(Path(out["OUTPUT"]).read_text())
     assert "all" in doc and abs(doc["all"]["vertical"]) < 0.6
     assert abs(doc["all"]["along_track"]) <= 3 and abs(doc["all"]["cross_track"]) <= 3
+    # the offsets also as a layer: one row per track and 'all', the same numbers
+    import geopandas as gpd
+
+    table = gpd.read_file(out["OFFSETS"]).set_index("track")
+    assert set(table.index) == {k for k in doc if isinstance(doc[k], dict)
+                                and "vertical" in doc[k]}
+    for k in table.index:
+        for f in ("east", "north", "along_track", "cross_track", "vertical"):
+            assert table.loc[k, f] == pytest.approx(doc[k][f], abs=1e-4)  # JSON: 4 decimals
