@@ -320,3 +320,24 @@ def test_a_track_off_the_rasters_is_undetermined_beside_covered_ones(tmp_path):
     assert res.offsets["gt1l"].coverage.share == 1.0
     png = write_cost_surfaces(res, tmp_path / "cost.png")
     assert png.stat().st_size > 5_000
+
+
+def test_validate_coregister_from_photons_equals_coregister(files):
+    """The README's pair: ``coregister PHOTONS`` and ``validate BLOCKS --coregister
+    --coregister-photons PHOTONS`` report the same offsets."""
+    d = files["dir"]
+    common = ["--dtm", str(files["dtm"]), "--dsm-max", str(files["dsm"]), "--offset", "0"]
+    code, _, err = _cli(["coregister", str(files["h5"]), *common, "--crs", "EPSG:3005",
+                         "-o", str(d / "p.json")])
+    assert code == 0, err
+    code, _, err = _cli(["validate", str(files["blocks"]), *common, "--dsm-p90",
+                         str(files["dsm"]), "--width", "13", "--coregister",
+                         "--coregister-photons", str(files["h5"]), "-o", str(d / "vp.gpkg")])
+    assert code == 0, err
+    a = json.loads((d / "p.json").read_text())
+    b = json.loads((d / "vp_offsets.json").read_text())
+    assert {k: v for k, v in a.items() if k != "_meta"} == \
+        {k: v for k, v in b.items() if k != "_meta"}
+    code, _, err = _cli(["validate", str(files["blocks"]), *common, "--coregister-photons",
+                         str(files["h5"]), "-o", str(d / "vq.gpkg")])
+    assert code == 2 and "--coregister" in err and not (d / "vq.gpkg").exists(), err

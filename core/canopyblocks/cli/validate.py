@@ -58,6 +58,10 @@ def register(group: click.Group) -> None:
                    "ground bias, which is reported as zero).")
 @click.option("--coregister-range", type=float, default=15.0, show_default=True,
               help="With --coregister: search +- this many metres.")
+@click.option("--coregister-photons", type=click.Path(dir_okay=False),
+              help="With --coregister: find the offset from these photons (the file the "
+                   "blocks were made from) instead of the blocks; the same offsets as "
+                   "'coregister PHOTONS' with the blocks' CRS.")
 @click.option("--plots", type=click.Path(file_okay=False),
               help="Folder for scatter and aspect PNGs.")
 @click.pass_context
@@ -67,7 +71,7 @@ def validate(ctx: click.Context, blocks_path: str, dtm: str | None, dsm_max: str
              output: str, width: float, geoid: str | None, offset: float | None,
              reference_vcrs: str | None, photon_vcrs: str, slope_threshold: float,
              blocks_crs: str | None, coregister: bool, coregister_vertical: bool,
-             coregister_range: float,
+             coregister_range: float, coregister_photons: str | None,
              plots: str | None) -> None:
     """Validate a block table (or GEDI footprints) against reference lidar.
 
@@ -99,6 +103,7 @@ def validate(ctx: click.Context, blocks_path: str, dtm: str | None, dsm_max: str
             slope_threshold=slope_threshold, table_crs=blocks_crs, points_crs=points_crs,
             plots=plots, coregister=coregister, coregister_vertical=coregister_vertical,
             coreg_params=CoregParams(search_range=coregister_range) if coregister else None,
+            coregister_photons=coregister_photons,
             progress=prog)
     if result.coregistration is not None and not quiet:
         for name, o in result.coregistration.offsets.items():

@@ -140,6 +140,7 @@ def validate_file(
     coregister: bool = False,
     coregister_vertical: bool = False,
     coreg_params: Any = None,
+    coregister_photons: str | os.PathLike[str] | None = None,
     progress: Progress | None = None,
 ) -> FileValidation:
     """Validate the block or footprint table in ``path`` and write ``output``.
@@ -175,11 +176,18 @@ def validate_file(
         validate the shifted table (DESIGN 2.8); ``offsets.json`` is written beside
         ``output`` as ``<stem>_offsets.json``.
     coreg_params : CoregParams, optional
+    coregister_photons : path, optional
+        With ``coregister``: search the offset from these photons (the file the blocks
+        were made from, read in the table's CRS) instead of the table's rows; the same
+        offsets as ``coregister_file(coregister_photons, ...)``.
 
     Raises
     ------
     InputError, CRSError, DatumError, NoUsableDataError (nothing validated)
     """
+    from ..arguments import check_path
+    check_path(path, "validate_file: path")
+    check_path(output, "validate_file: output")
     from ..outputs.atomic import check_writable, new_files_removed_on_failure
     from ..outputs.tables import check_output_path, layer_files, read_blocks, read_layer
 
@@ -196,6 +204,9 @@ def validate_file(
     check_output_path(output)
     if plots is not None:
         check_writable(plots, folder=True)
+    if coregister_photons is not None and not coregister:
+        raise InputError("the photons to co-register from are used with --coregister only; "
+                         "add --coregister or leave them out")
     if coregister and dtm is None:
         raise InputError("co-registration needs the DTM: give --dtm (and --dsm-max to use "
                          "the canopy surface too)")
@@ -233,8 +244,11 @@ def validate_file(
 
         prog.update(0.0, "co-registration")
         assert dtm is not None  # checked above
-        coreg = coregister_file(table, dtm, dsm_max,
-                                 crs=table_crs, geoid=geoid, offset=offset,
+        coreg = coregister_file(table if coregister_photons is None else coregister_photons,
+                                 dtm, dsm_max,
+                                 crs=table_crs if coregister_photons is None
+                                 else _horizontal_crs_of(table),
+                                 geoid=geoid, offset=offset,
                                  photon_vertical_crs=photon_vertical_crs,
                                  reference_vertical_crs=reference_vertical_crs,
                                  params=coreg_params, progress=prog.sub(0.0, 0.3))
@@ -283,6 +297,15 @@ def validate_file(
                           stats_before=stats_before, coregistration=coreg, applied=applied,
                           output=out, offsets=offsets_path, datum=datum,
                           files=tuple(dict.fromkeys(layer_files(out, tables).values())))
+
+
+def _horizontal_crs_of(table: pd.DataFrame) -> Any:
+    """The table's horizontal CRS (None when it has none): the metric CRS in which the
+    photons behind it were blocked."""
+    crs = getattr(table, "crs", None)
+    if crs is None:
+        return None
+    return crs.sub_crs_list[0] if crs.is_compound else crs
 
 
 def _layer_names(kind: str) -> tuple[str, str]:
