@@ -23,7 +23,7 @@ from canopyblocks.blocks.atl08_segments import CANOPY_METRIC_PERCENTILES, atl08_
 from canopyblocks.blocks.atl08_surface import SurfaceParams, fit_atl08_surface
 from canopyblocks.blocks.estimators import Estimators, estimate_blocks, preset
 from canopyblocks.blocks.ground_surface import GroundSurface
-from canopyblocks.errors import InputError
+from canopyblocks.errors import CanopyBlocksWarning, InputError
 from canopyblocks.photons import SPEED_OF_LIGHT, BackgroundRate, PhotonTrack
 
 CLIP = "tests/data/icesat2/vegr_atl03_clip.h5"
@@ -228,3 +228,25 @@ def test_background_rate_is_checked():
         BackgroundRate(np.array([0.0, 1.0]), np.array([1e6, -5.0]))
     with pytest.raises(InputError, match="equal-length"):
         BackgroundRate(np.array([0.0, 1.0]), np.array([1e6]))
+
+
+def test_short_track_and_a_beam_without_signal():
+    # a track shorter than the surface's kernel (once an index error)
+    rng = np.random.default_rng(3)
+    s = np.sort(rng.uniform(0.0, 12.0, 60))
+    track = _track(s, 100.0 + 0.05 * s + rng.normal(0, 0.1, s.size), 1e5)
+    res = classify_photons(track)
+    assert res.surface.z.size == res.surface.s.size
+    assert np.abs(res.surface(s) - (100.0 + 0.05 * s)).max() < 0.2
+    # nothing but background (a beam in cloud): every photon noise, blocks sparse
+    s = np.sort(rng.uniform(0.0, 500.0, 2000))
+    track = _track(s, rng.uniform(0.0, 200.0, s.size), 3e6)
+    with pytest.warns(CanopyBlocksWarning, match="stand out of the background"):
+        res = classify_photons(track)
+    assert set(np.unique(res.classes)) == {0}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        blocks = estimate_blocks(track, BlockParams(), preset("atl08"))
+    assert (blocks["flag"] == "sparse").all()
+    seg = atl08_segments(track, res, 100.0)
+    assert (seg["flag"] == "no_ground").all() and seg["h_te_best_fit"].isna().all()

@@ -29,11 +29,12 @@ photons with a non-finite position or height get -1 (not classified).
 from __future__ import annotations
 
 import logging
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..errors import InputError, NoUsableDataError
+from ..errors import CanopyBlocksWarning, InputError
 from ..photons import SPEED_OF_LIGHT, PhotonTrack
 from .atl08_surface import SurfaceParams, fit_atl08_surface
 from .density_filter import DensityParams, density_filter
@@ -183,6 +184,17 @@ def _gap_and_top(win: np.ndarray, hrel: np.ndarray, n_win: int, max_gap: float,
     return reach, toc
 
 
+def _all_noise(track: PhotonTrack, finite: np.ndarray, rate: np.ndarray, source: str
+               ) -> Atl08Classes:
+    """Every photon noise, no ground (NaN surface over the track's extent)."""
+    classes = np.where(finite, CLASS_NOISE, CLASS_NONE).astype(np.int8)
+    s = np.asarray(track.s, float)[finite]
+    ends = np.array([s.min(), s.max() + 1.0]) if s.size else np.array([0.0, 1.0])
+    surface = GroundSurface(ends, np.full(2, np.nan), np.zeros(2, bool),
+                            np.zeros(len(track), bool))
+    return Atl08Classes(classes, np.full(len(track), np.nan), surface, rate, source)
+
+
 def classify_photons(track: PhotonTrack, params: Atl08Params | None = None) -> Atl08Classes:
     """Classify a track's photons as ATL08 does (0 noise, 1 ground, 2 canopy, 3 top).
 
@@ -196,10 +208,8 @@ def classify_photons(track: PhotonTrack, params: Atl08Params | None = None) -> A
     -------
     Atl08Classes
 
-    Raises
-    ------
-    NoUsableDataError
-        Fewer than 2 photons pass the noise filter (no ground can be found).
+    Fewer than 2 photons passing the noise filter (a beam in cloud) give every photon class
+    0 and a NaN ground, with a :class:`~canopyblocks.errors.CanopyBlocksWarning`.
     """
     if not isinstance(track, PhotonTrack):
         raise InputError(f"classify_photons needs a PhotonTrack; got {type(track).__name__}")
@@ -215,10 +225,11 @@ def classify_photons(track: PhotonTrack, params: Atl08Params | None = None) -> A
     res = density_filter(s, z, p.filter, rate=rate)
     signal = res.keep
     if int(signal.sum()) < 2:
-        raise NoUsableDataError(
+        warnings.warn(
             f"track {track.track} ({track.source or 'in memory'}): {int(signal.sum())} of {n} "
-            "photons stand out of the background; no ground can be found (is the beam in "
-            "cloud, or the background rate wrong?)")
+            "photons stand out of the background; every photon is classed noise (is the beam "
+            "in cloud?)", CanopyBlocksWarning, stacklevel=2)
+        return _all_noise(track, finite, res.rate, source)
     surface = fit_atl08_surface(s[signal], z[signal], p.surface)
     hrel = np.full(n, np.nan)
     hrel[finite] = z[finite] - surface(s[finite])

@@ -104,8 +104,16 @@ def _local_linear(s: np.ndarray, z: np.ndarray, w: np.ndarray, nodes: np.ndarray
     ds = s - nodes[b]  # offset of each photon from its bin's node
     m = nodes.size
 
+    half = kernel.size // 2
+
+    def same(x: np.ndarray, k: np.ndarray) -> np.ndarray:
+        # np.convolve(mode="same") returns max(len(x), len(k)) values: a track shorter than
+        # the kernel would get more values than nodes; the centred slice of "full" is the
+        # same values for long tracks and the right length for short ones
+        return np.convolve(x, k, mode="full")[half:half + m]
+
     def binned(v: np.ndarray) -> np.ndarray:
-        return np.convolve(np.bincount(b, weights=v, minlength=m), kernel, mode="same")
+        return same(np.bincount(b, weights=v, minlength=m), kernel)
 
     # moments about each photon's own node, then shifted to the evaluation node:
     # for a photon in bin j evaluated at node i, (s - node_i) = ds + (node_j - node_i);
@@ -118,7 +126,7 @@ def _local_linear(s: np.ndarray, z: np.ndarray, w: np.ndarray, nodes: np.ndarray
     def conv(v: np.ndarray, k: np.ndarray) -> np.ndarray:
         # np.convolve flips the kernel: index k[q] pairs bin j = i + (half - q); use the
         # reversed lag kernel so node_j - node_i = +lag
-        return np.convolve(np.bincount(b, weights=v, minlength=m), k[::-1], mode="same")
+        return same(np.bincount(b, weights=v, minlength=m), k[::-1])
 
     w0 = binned(w)
     sw_d = conv(w * ds, kernel) + conv(w, klag)
