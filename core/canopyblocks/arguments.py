@@ -192,10 +192,14 @@ def check_lonlat(lon: np.ndarray, lat: np.ndarray, name: str) -> None:
 
 def check_metres_not_degrees(x: np.ndarray, y: np.ndarray, lon: np.ndarray,
                              lat: np.ndarray, crs: Any, name: str) -> None:
-    """Refuse metric positions that are degrees: every x within +-180 and y within +-90
-    while the positions they give lie outside the CRS's area of use."""
+    """Refuse metric positions that are degrees: every x within +-180 and y within +-90,
+    spanning at most 2 units each way (a track of degrees: up to ~200 km) and not all whole
+    numbers (hand-made grids), while the positions they give lie outside the CRS's area
+    of use."""
     fx, fy = x[np.isfinite(x)], y[np.isfinite(y)]
-    if not fx.size or np.abs(fx).max() > 180.0 or np.abs(fy).max() > 90.0:
+    if not fx.size or np.abs(fx).max() > 180.0 or np.abs(fy).max() > 90.0 or \
+            np.ptp(fx) > 2.0 or np.ptp(fy) > 2.0 or \
+            (np.all(fx == np.round(fx)) and np.all(fy == np.round(fy))):
         return
     area = getattr(crs, "area_of_use", None)
     fin = np.isfinite(lon) & np.isfinite(lat)

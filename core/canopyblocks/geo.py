@@ -44,7 +44,9 @@ def as_crs(crs: object, what: str = "CRS") -> pyproj.CRS:
             return pyproj.CRS.from_epsg(int(crs))
         return pyproj.CRS.from_user_input(crs)
     except (_PyprojCRSError, TypeError, ValueError) as exc:
-        raise CRSError(f"{what} {crs!r} is not a CRS pyproj understands: {exc}") from None
+        from .arguments import describe
+        msg = " ".join(str(exc).split())
+        raise CRSError(f"{what} {describe(crs)} is not a CRS pyproj understands: {msg}") from None
 
 
 def _median(a: np.ndarray) -> float:
@@ -80,6 +82,12 @@ def utm_crs_for(lon: float | np.ndarray, lat: float | np.ndarray) -> pyproj.CRS:
     move the zone.  Beyond UTM's limits (north of 84 N, south of 80 S) the polar
     stereographic CRS of that pole is used (EPSG:3413, EPSG:3031).
     """
+    from .arguments import check_array, check_lonlat
+    check_lonlat(
+        check_array(lon, "utm_crs_for: lon", what="degrees (a number or 1-D array)", scalar=True),
+        check_array(lat, "utm_crs_for: lat", what="degrees (a number or 1-D array)", scalar=True),
+        "utm_crs_for",
+    )
     lon_a = np.asarray(lon, dtype=float)
     lat_a = np.asarray(lat, dtype=float)
     if lon_a.size and lon_a.shape == lat_a.shape:

@@ -14,6 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import pyproj
 
+from .arguments import check_array, check_lonlat, check_metres_not_degrees
 from .errors import CanopyBlocksWarning, InputError
 from .geo import WGS84, from_metric, require_metric_crs, to_metric
 
@@ -94,6 +95,7 @@ def along_track_distance(x: np.ndarray, y: np.ndarray, time: np.ndarray | None =
     offset : ndarray of float64
         Signed distance across the line, metres (a check of the fit).
     """
+    x, y = check_array(x, "along_track_distance: x"), check_array(y, "along_track_distance: y")
     x = np.asarray(x, dtype=np.float64)
     y = np.asarray(y, dtype=np.float64)
     n = x.size
@@ -216,6 +218,7 @@ class PhotonTrack:
         """
         lon_a = np.asarray(lon, dtype=np.float64)
         lat_a = np.asarray(lat, dtype=np.float64)
+        check_lonlat(lon_a, lat_a, f"PhotonTrack.from_lonlat (track {track})")
         x, y, used = to_metric(lon_a, lat_a, None if crs is None else _crs(crs))
         t = np.asarray(time, dtype=np.float64)
         if s is None:
@@ -261,6 +264,8 @@ class PhotonTrack:
         else:
             s_a = np.asarray(s, dtype=np.float64)
         lon, lat = from_metric(x_a, y_a, crs_m)
+        check_metres_not_degrees(x_a, y_a, np.asarray(lon), np.asarray(lat), crs_m,
+                                 f"PhotonTrack.from_xy (track {track})")
         return cls(time=t, lat=lat, lon=lon, h=np.asarray(h, dtype=np.float64), x=x_a, y=y_a,
                    s=s_a, track=track, crs=crs_m, **kwargs).sorted()  # type: ignore[arg-type]
 

@@ -105,6 +105,8 @@ def read_tracks(
         When no requested beam/channel holds usable photons (e.g. a sea-ice granule
         with ``min_signal_conf`` set: its land confidence is -1 everywhere).
     """
+    from .arguments import check_path
+    check_path(path, "read_tracks: path", "a photon file path")
     prog = as_progress(progress)
     selections = select_tracks(str(path), tuple(beams), channel)
     tracks: list[PhotonTrack] = []
@@ -313,6 +315,8 @@ def blocks_from_file(
     -------
     BlocksResult
     """
+    from .arguments import check_path
+    check_path(path, "blocks_from_file: path", "a photon file path")
     from .outputs.atomic import check_writable
     from .outputs.tables import check_output_path, write_layers
 

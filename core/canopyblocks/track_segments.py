@@ -69,6 +69,8 @@ def segments_from_file(
     GeoDataFrame
         Columns :data:`~canopyblocks.blocks.atl08_segments.SEGMENT_COLUMNS` of all tracks.
     """
+    from .arguments import check_path
+    check_path(path, "segments_from_file: path", "a photon file path")
     from .outputs.tables import check_output_path, write_layers
     from .track_blocks import read_tracks
 

@@ -155,6 +155,9 @@ def run_chain(
         Also validate against the footprint-matched airborne reference (DESIGN 2.7):
         layers ``residuals_footprint``, ``stats_footprint``.
     """
+    from .arguments import check_path, check_paths
+    check_paths(las_paths, "run_chain: las_paths", "a LAS/LAZ path or a non-empty list of them")
+    check_path(out_dir, "run_chain: out_dir", "a folder path")
     from .outputs.profile_plot import plot_profile  # noqa: F401  (fails early without matplotlib)
     from .outputs.validation_plots import write_validation_plots
     from .reference.rasters import make_reference_rasters

@@ -114,6 +114,10 @@ def run_batch(granules: Sequence[str | os.PathLike[str]],
     NoUsableDataError
         No granule crosses any tile, or no unit produced validated blocks.
     """
+    from ..arguments import check_path, check_paths
+    check_paths(granules, "run_batch: granules")
+    check_paths(tiles, "run_batch: tiles")
+    check_path(out_dir, "run_batch: out_dir", "a folder path")
     cfg = config or BatchConfig()
     prog = as_progress(progress)
     out = Path(out_dir)

@@ -133,6 +133,11 @@ def calibrate_cutoffs(
     NoUsableDataError
         No pair leaves ``min_blocks`` ok blocks.
     """
+    from ..arguments import check_frame, check_instance, check_number
+    from ..photons import PhotonTrack
+    check_instance(track, PhotonTrack, "calibrate_cutoffs: track")
+    check_frame(reference, "calibrate_cutoffs: reference")
+    check_number(length, "calibrate_cutoffs: length", above=0.0, unit=" m")
     base = BlockParams() if params is None else params
     p = replace(base, lengths=(float(length),), top_cutoff=None, ground_cutoff=None)
     missing = {"block", "ref_top", "ref_ground"} - set(reference.columns)

@@ -56,6 +56,8 @@ def default_cutoffs(length: float) -> tuple[float, float]:
     the length, and lengths outside 10..50 m take the value of the nearer end
     (clamped), e.g. 100 m -> (0.10, 0.25), 5 m -> (0.05, 0.075).
     """
+    from ..arguments import check_number
+    check_number(length, "default_cutoffs: length", above=0.0, unit=" m")
     ls = np.array(sorted(DEFAULT_CUTOFFS))
     tops = np.array([DEFAULT_CUTOFFS[v][0] for v in ls])
     grounds = np.array([DEFAULT_CUTOFFS[v][1] for v in ls])

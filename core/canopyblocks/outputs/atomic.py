@@ -211,6 +211,8 @@ def atomic_output(path: str | os.PathLike[str], *, keep_existing: bool = False) 
     KeyboardInterrupt, the temporary file is removed and ``path`` is unchanged.
     Inside :func:`atomic_outputs` the rename waits for the whole transaction.
     """
+    from ..arguments import check_path
+    check_path(path, "atomic_output: path")
     final = Path(path)
     check_writable(final)
     txn = _ACTIVE.get()

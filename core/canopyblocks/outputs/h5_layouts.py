@@ -331,6 +331,11 @@ def write_atl03(
     Path
         ``path``.
     """
+    from ..arguments import check_mapping, check_path
+    check_path(path, "write_atl03: path")
+    check_mapping(
+        beams, "write_atl03: beams", "a dict of beam name -> Atl03BeamData", Atl03BeamData
+    )
     import h5py
 
     if not beams:
@@ -522,6 +527,14 @@ def write_mabel(
     Path
         ``path``.
     """
+    from ..arguments import check_mapping, check_path
+    check_path(path, "write_mabel: path")
+    check_mapping(
+        channels,
+        "write_mabel: channels",
+        "a dict of channel number -> MabelChannelData",
+        MabelChannelData,
+    )
     import h5py
 
     if not channels:

@@ -153,6 +153,9 @@ def write_table(df: pd.DataFrame, path: str | os.PathLike[str], *, layer: str = 
     Path
         The file written.
     """
+    from ..arguments import check_frame, check_path
+    check_frame(df, "write_table: df")
+    check_path(path, "write_table: path")
     return write_layers({layer: df}, path, append=append)
 
 
@@ -188,6 +191,9 @@ def write_layers(layers: dict[str, pd.DataFrame | Iterable[pd.DataFrame]],
     Path
         ``path`` for a GeoPackage or a single table; otherwise the first layer's file.
     """
+    from ..arguments import check_mapping, check_path
+    check_mapping(layers, "write_layers: layers", "a dict of layer name -> table")
+    check_path(path, "write_layers: path")
     p = Path(path)
     suf = _suffix(p)
     if not layers:
@@ -242,6 +248,8 @@ def read_layer(path: str | os.PathLike[str], layer: str | None = None) -> pd.Dat
     FileFormatError
         Missing file, unknown layer, or an unreadable file.
     """
+    from ..arguments import check_path
+    check_path(path, "read_layer: path", "a table file path (.gpkg, .parquet, .csv)")
     p = Path(path)
     if not p.exists():
         raise FileFormatError(f"{p}: no such file")
@@ -271,6 +279,8 @@ def read_blocks(path: str | os.PathLike[str], layer: str = LAYER_BLOCKS) -> gpd.
 
     A CSV carries no CRS: the result then has ``crs=None`` and callers must set it.
     """
+    from ..arguments import check_path
+    check_path(path, "read_blocks: path", "a table file path (.gpkg, .parquet, .csv)")
     df = read_layer(path, layer)
     if not isinstance(df, gpd.GeoDataFrame):
         if not {"x", "y"} <= set(df.columns):

@@ -270,8 +270,9 @@ def open_h5(path: str | os.PathLike[str], product: str = "HDF5") -> Iterator[H5F
         (truncated, corrupt); the message names the file.
     """
     if not isinstance(path, (str, os.PathLike)):
+        from ..arguments import describe
         raise InputError(f"expected the path of an HDF5 {product} file (str or Path), got "
-                         f"{type(path).__name__} {path!r:.60}")
+                         f"{describe(path)}")
     p = Path(path)
     if not p.exists():
         raise FileFormatError(f"{p}: file does not exist")

@@ -225,8 +225,9 @@ def read_las(
         paths = [paths]
     if not isinstance(paths, (list, tuple)) or not all(
             isinstance(p, (str, os.PathLike)) for p in paths):
+        from ..arguments import describe
         raise InputError(f"read_las needs LAS/LAZ paths (a str/Path or a list of them); got "
-                         f"{type(paths).__name__} {paths!r:.60}")
+                         f"{describe(paths)}")
     laspy = _laspy()
     prog = as_progress(progress)
     files = [Path(p) for p in paths]

@@ -63,7 +63,8 @@ def detect_product(path: str | os.PathLike[str]) -> Product:
     FileFormatError
         Missing, unreadable, or not a recognised photon product.
     """
-    p = Path(path)
+    from ..arguments import check_path
+    p = check_path(path, "photon file")
     if not p.exists():
         raise FileFormatError(f"{p}: file does not exist")
     suf = p.suffix.lower()
@@ -139,6 +140,8 @@ def open_track(
     FileFormatError, InputError, NoUsableDataError, CRSError
         With the file named; options that do not fit the product are refused.
     """
+    from ..arguments import check_path
+    check_path(path, "open_track: path")
     prod = detect_product(path)
     if prod == "ATL08":
         raise InputError(
@@ -188,6 +191,8 @@ def file_info(path: str | os.PathLike[str]) -> dict[str, Any]:
         lat_max, degrees).  ATL03 spans come from the geolocation segments; MABEL
         spans from every k-th photon (at most 100,000 per channel).
     """
+    from ..arguments import check_path
+    check_path(path, "file_info: path")
     from .gedi import gedi_file_info, is_gedi_l1b
 
     if Path(path).suffix.lower() in (".h5", ".hdf5", ".he5") and is_gedi_l1b(path):

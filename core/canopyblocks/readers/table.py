@@ -126,6 +126,8 @@ def read_table(
     NoUsableDataError
         No rows (after the track/bbox/s_range selection).
     """
+    from ..arguments import check_path
+    check_path(path, "read_table: path", "a CSV or Parquet file path")
     p = Path(path)
     bb = check_bbox(bbox)
     sr = check_s_range(s_range)

@@ -178,6 +178,8 @@ def block_corridors(blocks: pd.DataFrame, *, width: float = 2.0,
         Bad width, missing columns, fewer than 2 block centres per track and length
         without ``track_line``, or ``track_line`` not reaching a block.
     """
+    from ..arguments import check_frame
+    check_frame(blocks, "block_corridors: blocks", "a block table (DataFrame)")
     width = float(width)
     if not np.isfinite(width) or width <= 0:
         raise InputError(f"corridor width must be a positive number of metres, got {width!r}")

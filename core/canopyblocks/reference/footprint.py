@@ -439,6 +439,15 @@ def footprint_reference(points: LasPoints | FootprintCloud, x: np.ndarray, y: np
         One row per centre, in input order: :data:`FOOTPRINT_REFERENCE_COLUMNS` (see the
         module notes for each definition).  Non-finite centres are flagged ``outside``.
     """
+    from ..arguments import check_array, check_instance
+    check_instance(
+        points,
+        (LasPoints, FootprintCloud),
+        "footprint_reference: points",
+        "airborne points (read_las)",
+    )
+    check_array(x, "footprint_reference: x")
+    check_array(y, "footprint_reference: y")
     prog = as_progress(progress)
     cloud = points if isinstance(points, FootprintCloud) else FootprintCloud(
         points, params or FootprintReferenceParams())
@@ -516,6 +525,14 @@ def block_footprint_reference(blocks: gpd.GeoDataFrame | pd.DataFrame,
         footprints flagged ok) and ``ref_flag``: ``outside`` when any footprint of the
         block is outside the points, ``nodata`` when none is ok, else ``ok``.
     """
+    from ..arguments import check_frame, check_instance
+    check_frame(blocks, "block_footprint_reference: blocks", "a block table (DataFrame)")
+    check_instance(
+        points,
+        (LasPoints, FootprintCloud),
+        "block_footprint_reference: points",
+        "airborne points (read_las)",
+    )
     from .terrain import aspect_class, slope_class
 
     prog = as_progress(progress)

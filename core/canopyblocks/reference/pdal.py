@@ -74,6 +74,10 @@ def find_pdal(setting: str | os.PathLike[str] | None = None) -> Path:
         When an explicit setting or ``CANOPYBLOCKS_PDAL`` names no executable file, or
         when nothing is found; the message says how to install PDAL.
     """
+    from ..arguments import check_path
+    None if setting is None else check_path(
+        setting, "find_pdal: setting", "the path of a pdal executable or None"
+    )
     for value, what in ((setting, "the pdal setting"),
                         (os.environ.get("CANOPYBLOCKS_PDAL") or None, "CANOPYBLOCKS_PDAL")):
         if value is None:
@@ -276,6 +280,11 @@ def run_pipeline(
     DependencyError
         No pdal executable.
     """
+    from ..arguments import check_optional, check_path
+    check_path(name_or_path, "run_pipeline: name_or_path", "a pipeline name or JSON path")
+    check_optional(
+        options, dict, "run_pipeline: options", "a dict of stage.option -> value or None"
+    )
     exe = find_pdal(pdal)
     path = pipeline_path(name_or_path)
     args = [str(exe), "pipeline", str(path)]

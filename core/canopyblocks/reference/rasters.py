@@ -183,6 +183,11 @@ def make_reference_rasters(
         No ground point in the grid (try ``ground="smrf"``).
     PdalError, DependencyError, FileFormatError
     """
+    from ..arguments import check_path, check_paths
+    check_paths(
+        las_paths, "make_reference_rasters: las_paths", "a LAS/LAZ path or a non-empty list of them"
+    )
+    check_path(out_dir, "make_reference_rasters: out_dir", "a folder path")
     # RasterParams.__post_init__ checks that bounds holds four finite, ordered numbers.
     box = None if bounds is None else cast("tuple[float, float, float, float]", tuple(bounds))
     params = RasterParams(resolution=float(resolution), ground=ground, bounds=box)

@@ -72,6 +72,10 @@ def horn_slope_aspect(dem: np.ndarray, xres: float, yres: float
         NaN on the outer ring, next to NaN cells, and (aspect only) where the
         gradient is zero.
     """
+    from ..arguments import check_array, check_number
+    check_array(dem, "horn_slope_aspect: dem", ndim=2)
+    check_number(xres, "horn_slope_aspect: xres", above=0.0, unit=" m")
+    check_number(yres, "horn_slope_aspect: yres", unit=" m")
     z = np.asarray(dem, dtype=np.float64)
     if z.ndim != 2:
         raise InputError(f"the DEM must be 2-D, got shape {z.shape}")
@@ -136,6 +140,9 @@ def block_terrain(corridors: gpd.GeoDataFrame, dtm: str | os.PathLike[str], *,
         Index of ``corridors``; ``track, length, block`` (when present), ``slope``,
         ``aspect`` (degrees), ``aspect_class``, ``slope_class``.
     """
+    from ..arguments import check_frame, check_path
+    check_frame(corridors, "block_terrain: corridors", "corridor polygons (GeoDataFrame)")
+    check_path(dtm, "block_terrain: dtm", "a raster path")
     thr = float(slope_threshold)
     if not np.isfinite(thr) or thr < 0:
         raise InputError(f"slope_threshold must be >= 0 degrees, got {slope_threshold!r}")

@@ -388,6 +388,10 @@ def block_reference_values(corridors: gpd.GeoDataFrame, *, dtm: str | os.PathLik
         Different grids / unknown statistic; missing CRS; rasters not covering the
         track at all; unreadable rasters.
     """
+    from ..arguments import check_frame, check_path
+    check_frame(corridors, "block_reference_values: corridors", "corridor polygons (GeoDataFrame)")
+    for k, v in (("dtm", dtm), ("dsm_max", dsm_max), ("dsm_p90", dsm_p90)):
+        check_path(v, f"block_reference_values: {k}", "a raster path")
     f_ground = _stat(ground_stat, "ground_stat")
     f_top = _stat(top_stat, "top_stat")
     f_top90 = _stat(top90_stat, "top90_stat")

@@ -186,6 +186,10 @@ def seed002_experiment(
     -------
     Seed002Result
     """
+    from ..arguments import check_instance
+    from ..readers.las import LasPoints as _LasPoints
+    check_instance(points, _LasPoints, "seed002_experiment: points", "airborne points (read_las)")
+    check_instance(track, SimTrack, "seed002_experiment: track", "a SimTrack (line_through)")
     params = params or SimParams()
     if not diameters:
         raise InputError("give at least one footprint diameter")

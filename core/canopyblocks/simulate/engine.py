@@ -270,6 +270,9 @@ def simulate_photons(
     NoUsableDataError
         When no footprint along the track contains a point.
     """
+    from ..arguments import check_instance
+    check_instance(points, LasPoints, "simulate_photons: points", "airborne points (read_las)")
+    check_instance(track, SimTrack, "simulate_photons: track", "a SimTrack (line_through)")
     params = params or SimParams()
     if not (isinstance(realisations, (int, np.integer)) and realisations >= 1):
         raise InputError(f"realisations must be an integer >= 1; got {realisations!r}")

@@ -72,6 +72,9 @@ def line_through(bounds: tuple[float, float, float, float], azimuth: float, *,
     NoUsableDataError
         When the shrunk extent is empty or the centre lies outside it.
     """
+    from ..arguments import check_array, check_number
+    check_array(bounds, "line_through: bounds", what="(xmin, ymin, xmax, ymax) in metres", size=4)
+    check_number(azimuth, "line_through: azimuth", unit=" degrees")
     if not math.isfinite(azimuth):
         raise InputError(f"azimuth must be a finite number of degrees; got {azimuth!r}")
     xmin, ymin, xmax, ymax = (float(b) for b in bounds)

@@ -150,6 +150,11 @@ def fit_bias_calibration(residuals: pd.DataFrame, *, kind: BiasKind = "additive"
     NoUsableDataError
         Fewer than 6 usable blocks for a length/strength.
     """
+    from ..arguments import check_frame, check_reference_metres
+    check_frame(residuals, "fit_bias_calibration: residuals", "validated blocks (the residuals table of a validation)")
+    for m in [c for c in CALIBRATED_METRICS if {c, f"ref_{c}"} <= set(residuals.columns)]:
+        check_reference_metres(residuals[m].to_numpy(float), residuals[f"ref_{m}"].to_numpy(float),
+                               m, f"ref_{m}", "fit_bias_calibration")
     if kind not in ("additive", "linear"):
         raise InputError(f"kind must be 'additive' or 'linear', got {kind!r}")
     need = {"track", "length", "block", "hmax", "h90", "ref_hmax", "ref_h90"}
@@ -218,6 +223,9 @@ def apply_bias_calibration(blocks: pd.DataFrame, cal: BiasCalibration, *,
     count).  Refuses blocks made with other estimators than the calibration, and lengths
     or strengths it has no model for.
     """
+    from ..arguments import check_frame, check_instance
+    check_frame(blocks, "apply_bias_calibration: blocks", "a block table (DataFrame)")
+    check_instance(cal, BiasCalibration, "apply_bias_calibration: cal", "a BiasCalibration (fit_bias_calibration or read_bias_calibration)")
     label = (str(blocks["estimators"].iloc[0]) if "estimators" in blocks.columns and len(blocks)
              else _PAPER_LABEL)
     if "estimators" in blocks.columns and blocks["estimators"].nunique() > 1:
@@ -262,6 +270,9 @@ def apply_bias_calibration(blocks: pd.DataFrame, cal: BiasCalibration, *,
 
 def write_bias_calibration(cal: BiasCalibration, path: str | os.PathLike[str]) -> Path:
     """Write the calibration as JSON (atomic), and a CSV summary beside it."""
+    from ..arguments import check_instance, check_path
+    check_instance(cal, BiasCalibration, "write_bias_calibration: cal", "a BiasCalibration (fit_bias_calibration)")
+    check_path(path, "write_bias_calibration: path", "a JSON file path")
     p = Path(path)
     doc = {"format": _FORMAT, "kind": cal.kind, "estimators": cal.estimators,
            "preset": cal.preset, "strengths": list(cal.strengths),
@@ -284,6 +295,8 @@ def read_bias_calibration(path: str | os.PathLike[str]) -> BiasCalibration:
     FileFormatError
         Missing, unreadable or not a canopyblocks bias calibration.
     """
+    from ..arguments import check_path
+    check_path(path, "read_bias_calibration: path", "a calibration JSON path")
     p = Path(path)
     try:
         doc = json.loads(p.read_text(encoding="utf-8"))

@@ -176,6 +176,8 @@ def validate_blocks(blocks: gpd.GeoDataFrame, *, dtm: str | os.PathLike[str],
     ------
     DatumError, CoverageError, CRSError, InputError, FileFormatError
     """
+    from ..arguments import check_frame
+    check_frame(blocks, "validate_blocks: blocks", "a block table (GeoDataFrame)")
     _check_blocks(blocks)
     prog = as_progress(progress)
     dtm_crs = _raster_crs(dtm)

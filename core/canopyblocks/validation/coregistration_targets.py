@@ -231,6 +231,9 @@ def apply_offset(obj: Any, offset: CoregOffset, *, crs: Any = None) -> Any:
     crs : CRS-like, optional
         CRS of a plain DataFrame's ``x``/``y`` (a GeoDataFrame carries its own).
     """
+    from ..arguments import check_instance
+    from .coregistration import CoregOffset as _CoregOffset
+    check_instance(offset, _CoregOffset, "apply_offset: offset", "a CoregOffset (an item of CoregResult.offsets from coregister)")
     if isinstance(obj, PhotonTrack):
         x, y = _shift_xy(obj.x, obj.y, obj.crs, offset)
         lon, lat = from_metric(x, y, obj.crs)

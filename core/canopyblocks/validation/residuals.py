@@ -64,6 +64,9 @@ def compute_residuals(blocks: pd.DataFrame, ref_values: pd.DataFrame,
         Block columns, ``schema.RESIDUAL_COLUMNS``, ``slope_class``, ``ref_flag`` and
         ``use`` (bool), in the blocks' order and index.
     """
+    from ..arguments import check_frame
+    check_frame(blocks, "compute_residuals: blocks")
+    check_frame(ref_values, "compute_residuals: ref_values")
     missing = [c for c in (*KEY_COLUMNS, *RESIDUAL_PAIRS) if c not in blocks.columns]
     if missing:
         raise InputError(f"the block table lacks column(s) {', '.join(missing)}")

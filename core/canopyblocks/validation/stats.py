@@ -42,6 +42,9 @@ def error_stats(photon: np.ndarray, reference: np.ndarray, *,
     :class:`~canopyblocks.errors.InputError` unless ``allow_empty`` (then n = 0 and NaN
     statistics: a group of a table that happens to be empty).
     """
+    from ..arguments import check_array
+    photon = check_array(photon, "error_stats: photon")
+    reference = check_array(reference, "error_stats: reference")
     y = np.asarray(photon, dtype=float)
     x = np.asarray(reference, dtype=float)
     if y.shape != x.shape:
@@ -102,6 +105,8 @@ def block_stats(residuals: pd.DataFrame, *, metrics: Sequence[str] = METRICS,
     DataFrame
         Columns ``schema.STATS_COLUMNS``.
     """
+    from ..arguments import check_frame
+    check_frame(residuals, "block_stats: residuals", "a residuals table (DataFrame)")
     for m in metrics:
         if m not in RESIDUAL_PAIRS:
             raise InputError(f"unknown metric {m!r}; use {', '.join(RESIDUAL_PAIRS)}")
