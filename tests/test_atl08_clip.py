@@ -47,12 +47,12 @@ def test_clip_confusion_matrix(clip):
     cm = np.zeros((4, 4), int)
     np.add.at(cm, (a[m], classes.classes[m]), 1)
     recall = cm[:, :] / cm.sum(axis=1, keepdims=True)
-    # measured: ATL08 ground -> ours ground 0.836; ATL08 noise -> ours noise 0.85;
-    # ATL08 canopy or top -> ours canopy or top 0.73
+    # measured: ATL08 ground -> ours ground 0.836; ATL08 noise -> ours noise 0.847;
+    # ATL08 canopy or top -> ours canopy or top 0.820
     assert recall[1, 1] >= 0.80
     assert recall[0, 0] >= 0.80
     canopy_ours = cm[2:, 2:].sum() / cm[2:].sum()
-    assert canopy_ours >= 0.68
+    assert canopy_ours >= 0.78
     # ATL08's ground photons are almost never taken for canopy by us (measured 8 of 171)
     assert cm[1, 2:].sum() <= 0.08 * cm[1].sum()
 
@@ -63,11 +63,11 @@ def test_clip_segments(clip):
     whole = slice(0, 8)
     d_best = seg["h_te_best_fit"].to_numpy()[whole] - ref["terrain/h_te_best_fit"][whole]
     d_can = seg["h_canopy"].to_numpy()[whole] - ref["canopy/h_canopy"][whole]
-    # measured: |d_best| 2.60 1.19 0.30 1.98 0.09 0.02 0.58 0.25 m
+    # measured: |d_best| 2.60 1.19 0.30 1.98 0.09 0.02 0.58 0.25 m (median 0.44)
     assert np.sum(np.abs(d_best) <= 0.6) >= 5
     assert np.abs(d_best).max() <= 3.0
     assert np.median(np.abs(d_best)) <= 0.5
-    # measured: |d_canopy| 0.03 4.71 2.52 0.49 0.09 2.55 1.04 0.40 m
+    # measured: |d_canopy| 0.03 4.71 2.52 0.68 0.09 2.55 1.04 0.40 m (median 0.86)
     assert np.sum(np.abs(d_can) <= 1.5) >= 5
     assert np.median(np.abs(d_can)) <= 1.1
     assert np.abs(d_can).max() <= 5.5
