@@ -35,32 +35,83 @@ def test_mask_recovers_the_illuminated_pixels():
     illum = np.exp(-2.0 * (cu ** 2 + cv ** 2) / (p.footprint / 2) ** 2)
     want_ratio = illum / illum.max()
     for f in (0.1, 0.25, 0.5, 0.7, 0.9):
-        mask, ratio = footprint_mask(sim.cubes, f)
+        mask, ratio = footprint_mask(sim.cubes, f, region=None)
         np.testing.assert_allclose(ratio, want_ratio, rtol=1e-9)
         np.testing.assert_array_equal(mask, want_ratio >= f - 1e-12)
     # 12 x 12 pixels of 0.7 m image the 8.4 m footprint: 4 central pixels are brightest
-    assert footprint_mask(sim.cubes, 0.99)[0].sum() == 4
+    assert footprint_mask(sim.cubes, 0.99, region=None)[0].sum() == 4
+    # the paper's 4 x 4 region around the footprint's location: pixels 4..7; its
+    # corner pixels get exp(-2 (2 * 1.05^2 - 2 * 0.35^2) / 4.2^2) = 0.80 of the brightest,
+    # its edge pixels 0.895
+    region = np.zeros((12, 12), bool)
+    region[4:8, 4:8] = True
+    for f, n in ((0.1, 16), (0.5, 16), (0.8, 16), (0.85, 12), (0.9, 4)):
+        mask, ratio = footprint_mask(sim.cubes, f)
+        np.testing.assert_array_equal(mask, region & (want_ratio >= f - 1e-12))
+        assert mask.sum() == n
+        np.testing.assert_allclose(ratio[region], want_ratio[region], rtol=1e-9)
+        assert np.all(ratio[~region] == 0)
 
 
 def test_footprint_waveform_is_the_mean_of_its_pixels():
     rng = np.random.default_rng(0)
     cubes = rng.random((3, 12, 12, 20))
     cubes[:, 5:7, 5:7, :] += 5.0
-    agg = aggregate_footprints(cubes, 0.5)
+    agg = aggregate_footprints(cubes, 0.5, region=None)
     for k in range(3):
         pix = [cubes[k, i, j] for i in range(12) for j in range(12) if agg.mask[i, j]]
         np.testing.assert_allclose(agg.waveforms[k], np.mean(pix, axis=0))
     assert agg.n_pixels == int(agg.mask.sum())
 
 
-def test_flat_scene_waveform_peaks_at_the_ground():
+def _flat_with_poles(z: float = 100.0) -> LasPoints:
+    """A flat plane at ``z`` and, at a corner of every footprint's 12 x 12 subset (never
+    in its central 4 x 4), one pole 3.1-5.9 m high: the poles set each cube's top, so the
+    plane falls at a different place inside a bin in every footprint."""
+    g = np.arange(0.0, 200.0, 0.25)
+    gx, gy = np.meshgrid(g, np.arange(0.0, 40.0, 0.25))
+    x, y = 500_000 + gx.ravel(), 5_000_000 + gy.ravel()
+    sx = 500_010 + 8.4 * np.arange(22)
+    px, py = sx - 3.9, np.full(sx.size, 5_000_020 - 3.9)
+    pz = z + 3.1 + 2.8 * ((np.arange(sx.size) * 0.618) % 1.0)
+    cls = np.concatenate([np.full(x.size, 2), np.full(sx.size, 1)]).astype(np.uint8)
+    return LasPoints.from_arrays(np.concatenate([x, px]), np.concatenate([y, py]),
+                                 np.concatenate([np.full(x.size, z), pz]), crs=32610,
+                                 classification=cls)
+
+
+def test_bins_are_labelled_by_their_centres():
+    """Noise-free flat plane at 100.3 m: the energy centroid of every footprint waveform,
+    with bin k at ``top - k * bin_size``, is 100.3 m (bins labelled by their top edges
+    put it 0.375 m high), whatever the plane's place inside a bin."""
     p = FlashSimParams(noise_sd=0.0)
     track = SimTrack.line(500_010, 5_000_020, 500_190, 5_000_020)
-    sim = simulate_flash_cubes(_flat_scene(100.0), track, p)
+    sim = simulate_flash_cubes(_flat_with_poles(100.3), track, p)
+    frac = ((sim.top - 100.3) / p.bin_size) % 1.0
+    assert np.ptp(frac) > 0.5           # the plane sits at many places inside a bin
     agg = aggregate_footprints(sim.cubes, 0.5)
-    peak_z = sim.top - (np.argmax(agg.waveforms, axis=1) + 0.5) * p.bin_size
-    assert np.all(np.abs(peak_z - 100.0) <= p.bin_size / 2 + 1e-9)
-    np.testing.assert_allclose(sim.truth["truth_ground"], 100.0)
+    z = sim.top[:, None] - np.arange(agg.waveforms.shape[1])[None, :] * p.bin_size
+    centroid = (agg.waveforms * z).sum(axis=1) / agg.waveforms.sum(axis=1)
+    np.testing.assert_allclose(centroid, 100.3, atol=1e-6)
+
+
+@pytest.mark.parametrize("cell", [0.0, 5.0])
+def test_flat_plane_ground_within_5_cm(cell):
+    """The whole flash-lidar chain on a flat plane at 100.3 m (little noise): the lowest
+    Gaussian and the filtered terrain of every waveform within 0.05 m of it, but for a
+    noise Gaussian far below, which the outlier rule flags (at most 1 in 50)."""
+    from canopyblocks.waveforms.esfl import EsflParams, esfl_chain
+
+    track = SimTrack.line(500_010, 5_000_020, 500_190, 5_000_020)
+    sim = simulate_flash_cubes(_flat_with_poles(100.3), track, FlashSimParams(noise_sd=0.002),
+                               seed=1)
+    _, res = esfl_chain(sim.as_cubes(), EsflParams(cell=cell))
+    ok = ~res["outlier"].to_numpy()
+    assert len(res) >= 22 and ok.mean() >= 0.98
+    assert np.abs(res["ground_gauss"][ok] - 100.3).max() <= 0.05
+    assert np.abs(res["terrain"][ok] - 100.3).max() <= 0.05
+    bad = res["ground_gauss"][~ok] - 100.3
+    assert np.all(bad < -10.0)          # what the rule flags: 10 m below its neighbours
 
 
 def test_bad_parameters():

@@ -14,7 +14,7 @@ from canopyblocks.simulate.sensor_files import (
     simulate_dual_to_file,
     simulate_esfl_to_file,
 )
-from canopyblocks.waveforms.dual_wavelength import dual_wavelength_ground
+from canopyblocks.waveforms.dual_wavelength import DualParams, dual_wavelength_ground
 
 
 def test_esfl_file_layout_and_determinism(sample, tmp_path):
@@ -42,11 +42,16 @@ def test_dual_over_real_tile(sample, tmp_path):
     pts = read_las([sample("als/lasR_bcts_1.laz")])
     tr = line_through(pts.bounds, 10.0, inset=17)
     d, sx, sy = simulate_dual_over_points(pts, tr, DualAlsParams(), seed=1)
-    g = dual_wavelength_ground(d.visible, d.nir, noise_mean=d.noise_mean, noise_sd=d.noise_sd)
-    err = d.position_to_elevation(g.centre) - d.ground_centre
-    assert g.found.mean() >= 0.8
-    # dense conifer (cover ~0.9) on gentle terrain: within ~2 m, as seed 004 reports metres
-    assert np.nanmedian(np.abs(err)) < 2.0
+    assert DualAlsParams().noise == 0.05        # the paper's noise is the default
+    # dense conifer (cover ~0.9) on gentle terrain, 5 % noise: within ~2 m, as the paper
+    # reports metres; its steps alone find the ratio's edge for fewer footprints (the
+    # ground's run is often apart from the canopy's on gentle slopes)
+    for method, found in (("paper", 0.4), ("refined", 0.8)):
+        g = dual_wavelength_ground(d.visible, d.nir, noise_mean=d.noise_mean,
+                                   noise_sd=d.noise_sd, params=DualParams(method=method))
+        err = d.position_to_elevation(g.centre) - d.ground_centre
+        assert g.found.mean() >= found, (method, g.found.mean())
+        assert np.nanmedian(np.abs(err)) < 2.0
     out = tmp_path / "dual.h5"
     simulate_dual_to_file(pts, tr, out, seed=1)
     with h5py.File(out) as f:

@@ -88,8 +88,9 @@ class FlashSimParams:
 
 @dataclass(frozen=True)
 class FlashSimulation:
-    """Cubes (footprints, rows, cols, bins) with bin 0 at ``top`` (m, per footprint),
-    the footprint centres (m, the cloud's CRS) and the truth table."""
+    """Cubes (footprints, rows, cols, bins): bin k is centred on ``top - k * bin_size``
+    (m, per footprint); the footprint centres (m, the cloud's CRS), the unit vector
+    ``along`` of the track (x, y) and the truth table."""
 
     cubes: np.ndarray
     top: np.ndarray
@@ -98,6 +99,16 @@ class FlashSimulation:
     y: np.ndarray
     truth: pd.DataFrame
     noise_sd: float
+    along: tuple[float, float] = (1.0, 0.0)
+    pixel_size: float = 0.7
+
+    def as_cubes(self) -> Any:
+        """The cubes with their geometry, as the flash-lidar chain reads them."""
+        from ..waveforms.esfl import EsflCubes
+
+        return EsflCubes(self.cubes, np.asarray(self.top, float), self.bin_size,
+                         np.asarray(self.x, float), np.asarray(self.y, float), self.along,
+                         self.pixel_size)
 
 
 def simulate_flash_cubes(points: LasPoints, track: SimTrack,
@@ -152,8 +163,9 @@ def simulate_flash_cubes(points: LasPoints, track: SimTrack,
     extent = np.where(has, zmax - zmin + 2 * pad, 0.0)
     gates = np.maximum(1, np.ceil(extent / (p.gate_bins * p.bin_size))).astype(np.int64)
     m = int(gates.max()) * p.gate_bins
-    pix_top = np.repeat(top, p.pixels * p.pixels)
-    cubes = bin_returns(pix, z, w, pix_top, p.bin_size, m, p.pulse_sigma
+    # bins labelled by their centres: bin k spans top - k * bin_size +- bin_size / 2
+    pix_top = np.repeat(np.nan_to_num(top) + 0.5 * p.bin_size, p.pixels * p.pixels)
+    cubes = bin_returns(pix, z, w, pix_top, p.bin_size, m, p.pulse_sigma, linear=True
                         ).reshape(n, p.pixels, p.pixels, m)
     peak = cubes.reshape(n, -1).max(axis=1)
     scale = float(np.mean(peak[peak > 0])) if (peak > 0).any() else 1.0
@@ -162,7 +174,8 @@ def simulate_flash_cubes(points: LasPoints, track: SimTrack,
     if p.noise_sd > 0:
         cubes += rng.normal(0.0, p.noise_sd, cubes.shape)
     truth = _truth(index, points, ids, sx, sy, radius)
-    return FlashSimulation(cubes, top, p.bin_size, sx, sy, truth, p.noise_sd)
+    return FlashSimulation(cubes, top, p.bin_size, sx, sy, truth, p.noise_sd,
+                           (float(ux), float(uy)), p.pixel_size)
 
 
 def _truth(index: CloudIndex, points: LasPoints, ids: np.ndarray, sx: np.ndarray,

@@ -33,7 +33,7 @@ from ..errors import InputError
 from ..outputs.atomic import atomic_output
 from ..progress import Progress, as_progress
 from ..readers.las import LasPoints
-from .dual_pairs import DualPairs
+from .dual_pairs import NOISE_FREE_FLOOR, PAPER_NOISE, DualPairs
 from .flash_cubes import FlashSimParams, simulate_flash_cubes, threshold_study
 from .footprint_returns import footprint_returns
 from .tracks import SimTrack, shots_along
@@ -52,7 +52,9 @@ class DualAlsParams:
 
     Class 2 points reflect like soil, the others like leaves (visible, near infrared);
     points are weighted by a Gaussian footprint (``sigma``) and by 1 / (points in their
-    1.5 m cell), so survey density does not count (DESIGN 4.9).
+    1.5 m cell), so survey density does not count (DESIGN 4.9). ``noise``: sd as a share
+    of the near-infrared peak (the dual-wavelength paper's 5 % by default; 0: noise free,
+    the ground finder then gets a floor of 0.25 % of each band's peak).
     """
 
     sigma: float = 5.5
@@ -61,7 +63,7 @@ class DualAlsParams:
     pulse_sigma: float = 4e-9 * 299_792_458.0 / 2 / 2.3548
     leaf: tuple[float, float] = (0.05, 0.45)
     soil: tuple[float, float] = (0.15, 0.25)
-    noise: float = 0.0
+    noise: float = PAPER_NOISE
     density_cell: float = 1.5
 
     def __post_init__(self) -> None:
@@ -94,7 +96,8 @@ def simulate_dual_over_points(points: LasPoints, track: SimTrack,
     rng = np.random.default_rng(seed)
     sd = p.noise * peak
     out = [b + rng.normal(0, 1, b.shape) * sd[:, None] if p.noise > 0 else b for b in bands]
-    sds = (sd, sd) if p.noise > 0 else (0.0025 * out[0].max(axis=1), 0.0025 * peak)
+    sds = (sd, sd) if p.noise > 0 else (NOISE_FREE_FLOOR * out[0].max(axis=1),
+                                        NOISE_FREE_FLOOR * peak)
     wg = np.bincount(shot[ground], weights=w[ground], minlength=n)
     zg = np.bincount(shot[ground], weights=(w * z)[ground], minlength=n)
     wt = np.bincount(shot, weights=w, minlength=n)
@@ -257,13 +260,14 @@ def simulate_sensor_over_tiles(las_paths: list[str | os.PathLike[str]], sensor: 
                                centre: tuple[float, float] | None = None, seed: int = 0,
                                crs: str | int | None = None,
                                report_dir: str | os.PathLike[str] | None = None,
-                               progress: Progress | None = None
+                               params: object = None, progress: Progress | None = None
                                ) -> tuple[SimTrack, dict[str, object]]:
     """GEDI, ESFL flash or dual-wavelength waveforms simulated over airborne tiles, as a file.
 
     The one entry point of ``canopyblocks simulate --sensor gedi|esfl|dual`` and of the
     QGIS algorithm: the track (``track``, or a line at ``azimuth`` degrees through the tiles'
     extent or ``centre``), only the corridor the footprints reach read from the tiles, then
+    (with the sensor's parameters ``params``, e.g. ``GediSimParams(spacing=30.0)``)
     :func:`simulate_gedi_to_file` / :func:`simulate_esfl_to_file` /
     :func:`simulate_dual_to_file`.
 
@@ -298,5 +302,5 @@ def simulate_sensor_over_tiles(las_paths: list[str | os.PathLike[str]], sensor: 
     run = {"gedi": simulate_gedi_to_file, "esfl": simulate_esfl_to_file,
            "dual": simulate_dual_to_file}[sensor]
     summary = run(pts, track, out, seed=int(seed), report_dir=report_dir,  # type: ignore[operator]
-                  progress=prog.sub(0.2, 1.0))
+                  params=params, progress=prog.sub(0.2, 1.0))
     return track, summary

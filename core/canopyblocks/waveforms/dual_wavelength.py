@@ -18,10 +18,16 @@ in :class:`~canopyblocks.waveforms.batch.WaveformBatch`):
    candidates. The narrowest width that leaves a single such crossing is kept (the best
    localised edge);
 4. that crossing is the ground start; the last sample above noise is the ground end;
-   their mean is the ground centre. Where the ground's above-noise run is separated from
-   the canopy by a gap (flat ground, gentle slopes) and its ratio is clearly the soil's,
-   the run's first sample is the start (an edge of unbounded gradient); ``width`` is 0
-   for those shots.
+   their mean is the ground centre;
+5. tree height: from the first sample above noise (the first signal return) to the
+   ground start (the first ground return), as the paper takes it.
+
+That is the whole paper method (``method="paper"``, the default). ``method="refined"``
+adds three steps of this project's that the paper does not have, measured against it in
+``bench/bench_esfl_dual_study.py``: the search confined to the lowest above-noise run;
+where that run is separated from the canopy by a gap and its ratio is clearly the soil's,
+the run's first sample taken as the start (``width`` 0); and maxima of the gradient
+weaker than a fifth of the steepest rise ignored.
 
 Shots where no width leaves a single crossing get NaN and ``found = False``.
 """
@@ -53,15 +59,18 @@ class DualParams:
         Noise threshold = noise mean + k * noise sd, per band (seed 003: 4).
     denoise : float
         Gaussian sigma (samples) applied to both bands before the ratio (0: none).
+    method : str
+        ``"paper"`` (the published steps only) or ``"refined"`` (module docstring).
     gap_ratio : float
-        The lowest above-noise run counts as ground separated from the canopy by a gap
-        when its mean ratio exceeds the canopy's by this factor.
+        ``"refined"`` only: the lowest above-noise run counts as ground separated from
+        the canopy by a gap when its mean ratio exceeds the canopy's by this factor.
     """
 
     widths: tuple[float, ...] = (32.0, 24.0, 16.0, 12.0, 8.0, 6.0, 4.0, 3.0, 2.0, 1.5, 1.0)
     k: float = 4.0
     gap_ratio: float = 1.5
     denoise: float = 2.0
+    method: str = "paper"
 
     def __post_init__(self) -> None:
         if not self.widths or any(not (np.isfinite(w) and w > 0) for w in self.widths):
@@ -71,18 +80,30 @@ class DualParams:
             raise InputError("smoothing widths must be given from wide to narrow")
         if not (np.isfinite(self.k) and self.k > 0):
             raise InputError(f"k must be positive, got {self.k!r}")
+        if self.method not in ("paper", "refined"):
+            raise InputError(f"method must be 'paper' or 'refined'; got {self.method!r}")
 
 
 @dataclass(frozen=True)
 class DualGround:
-    """Per shot: fractional sample positions of the ground start, end and centre, the
-    smoothing width kept (samples), and whether a single edge was found."""
+    """Per shot: fractional sample positions of the first signal return, the ground
+    start, end and centre, the smoothing width kept (samples), and whether a single edge
+    was found."""
 
     start: np.ndarray
     end: np.ndarray
     centre: np.ndarray
     width: np.ndarray
     found: np.ndarray
+    first: np.ndarray | None = None
+
+    def tree_height(self, bin_size: float) -> np.ndarray:
+        """Tree height (m): first signal return to the ground start, ``bin_size`` m per
+        sample; NaN where no ground was found."""
+        if not bin_size > 0:
+            raise InputError(f"bin_size must be > 0 m; got {bin_size!r}")
+        first = self.first if self.first is not None else np.full_like(self.start, np.nan)
+        return (np.asarray(self.start, float) - np.asarray(first, float)) * float(bin_size)
 
 
 def _crossings(d: np.ndarray, valid: np.ndarray) -> np.ndarray:
@@ -161,7 +182,11 @@ def dual_wavelength_ground(visible: np.ndarray, nir: np.ndarray, *,
     homogeneous = ok_rows & (hi_r <= p.gap_ratio * lo_r)
     # a soil-only run: below a gap under ratio-darker canopy, or with no canopy above noise
     gap_edge = any_signal & homogeneous & (~has_up | (r_low > p.gap_ratio * r_up))
-    inside &= idx[None, :] >= np.where(lr >= 0, lr, 0)[:, None]  # search the ground's run
+    refined = p.method == "refined"
+    if refined:
+        inside &= idx[None, :] >= np.where(lr >= 0, lr, 0)[:, None]  # the ground's run
+    else:
+        gap_edge = np.zeros(n, bool)
 
     start = np.full(n, np.nan)
     width = np.full(n, np.nan)
@@ -182,8 +207,11 @@ def dual_wavelength_ground(visible: np.ndarray, nir: np.ndarray, *,
         # d2 turns from + to - where d1 is positive and a real edge (at least a fifth of
         # the steepest rise in the window), not a ripple
         c2 = win & mask[:, :-1] & mask[:, 1:] & (d2[:, :-1] > 0) & (d2[:, 1:] <= 0)
-        steep = np.where(win, d1[:, :-1], 0.0).max(axis=1, initial=0.0)
-        c2 &= d1[:, :-1] > np.maximum(0.2 * steep, 1e-12)[:, None]
+        if refined:
+            steep = np.where(win, d1[:, :-1], 0.0).max(axis=1, initial=0.0)
+            c2 &= d1[:, :-1] > np.maximum(0.2 * steep, 1e-12)[:, None]
+        else:
+            c2 &= d1[:, :-1] > 0
         count = c2.sum(axis=1)
         single = count == 1
         j = np.argmax(c2, axis=1)
@@ -201,4 +229,8 @@ def dual_wavelength_ground(visible: np.ndarray, nir: np.ndarray, *,
     end = np.where(any_signal, last.astype(float), np.nan)
     start = np.where(found, start, np.nan)
     centre = 0.5 * (start + end)
-    return DualGround(start, end, centre, width, found)
+    # the first signal return: the first sample above noise in either band (leaves are
+    # dark in the visible, so the canopy top may be above noise in the near infrared only)
+    either = (vis > np.reshape(thr_v, (-1, 1))) | (ir > np.reshape(thr_n, (-1, 1)))
+    first_pos = np.where(either.any(axis=1), np.argmax(either, axis=1).astype(float), np.nan)
+    return DualGround(start, end, centre, width, found, first_pos)

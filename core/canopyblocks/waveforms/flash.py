@@ -2,8 +2,9 @@
 
 An ESFL cube images each footprint on a subset of pixels (12 x 12 in seed 003); every
 pixel records its own waveform. Seed 003 defines a footprint's extent from the flight
-line's *average* cube: per pixel the time-summed energy averaged over all cubes, divided
-by the brightest pixel of the footprint; pixels at or above a fraction ``f`` of it
+line's *average* cube, over the 4 x 4 pixel region centred on the footprint's location
+(the centre of its subset): per pixel the time-summed energy averaged over all cubes,
+divided by the brightest pixel of the region; pixels at or above a fraction ``f`` of it
 (default 0.5; the paper tested 0.1-0.9 and found 0.5 best) belong to the footprint, and
 the footprint waveform is the mean of those pixels' waveforms.
 
@@ -33,8 +34,10 @@ class FlashFootprints:
     energy_ratio: np.ndarray
 
 
-def footprint_mask(cubes: np.ndarray, fraction: float = 0.5) -> tuple[np.ndarray, np.ndarray]:
-    """Pixels whose average time-summed energy is >= ``fraction`` of the brightest's.
+def footprint_mask(cubes: np.ndarray, fraction: float = 0.5, region: int | None = 4
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Pixels of the central ``region`` x ``region`` pixels whose average time-summed
+    energy is >= ``fraction`` of the brightest's there.
 
     Parameters
     ----------
@@ -42,12 +45,15 @@ def footprint_mask(cubes: np.ndarray, fraction: float = 0.5) -> tuple[np.ndarray
         Pixel waveforms of every footprint of one flight line (noise included).
     fraction : float
         In (0, 1].
+    region : int or None
+        Side (pixels) of the square region centred on the subset's centre that can
+        belong to the footprint (4 in the flash-lidar paper); None: the whole subset.
 
     Returns
     -------
     mask : ndarray bool (rows, cols)
     ratio : ndarray (rows, cols)
-        Average energy over the brightest pixel's.
+        Average energy over the region's brightest pixel's (0 outside the region).
     """
     c = np.asarray(cubes, float)
     if c.ndim != 4:
@@ -55,17 +61,29 @@ def footprint_mask(cubes: np.ndarray, fraction: float = 0.5) -> tuple[np.ndarray
     if not (0.0 < fraction <= 1.0):
         raise InputError(f"energy fraction must be in (0, 1] (seed 003 tested 0.1-0.9); "
                          f"got {fraction!r}")
+    rows, cols = c.shape[1:3]
+    inside = np.ones((rows, cols), bool)
+    if region is not None:
+        if isinstance(region, bool) or not isinstance(region, (int, np.integer)) \
+                or not (1 <= region <= min(rows, cols)):
+            raise InputError(f"region must be an integer 1..{min(rows, cols)} pixels (the "
+                             f"subset's side); got {region!r}")
+        r0, c0 = (rows - region) // 2, (cols - region) // 2
+        inside[:] = False
+        inside[r0:r0 + region, c0:c0 + region] = True
     energy = c.sum(axis=3).mean(axis=0)  # the flight line's average image
+    energy = np.where(inside, energy, 0.0)
     peak = float(energy.max())
     if not peak > 0:
         raise InputError("the cubes hold no positive energy; nothing to aggregate")
     ratio = energy / peak
-    return ratio >= fraction - 1e-12, ratio
+    return inside & (ratio >= fraction - 1e-12), ratio
 
 
-def aggregate_footprints(cubes: np.ndarray, fraction: float = 0.5) -> FlashFootprints:
+def aggregate_footprints(cubes: np.ndarray, fraction: float = 0.5, region: int | None = 4
+                         ) -> FlashFootprints:
     """Footprint waveforms: the mean over the footprint's pixels (seed 003)."""
-    mask, ratio = footprint_mask(cubes, fraction)
+    mask, ratio = footprint_mask(cubes, fraction, region)
     c = np.asarray(cubes, float)
     wf = c[:, mask, :].mean(axis=1)
     return FlashFootprints(wf, mask, int(mask.sum()), ratio)
