@@ -7,60 +7,31 @@ metres, a reference in centimetres)."""
 
 from __future__ import annotations
 
-import inspect
 import signal
+import sys
 import warnings
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
 import pytest
 
-import canopyblocks
-from canopyblocks.errors import CanopyBlocksError, InputError
+from canopyblocks.errors import CanopyBlocksError, InputError  # noqa: E402
 
-MISUSE: dict[str, Any] = {
-    "None": None,
-    "int": 42,
-    "str": "abc",
-    "list": [1, 2],
-    "dict": {"a": 1},
-    "array2d": np.zeros((2, 2)),
-    "nan": float("nan"),
-}
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from badinputs.api_corpus import MISUSE, VALID, public_functions, required  # noqa: E402
 
 
 def _functions() -> list[tuple[str, Callable[..., Any]]]:
-    out = []
-    for name in canopyblocks.__all__:
-        obj = getattr(canopyblocks, name)
-        if inspect.isfunction(obj):
-            out.append((name, obj))
-    return out
+    return public_functions()
 
 
 def _required(fn: Callable[..., Any]) -> tuple[int, list[str]]:
-    """How many positional arguments, and which keyword-only ones, the function needs."""
-    sig = inspect.signature(inspect.unwrap(fn))
-    pos = sum(1 for p in sig.parameters.values() if p.default is p.empty
-              and p.kind in (p.POSITIONAL_ONLY, p.POSITIONAL_OR_KEYWORD))
-    kw = [p.name for p in sig.parameters.values() if p.default is p.empty
-          and p.kind == p.KEYWORD_ONLY]
-    return pos, kw
-
-
-#: Misuse that is in fact a valid call (value: why), so acceptance is right.
-VALID = {
-    "along_track_distance-list": "x = y = [1, 2]: two points are a track",
-    "error_stats-list": "[1, 2] against [1, 2]: two pairs of numbers",
-    "utm_crs_for-int": "42 E, 42 N is a place",
-    "utm_crs_for-list": "[1, 2] E, [1, 2] N are places",
-    "default_cutoffs-int": "a 42 m block length",
-    "find_pdal-None": "None: look for pdal where it is installed",
-    "atomic_output-str": "'abc' is a file name to write (not entered here)",
-}
+    return required(fn)
 
 
 class _Hung(BaseException):

@@ -850,12 +850,13 @@ def baseline_cases() -> list[Case]:
 
 
 def all_cases() -> list[Case]:
+    from .api_corpus import api_cases
     from .coregistration_cases import coregistration_cases
     from .gedi_corpus import gedi_cases
 
     cases = (baseline_cases() + atl03_cases() + atl08_cases() + las_cases() + raster_cases() + table_cases()
              + param_cases() + cli_cases() + gedi_cases()
-             + coregistration_cases())
+             + coregistration_cases() + api_cases())
     ids = [c.id for c in cases]
     dup = {i for i in ids if ids.count(i) > 1}
     if dup:
