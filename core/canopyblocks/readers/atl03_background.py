@@ -27,6 +27,7 @@ RATE_LIMIT_HZ = 1.0e9
 (the brightest daytime scenes give ~10 MHz)."""
 
 _MARGIN_S = 0.05  # one record (50 shots = 5 ms) is enough; keep a few more
+_NEAREST_S = 1.0  # a record further than this (7 km of track) from the photons is not theirs
 
 
 def read_background_rate(f: H5File, beam: str, t_min: float, t_max: float
@@ -52,11 +53,11 @@ def read_background_rate(f: H5File, beam: str, t_min: float, t_max: float
     ok = np.isfinite(t) & np.isfinite(r) & (r >= 0) & (r < RATE_LIMIT_HZ)
     if np.isfinite(t_min) and np.isfinite(t_max):
         near = ok & (t >= t_min - _MARGIN_S) & (t <= t_max + _MARGIN_S)
-        if not near.any() and ok.any():  # photons between two records far apart
+        if not near.any() and ok.any():  # photons between two records: the nearest one
             i = np.flatnonzero(ok)
             j = i[np.argmin(np.abs(t[i] - 0.5 * (t_min + t_max)))]
             near = np.zeros_like(ok)
-            near[j] = True
+            near[j] = abs(t[j] - 0.5 * (t_min + t_max)) <= _NEAREST_S + 0.5 * (t_max - t_min)
         ok = near
     if not ok.any():
         log.warning("%s: %s/bckgrd_rate holds no valid rate for these photons; the "
