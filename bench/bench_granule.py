@@ -2,7 +2,9 @@
 
 Run: ``.venv/bin/python bench/bench_granule.py [--photons-per-beam 14000000] [--workdir DIR]``
 
-A 6-beam ATL03 granule written like real v006 files (gzip, chunks of 10,000 photons,
+A 6-beam ATL03 granule written like real v006 files (gzip level 6 on every dataset in
+chunks of 10,000 rows, the shuffle filter on the integer ones such as the 2-D
+``signal_conf_ph``, as ``tests/data/icesat2/harmony_ATL03_gt1l.h5``;
 photons in time order with ``s`` out of order locally (``dist_ph_along`` scattered by
 +-0.1 m), geolocation segments of 20 m; by default 14 M photons per strong beam
 and 3.5 M per weak beam, 52.5 M in all: the granule of issue 13) is made once (cached in
@@ -80,8 +82,13 @@ def make_granule(path: Path, per_beam: int, seed: int = 3) -> Path:
                     # as in real granules: photons in time order, s out of order locally
                     data = data + rng.uniform(-0.1, 0.1, data.shape).astype(data.dtype)
                 kw = {}
-                if obj.ndim == 1 and obj.shape[0] > 10_000:
-                    kw = {"compression": "gzip", "chunks": (10_000,)}
+                if obj.ndim >= 1 and obj.shape[0] > 0:
+                    # v006: chunks of 10,000 rows, gzip level 6 on every dataset, the
+                    # shuffle filter on the integer ones (signal_conf_ph among them)
+                    kw = {"compression": "gzip", "compression_opts": 6,
+                          "chunks": (10_000, *obj.shape[1:]),
+                          "maxshape": (None, *obj.shape[1:]),
+                          "shuffle": np.dtype(obj.dtype).kind in "iu"}
                 d = dst.create_dataset(name, data=data, **kw)
                 for k, v in obj.attrs.items():
                     d.attrs[k] = v
@@ -164,7 +171,7 @@ def main() -> None:
     args = ap.parse_args()
     work = Path(args.workdir)
     work.mkdir(parents=True, exist_ok=True)
-    g = make_granule(work / f"ATL03_bench_{args.photons_per_beam}_v2.h5", args.photons_per_beam)
+    g = make_granule(work / f"ATL03_bench_{args.photons_per_beam}_v3.h5", args.photons_per_beam)
     print(f"granule: {g} ({g.stat().st_size / 2**20:.0f} MiB)")
     script = PLAIN_READ.format(beams=BEAMS, heights=HEIGHTS, geoloc=GEOLOC)
     out = work / "blocks.parquet"

@@ -116,6 +116,7 @@ def footprints_from_l1b(
     chunk_shots: int = 4096,
     plot_shots: Sequence[int] | None = None,
     plots_dir: str | os.PathLike[str] | None = None,
+    workers: int | None = 1,
     progress: Progress | None = None,
 ) -> tuple[gpd.GeoDataFrame, list[Path]]:
     """Footprints (ground, top, RH, cover, flags) of every shot of a GEDI L1B file.
@@ -138,6 +139,10 @@ def footprints_from_l1b(
     plot_shots, plots_dir
         Waveform plots (PNG) of these shot numbers (default the first few ``ok`` shots of
         each beam) into ``plots_dir``.
+    workers : int or None
+        Processes reading and processing the beams in parallel
+        (:mod:`canopyblocks.waveform_workers`; the same table as one process); None: the
+        machine's cores.
 
     Returns
     -------
@@ -164,8 +169,18 @@ def footprints_from_l1b(
     plotted: dict[str, int] = {}
     problems = 0
     reading = prog.sub(0.0, 0.9)
-    for batch in iter_gedi_l1b(path, beams, bbox=bbox, quality=quality,
-                               chunk_shots=chunk_shots, progress=reading):
+    from .waveform_workers import BeamJob, beams_for_workers, beams_in_workers
+
+    in_workers = beams_for_workers(path, beams, workers)
+    if in_workers:
+        jobs = [BeamJob(str(path), b, chunk_params, base, bbox, quality, chunk_shots,
+                        None if wanted is None else tuple(sorted(wanted)),
+                        None if plots_dir is None else str(plots_dir)) for b in in_workers]
+        per_beam, problems, plots = beams_in_workers(jobs, workers, progress=reading,
+                                                     check=reading.check)
+    for batch in ([] if in_workers else
+                  iter_gedi_l1b(path, beams, bbox=bbox, quality=quality,
+                                chunk_shots=chunk_shots, progress=reading)):
         table = flag_invalid_shots(process_waveforms(batch, chunk_params), batch)
         problems |= int(np.bitwise_or.reduce(batch.extra.get("invalid_shot", [0]), initial=0))
         per_beam.setdefault(batch.beam, []).append(table)
@@ -310,6 +325,7 @@ def footprints_to_file(
     l2b: str | os.PathLike[str] | None = None,
     plots_dir: str | os.PathLike[str] | None = None,
     plot_shots: Sequence[int] | None = None,
+    workers: int | None = 1,
     progress: Progress | None = None,
 ) -> FootprintRunSummary:
     """Process a GEDI L1B file and write the footprints layer (atomically).
@@ -332,7 +348,8 @@ def footprints_to_file(
     try:
         gdf, plots = footprints_from_l1b(path, beams=beams, params=params, bbox=bbox,
                                          crs=crs, quality=quality, plot_shots=plot_shots,
-                                         plots_dir=plots_dir, progress=prog.sub(0.0, 0.9))
+                                         plots_dir=plots_dir, workers=workers,
+                                         progress=prog.sub(0.0, 0.9))
         comparison = None
         if l2a is not None or l2b is not None:
             joined, comparison = compare_with_l2a(gdf, l2a, l2b, setting=setting)

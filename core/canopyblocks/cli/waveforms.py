@@ -41,11 +41,14 @@ def register(group: click.Group) -> None:
               help="Folder for waveform plots (PNG) and waveforms.html.")
 @click.option("--shot", "shots", multiple=True, type=int,
               help="Shot number to plot (repeatable; default a few ok shots per beam).")
+@click.option("--workers", type=click.IntRange(1, 512), default=None,
+              help="Processes reading and processing the beams of a granule in parallel "
+                   "(default: the machine's cores; the table is the same as with 1).")
 @click.pass_context
 def waveforms_cmd(ctx: click.Context, path: str, output: str, beams: tuple[str, ...],
                   setting: str, decompose: bool, all_rh: bool, bbox: str | None,
                   crs: str | None, quality: bool, l2a: str | None, l2b: str | None,
-                  plots: str | None, shots: tuple[int, ...]) -> None:
+                  plots: str | None, shots: tuple[int, ...], workers: int | None) -> None:
     """Ground, canopy top, RH metrics and cover per GEDI footprint from L1B waveforms
     (GEDI L2A's algorithm, setting groups a1-a6)."""
     from ..waveform_footprints import footprints_to_file
@@ -59,7 +62,7 @@ def waveforms_cmd(ctx: click.Context, path: str, output: str, beams: tuple[str, 
             path, output, beams=beams or None, params=params,
             bbox=parse_floats(bbox, 4, "lon_min,lat_min,lon_max,lat_max", "--bbox"),  # type: ignore[arg-type]
             crs=crs, quality=quality, l2a=l2a, l2b=l2b, plots_dir=plots,
-            plot_shots=shots or None, progress=progress)
+            plot_shots=shots or None, workers=workers, progress=progress)
     if quiet:
         return
     if res.comparison is not None and len(res.comparison):
