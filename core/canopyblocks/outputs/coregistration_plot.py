@@ -45,13 +45,14 @@ def write_cost_surfaces(result: CoregResult, path: str | os.PathLike[str]) -> Pa
         im = ax.imshow(cost.T, origin="lower", cmap="viridis_r",
                        extent=(a[0] - step / 2, a[-1] + step / 2, c[0] - step / 2,
                                c[-1] + step / 2))
-        ax.plot([off.along_track], [off.cross_track], marker="+", color="red", ms=14, mew=2)
+        ax.plot([off.along_track], [off.cross_track], marker="+", ms=14, mew=2,
+                color="red" if off.determined else "grey")
         if off.determined:
-            ax.set_title(f"{name}: {off.along_track:+.2f} / {off.cross_track:+.2f} m "
+            ax.set_title(f"{name}: {off.along_track:+.2f} / {off.cross_track:+.2f} m\n"
                          f"(+-{off.along_track_sd:.2f} / {off.cross_track_sd:.2f}), "
                          f"dz {off.vertical:+.2f}", fontsize=8)
-        else:  # the minimum is drawn, but it is no offset
-            ax.set_title(f"{name}: undetermined (minimum at {off.along_track:+.2f} / "
+        else:  # the minimum is drawn (grey), but it is no offset
+            ax.set_title(f"{name}: undetermined\n(minimum {off.along_track:+.2f}/"
                          f"{off.cross_track:+.2f} m, not significant)", fontsize=8)
         ax.set_xlabel("along-track shift (m)")
         ax.set_ylabel("cross-track shift (m)")
