@@ -200,6 +200,9 @@ def preset_blocks(site: SiteData, name: str) -> pd.DataFrame:
                 blocks, _ = run_blocks([t], params, estimators=est)
             except CanopyBlocksError:
                 continue
+            except Exception as exc:  # a bug: name the track that shows it
+                raise RuntimeError(f"preset {name} on track {t.track}: "
+                                   f"{type(exc).__name__}: {exc}") from exc
         frames.append(pd.DataFrame(blocks.drop(columns="geometry")))
     df = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame(
         {"track": [], "block": [], "hmax": [], "h90": [], "ground": []})
