@@ -137,3 +137,68 @@ def test_bad_batch_arguments(inputs, tmp_path, sample):
         # the harmony granule is sea ice elsewhere on Earth
         shutil.copy(sample("icesat2/harmony_ATL03_gt1l.h5"), far / "ATL03_far.h5")
         run_batch([far], [inputs["tiles"]], tmp_path / "o2", CONFIG)
+
+
+# ---- issue 23: granules that miss the tiles, output folder, datum rule ----------------------
+
+
+def test_a_granule_missing_the_tiles_is_listed_as_skipped(inputs, tmp_path, sample):
+    from canopyblocks.cli import main
+
+    grans = tmp_path / "grans"
+    grans.mkdir()
+    shutil.copy(inputs["granules"] / "ATL03_sim1.h5", grans / "ATL03_sim1.h5")
+    # the harmony granule is sea ice elsewhere on Earth: thousands of km from the tiles
+    shutil.copy(sample("icesat2/harmony_ATL03_gt1l.h5"), grans / "ATL03_far.h5")
+    out = tmp_path / "out"
+    res = run_batch([grans], [inputs["tiles"]], out, CONFIG)
+    (far,) = res.not_crossing
+    assert far["key"] == "ATL03_far.h5:*" and far["status"] == "skipped"
+    km = float(far["error"].split(" passes ")[-1].split(" km")[0].replace(",", ""))
+    assert km > 1000.0, far["error"]
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert any(u["key"] == "ATL03_far.h5:*" and u["status"] == "skipped"
+               for u in manifest["units"])
+    assert "ATL03_far.h5" in (out / "report.html").read_text()
+    code = main(["-q", "batch", str(grans), "--tiles", str(inputs["tiles"]), "-o",
+                 str(tmp_path / "cli"), "--offset", "0", "--backend", "serial"])
+    assert code == 0
+
+
+def test_batch_cli_says_which_granule_was_skipped(inputs, tmp_path, sample):
+    import subprocess
+    import sys
+
+    grans = tmp_path / "grans"
+    grans.mkdir()
+    shutil.copy(inputs["granules"] / "ATL03_sim1.h5", grans / "ATL03_sim1.h5")
+    shutil.copy(sample("icesat2/harmony_ATL03_gt1l.h5"), grans / "ATL03_far.h5")
+    r = subprocess.run([sys.executable, "-m", "canopyblocks", "batch", str(grans), "--tiles",
+                        str(inputs["tiles"]), "-o", str(tmp_path / "out"), "--offset", "0",
+                        "--backend", "serial"], capture_output=True, text=True, timeout=600)
+    assert r.returncode == 0, r.stderr
+    assert "skipped" in r.stderr and "ATL03_far.h5" in r.stderr and "km" in r.stderr
+
+
+@pytest.mark.parametrize("where", ["same", "inside"])
+def test_output_folder_in_the_input_folder_refused(inputs, tmp_path, where):
+    grans = tmp_path / "grans"
+    shutil.copytree(inputs["granules"], grans)
+    out = grans if where == "same" else grans / "results"
+    before = sorted(p.name for p in grans.iterdir())
+    with pytest.raises(InputError, match="input folder") as e:
+        run_batch([grans], [inputs["tiles"]], out, CONFIG)
+    assert str(grans) in str(e.value)
+    assert sorted(p.name for p in grans.iterdir()) == before  # nothing written into it
+
+
+def test_batch_applies_the_datum_rule_at_the_door(inputs, tmp_path):
+    """The tiles are CGVD28 (EPSG:5713, from their GeoTIFF keys); ATL03 heights are
+    ellipsoidal: without --geoid/--offset the batch is refused before any work, as
+    validate, run and calibrate refuse it."""
+    from canopyblocks.errors import DatumError
+
+    out = tmp_path / "out"
+    with pytest.raises(DatumError, match="CGVD28"):
+        run_batch([inputs["granules"]], [inputs["tiles"]], out, BatchConfig(lengths=(25.0,)))
+    assert not out.exists()

@@ -68,3 +68,15 @@ def test_run_refuses_ellipsoidal_photons_against_orthometric_tiles(inputs):
     stats = pd.read_csv(ok / "stats.csv")
     g = stats[(stats["metric"] == "ground") & (stats["group"] == "all")]
     assert np.all(np.abs(g["bias"]) < 3.0)
+
+
+def test_run_reads_the_vertical_datum_from_geotiff_keys(inputs, sample):
+    """The bundled LAS 1.2 tile states CGVD28 only in its GeoTIFF keys (PDAL reads it
+    so); run used to label it 'unknown' and compare ellipsoidal heights after a warning."""
+    _, h5, tmp = inputs
+    out = tmp / "refused_keys"
+    r = _run(sample("als/lasR_bcts_1.laz"), "--photons", h5, "-o", out, "--no-compare")
+    assert r.returncode == 2, r.stderr
+    assert "Traceback" not in r.stderr
+    assert "CGVD28" in r.stderr and "--geoid" in r.stderr and "--offset" in r.stderr
+    assert not out.exists() or not any(out.iterdir())

@@ -6,9 +6,11 @@ arrives (in completion order); the caller orders results itself.
 
 from __future__ import annotations
 
+import contextlib
+import functools
 import logging
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from typing import Any, Literal
 
 from ..errors import DependencyError, InputError
@@ -59,7 +61,8 @@ def run_items(fn: Callable[[Any], Any], items: Sequence[Any], *, backend: Backen
               workers: int | None = None, scheduler: str | None = None,
               done: Callable[[Any], None] | None = None,
               cancelled: Callable[[], bool] | None = None,
-              start: Literal["spawn", "fork", "forkserver"] = "spawn") -> list[Any]:
+              start: Literal["spawn", "fork", "forkserver"] = "spawn",
+              tmpdir: str | None = None) -> list[Any]:
     """Run ``fn`` over ``items``; results in the order of ``items``.
 
     Parameters
@@ -78,6 +81,10 @@ def run_items(fn: Callable[[Any], Any], items: Sequence[Any], *, backend: Backen
         How the ``processes`` backend starts its workers: ``spawn`` (a fresh interpreter
         that imports what ``fn`` needs, about 1 s each) or ``fork`` (a copy of this process
         with its imports; Linux only, and only when no HDF5 file is open here).
+    tmpdir : str, optional
+        A folder the caller owns and removes: workers (processes, or the workers of a
+        local Dask cluster, with their scratch space) make their temporary files there,
+        so that nothing is left in the system's temporary folder when a worker is killed.
     """
     if backend not in BACKENDS:
         raise InputError(f"backend must be one of {', '.join(BACKENDS)}; got {backend!r}")
@@ -94,9 +101,24 @@ def run_items(fn: Callable[[Any], Any], items: Sequence[Any], *, backend: Backen
             results[i] = fn(it)
             report(results[i])
         return results
+    if tmpdir is not None and scheduler is None:
+        fn = functools.partial(_in_tempdir, fn=fn, tmpdir=tmpdir)
     if backend == "processes":
         return _run_processes(fn, items, n, start, report, stop, results)
-    return _run_dask(fn, items, n, scheduler, report, stop, results)
+    return _run_dask(fn, items, n, scheduler, report, stop, results, tmpdir)
+
+
+def _in_tempdir(item: Any, *, fn: Callable[[Any], Any], tmpdir: str) -> Any:
+    """``fn(item)`` with :mod:`tempfile` making its files in ``tmpdir`` (in a worker)."""
+    import tempfile
+
+    os.makedirs(tmpdir, exist_ok=True)
+    previous = tempfile.tempdir
+    tempfile.tempdir = tmpdir
+    try:
+        return fn(item)
+    finally:
+        tempfile.tempdir = previous
 
 
 def _run_processes(fn: Callable[[Any], Any], items: Sequence[Any], n: int, start: str,
@@ -104,11 +126,13 @@ def _run_processes(fn: Callable[[Any], Any], items: Sequence[Any], n: int, start
                    results: list[Any]) -> list[Any]:
     """The local process pool.
 
-    Workers ignore Ctrl-C and die at SIGTERM (:func:`_worker_signals`): this process handles
-    both and, on any exception here (a unit's error, Ctrl-C, SIGTERM turned into an
-    exception by the command line), terminates them at once instead of letting them finish
-    their units.  (``concurrent.futures`` was measured to hang, or to print a traceback at
-    exit, when its workers are interrupted with the process group.)
+    Workers ignore Ctrl-C and end at SIGTERM after their clean-up (:func:`_worker_signals`:
+    partial outputs and temporary folders removed, PDAL stopped): this process handles
+    both and, on a cancellation (``stop`` is polled every 0.2 s, also while a unit runs) or
+    any exception here (a unit's error, Ctrl-C, SIGTERM turned into an exception by the
+    command line), terminates them and waits for their clean-up instead of letting them
+    finish their units.  (``concurrent.futures`` was measured to hang, or to print a
+    traceback at exit, when its workers are interrupted with the process group.)
     """
     import multiprocessing as mp
 
@@ -117,10 +141,18 @@ def _run_processes(fn: Callable[[Any], Any], items: Sequence[Any], n: int, start
     pool = mp.get_context(start).Pool(processes=min(n, len(items)),
                                       initializer=_worker_signals)
     try:
-        for i, result in pool.imap_unordered(_indexed_call,
-                                             [(fn, i, it) for i, it in enumerate(items)]):
-            results[i] = result
-            report(result)
+        it = pool.imap_unordered(_indexed_call, [(fn, i, it) for i, it in enumerate(items)])
+        for _ in range(len(items)):
+            while True:
+                if stop():
+                    break
+                try:
+                    i, result = it.next(timeout=0.2)
+                except mp.TimeoutError:
+                    continue
+                results[i] = result
+                report(result)
+                break
             if stop():
                 break
     except BaseException:
@@ -136,11 +168,21 @@ def _run_processes(fn: Callable[[Any], Any], items: Sequence[Any], n: int, start
 
 
 def _worker_signals() -> None:
-    """In a worker: Ctrl-C is the parent's to handle, SIGTERM ends the worker at once."""
+    """In a worker: Ctrl-C is the parent's to handle; SIGTERM (the parent's
+    ``Pool.terminate``, or ``kill`` of the process group) ends the worker through a
+    ``SystemExit``, so that its context managers run (atomic outputs and temporary
+    folders removed, PDAL stopped) and it exits without a traceback."""
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    signal.signal(signal.SIGTERM, _exit_at_sigterm)
+
+
+def _exit_at_sigterm(signum: int, frame: object) -> None:
+    import signal
+
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)  # once: the clean-up is not interrupted
+    raise SystemExit(128 + signum)
 
 
 def _indexed_call(job: tuple[Callable[[Any], Any], int, Any]) -> tuple[int, Any]:
@@ -148,31 +190,80 @@ def _indexed_call(job: tuple[Callable[[Any], Any], int, Any]) -> tuple[int, Any]
     return i, fn(item)
 
 
+@contextlib.contextmanager
+def _workers_ignore_ctrl_c() -> Iterator[None]:
+    """Start processes that ignore Ctrl-C (SIGINT), as the process pool's workers do.
+
+    A signal ignored when a process starts stays ignored in it (also by Python and by
+    asyncio, which install their handler only over the default one), so the local Dask
+    workers are started with SIGINT ignored here; Ctrl-C of the process group then
+    reaches only this process, which cancels the work and closes the cluster (the workers
+    printed a KeyboardInterrupt traceback each).  Outside the main thread, or where
+    signals cannot be set, nothing changes.
+    """
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 def _run_dask(fn: Callable[[Any], Any], items: Sequence[Any], n: int, scheduler: str | None,
               report: Callable[[Any], None], stop: Callable[[], bool],
-              results: list[Any]) -> list[Any]:
+              results: list[Any], tmpdir: str | None = None) -> list[Any]:
     try:
         from distributed import Client, LocalCluster, as_completed
     except ImportError:
         raise DependencyError("the dask backend needs distributed: pip install "
                               "'canopyblocks[dask]'") from None
+    import dask
+
+    with (dask.config.set({"temporary-directory": tmpdir}) if tmpdir is not None
+          else contextlib.nullcontext()):
+        return _dask_session(fn, items, n, scheduler, report, stop, results, tmpdir,
+                             Client, LocalCluster, as_completed)
+
+
+def _dask_session(fn: Callable[[Any], Any], items: Sequence[Any], n: int,
+                  scheduler: str | None, report: Callable[[Any], None],
+                  stop: Callable[[], bool], results: list[Any], tmpdir: str | None,
+                  Client: Any, LocalCluster: Any, as_completed: Any) -> list[Any]:  # noqa: N803
     cluster = None
     if scheduler is None:
-        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                               dashboard_address=None, env=DASK_WORKER_ENV,
-                               silence_logs=logging.WARNING)
+        extra = {} if tmpdir is None else {"local_directory": tmpdir}
+        # a unit's failure comes back in its result (run_unit never raises); what the
+        # workers log is the cluster's own bookkeeping, e.g. a cancelled task or heartbeats
+        # failing while a cancelled batch closes the cluster under a busy worker
+        with _workers_ignore_ctrl_c():
+            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                   dashboard_address=None, env=DASK_WORKER_ENV,
+                                   silence_logs=logging.CRITICAL, **extra)
         client = Client(cluster)
     else:
         client = Client(scheduler)
     try:
         futs = client.map(fn, list(items), pure=False)
         index = {f.key: i for i, f in enumerate(futs)}
-        for fut in as_completed(futs):
-            results[index[fut.key]] = fut.result()
-            report(results[index[fut.key]])
+        pending = as_completed(futs)
+        while not pending.is_empty():
             if stop():
                 client.cancel(futs)
                 break
+            batch = pending.next_batch(block=False)
+            if not batch:
+                import time
+
+                time.sleep(0.2)
+                continue
+            for fut in batch:
+                results[index[fut.key]] = fut.result()
+                report(results[index[fut.key]])
     finally:
         client.close()
         if cluster is not None:

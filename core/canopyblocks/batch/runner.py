@@ -26,10 +26,16 @@ from pathlib import Path
 
 import pandas as pd
 
-from ..errors import CanopyBlocksWarning, NoUsableDataError
-from ..outputs.atomic import atomic_output
+from ..errors import CanopyBlocksWarning, InputError, NoUsableDataError
+from ..outputs.atomic import atomic_output, check_writable, record_written
 from ..progress import Progress, as_progress
-from .backends import Backend, run_items
+from .backends import BACKENDS, Backend, run_items
+from .cleanup import (
+    complete_outputs,
+    private_tempdir,
+    refuse_output_in_inputs,
+    remove_partial_outputs,
+)
 from .units import Unit, find_units, list_inputs, tile_index
 from .work import BatchConfig, build_tile_rasters, run_unit
 
@@ -53,6 +59,12 @@ class BatchResult:
     def failed(self) -> list[dict]:
         """Units that failed (their ``error`` says why)."""
         return [u for u in self.units if u["status"] == "failed"]
+
+    @property
+    def not_crossing(self) -> list[dict]:
+        """Granules left out because no beam of theirs passes a tile (``error`` says how
+        far they pass); status ``skipped`` in the manifest."""
+        return [u for u in self.units if u["status"] == "skipped"]
 
 
 def _load_manifest(out: Path) -> dict[str, dict]:
@@ -113,6 +125,19 @@ def run_batch(granules: Sequence[str | os.PathLike[str]],
     ------
     NoUsableDataError
         No granule crosses any tile, or no unit produced validated blocks.
+    InputError
+        The output folder is (or lies inside) an input folder; an unknown backend.
+    DatumError
+        The photons' and the tiles' vertical datums are known to differ and neither
+        ``config.geoid`` nor ``config.offset`` converts them (the rule ``validate``,
+        ``run`` and ``calibrate`` apply).
+
+    Notes
+    -----
+    However the batch ends (an error, a cancellation, Ctrl-C, SIGTERM), no partial file
+    and no temporary folder of its workers is left, and the complete outputs it kept are
+    recorded for the command line's message; a rerun first removes partial files a
+    killed batch left.
     """
     from ..arguments import check_path, check_paths
     check_paths(granules, "run_batch: granules")
@@ -120,14 +145,46 @@ def run_batch(granules: Sequence[str | os.PathLike[str]],
     check_path(out_dir, "run_batch: out_dir", "a folder path")
     cfg = config or BatchConfig()
     prog = as_progress(progress)
+    if backend not in BACKENDS:
+        raise InputError(f"backend must be one of {', '.join(BACKENDS)}; got {backend!r}")
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     g_paths = list_inputs(granules, (".h5",))
     t_paths = list_inputs(tiles, (".las", ".laz"))
+    refuse_output_in_inputs(out, [*granules, *tiles])
+    check_writable(out, folder=True)
     prog.update(0.0, "indexing tiles and tracks")
     index = tile_index(t_paths)
+    _check_datums(cfg, t_paths[0])
+    out.mkdir(parents=True, exist_ok=True)
+    remove_partial_outputs(out)  # left by a batch killed before its clean-up
+    before = complete_outputs(out)
+    try:
+        with private_tempdir() as tmp:
+            return _run(g_paths, index, out, cfg, beams=beams, backend=backend,
+                        workers=workers, scheduler=scheduler, prog=prog, tmp=tmp)
+    except BaseException:
+        remove_partial_outputs(out)
+        record_written(sorted(complete_outputs(out) - before))
+        raise
+
+
+def _check_datums(cfg: BatchConfig, tile: str) -> None:
+    """The one datum rule, before any work (each unit's validation applies it again)."""
+    from ..readers.las_crs import las_file_crs
+    from ..reference.datum import check_vertical_datums
+
+    ref = cfg.reference_vcrs if cfg.reference_vcrs is not None else las_file_crs(tile).crs
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # "unknown" is warned by each unit's validation
+        check_vertical_datums(cfg.photon_vcrs, ref, geoid=cfg.geoid, offset=cfg.offset)
+
+
+def _run(g_paths: list[str], index: list, out: Path, cfg: BatchConfig, *,
+         beams: Sequence[str], backend: Backend, workers: int | None, scheduler: str | None,
+         prog: Progress, tmp: str) -> BatchResult:
     problems: dict[str, str] = {}
-    units = find_units(g_paths, index, beams=beams, problems=problems)
+    missed: dict[str, str] = {}
+    units = find_units(g_paths, index, beams=beams, problems=problems, missed=missed)
     if not units:
         detail = "; ".join(f"{k}: {v}" for k, v in problems.items())
         raise NoUsableDataError(f"none of the {len(g_paths)} granule(s) crosses any of the "
@@ -140,6 +197,11 @@ def run_batch(granules: Sequence[str | os.PathLike[str]],
                          "status": "failed", "error": msg, "n_blocks": 0, "n_validated": 0,
                          "files": [], "warnings": []}
         warnings.warn(f"{key} failed: {msg}", CanopyBlocksWarning, stacklevel=2)
+    for g, msg in missed.items():  # granules whose beams pass no tile: listed, not dropped
+        key = f"{Path(g).name}:*"
+        manifest[key] = {"key": key, "granule": g, "beam": "*", "tiles": [],
+                         "status": "skipped", "error": msg, "n_blocks": 0, "n_validated": 0,
+                         "files": [], "warnings": []}
     todo = [u for u in units if not _complete(out, manifest.get(u.key))]
     skipped = len(units) - len(todo)
     if skipped:
@@ -149,7 +211,9 @@ def run_batch(granules: Sequence[str | os.PathLike[str]],
     prog.update(0.05, f"reference rasters for {len(needed)} tile(s)")
     run_items(functools.partial(build_tile_rasters, raster_root=str(raster_root),
                                 resolution=cfg.resolution), needed, backend=backend,
-              workers=workers, scheduler=scheduler)
+              workers=workers, scheduler=scheduler,
+              cancelled=lambda: _cancel_requested(prog), tmpdir=tmp)
+    prog.check()
     done_count = [0]
     unit_prog = prog.sub(0.2, 0.9)
 
@@ -165,7 +229,7 @@ def run_batch(granules: Sequence[str | os.PathLike[str]],
     fn = functools.partial(run_unit, config=cfg, out_dir=str(out),
                            raster_root=str(raster_root))
     run_items(fn, todo, backend=backend, workers=workers, scheduler=scheduler, done=done,
-              cancelled=lambda: _cancel_requested(prog))
+              cancelled=lambda: _cancel_requested(prog), tmpdir=tmp)
     prog.check()
     _write_manifest(out, manifest, cfg)
     result = BatchResult(out, [manifest[k] for k in sorted(manifest)], skipped=skipped)
@@ -199,7 +263,9 @@ def _reduce(out: Path, units: list[Unit], manifest: dict[str, dict], cfg: BatchC
         stats.to_csv(tmp, index=False, float_format="%.6f")
     table = pd.DataFrame([{k: e[k] for k in ("key", "status", "n_blocks", "n_validated",
                                              "error")}
-                          for e in (manifest[u.key] for u in units if u.key in manifest)])
+                          for e in [*(manifest[u.key] for u in units if u.key in manifest),
+                                    *(e for e in manifest.values()
+                                      if e["status"] == "skipped")]])
     write_report(out / "report.html", "canopyblocks batch validation", [
         ReportSection("Units", [f"{len(units)} units (granule, beam, tiles); block lengths "
                                 f"{', '.join(f'{v:g}' for v in cfg.lengths)} m, corridor "

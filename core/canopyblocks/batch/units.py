@@ -111,12 +111,15 @@ def track_line(granule: str, beam: str) -> tuple[np.ndarray, np.ndarray]:
 
 def find_units(granules: Sequence[str], tiles: Sequence[Tile], *,
                beams: Sequence[str] = (), buffer: float = 10.0,
-               problems: dict[str, str] | None = None) -> list[Unit]:
+               problems: dict[str, str] | None = None,
+               missed: dict[str, str] | None = None) -> list[Unit]:
     """Every (granule, beam) whose track line passes within ``buffer`` m of a tile.
 
     Units are sorted by granule then beam, so a batch is deterministic. A granule that
     cannot be read is left out; with ``problems`` given, its error is recorded there
-    (``{granule: message}``) instead of stopping the batch.
+    (``{granule: message}``) instead of stopping the batch.  A granule none of whose
+    beams passes a tile is left out too; with ``missed`` given, the reason is recorded
+    there (how far its nearest beam passes from the nearest tile).
     """
     from ..errors import CanopyBlocksError
     from ..readers.atl03 import atl03_beams
@@ -126,6 +129,7 @@ def find_units(granules: Sequence[str], tiles: Sequence[Tile], *,
     crs = pyproj.CRS.from_wkt(tiles[0].crs_wkt)
     to_tiles = pyproj.Transformer.from_crs("EPSG:4326", crs, always_xy=True)
     boxes = shapely.box(*np.array([t.bounds for t in tiles]).T)
+    everywhere = shapely.union_all(boxes)
     units = []
     for g in granules:
         try:
@@ -136,12 +140,24 @@ def find_units(granules: Sequence[str], tiles: Sequence[Tile], *,
                 raise
             problems[str(g)] = f"{type(exc).__name__}: {exc}"
             continue
+        nearest = np.inf
+        found = 0
         for beam, (lon, lat) in lines.items():
             if lon.size < 2:
                 continue
             x, y = to_tiles.transform(lon, lat)
-            line = shapely.LineString(np.column_stack([x, y])).buffer(buffer)
+            track = shapely.LineString(np.column_stack([x, y]))
+            line = track.buffer(buffer)
             hit = [t for t, box in zip(tiles, boxes) if line.intersects(box)]
             if hit:
                 units.append(Unit(str(g), beam, tuple(hit)))
+                found += 1
+            else:
+                nearest = min(nearest, float(track.distance(everywhere)))
+        if not found and missed is not None:
+            missed[str(g)] = (
+                f"none of its {len(lines)} beam(s) ({', '.join(lines) or 'none'}) has a "
+                "track with geolocation" if not np.isfinite(nearest) else
+                f"none of its {len(lines)} beam(s) passes a tile: the nearest passes "
+                f"{nearest / 1000.0:,.1f} km from the nearest of the {len(tiles)} tile(s)")
     return sorted(units, key=lambda u: (u.granule, u.beam))

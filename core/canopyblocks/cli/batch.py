@@ -70,6 +70,10 @@ def batch(ctx: click.Context, granules: tuple[str, ...], tiles: tuple[str, ...],
     ok = sum(u["status"] == "ok" for u in res.units)
     for u in res.failed:  # shown under -q too: a failure is a warning
         click.echo(f"canopyblocks: warning: failed: {u['key']}: {u['error']}", err=True)
+    for u in res.not_crossing:  # a granule left out is said, with why
+        click.echo(f"canopyblocks: warning: skipped: {u['granule']}: {u['error']}", err=True)
     if not quiet:
-        click.echo(f"{ok} of {len(res.units)} units validated ({res.skipped} already done, "
-                   f"{len(res.failed)} failed) -> {output}", err=True)
+        units = len(res.units) - len(res.not_crossing)
+        click.echo(f"{ok} of {units} units validated ({res.skipped} already done, "
+                   f"{len(res.failed)} failed, {len(res.not_crossing)} granule(s) skipped: "
+                   f"no tile on their tracks) -> {output}", err=True)

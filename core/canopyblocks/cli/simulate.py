@@ -138,6 +138,9 @@ def simulate_cmd(ctx: click.Context, las: tuple[str, ...], sensor: str, azimuth:
         vx, vy = zip(*track.vertices)
         bbox = (min(vx) - reach, min(vy) - reach, max(vx) + reach, max(vy) + reach)
         pts = read_las(list(las), crs=crs, bbox=bbox, progress=progress.sub(0.0, 0.2))
+        from ..readers.cloud_checks import refuse_all_noise
+
+        refuse_all_noise(pts.classification, ", ".join(las), params.exclude_classes)
         result = seed002_experiment(pts, track, params, diameters=diams,
                                     realisations=realisations, seed=seed,
                                     progress=progress.sub(0.2, 0.9))

@@ -22,7 +22,7 @@ from ..errors import FileFormatError
 from ..progress import Progress
 
 __all__ = ["atomic_output", "atomic_outputs", "check_writable", "new_files_removed_on_failure",
-           "committing", "journal_mark", "written_since", "will_exist"]
+           "committing", "journal_mark", "written_since", "will_exist", "record_written"]
 
 
 # ---- the journal of committed outputs (what a cancelled command may say it wrote) -------------
@@ -51,6 +51,13 @@ def written_since(mark: int) -> list[Path]:
         if p.exists():
             seen[p] = None
     return list(seen)
+
+
+def record_written(paths: list[Path]) -> None:
+    """Add complete outputs that other processes committed (e.g. batch workers) to the
+    journal, so that an interrupted command names them too."""
+    for p in paths:
+        _record(Path(p))
 
 
 def will_exist(path: str | os.PathLike[str]) -> bool:

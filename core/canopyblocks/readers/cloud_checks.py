@@ -23,7 +23,7 @@ import numpy as np
 from ..errors import CanopyBlocksWarning, NoUsableDataError
 
 __all__ = ["NormalisedCloudWarning", "looks_normalised", "warn_if_normalised",
-           "PLAUSIBLE_HEIGHTS", "HeightTally"]
+           "PLAUSIBLE_HEIGHTS", "HeightTally", "refuse_all_noise"]
 
 PLAUSIBLE_HEIGHTS = (-500.0, 9000.0)
 """Lowest and highest terrain height (m, any vertical datum) a survey on Earth can have:
@@ -155,3 +155,23 @@ def warn_if_normalised(z: np.ndarray, classification: np.ndarray | None, what: s
             "equal to the terrain height). If the survey is really at sea level, ignore this",
             NormalisedCloudWarning, stacklevel=3)
     return flag
+
+
+def refuse_all_noise(classification: np.ndarray, what: str,
+                     excluded: tuple[int, ...] = _NOISE) -> None:
+    """Refuse a cloud whose every point is of an excluded class (noise, 7 and 18).
+
+    A simulation (or a raster) leaves these points out, so nothing would be left; the
+    message says so instead of blaming the track's position.
+
+    Raises
+    ------
+    NoUsableDataError
+        Naming ``what`` and the classes.
+    """
+    c = np.asarray(classification)
+    if c.size and bool(np.isin(c, np.asarray(excluded)).all()):
+        raise NoUsableDataError(
+            f"{what}: every one of the {c.size:,} points read is classed noise (ASPRS class "
+            f"{' or '.join(map(str, excluded))}), which is left out: nothing is left to "
+            "work on; reclassify the tile (e.g. PDAL filters.outlier only on real outliers)")

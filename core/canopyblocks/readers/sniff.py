@@ -80,7 +80,7 @@ def detect_product(path: str | os.PathLike[str]) -> Product:
             f"{p}: not a recognised photon file: not HDF5 (ATL03/MABEL) and not a table "
             f"({', '.join(TABLE_SUFFIXES)})"
         )
-    with open_h5(p) as f:
+    with open_h5(p, "ATL03/MABEL") as f:
         prod = _h5_product(f)
         if prod is None:
             raise FileFormatError(

@@ -299,7 +299,7 @@ def run_pipeline(
     start = time.monotonic()
     try:
         proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                stdin=subprocess.DEVNULL)
+                                stdin=subprocess.DEVNULL, preexec_fn=_death_signal())
     except OSError as exc:
         raise DependencyError(f"cannot start {exe}: {exc}; {_INSTALL_HINT}") from None
     try:
@@ -325,6 +325,30 @@ def run_pipeline(
     if progress is not None:
         progress.update(1.0, f"PDAL {path.stem} done")
     return subprocess.CompletedProcess(args, proc.returncode, out, err)
+
+
+def _death_signal() -> Any:
+    """A ``preexec_fn`` that has Linux kill PDAL when the process that started it dies.
+
+    A batch worker (a Dask worker above all) can be killed without running its clean-up;
+    PDAL would then go on writing into a folder that is being removed, and outlive the
+    command.  None where ``prctl`` is not available (PDAL then lives until it ends).
+    """
+    import ctypes
+    import signal
+    import sys
+
+    if not sys.platform.startswith("linux"):
+        return None
+    try:
+        prctl = ctypes.CDLL("libc.so.6", use_errno=True).prctl
+    except (OSError, AttributeError):
+        return None
+    pr_set_pdeathsig = 1
+
+    def set_death_signal() -> None:  # runs in the child between fork and exec
+        prctl(pr_set_pdeathsig, int(signal.SIGKILL), 0, 0, 0)
+    return set_death_signal
 
 
 @dataclass(frozen=True)
