@@ -118,11 +118,13 @@ def test_batched_fit_reaches_the_least_squares_minimum() -> None:
 
 
 def test_decomposition_equals_the_per_shot_fits(gedi_l1b: Path) -> None:
-    """The real shots: the batched path gives the per-shot scipy fits it replaces --
-    same Gaussians counted, same ground and top; amplitudes, centres and widths within
-    2e-5 relative, the reach of scipy's default stopping tolerances (those leave the
-    parameters up to 8e-4 from the least-squares minimum on these shots)."""
+    """The real shots: the batched path (and the analytic Jacobian of the shots fitted
+    one by one) gives the per-shot scipy fits it replaces -- same Gaussians counted, same
+    ground and top; amplitudes, centres and widths within 1e-4 relative, inside the reach
+    of scipy's default stopping tolerances (those leave the parameters up to 8e-4 from
+    the least-squares minimum on these shots)."""
     from scipy.ndimage import gaussian_filter1d
+    from scipy.optimize import least_squares
 
     from canopyblocks.waveforms import decompose as dec
 
@@ -140,11 +142,14 @@ def test_decomposition_equals_the_per_shot_fits(gedi_l1b: Path) -> None:
             if prob is None:
                 assert len(got) == 0
                 continue
-            g = dec._fit_one(prob).reshape(-1, 3)
+            x = np.arange(prob.lo, prob.hi, dtype=np.float64)
+            g = least_squares(lambda p, x=x, prob=prob: dec._model(x, p) - prob.y, prob.p0,
+                              bounds=(prob.lower, prob.upper), method="trf", x_scale="jac",
+                              max_nfev=200 * (len(prob.p0) // 3)).x.reshape(-1, 3)
             g = g[np.argsort(g[:, 1])]
             assert res["n_gaussians"].iloc[i] == len(g)
             ref = np.column_stack([g[:, 0], b.elev_bin0[i] + g[:, 1] * step[i],
                                    np.abs(g[:, 2] * step[i])])
-            np.testing.assert_allclose(got[:, 0], ref[:, 0], rtol=2e-5)
-            np.testing.assert_allclose(got[:, 1], ref[:, 1], rtol=0, atol=2e-5 * 0.15 * m)
-            np.testing.assert_allclose(got[:, 2], ref[:, 2], rtol=2e-5)
+            np.testing.assert_allclose(got[:, 0], ref[:, 0], rtol=1e-4)
+            np.testing.assert_allclose(got[:, 1], ref[:, 1], rtol=0, atol=1e-4 * 0.15 * m)
+            np.testing.assert_allclose(got[:, 2], ref[:, 2], rtol=1e-4)
