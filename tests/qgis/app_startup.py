@@ -172,6 +172,37 @@ def _canvas_screenshot(layers: list[Any], blocks: Any, path: Path) -> dict[str, 
     return {"size": [canvas.width(), canvas.height()], "points": points}
 
 
+def _dialog(alg_id: str, path: Path) -> dict[str, Any]:
+    """Open the algorithm's dialog as the toolbox does, grab it to a PNG, and report what it
+    shows: the number boxes' texts, the labels, the collapsible groups."""
+    import processing
+    from qgis.gui import QgsDoubleSpinBox
+    from qgis.PyQt.QtWidgets import QGroupBox, QLabel
+
+    dlg = processing.createAlgorithmDialog(f"canopyblocks:{alg_id}", {})
+    dlg.resize(900, 900)
+    dlg.show()
+    for _ in range(20):
+        QgsApplication.processEvents()
+    dlg.grab().save(str(path), "png")
+    spins = {}
+    for spin in dlg.findChildren(QgsDoubleSpinBox):
+        # the parameter a box belongs to: the label just above it in the panel's layout
+        spins[spin.objectName() or str(len(spins))] = spin.text()
+    from qgis.PyQt.QtWidgets import QWidget
+
+    info = {"spins": sorted(spins.values()),
+            "labels": [lbl.text() for lbl in dlg.findChildren(QLabel) if lbl.text()],
+            "visible_labels": [lbl.text() for lbl in dlg.findChildren(QLabel)
+                               if lbl.text() and lbl.isVisible()],
+            "groups": [(g.title(), True) for g in dlg.findChildren(QGroupBox)]
+            + [(w.text(), True) for w in dlg.findChildren(QWidget)
+               if hasattr(w, "text") and callable(w.text) and isinstance(w.text(), str)
+               and "Advanced" in w.text()]}
+    dlg.close()
+    return info
+
+
 def run() -> None:
     result: dict[str, Any] = {"steps": {}}
     try:
@@ -217,6 +248,7 @@ def run() -> None:
         from qgis.utils import iface
 
         iface.mainWindow().grab().save(str(OUT / "window.png"), "png")
+        result["dialog"] = _dialog("blockheights", OUT / "dialog.png")
     except Exception:  # noqa: BLE001 - reported to the test
         result["error"] = traceback.format_exc()
     result["messages"] = MESSAGES

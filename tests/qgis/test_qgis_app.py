@@ -73,7 +73,7 @@ def app_run(built_zip, gedi_l1b, pdal_bin, tmp_path_factory, qgis_process_env) -
     assert result_file.exists(), f"QGIS wrote no result (exit {r.returncode}):\n{r.stderr[-3000:]}"
     result = json.loads(result_file.read_text())
     artifacts = Path(os.environ.get("CANOPYBLOCKS_ARTIFACTS", ROOT / "tests" / "artifacts"))
-    for name in ("map.png", "profile.png", "canvas.png", "window.png"):
+    for name in ("map.png", "profile.png", "canvas.png", "window.png", "dialog.png"):
         if (out / name).exists():
             artifacts.mkdir(parents=True, exist_ok=True)
             shutil.copy(out / name, artifacts / f"qgis_app_{name}")
@@ -195,3 +195,19 @@ def test_the_map_canvas_shows_the_styled_blocks(app_run) -> None:
     # and the canvas is not blank: more than 2 % of its pixels are not the background
     bg = img[0, 0, :3]
     assert (np.abs(img[..., :3] - bg).sum(axis=2) > 30).mean() > 0.02
+
+
+def test_the_dialog_shows_plain_numbers_and_an_advanced_group(app_run) -> None:
+    """Block heights' dialog as the toolbox opens it: numbers as one writes them, the rarely
+    changed parameters in a collapsed "Advanced Parameters" group, no doubled [optional]."""
+    d = app_run["dialog"]
+    assert "2.5" in d["spins"], d["spins"]  # the noise filter's k, not "2.500000"
+    assert not any(t.endswith("00000") for t in d["spins"]), d["spins"]
+    assert any("advanced" in title.lower() for title, _ in d["groups"]), d["groups"]
+    # collapsed: the rarely changed parameters are there but not shown until opened
+    assert any(t.startswith("Noise filter k") for t in d["labels"])
+    assert not any(t.startswith("Noise filter k") for t in d["visible_labels"])
+    assert any(t.startswith("Block lengths") for t in d["visible_labels"])
+    text = " ".join(d["labels"])
+    assert "[optional] [optional]" not in text and "(optional) [optional]" not in text
+    assert "seed-001" not in text and "DESIGN" not in text
