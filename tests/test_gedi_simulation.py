@@ -163,3 +163,67 @@ def test_run_with_gedi_waveforms(scenes: dict[str, Path], tmp_path: Path) -> Non
     stats = pd.read_csv(out / "stats.csv")
     g = stats[(stats["metric"] == "ground") & (stats["group"] == "all")].iloc[0]
     assert g["n"] >= 15 and abs(g["bias"]) < 0.1 and g["rmse"] < 0.15
+
+
+def _shrub_scene(path: Path, shrub_height: float = 0.6, seed: int = 0) -> None:
+    """Flat class-2 ground at 100 m under dense low returns (class 3) ``shrub_height``
+    above it on every other 1 m cell -- the low last returns of a conifer stand."""
+    rng = np.random.default_rng(seed)
+    g = np.arange(0.0, 200.0, 0.5)
+    xx, yy = np.meshgrid(g, g)
+    xx = xx.ravel() + rng.uniform(0, 0.5, xx.size)
+    yy = yy.ravel() + rng.uniform(0, 0.5, yy.size)
+    shrub = ((np.floor(xx) + np.floor(yy)) % 2) == 0
+    hdr = laspy.LasHeader(point_format=1, version="1.2")
+    hdr.scales = [0.01, 0.01, 0.01]
+    hdr.offsets = [X0, Y0, 0.0]
+    hdr.add_crs(pyproj.CRS("EPSG:32612"))
+    las = laspy.LasData(hdr)
+    las.x, las.y = xx + X0, yy + Y0
+    las.z = np.where(shrub, 100.0 + shrub_height, 100.0)
+    las.classification = np.where(shrub, 3, 2).astype(np.uint8)
+    las.write(path)
+
+
+def test_both_ground_truths_are_recorded_and_named(tmp_path: Path) -> None:
+    """Low returns above the ground: the class-2 truth stays on the ground the points
+    were placed on, the waveform's lowest mode lies between it and the shrubs, and the
+    processed ground reproduces the lowest mode, not the class-2 mean."""
+    from canopyblocks.simulate.sensor_files import gedi_round_trip
+
+    las = tmp_path / "shrubs.las"
+    _shrub_scene(las)
+    sim = simulate_gedi(read_las([las]), TRACK, params=GediSimParams(spacing=10.0), seed=4)
+    t = sim.truth
+    np.testing.assert_allclose(t["truth_ground"], 100.0, atol=0.01)     # placed there
+    mode = t["truth_ground_lowest_mode"].to_numpy()
+    assert np.all((mode > 100.2) & (mode < 100.65)), mode             # merged with shrubs
+    path = write_gedi_l1b(tmp_path / "l1b.h5", [sim.batch], truth={"BEAM0101": t})
+    rt = gedi_round_trip(path, t).set_index(["metric", "truth"])
+    assert rt.loc[("ground", "lowest mode"), "rmse"] <= 0.05
+    assert rt.loc[("ground", "class-2 mean"), "bias"] >= 0.2          # the definitions differ
+    for k in (50, 98):   # RH above each ground differs by the same offset
+        d = t[f"truth_rh{k}"] - t[f"truth_rh{k}_lowest_mode"]
+        np.testing.assert_allclose(d, mode - 100.0, atol=0.02)
+
+
+def test_shot_spacing_is_honoured_for_gedi(scenes: dict[str, Path], tmp_path: Path) -> None:
+    out = {}
+    for spacing in (10, 20):
+        h5 = tmp_path / f"s{spacing}.h5"
+        r = _cli("simulate", scenes["flat"], "--sensor", "gedi", "--line",
+                 f"{X0 + 30},{Y0 + 30},{X0 + 170},{Y0 + 170}", "--shot-spacing", spacing,
+                 "-o", h5)
+        assert r.returncode == 0, r.stderr
+        import h5py
+
+        with h5py.File(h5) as f:
+            out[spacing] = f["BEAM0101/shot_number"].shape[0]
+    length = float(np.hypot(140.0, 140.0))               # 197.99 m
+    assert out == {10: int(length // 10) + 1, 20: int(length // 20) + 1}, out
+    r = _cli("simulate", scenes["flat"], "--sensor", "esfl", "--azimuth", "0",
+             "--shot-spacing", "10", "-o", tmp_path / "e.h5")
+    assert r.returncode == 2 and "--shot-spacing" in r.stderr, r.stderr
+    r = _cli("simulate", scenes["flat"], "--sensor", "gedi", "--azimuth", "0",
+             "--shot-spacing", "0.00001", "-o", tmp_path / "t.h5")
+    assert r.returncode == 2 and "spacing" in r.stderr and "Traceback" not in r.stderr

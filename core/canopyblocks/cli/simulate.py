@@ -41,7 +41,7 @@ log = logging.getLogger(__name__)
 @click.option("--instrument", type=click.Choice(["icesat2", "mabel"]), default="icesat2",
               show_default=True, help="Sets footprint, shot spacing and pulse rate defaults.")
 @click.option("--shot-spacing", type=float, default=None,
-              help="Metres between footprint centres (ICESat-2 0.7, MABEL 0.04).")
+              help="Metres between footprint centres (ICESat-2 0.7, MABEL 0.04, GEDI 60).")
 @click.option("--preset", type=click.Choice(["boreal", "temperate", "tropical"]),
               default="temperate", show_default=True,
               help="Poisson mean photons per strong-beam shot: 1.0 / 1.9 / 0.6 (seed 002).")
@@ -104,7 +104,7 @@ def simulate_cmd(ctx: click.Context, las: tuple[str, ...], sensor: str, azimuth:
             "give exactly one of --azimuth DEG, --line x0,y0,x1,y1 or --polyline 'x,y;x,y;...'")
     if sensor != "icesat2":
         _waveform_sensor(ctx, las, sensor, azimuth, line, polyline, centre, seed, crs,
-                         output, report)
+                         output, report, shot_spacing)
         return
     background_rate = _background_rate(background_rate, light, noise_rate, quiet=bool(
         ctx.obj and ctx.obj.get("quiet")))
@@ -166,10 +166,18 @@ def simulate_cmd(ctx: click.Context, las: tuple[str, ...], sensor: str, azimuth:
 def _waveform_sensor(ctx: click.Context, las: tuple[str, ...], sensor: str,
                      azimuth: float | None, line: str | None, polyline: str | None,
                      centre: str | None, seed: int, crs: str | None, output: str,
-                     report: str | None) -> None:
+                     report: str | None, shot_spacing: float | None = None) -> None:
     """``--sensor gedi|esfl|dual``: one core call writing the HDF5 (and the report)."""
     from ..simulate import SimTrack
+    from ..simulate.gedi_waveforms import GediSimParams
     from ..simulate.sensor_files import simulate_sensor_over_tiles
+
+    params = None
+    if shot_spacing is not None:   # the footprint spacing of GEDI; the others have theirs
+        if sensor != "gedi":
+            raise click.BadParameter(f"applies to --sensor icesat2 and gedi, not {sensor}",
+                                     param_hint="--shot-spacing")
+        params = GediSimParams(spacing=shot_spacing)
 
     track = None
     if line is not None:
@@ -182,14 +190,14 @@ def _waveform_sensor(ctx: click.Context, las: tuple[str, ...], sensor: str,
         track, summary = simulate_sensor_over_tiles(
             list(las), sensor, output, track=track, azimuth=float(azimuth or 0.0),
             centre=None if centre is None else _pair(centre, "x,y"), seed=seed, crs=crs,
-            report_dir=report, progress=progress)
+            report_dir=report, params=params, progress=progress)
     if quiet:
         return
     study = summary.get("study")
     if sensor == "gedi" and study is not None:
         for r in study.itertuples():  # type: ignore[attr-defined]
-            click.echo(f"canopyblocks: simulated GEDI vs truth {r.metric:<6} n={r.n} "
-                       f"bias={r.bias:+.2f} rmse={r.rmse:.2f}", err=True)
+            click.echo(f"canopyblocks: simulated GEDI {r.metric:<6} vs truth ({r.truth}) "
+                       f"n={r.n} bias={r.bias:+.2f} rmse={r.rmse:.2f}", err=True)
     click.echo(f"canopyblocks: {summary['footprints']} {sensor} footprints over "
                f"{track.length:.0f} m -> {output}", err=True)
 
