@@ -206,3 +206,12 @@ def test_cli_bad_background_numbers_are_refused(tmp_path, capsys, opt, value, ne
     err = capsys.readouterr().err
     assert needle in err and "Traceback" not in err
     assert not out.exists()
+
+
+def test_photon_track_carries_the_rate_a_written_file_gives(sims, tmp_path):
+    sim = sims[2]
+    direct = sim.photon_track()
+    read = read_atl03(write_simulation_atl03(sim, tmp_path / "bg.h5"), "gt1r", crs=sim.crs)
+    assert direct.background is not None and read.background is not None
+    assert np.allclose(direct.background.at(direct.time), RATE_MHZ * 1e6)
+    assert np.allclose(read.background.at(read.time), direct.background.at(read.time))

@@ -18,7 +18,7 @@ import numpy as np
 import pyproj
 
 from ..errors import InputError, NoUsableDataError
-from ..photons import PhotonTrack
+from ..photons import BackgroundRate, PhotonTrack
 from ..progress import Progress, as_progress
 from ..readers.las import LasPoints
 from .footprints import CloudIndex, _ranges
@@ -49,6 +49,9 @@ PHOTON_TRUTH_COLUMNS: tuple[str, ...] = ("shot", "realisation", "noise", "src_in
 #: Along-track length of one chunk of shots, metres (one footprint query each; chunks
 #: also end at the track's vertices, so each is straight).  Results do not depend on it.
 CHUNK_LENGTH = 100.0
+
+SHOTS_PER_BACKGROUND_SUM = 50
+"""ATLAS sums the background over 50 shots (200 Hz): one ``bckgrd_atlas`` row each."""
 
 
 @dataclass(eq=False)
@@ -125,18 +128,26 @@ class Simulation:
         cols["truth_cover"] = self.truth["cover"][shot]
         return cols
 
+    def background_rate(self) -> BackgroundRate:
+        """The background rate as ATL03 records it: every 50 shots from the first, the
+        start time (s, the photons' clock) and the rate (photons/s; 0 without noise)."""
+        first = np.arange(0, max(self.n_shots, 1), SHOTS_PER_BACKGROUND_SUM)
+        t = self.shot_time[first] if self.n_shots else np.zeros(1)
+        return BackgroundRate(time=t, rate=np.full(t.size, self.params.background_rate_mhz * 1e6))
+
     def photon_track(self, realisation: int = 0, *, name: str | None = None) -> PhotonTrack:
         """One realisation as a :class:`~canopyblocks.photons.PhotonTrack`.
 
         ``x``/``y`` are in the cloud's CRS, ``s`` is the distance along the simulated
-        track, ``time`` = shot index / pulse rate; truth columns go to ``extra``.
+        track, ``time`` = shot index / pulse rate; truth columns go to ``extra``;
+        ``background`` = :meth:`background_rate`, as a written file gives it.
         """
         c = self.photon_columns(realisation)
         extra = {k: c[k] for k in PHOTON_TRUTH_COLUMNS}
         return PhotonTrack.from_xy(
             c["x"], c["y"], c["h"], crs=self.crs, track=name or self.track.name,
             time=c["time"], s=c["s"], extra=extra, source=self.source,
-            vertical_datum=self.vertical_datum)
+            vertical_datum=self.vertical_datum, background=self.background_rate())
 
     def truth_frame(self) -> gpd.GeoDataFrame:
         """Per-shot truth as a point GeoDataFrame in the cloud's CRS."""

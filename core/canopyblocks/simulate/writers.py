@@ -39,7 +39,7 @@ from ..outputs.tables import check_output_path, write_table
 from ..progress import Progress, as_progress
 from ..schema import LAYER_PHOTONS
 from .confidence import signal_confidence
-from .engine import PHOTON_TRUTH_COLUMNS, Simulation
+from .engine import PHOTON_TRUTH_COLUMNS, SHOTS_PER_BACKGROUND_SUM, Simulation
 
 if TYPE_CHECKING:
     from .analysis import Seed002Result
@@ -55,10 +55,6 @@ log = logging.getLogger(__name__)
 
 _ATL03_BEAMS = ("gt1l", "gt1r", "gt2l", "gt2r", "gt3l", "gt3r")
 
-SHOTS_PER_BACKGROUND_SUM = 50
-"""ATLAS sums the background over 50 shots (200 Hz): one ``bckgrd_atlas`` row each."""
-
-
 def sc_orient_for(beam: str, strength: str) -> int:
     """``orbit_info/sc_orient`` under which ``beam`` has ``strength`` in real granules
     (0 backward: left beams strong; 1 forward: right beams strong)."""
@@ -68,9 +64,9 @@ def sc_orient_for(beam: str, strength: str) -> int:
 def background_of(sim: Simulation, realisation: int = 0) -> Atl03Background:
     """The ``bckgrd_atlas`` rows of one realisation: per 50 shots, the start time, the
     rate (photons/s), the background photons counted and the telemetry window."""
-    n = sim.n_shots
     k = SHOTS_PER_BACKGROUND_SUM
-    first = np.arange(0, n, k)
+    first = np.arange(0, sim.n_shots, k)
+    known = sim.background_rate()
     c = sim.photon_columns(realisation)
     noisy = np.asarray(c["noise"], bool)
     counts = np.bincount(c["shot"][noisy] // k, minlength=first.size)[:first.size]
@@ -81,8 +77,7 @@ def background_of(sim: Simulation, realisation: int = 0) -> Atl03Background:
         if shots.size:  # spans before/after the cloud keep the nearest window
             top = np.interp(first, shots, sim.telemetry_top[ok])
             height = np.interp(first, shots, (sim.telemetry_top - sim.telemetry_bottom)[ok])
-    rate = np.full(first.size, sim.params.background_rate_mhz * 1e6)
-    return Atl03Background(delta_time=sim.shot_time[first], rate=rate, counts=counts,
+    return Atl03Background(delta_time=known.time, rate=known.rate, counts=counts,
                            tlm_top=top, tlm_height=height)
 
 
