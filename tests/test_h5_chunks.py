@@ -170,3 +170,24 @@ def test_many_tasks_equal_hdf5(tmp_path, inflater):  # noqa: ANN001
             got = read_chunks(f["v"], lo, hi)
             assert got is not None
             np.testing.assert_array_equal(got, data[lo:hi])
+
+
+@pytest.mark.parametrize("dtype,shape", [("i1", (N, 5)), ("<i4", (N,)), ("<u4", (N,)),
+                                         ("<f8", (N,))])
+def test_v006_layout_equals_hdf5(tmp_path, inflater, dtype, shape):  # noqa: ANN001
+    """ATL03 v006 as written: gzip level 6 on every dataset, extendible (chunk index of a
+    dataset with an unlimited dimension), the shuffle filter on the integer ones -- the
+    2-D ``signal_conf_ph`` among them (see tests/data/icesat2/harmony_ATL03_gt1l.h5)."""
+    data = RNG.integers(-3, 120, shape).astype(dtype)
+    shuffle = np.dtype(dtype).kind in "iu"
+    _write(tmp_path / "v6.h5", data=data, compression_opts=6, shuffle=shuffle,
+           maxshape=(None, *shape[1:]))
+    with h5py.File(tmp_path / "v6.h5", "r") as f:
+        assert f["v"].shuffle == shuffle and f["v"].compression_opts == 6
+        got = read_chunks(f["v"], 17, N)
+        assert got is not None
+        np.testing.assert_array_equal(got, data[17:])
+        if len(shape) == 2:
+            col = read_chunks(f["v"], 0, N - 5, np.dtype("i2"), column=1)
+            assert col is not None
+            np.testing.assert_array_equal(col, data[:N - 5, 1])
