@@ -70,6 +70,38 @@ RUNNERS: dict[str, tuple[Callable[..., Any], Callable[..., None]]] = {
     "gedi": (run_gedi, check_gedi)}
 
 
+def _other_shots(src: Path, dst: Path) -> Path:
+    """An L2A (or L2B-shaped) copy whose shot numbers are other shots'."""
+    import h5py
+    import numpy as np
+
+    def edit(f: h5py.File) -> None:
+        for b in [k for k in f if k.startswith("BEAM")]:
+            f[f"{b}/shot_number"][()] = f[f"{b}/shot_number"][()] + np.uint64(10**12)
+    return damaged(src, dst, edit)
+
+
+def _l2_cli(option: str) -> Callable[[Path, Any], dict[str, Any]]:
+    """``waveforms L1B --l2a/--l2b OTHER``: a comparison with no shot in common."""
+    def make(folder: Path, base: Any) -> dict[str, Any]:
+        l1b, l2a = unzipped(base.data_file, base.folder / "gedi")
+        other = _other_shots(l2a, folder / "other_l2a.h5")
+        out = folder / "out" / "footprints.gpkg"
+        return {"path": other, "args": ["waveforms", str(l1b), "--beam", "BEAM0101", option,
+                                         str(other), "-o", str(out)], "outputs": [out]}
+    return make
+
+
+def _gedi_option(sensor: str, spacing: str) -> Callable[[Path, Any], dict[str, Any]]:
+    """``simulate --sensor S --shot-spacing X``: honoured for gedi, refused for others."""
+    def make(folder: Path, base: Any) -> dict[str, Any]:
+        out = folder / "out" / "sim.h5"
+        return {"path": None, "name": "--shot-spacing",
+                "args": ["simulate", str(base.conifer), "--sensor", sensor, "--azimuth", "0",
+                         "--shot-spacing", spacing, "-o", str(out)], "outputs": [out]}
+    return make
+
+
 def gedi_cases() -> list[Any]:
     from .make_corpus import Case
 
@@ -82,4 +114,14 @@ def gedi_cases() -> list[Any]:
             cases.append(Case(f"cli-waveforms-gedi-{d.name}", "cli", _make_cli(d),
                               needles=d.needles, warn_words=d.warn_words,
                               must_refuse=d.refuse))
+    cases.append(Case("cli-waveforms-gedi-l2a-of-other-shots", "cli", _l2_cli("--l2a"),
+                      needles=("none of the",), must_refuse=True))
+    cases.append(Case("cli-waveforms-gedi-l2a-file-as-l2b", "cli", _l2_cli("--l2b"),
+                      needles=("l2b",), must_refuse=True))
+    for sensor, spacing, needle in (("gedi", "0.00001", "spacing"),
+                                    ("esfl", "10", "shot-spacing"),
+                                    ("dual", "10", "shot-spacing")):
+        cases.append(Case(f"cli-simulate-{sensor}-shot-spacing={spacing}", "cli",
+                          _gedi_option(sensor, spacing), needles=(needle,),
+                          must_refuse=True))
     return cases

@@ -241,7 +241,7 @@ def simulate_gedi(points: LasPoints, track: SimTrack | None = None, *,
         raise InputError(f"seed must be an integer >= 0; got {seed!r}")
     if track is not None:
         if track.length / p.spacing > MAX_FOOTPRINTS:
-            raise InputError(f"a footprint spacing of {p.spacing:g} m puts "
+            raise InputError(f"a shot spacing of {p.spacing:g} m puts "
                              f"{track.length / p.spacing:.3g} footprints on the "
                              f"{track.length:.0f} m track; at most {MAX_FOOTPRINTS:,} "
                              "(GEDI's spacing is 60 m)")
