@@ -48,6 +48,7 @@ from .damage import (
     shift,
     truncated,
     write_cloud,
+    write_cloud_geokeys,
 )
 
 Inputs = dict[str, Any]
@@ -379,6 +380,13 @@ def _cloud_variant(kind: str) -> Callable[[Path, Base], Inputs]:
             z = z.copy()
             z[:: max(1, z.size // 20)] += 5000.0
             truth = dict(t, z=z)
+        elif kind == "geokeys-vertical-feet":  # LAS 1.2 GeoTIFF keys: UTM 12N + NAVD88 ftUS
+            keys = [(1024, 1), (3072, 26912), (3076, 9001), (4096, 6360), (4099, 9003)]
+            return {"path": write_cloud_geokeys(folder / "cloud.laz", x, y, z / ft, c, keys),
+                    "truth": truth}
+        elif kind in ("terrain-100km", "terrain-below-500"):  # heights not on Earth
+            z = z + (100_000.0 if kind == "terrain-100km" else -1_000.0)
+            truth = dict(t, z=z)
         elif kind == "flat-duplicates":  # every point at one position
             x = np.full_like(x, x[0])
             y = np.full_like(y, y[0])
@@ -399,7 +407,11 @@ def base_crs(base: Base) -> Any:
 
 CLOUD_VARIANTS = ("no-crs", "vertical-feet", "all-feet", "geographic", "all-noise",
                   "unclassified", "normalised", "one-point", "no-points", "z-spikes",
-                  "flat-duplicates")
+                  "flat-duplicates", "geokeys-vertical-feet", "terrain-100km",
+                  "terrain-below-500")
+#: Refused by every reader: heights in feet stated by GeoTIFF keys, terrain off the Earth.
+_REFUSED_VARIANTS = {"geokeys-vertical-feet": ("feet", "foot"),
+                     "terrain-100km": ("earth",), "terrain-below-500": ("earth",)}
 
 
 def las_cases() -> list[Case]:
@@ -443,22 +455,25 @@ def las_cases() -> list[Case]:
                    "all-feet": ("feet", "foot", "unit", "metre"),
                    "geographic": ("metric", "degree", "geographic", "projected", "crs"),
                    "no-points": ("no point", "empty", "0 points")}.get(kind, ())
+        needles = _REFUSED_VARIANTS.get(kind, needles)
         for runner in ("las", "simulate"):
             if runner == "las" and kind in ("vertical-feet", "all-feet", "geographic"):
                 continue  # reading them is fine; what is made of them is checked
             cases.append(Case(f"cloud-{kind}-{runner}", runner, _cloud_variant(kind),
-                              needles=needles,
+                              needles=needles, must_refuse=kind in _REFUSED_VARIANTS,
                               warn_words=("normalis", "normaliz", "above ground", "ground at")
                               if kind == "normalised" and runner == "simulate" else ()))
     # PDAL rasters: a sample of the damaged clouds (each run takes about a second)
     for kind in ("no-crs", "vertical-feet", "all-feet", "geographic", "all-noise",
-                 "unclassified", "normalised", "one-point", "z-spikes"):
-        needles = {"all-noise": ("noise", "class"), "unclassified": ("ground", "smrf"),
-                   "no-crs": ("crs",), "vertical-feet": ("feet", "foot", "unit"),
-                   "all-feet": ("feet", "foot", "unit"),
-                   "geographic": ("metric", "degree", "geographic", "crs")}.get(kind, ())
+                 "unclassified", "normalised", "one-point", "z-spikes",
+                 *_REFUSED_VARIANTS):
+        needles = _REFUSED_VARIANTS.get(kind) or {
+            "all-noise": ("noise", "class"), "unclassified": ("ground", "smrf"),
+            "no-crs": ("crs",), "vertical-feet": ("feet", "foot", "unit"),
+            "all-feet": ("feet", "foot", "unit"),
+            "geographic": ("metric", "degree", "geographic", "crs")}.get(kind, ())
         cases.append(Case(f"cloud-{kind}-rasters", "rasters", _cloud_variant(kind), pdal=True,
-                          needles=needles,
+                          needles=needles, must_refuse=kind in _REFUSED_VARIANTS,
                           forbidden=("check the bounds/crs",) if kind == "all-noise" else (),
                           warn_words=("normalis", "normaliz", "above ground", "ground at")
                           if kind == "normalised" else ()))
@@ -791,6 +806,40 @@ def cli_cases() -> list[Case]:
                            lambda d, b: {"path": None, "name": "blocks.gpkg"},
                            lambda d: []),
                       needles=("folder", "file", "write")))
+    cases.extend(_batch_cli_cases())
+    return cases
+
+
+def _batch_granules(folder: Path, base: Base) -> Inputs:
+    grans = folder / "granules"
+    grans.mkdir(parents=True, exist_ok=True)
+    shutil.copy(base.vegr, grans / "ATL03_vegr.h5")
+    return {"path": grans, "name": "granules"}
+
+
+def _batch_cli_cases() -> list[Case]:
+    """``batch`` refuses an output folder that is (or lies inside) its input folder, and
+    ellipsoidal photons against orthometric tiles without a conversion, before any work."""
+    cases = []
+    for where, sub in (("is", ""), ("inside", "results")):
+        cases.append(Case(
+            f"cli-batch-output-{where}-input-folder", "cli",
+            _cli(lambda d, b, i, sub=sub: ["batch", str(i["path"]), "--tiles", str(b.conifer),
+                                           "--offset", "0", "--backend", "serial", "-o",
+                                           str(i["path"] / sub if sub else i["path"])],
+                 _batch_granules, lambda d: [d / "granules" / "manifest.json",
+                                             d / "granules" / "results"]),
+            needles=("input folder",), must_refuse=True))
+
+    def bcts(folder: Path, base: Base) -> Inputs:
+        return {**_batch_granules(folder, base), "tile": base.data_file("als/lasR_bcts_1.laz"),
+                "name": "lasR_bcts_1.laz"}
+    cases.append(Case(
+        "cli-batch-ellipsoidal-vs-cgvd28-no-conversion", "cli",
+        _cli(lambda d, b, i: ["batch", str(i["path"]), "--tiles", str(i["tile"]),
+                              "--backend", "serial", "-o", str(d / "out")],
+             bcts, lambda d: [d / "out"]),
+        needles=("CGVD28",), must_refuse=True))
     return cases
 
 

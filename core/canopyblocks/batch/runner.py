@@ -170,13 +170,19 @@ def run_batch(granules: Sequence[str | os.PathLike[str]],
 
 def _check_datums(cfg: BatchConfig, tile: str) -> None:
     """The one datum rule, before any work (each unit's validation applies it again)."""
+    from ..errors import DatumError
     from ..readers.las_crs import las_file_crs
     from ..reference.datum import check_vertical_datums
 
     ref = cfg.reference_vcrs if cfg.reference_vcrs is not None else las_file_crs(tile).crs
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # "unknown" is warned by each unit's validation
-        check_vertical_datums(cfg.photon_vcrs, ref, geoid=cfg.geoid, offset=cfg.offset)
+        try:
+            check_vertical_datums(cfg.photon_vcrs, ref, geoid=cfg.geoid, offset=cfg.offset)
+        except DatumError as exc:
+            where = ("the reference vertical CRS given" if cfg.reference_vcrs is not None
+                     else f"tiles such as {tile}")
+            raise DatumError(f"{where}: {exc}") from None
 
 
 def _run(g_paths: list[str], index: list, out: Path, cfg: BatchConfig, *,
