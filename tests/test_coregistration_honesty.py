@@ -341,3 +341,27 @@ def test_validate_coregister_from_photons_equals_coregister(files):
     code, _, err = _cli(["validate", str(files["blocks"]), *common, "--coregister-photons",
                          str(files["h5"]), "-o", str(d / "vq.gpkg")])
     assert code == 2 and "--coregister" in err and not (d / "vq.gpkg").exists(), err
+
+
+@pytest.mark.pdal
+@pytest.mark.slow
+def test_run_coregister_says_what_it_applied(files, pdal_bin, sample, tmp_path):
+    """``run --coregister`` on unshifted photons: the report must not claim an offset was
+    applied when it is undetermined, and carries no internal section numbers."""
+    import fiona
+
+    out = tmp_path / "chain"
+    code, _, err = _cli(["run", str(sample("als/lasR_bcts_1.laz")), "--photons",
+                         str(files["h5"]), "--offset", "0", "--coregister", "-o", str(out)])
+    assert code == 0, err
+    doc = json.loads((out / "offsets.json").read_text())
+    html = (out / "report.html").read_text()
+    section = html[html.index("Co-registration"):]
+    assert "DESIGN" not in section
+    layers = fiona.listlayers(out / "validation.gpkg")
+    if doc["all"]["determined"]:
+        assert "was applied horizontally" in section and "stats_uncorrected" in layers
+    else:
+        assert "was applied" not in section and "not applied" in section
+        assert "stats_uncorrected" not in layers
+        assert "undetermined" in err and "sim.h5" in err

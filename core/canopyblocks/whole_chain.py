@@ -220,7 +220,8 @@ def run_chain(
         offsets_doc = None
         if coregister:
             blocks, offsets_doc, before = _coregistered(
-                blocks, res.tracks, rasters, out, vkw, prog.sub(0.75, 0.8))
+                blocks, res.tracks, rasters, out, vkw, prog.sub(0.75, 0.8),
+                source=Path(photons).name)
             if before is not None:
                 layers[f"{LAYER_STATS}_uncorrected"] = before
         val = validate_blocks(blocks, dtm=rasters.dtm, dsm_max=rasters.dsm_max,
@@ -288,7 +289,8 @@ def _tiles_crs(tiles: Sequence[Path]) -> Any:
 
 
 def _coregistered(blocks: Any, tracks: Any, rasters: Any, out: Path, vkw: dict[str, Any],
-                  prog: Progress) -> tuple[Any, dict[str, Any] | None, pd.DataFrame | None]:
+                  prog: Progress, source: str = "photons"
+                  ) -> tuple[Any, dict[str, Any] | None, pd.DataFrame | None]:
     """Blocks shifted by the joint offset found from the photons (their ground- and
     top-window photons, DESIGN 2.8), horizontally only (the vertical offset is reported:
     applying it would hide the estimators' ground bias); the offsets document; the
@@ -314,7 +316,7 @@ def _coregistered(blocks: Any, tracks: Any, rasters: Any, out: Path, vkw: dict[s
     result = coregister(CoregTargets.concat(parts), dtm, dsm, progress=prog)
     write_offsets(result, out / "offsets.json")
     doc = result.to_dict()
-    joint = offset_to_apply(result, "photons")
+    joint = offset_to_apply(result, source)
     if joint is None:
         return blocks, doc, None
     before = validate_blocks(blocks, dtm=rasters.dtm, dsm_max=rasters.dsm_max,
@@ -443,12 +445,19 @@ def _report(out: Path, *, tiles: list[Path], photons: Path, simulated: bool,
     if offsets is not None:
         rows = pd.DataFrame([{"track": k, **{c: v.get(c) for c in (
             "along_track", "cross_track", "east", "north", "vertical", "rmse_before",
-            "rmse_after", "determined", "reason")}} for k, v in offsets.items()])
+            "rmse_after", "status", "reason")}} for k, v in offsets.items()])
+        joint = offsets.get("all") or next(iter(offsets.values()))
+        applied = (
+            "The joint offset 'all' was applied horizontally before validating; its "
+            "vertical part, which includes the ground estimator's bias, is reported only. "
+            "Layer stats_uncorrected holds the statistics without it."
+            if joint.get("determined") else
+            "The joint offset 'all' is undetermined (see its reason): it was not applied, "
+            "and the validation is of the blocks as reported.")
         sections.append(ReportSection("Co-registration", [
-            "Offsets (m) that align the blocks with the DTM (DESIGN 2.8): the shift to add to "
-            "the reported positions. The joint offset 'all' was applied horizontally before "
-            "validating; its vertical part, which includes the ground estimator's bias, is "
-            "reported only. Layer stats_uncorrected holds the statistics without it."],
+            "Offsets (m) that would align the blocks with the DTM: the shift to add to the "
+            "reported positions. An offset is 'ok' only when, fitted on some stretches of "
+            "the track, it also improves the held-out stretches significantly. " + applied],
             {"offsets": rows}))
     return write_report(out / "report.html", "canopyblocks: block heights and validation",
                         sections)
