@@ -126,3 +126,45 @@ def test_rows_refer_to_the_files(sample):
     assert np.array_equal(z_all[sub.row], sub.z) and np.array_equal(x_all[sub.row], sub.x)
     assert sub.row.min() < n1 <= sub.row.max()
     assert np.array_equal(sub.subset(sub.z > 340).row, sub.row[sub.z > 340])
+
+
+def _with_header_extent(src, dst, mins, maxs):
+    import struct
+
+    data = bytearray(src.read_bytes())
+    # LAS public header: max x, min x, max y, min y at byte 179 (doubles)
+    struct.pack_into("<4d", data, 179, maxs[0], mins[0], maxs[1], mins[1])
+    dst.write_bytes(bytes(data))
+    return dst
+
+
+def test_las_bounds_are_the_points_not_a_lying_header(sample, tmp_path):
+    """simulate places its track by las_bounds: a header extent that lies used to give
+    'the survey is smaller than the footprint' or 'no points in the file'."""
+    import warnings
+
+    import laspy
+
+    from canopyblocks.errors import FileFormatError
+    from canopyblocks.readers.las import las_bounds
+
+    src = sample("als/lidR_MixedConifer.laz")
+    las = laspy.read(src)
+    truth = (las.x.min(), las.y.min(), las.x.max(), las.y.max())
+    assert las_bounds(src) == pytest.approx(truth, abs=1e-6)
+    tiny = _with_header_extent(src, tmp_path / "tiny.laz", truth[:2],
+                               (truth[0] + 1, truth[1] + 1))
+    with pytest.raises(FileFormatError, match="header says the points lie in"):
+        las_bounds(tiny)
+    assert las_bounds(tiny, verify=False)[2] == pytest.approx(truth[0] + 1)
+    for name, mins, maxs in (("nan", (float("nan"),) * 2, (float("nan"),) * 2),
+                             ("swapped", truth[2:], truth[:2])):
+        bad = _with_header_extent(src, tmp_path / f"{name}.laz", mins, maxs)
+        with warnings.catch_warnings(record=True) as ws:
+            warnings.simplefilter("always")
+            got = las_bounds(bad, verify=False)
+        assert got == pytest.approx(truth, abs=1e-6)
+        assert any("cannot be right" in str(w.message) for w in ws)
+        with pytest.warns(UserWarning, match="cannot be right"):
+            pts = read_las(bad, bbox=(truth[0], truth[1], truth[0] + 20, truth[1] + 20))
+        assert len(pts) > 0  # a header that cannot be right skips no tile

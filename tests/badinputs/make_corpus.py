@@ -758,12 +758,18 @@ def cli_cases() -> list[Case]:
     for cid in ("laz-truncated-0.5", "las-truncated-0.8", "las-header-bounds-nan",
                 "las-header-zscale-zero", "cloud-vertical-feet-simulate",
                 "cloud-normalised-simulate", "cloud-all-noise-simulate",
-                "cloud-no-crs-simulate"):
+                "cloud-no-crs-simulate", "las-header-bounds-tiny", "las-header-bounds-swapped",
+                "las-header-bounds-1e300", "laz-header-bounds-far",
+                "cloud-geokeys-vertical-feet-simulate", "cloud-terrain-100km-simulate"):
         c = las[cid]
+        # a lying header or a noise-only tile is not the track's or the footprint's fault
+        wrong_cause = ("smaller than twice the inset", "smaller footprint", "no points in",
+                       "misses the point cloud", "simulation parameters")
         cases.append(Case(f"cli-simulate-{cid}", "cli",
                           _cli(_simulate_args, c.make,
                                lambda d: [d / "out" / "sim.h5", d / "out" / "report"]),
-                          needles=c.needles, forbidden=c.forbidden, warn_words=c.warn_words))
+                          needles=c.needles, forbidden=c.forbidden + wrong_cause,
+                          warn_words=c.warn_words, must_refuse=c.must_refuse))
     for cid in ("laz-truncated-0.5", "cloud-all-noise-rasters", "cloud-vertical-feet-rasters",
                 "las-header-bounds-1e300-rasters"):
         c = las[cid]

@@ -31,7 +31,12 @@ from ..geo import as_crs, require_metre_units, require_metric_crs
 from ..progress import Progress, as_progress
 from .cloud_checks import HeightTally, warn_if_normalised
 from .las_crs import las_file_crs
-from .las_header import check_header_extent, check_las_file, check_nothing_beyond_count
+from .las_header import (
+    MAX_OFFSET,
+    check_header_extent,
+    check_las_file,
+    check_nothing_beyond_count,
+)
 
 __all__ = ["LasPoints", "read_las", "las_crs", "las_bounds"]
 
@@ -147,32 +152,63 @@ def las_crs(path: str | os.PathLike[str]) -> pyproj.CRS | None:
     return las_file_crs(path).horizontal
 
 
-def las_bounds(paths: str | os.PathLike[str] | Sequence[str | os.PathLike[str]]
-               ) -> tuple[float, float, float, float]:
-    """Union of the header extents ``(xmin, ymin, xmax, ymax)`` of LAS/LAZ files, metres.
+def las_bounds(paths: str | os.PathLike[str] | Sequence[str | os.PathLike[str]], *,
+               verify: bool = True) -> tuple[float, float, float, float]:
+    """Union of the extents ``(xmin, ymin, xmax, ymax)`` of LAS/LAZ files, metres.
 
-    Reads headers only (no points), e.g. to place a track before reading a corridor.
+    Used to place a track before reading a corridor.  With ``verify`` (the default) each
+    header's extent is checked against the points (one streaming pass over their integer
+    coordinates, :func:`~canopyblocks.readers.las_summary.las_summary`): a damaged header
+    is refused as such (or, when its extent cannot be right at all, replaced by the
+    points' with a warning) instead of placing the track by it -- a lying header used to
+    surface as "the survey is smaller than the footprint" or "no points in the file".
+    ``verify=False`` reads headers only and refuses extents that cannot be right.
+
+    Raises
+    ------
+    FileFormatError
+        Missing or damaged file; a header whose extent disagrees with its points.
+    NoUsableDataError
+        No file holds a point; terrain off the Earth.
     """
     laspy = _laspy()
     if isinstance(paths, (str, os.PathLike)):
         paths = [paths]
     if not paths:
         raise InputError("no LAS/LAZ file given")
+    from .las_summary import las_summary
+
     lo = np.array([np.inf, np.inf])
     hi = -lo
     for path in (Path(p) for p in paths):
+        if path.exists():
+            check_las_file(path)
         try:
             with laspy.open(path) as reader:
                 mins, maxs = reader.header.mins, reader.header.maxs
                 count = int(reader.header.point_count)
+                scale = float(max(reader.header.scales))
         except FileNotFoundError:
             raise FileFormatError(f"{path}: no such file") from None
         except Exception as exc:  # laspy raises several types for corrupt headers
             raise FileFormatError(f"{path}: not a readable LAS/LAZ file ({exc})") from None
         if count == 0:
             continue  # an empty tile has no extent (its header says 0, 0, 0, 0)
-        lo = np.minimum(lo, np.asarray(mins[:2], dtype=float))
-        hi = np.maximum(hi, np.asarray(maxs[:2], dtype=float))
+        ext = (float(mins[0]), float(mins[1]), float(maxs[0]), float(maxs[1]))
+        plausible = all(np.isfinite(ext)) and max(map(abs, ext)) <= MAX_OFFSET and \
+            ext[0] <= ext[2] and ext[1] <= ext[3]
+        if verify or not plausible:
+            summary = las_summary(path)
+            if summary.n_points == 0:
+                continue
+            if not check_header_extent(path, ext, summary.bounds,
+                                       tolerance=max(1.0, 2.0 * scale)):
+                warnings.warn(f"{path}: the header's extent {ext} cannot be right; using "
+                              f"the points' ({', '.join(f'{v:.2f}' for v in summary.bounds)})",
+                              CanopyBlocksWarning, stacklevel=2)
+                ext = summary.bounds
+        lo = np.minimum(lo, np.asarray(ext[:2], dtype=float))
+        hi = np.maximum(hi, np.asarray(ext[2:], dtype=float))
     if not np.all(np.isfinite(lo)):
         raise NoUsableDataError(
             f"no points in {', '.join(str(p) for p in paths)}; give tiles that hold points")
@@ -284,7 +320,9 @@ def read_las(
                     f"{used_crs.to_string()}; reproject the tiles to one CRS first")
             mins, maxs = header.mins, header.maxs
             hdr_ext = (float(mins[0]), float(mins[1]), float(maxs[0]), float(maxs[1]))
-            if bbox is not None and all(np.isfinite(hdr_ext)):
+            plausible = (all(np.isfinite(hdr_ext)) and max(map(abs, hdr_ext)) <= MAX_OFFSET
+                         and hdr_ext[0] <= hdr_ext[2] and hdr_ext[1] <= hdr_ext[3])
+            if bbox is not None and plausible:  # a header that cannot be right skips nothing
                 if (maxs[0] < bbox[0] or mins[0] > bbox[2] or maxs[1] < bbox[1]
                         or mins[1] > bbox[3]):
                     log.debug("%s: outside the bbox, skipped", path)
