@@ -181,6 +181,8 @@ def test_cli_background_rate_in_mhz(tmp_path, capsys, opts, mhz):
         assert np.allclose(f["gt1r/bckgrd_atlas/bckgrd_rate"][:], mhz * 1e6, rtol=1e-6)
     err = capsys.readouterr().err
     assert ("deprecated" in err) == (opts[0] == "--noise-rate")
+    # the seed-002 residual line is flagged: its rule classifies the background too
+    assert "background noise included" in err
 
 
 def test_cli_background_rate_given_twice_is_refused(tmp_path, capsys):

@@ -153,12 +153,15 @@ def simulate_cmd(ctx: click.Context, las: tuple[str, ...], sensor: str, azimuth:
     if quiet:
         return
     t = result.table
+    # the seed-002 rule classifies every photon: with background it is not the seed's case
+    flag = (" (seed-002 rule applied to all photons, background noise included: the "
+            "seed's method assumes none)" if params.background_rate_mhz > 0 else "")
     for _, r in t.iterrows():
         click.echo(
             f"canopyblocks: {r['diameter']:g} m footprint, {int(r['realisations'])} "
             f"realisations, {int(r['n_shots'])} shots: ground bias {r['ground_bias']:+.2f} m "
             f"rms {r['ground_rms']:.2f} m; canopy top bias {r['top_bias']:+.2f} m "
-            f"rms {r['top_rms']:.2f} m", err=True)
+            f"rms {r['top_rms']:.2f} m{flag}", err=True)
     click.echo(f"canopyblocks: {len(sim.photon_columns(0)['h']):,} photons over "
                f"{sim.length:.0f} m -> {out}", err=True)
 
