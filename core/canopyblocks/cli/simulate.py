@@ -154,8 +154,8 @@ def simulate_cmd(ctx: click.Context, las: tuple[str, ...], sensor: str, azimuth:
         return
     t = result.table
     # the seed-002 rule classifies every photon: with background it is not the seed's case
-    flag = (" (seed-002 rule applied to all photons, background noise included: the "
-            "seed's method assumes none)" if params.background_rate_mhz > 0 else "")
+    flag = (" (the lowest/highest-photon rule applied to all photons, background noise "
+            "included: the rule assumes none)" if params.background_rate_mhz > 0 else "")
     for _, r in t.iterrows():
         click.echo(
             f"canopyblocks: {r['diameter']:g} m footprint, {int(r['realisations'])} "
