@@ -250,3 +250,22 @@ def test_short_track_and_a_beam_without_signal():
     assert (blocks["flag"] == "sparse").all()
     seg = atl08_segments(track, res, 100.0)
     assert (seg["flag"] == "no_ground").all() and seg["h_te_best_fit"].isna().all()
+
+
+def test_atl08_noise_filter_with_other_estimators():
+    """``noise="atl08"`` alone: the photons the classifier calls noise are removed, the rest
+    go through the chosen ground/top estimators (here the surface and the 98th percentile)."""
+    from canopyblocks.schema import LABEL_NOISE
+
+    track, truth = synthetic(1.5e6, slope, seed=4)
+    est = Estimators(noise="atl08", ground="surface", top="p98")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        blocks, labels = estimate_blocks(track, BlockParams(), est, labels=True)
+    classes = classify_photons(track).classes
+    assert np.array_equal(labels[25.0] == LABEL_NOISE, classes == 0)
+    ok = blocks["flag"] == "ok"
+    mid = 0.5 * (blocks["s_start"] + blocks["s_end"])
+    assert ok.mean() > 0.95
+    assert np.sqrt(np.mean((blocks["ground"][ok] - slope(mid[ok])) ** 2)) <= 0.5
+    assert blocks["estimators"].iloc[0] == "noise=atl08,ground=surface,top=p98"
