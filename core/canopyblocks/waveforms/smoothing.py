@@ -3,9 +3,12 @@
 L2A works on a grid of ``1 / factor`` sample (factor 4): the waveform is linearly
 interpolated, then convolved with a truncated Gaussian. Both steps are linear and
 shift-invariant, so they are done together, for a whole batch, as one product in the
-frequency domain: the spectrum of the zero-stuffed waveform (the raw spectrum repeated
-``factor`` times) times the spectrum of (triangle * Gaussian). The result equals the
-direct computation (``numpy.interp`` then ``numpy.convolve``) to ~1e-12 counts.
+frequency domain: sub-sample ``factor * j + r`` of (zero-stuffed waveform) * (triangle *
+Gaussian) is the circular convolution of the raw samples with phase ``r`` of that
+kernel, so each phase is one product of the raw spectrum with the phase's spectrum and
+one short inverse transform (2.5x faster than one long transform of the zero-stuffed
+spectrum). The result equals the direct computation (``numpy.interp`` then
+``numpy.convolve``) to ~1e-12 counts.
 
 Conventions: the input is the *residual* waveform (raw counts minus the noise mean),
 zero beyond each shot's last sample; the waveform is taken to continue at the noise
@@ -43,7 +46,11 @@ def interpolation_kernel(factor: int) -> FloatArray:
 
 
 @lru_cache(maxsize=32)
-def _kernel_spectrum(n_fft: int, factor: int, sd: float, half_width: int) -> FloatArray:
+def _phase_spectra(n_fft: int, factor: int, sd: float, half_width: int
+                   ) -> npt.NDArray[np.complex128]:
+    """Spectra (factor, n_fft // 2 + 1) of the kernel's ``factor`` phases: phase ``r`` is
+    the circular kernel (triangle * Gaussian on the sub-sample grid, length
+    ``factor * n_fft``) at sub-samples ``factor * t + r``."""
     k = np.convolve(interpolation_kernel(factor), gaussian_kernel(sd, half_width))
     h = len(k) // 2
     length = factor * n_fft
@@ -52,17 +59,7 @@ def _kernel_spectrum(n_fft: int, factor: int, sd: float, half_width: int) -> Flo
     circ[length - h:] = k[:h]
     import scipy.fft  # on first use: the photon commands import this module without it
 
-    spec = scipy.fft.rfft(circ)
-    return np.ascontiguousarray(spec)
-
-
-@lru_cache(maxsize=32)
-def _upsample_index(n_fft: int, factor: int) -> tuple[npt.NDArray[np.intp], npt.NDArray[np.bool_]]:
-    """Where bin ``b`` of the zero-stuffed signal's rfft comes from in the raw rfft."""
-    b = np.arange(factor * n_fft // 2 + 1) % n_fft
-    conj = b > n_fft // 2
-    src = np.where(conj, n_fft - b, b)
-    return src.astype(np.intp), conj
+    return np.ascontiguousarray(scipy.fft.rfft(circ.reshape(n_fft, factor).T, axis=1))
 
 
 def smooth_subsampled(resid: FloatArray, factor: int,
@@ -94,14 +91,12 @@ def smooth_subsampled(resid: FloatArray, factor: int,
 
     n_fft = scipy.fft.next_fast_len(m + margin, real=True)
     spec = scipy.fft.rfft(resid, n=n_fft, axis=1)
-    src, conj = _upsample_index(n_fft, factor)
-    up = spec[:, src]
-    if conj.any():
-        np.conjugate(up, out=up, where=conj[None, :])
     results = []
     for sd, half in kernels:
-        prod = up * _kernel_spectrum(n_fft, factor, float(sd), int(half))
-        smoothed = scipy.fft.irfft(prod, n=factor * n_fft, axis=1)
-        results.append(smoothed[:, :out_len])   # a view: rows stay contiguous
+        # sub-sample factor * j + r is the circular convolution of the samples with the
+        # kernel's phase r: one short inverse transform per phase, then interleaved
+        phases = _phase_spectra(n_fft, factor, float(sd), int(half))
+        smoothed = scipy.fft.irfft(spec[:, None, :] * phases[None], n=n_fft, axis=2)
+        grid = smoothed.transpose(0, 2, 1).reshape(n, factor * n_fft)
+        results.append(grid[:, :out_len])   # a view: rows stay contiguous
     return results
-
