@@ -114,6 +114,7 @@ def test_zero_offset_is_undetermined_or_within_its_uncertainty(sample, tile, see
         assert o.detectable_cross >= o.cross_track_sd > 0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("tile,seed", [("lasR_bcts_1.laz", 0), ("lidR_Topography.laz", 1)])
 def test_known_offset_is_found_within_its_uncertainty(sample, tile, seed):
     """-4 m along, +6 m across, +0.8 m up inserted into six simulated beams."""
@@ -135,6 +136,7 @@ def test_known_offset_is_found_within_its_uncertainty(sample, tile, seed):
         zero.along_track_sd, zero.cross_track_sd)
 
 
+@pytest.mark.slow
 def test_pure_noise_is_never_determined():
     """Heights = a textured DTM + noise, exactly geolocated: 12 tracks, no offset found."""
     crs = pyproj.CRS(32610)
