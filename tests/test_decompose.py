@@ -153,3 +153,36 @@ def test_decomposition_equals_the_per_shot_fits(gedi_l1b: Path) -> None:
             np.testing.assert_allclose(got[:, 0], ref[:, 0], rtol=1e-4)
             np.testing.assert_allclose(got[:, 1], ref[:, 1], rtol=0, atol=1e-4 * 0.15 * m)
             np.testing.assert_allclose(got[:, 2], ref[:, 2], rtol=1e-4)
+
+
+def test_batched_trust_region_follows_scipy() -> None:
+    """Several Gaussians per row (overlapping, some weak, so the fits meet their bounds
+    and have several minima): the batch takes scipy's trust-region-reflective steps and
+    ends where scipy's per-row fit from the same start ends (1e-9 relative)."""
+    from scipy.ndimage import gaussian_filter1d
+
+    from canopyblocks.waveforms import decompose as dec
+    from canopyblocks.waveforms.gauss_trf import trf_many
+
+    rng = np.random.default_rng(13)
+    x = np.arange(400.0)
+    probs = []
+    while len(probs) < 40:
+        y = rng.normal(0, 2.0, x.size)
+        for _ in range(int(rng.integers(3, 7))):
+            y += _gauss(x, rng.uniform(3, 40), rng.uniform(150, 250), rng.uniform(2, 15))
+        prob = dec._problem(y, gaussian_filter1d(y, 3.0, mode="nearest"), 6.0, 10)
+        if prob is not None and len(prob.p0) == 9:
+            probs.append(prob)
+    width = max(p.hi - p.lo for p in probs)
+    xs = np.array([p.lo + np.arange(width) for p in probs], dtype=float)
+    ys = np.zeros_like(xs)
+    wt = np.zeros_like(xs)
+    for k, p in enumerate(probs):
+        ys[k, :p.hi - p.lo] = p.y
+        wt[k, :p.hi - p.lo] = 1.0
+    got = trf_many(xs, ys, wt, np.array([p.p0 for p in probs]),
+                   np.array([p.lower for p in probs]), np.array([p.upper for p in probs]), 400)
+    for k, p in enumerate(probs):
+        np.testing.assert_allclose(got[k], dec._fit_one(p), rtol=1e-9, atol=1e-9,
+                                   err_msg=str(k))

@@ -10,15 +10,16 @@ threshold and that holds at least ``min_share`` of the fitted energy; top = the 
 sample above the threshold.
 
 The smoothing (one call per shot length), thresholds, windows and initial peaks are
-done for the whole batch; shots fitted with one Gaussian (~80 % of GEDI shots) are
-fitted together by a batched Levenberg-Marquardt (:mod:`.gauss_lm`); shots with several
-Gaussians, and the few the batch cannot settle, shot by shot with scipy's bounded
-trust region and an analytic Jacobian (several local minima: the path decides which
-one, and a batched Levenberg-Marquardt reached another in 6 of the 64 such bundled
-shots). Against the per-shot fits with a numerical Jacobian this replaces: the same
-Gaussians, ground and top on the bundled shots, parameters within 1e-4 relative --
-inside the reach of scipy's default stopping tolerances, which leave them up to 8e-4
-from the least-squares minimum on those shots.
+done for the whole batch, and the fits too, the shots with the same number of Gaussians
+together: one Gaussian (~75 % of GEDI shots) by a batched Levenberg-Marquardt
+(:mod:`.gauss_lm`: the same minimum), several by scipy's bounded trust-region
+reflective method taken step for step on the whole batch (:mod:`.gauss_trf`: such fits
+have several local minima and the path decides which one is reached; the batch follows
+scipy's path, to 2e-12 on the bundled shots), both with an analytic Jacobian. A shot
+the batch cannot settle is fitted alone by scipy. Against the per-shot fits with a
+numerical Jacobian this replaces: the same Gaussians, ground and top on the bundled
+shots, parameters within 1e-4 relative -- inside the reach of scipy's default stopping
+tolerances, which leave them up to 8e-4 from the least-squares minimum on those shots.
 """
 
 from __future__ import annotations
@@ -36,6 +37,7 @@ from ..errors import InputError
 from ..progress import Progress, as_progress
 from .batch import WaveformBatch
 from .gauss_lm import _model_and_jacobian, fit_many
+from .gauss_trf import trf_many
 
 __all__ = ["decompose_waveforms", "fit_gaussians"]
 
@@ -131,17 +133,6 @@ def _fit_all(problems: list[_Problem | None]) -> list[np.ndarray]:
         if prob is not None:
             by_count.setdefault(len(prob.p0), []).append(i)
     for n_par, idx in by_count.items():
-        if n_par > 3:
-            # Several Gaussians: the fit has several local minima, and which one is
-            # reached depends on the path; scipy's reflective trust region keeps the
-            # minima of the shots as they were (a plain batched Levenberg-Marquardt
-            # reached another one in 6 of the 64 such bundled shots).
-            for i in idx:
-                pr = problems[i]
-                assert pr is not None
-                g = _fit_one(pr).reshape(-1, 3)
-                out[i] = g[np.argsort(g[:, 1])]
-            continue
         for a in range(0, len(idx), _FIT_ROWS):
             rows = idx[a:a + _FIT_ROWS]
             probs = [problems[i] for i in rows]
@@ -159,7 +150,15 @@ def _fit_all(problems: list[_Problem | None]) -> list[np.ndarray]:
                 y[k, :length] = pr.y
                 wt[k, :length] = 1.0
                 p0[k], lower[k], upper[k] = pr.p0, pr.lower, pr.upper
-            params, settled = fit_many(x, y, wt, p0, lower, upper)
+            if n_par > 3:
+                # Several Gaussians: several local minima, the path decides which one is
+                # reached: scipy's reflective trust region, step for step, on the batch
+                # (a plain Levenberg-Marquardt reached another minimum in 6 of the 64
+                # such bundled shots)
+                params = trf_many(x, y, wt, p0, lower, upper, 200 * (n_par // 3))
+                settled = np.isfinite(params).all(axis=1)
+            else:
+                params, settled = fit_many(x, y, wt, p0, lower, upper)
             for k, i in enumerate(rows):
                 pr = problems[i]
                 assert pr is not None
