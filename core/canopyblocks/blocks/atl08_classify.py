@@ -14,8 +14,10 @@ Steps, all vectorised along the track:
 3. **Ground** (:func:`.atl08_surface.fit_atl08_surface`): a low percentile per 30 m, then
    passes of a robust fit in narrowing bands, smoothed.
 4. **Canopy.** Photons above the ground buffer that pass the noise filter or a long, flat
-   density test (+-``canopy_filter.along`` x +-``canopy_filter.height`` m, same rate and
-   quantile: sparse crowns at one height), and that are reachable from the ground without
+   density test (+-``canopy_filter.along`` x +-``canopy_filter.height`` m at the same rate:
+   sparse crowns at one height; a longer, taller box on a sparse track, one with fewer than
+   ``sparse_signal`` signal photons a metre, e.g. a weak beam), and that are reachable from
+   the ground without
    a vertical gap of more than ``max_gap`` m inside their ``top_window`` window (isolated
    photons high above the canopy are noise).
 5. **Top of canopy.** Canopy photons within ``toc_depth`` m of the highest canopy photon
@@ -76,6 +78,12 @@ class Atl08Params:
     canopy_filter : DensityParams
         The long, flat canopy test (+-20 m x +-3 m, quantile 0.99; the gap rule then
         removes what stray noise it lets through).
+    sparse_canopy_filter : DensityParams
+        The canopy test of a sparse track (+-40 m x +-4 m, quantile 0.99): the box must hold
+        enough canopy photons to stand out where there are a quarter as many (weak beams).
+    sparse_signal : float
+        Photons per metre along the track passing the noise filter below which a track is
+        sparse (1.2; on the calibration tiles strong beams gave 2.6-3.6, weak 0.2-1.0).
     surface : SurfaceParams
         The ground surface (:mod:`.atl08_surface`).
     shot_spacing : float
@@ -99,6 +107,9 @@ class Atl08Params:
         along=10.0, height=1.5, quantile=0.999, segment=200.0, edge_correction=True))
     canopy_filter: DensityParams = field(default_factory=lambda: DensityParams(
         along=20.0, height=3.0, quantile=0.99, segment=200.0, edge_correction=True))
+    sparse_canopy_filter: DensityParams = field(default_factory=lambda: DensityParams(
+        along=40.0, height=4.0, quantile=0.99, segment=200.0, edge_correction=True))
+    sparse_signal: float = 1.2
     surface: SurfaceParams = field(default_factory=SurfaceParams)
     shot_spacing: float = ICESAT2_SHOT_SPACING
     ground_buffer: float = 0.6
@@ -109,12 +120,12 @@ class Atl08Params:
 
     def __post_init__(self) -> None:
         for name, typ in (("filter", DensityParams), ("canopy_filter", DensityParams),
-                          ("surface", SurfaceParams)):
+                          ("sparse_canopy_filter", DensityParams), ("surface", SurfaceParams)):
             if not isinstance(getattr(self, name), typ):
                 raise InputError(f"ATL08 classifier {name} must be a {typ.__name__}, got "
                                  f"{type(getattr(self, name)).__name__}")
         for name in ("shot_spacing", "ground_buffer", "ground_below", "max_gap", "top_window",
-                     "toc_depth"):
+                     "toc_depth", "sparse_signal"):
             object.__setattr__(self, name, _positive(getattr(self, name),
                                                      f"ATL08 classifier {name}"))
 
@@ -233,9 +244,10 @@ def classify_photons(track: PhotonTrack, params: Atl08Params | None = None) -> A
     surface = fit_atl08_surface(s[signal], z[signal], p.surface)
     hrel = np.full(n, np.nan)
     hrel[finite] = z[finite] - surface(s[finite])
-    # the long, flat canopy test at the same background rate
-    flat = density_filter(s, z, p.canopy_filter,
-                          rate=res.rate if p.canopy_filter.background is None else None)
+    # the long, flat canopy test at the same background rate (longer on a sparse track)
+    span = max(float(np.ptp(s[finite])), 1.0)
+    cf = p.sparse_canopy_filter if signal.sum() / span < p.sparse_signal else p.canopy_filter
+    flat = density_filter(s, z, cf, rate=res.rate if cf.background is None else None)
     classes = np.full(n, CLASS_NONE, np.int8)
     classes[finite] = CLASS_NOISE
     with np.errstate(invalid="ignore"):
