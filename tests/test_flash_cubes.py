@@ -124,25 +124,20 @@ def test_bad_parameters():
 
 
 @pytest.mark.slow
-def test_threshold_study_reproduces_seed_003(sample):
-    """Over a real tile: ground and canopy height are better at 50 % than at 10 % (noisy
-    marginal pixels) and at 90 % (too few pixels) -- seed 003's finding."""
+def test_threshold_study_over_a_real_tile(sample):
+    """The paper's table over a real tile: fractions up to 0.5 keep all 16 pixels of the
+    4 x 4 region (under the Gaussian beam its corner pixels get 0.80 of the brightest's
+    energy; the scene's reflectance varies it a little) and so give the same row; 0.9
+    keeps a few central pixels, a noisier waveform, and is no better."""
     pts = read_las([sample("als/lasR_bcts_1.laz"), sample("als/lasR_bcts_2.laz")])
     b = pts.bounds
     cx, cy = (b[0] + b[2]) / 2, (b[1] + b[3]) / 2
     sims = [simulate_flash_cubes(pts, line_through(b, 10.0, centre=(cx + dx, cy), inset=6),
-                                 FlashSimParams(noise_sd=0.08), seed=i)
-            for i, dx in enumerate((-60, -30, 0, 30, 60))]
-    import pandas as pd
-
-    from canopyblocks.simulate.flash_cubes import FlashSimulation
-
-    sim = FlashSimulation(np.concatenate([s.cubes[..., :min(x.cubes.shape[3] for x in sims)]
-                                          for s in sims]),
-                          np.concatenate([s.top for s in sims]), sims[0].bin_size,
-                          np.concatenate([s.x for s in sims]), np.concatenate([s.y for s in sims]),
-                          pd.concat([s.truth for s in sims], ignore_index=True), 0.08)
-    table = threshold_study(sim, (0.1, 0.5, 0.9)).set_index("fraction")
-    for col in ("ground_rmse", "height_rmse"):
-        assert table.loc[0.5, col] < table.loc[0.1, col], table
-        assert table.loc[0.5, col] < table.loc[0.9, col], table
+                                 FlashSimParams(), seed=i)
+            for i, dx in enumerate((-60, 60))]
+    table = threshold_study(sims, pts, (0.1, 0.5, 0.9)).set_index("fraction")
+    px = list(table["pixels_per_footprint"])
+    assert px[:2] == [16, 16] and 4 <= px[2] < 16
+    for col in ("terrain_rmse", "height_rmse", "outliers_pct"):
+        assert table.loc[0.1, col] == table.loc[0.5, col]
+    assert table.loc[0.5, "height_rmse"] <= table.loc[0.9, "height_rmse"], table

@@ -197,61 +197,16 @@ def _truth(index: CloudIndex, points: LasPoints, ids: np.ndarray, sx: np.ndarray
                          "truth_height": top - g})
 
 
-def threshold_study(sim: FlashSimulation,
-                    fractions: tuple[float, ...] = (0.1, 0.25, 0.5, 0.6, 0.7, 0.8, 0.9)
-                    ) -> pd.DataFrame:
-    """Seed 003's experiment: accuracy of ground and canopy height against the energy
-    fraction that defines the footprint's pixels.
+def threshold_study(sim: FlashSimulation | list[FlashSimulation], points: LasPoints,
+                    fractions: tuple[float, ...] = (0.1, 0.25, 0.5, 0.6, 0.7, 0.8, 0.9),
+                    params: Any = None) -> pd.DataFrame:
+    """The flash-lidar paper's experiment (its table II): accuracy of terrain and canopy
+    height against the energy fraction that defines the footprint's pixels, through the
+    paper's chain (:mod:`canopyblocks.waveforms.esfl`), against the airborne ``points``
+    under the pixels each waveform merges. One row per fraction (see
+    :func:`canopyblocks.simulate.esfl_study.esfl_threshold_table`); ``sim`` is one flight
+    line or several."""
+    from .esfl_study import esfl_threshold_table
 
-    Each footprint waveform goes through the GEDI L2A-style processing (setting a1) with
-    its noise estimated from the waveform itself (seed 003's histogram method). Returns
-    one row per fraction: ``fraction``, ``n_pixels``, ``n``, ground and height bias and
-    RMSE (m) against the truth.
-    """
-    from ..waveforms.flash import aggregate_footprints
-    from ..waveforms.noise import estimate_noise
-    from ..waveforms.process import process_waveforms
-
-    rows = []
-    for f in fractions:
-        agg = aggregate_footprints(sim.cubes, f)
-        batch = _batch(agg.waveforms, sim, estimate_noise)
-        res = process_waveforms(batch, _flash_params())
-        ok = (res["flag"] == "ok").to_numpy()
-        g_err = res["ground"].to_numpy(float) - sim.truth["truth_ground"].to_numpy(float)
-        h_err = (res["top"].to_numpy(float) - res["ground"].to_numpy(float)
-                 - sim.truth["truth_height"].to_numpy(float))
-        row: dict[str, float] = {"fraction": f, "n_pixels": agg.n_pixels,
-                                 "n": int((ok & np.isfinite(g_err)).sum())}
-        for name, e in (("ground", g_err), ("height", h_err)):
-            e = e[ok & np.isfinite(e)]
-            row[f"{name}_bias"] = float(e.mean()) if e.size else float("nan")
-            row[f"{name}_rmse"] = float(np.sqrt(np.mean(e * e))) if e.size else float("nan")
-        rows.append(row)
-    return pd.DataFrame(rows)
-
-
-def _flash_params() -> Any:
-    from ..waveforms.settings import WaveformParams
-
-    # GEDI's smoothing widths are in 0.15 m samples (6.5 samples = 0.98 m): the same
-    # widths in metres on 0.75 m bins, seed 003's 4-sd threshold, a search window and
-    # no terrain filter (footprints are processed as one set, not a beam)
-    return WaveformParams(kernel="nominal", location_smoothing=1.3, mode_smoothing=1.3,
-                          front_threshold=4.0, back_threshold=4.0, search_size=20,
-                          terrain_filter=False)
-
-
-def _batch(wf: np.ndarray, sim: FlashSimulation, estimate_noise):  # noqa: ANN001, ANN202
-    from ..waveforms.batch import WaveformBatch
-
-    n, m = wf.shape
-    est = estimate_noise(wf)
-    z = np.zeros(n)
-    return WaveformBatch(
-        beam="ESFL", shot_number=np.arange(n, dtype=np.uint64), time=z.copy(),
-        waveforms=wf.astype(np.float32), n_samples=np.full(n, m, np.int64),
-        elev_bin0=sim.top.astype(float), elev_lastbin=sim.top - (m - 1) * sim.bin_size,
-        lat_bin0=z.copy(), lat_lastbin=z.copy(), lon_bin0=z.copy(), lon_lastbin=z.copy(),
-        noise_mean=np.asarray(est.mean, float), noise_sd=np.asarray(est.sd, float),
-        stale=np.zeros(n, bool), degraded=np.zeros(n, bool))
+    sims = sim if isinstance(sim, list) else [sim]
+    return esfl_threshold_table([s.as_cubes() for s in sims], points, fractions, params)

@@ -11,7 +11,8 @@ Layouts (HDF5, metres unless stated):
   ``BEAMxxxx/canopyblocks_truth/``; report: ``gedi_truth.csv`` and
   ``gedi_round_trip.csv`` (the L2A-style processing of the file against the truth).
 - ESFL: ``cubes`` (footprints, rows, cols, bins) float32, ``top`` (footprints,) the
-  elevation of bin 0, ``x``/``y`` footprint centres (the tiles' CRS, attribute ``crs``),
+  elevation of bin 0's centre (bin k is centred k bins lower), ``x``/``y`` footprint
+  centres (the tiles' CRS, attribute ``crs``; attribute ``along``: the track's unit vector),
   ``truth/ground``, ``truth/top``, ``truth/height``; attributes ``bin_size``,
   ``pixel_size``, ``footprint``, ``sensor = "esfl"``.
 - dual: ``visible``, ``nir`` (footprints, bins) float32, ``top``, ``x``/``y``,
@@ -136,7 +137,8 @@ def simulate_esfl_to_file(points: LasPoints, track: SimTrack, path: str | os.Pat
     out = Path(path)
     with atomic_output(out) as tmp, h5py.File(tmp, "w") as f:
         f.attrs.update({"sensor": "esfl", "bin_size": p.bin_size, "pixel_size": p.pixel_size,
-                        "footprint": p.footprint, "crs": str(points.crs)})
+                        "footprint": p.footprint, "crs": str(points.crs),
+                        "along": np.asarray(sim.along, float)})
         f.create_dataset("cubes", data=sim.cubes.astype(np.float32), compression="gzip")
         for k in ("top", "x", "y"):
             f.create_dataset(k, data=np.asarray(getattr(sim, k), float))
@@ -145,7 +147,7 @@ def simulate_esfl_to_file(points: LasPoints, track: SimTrack, path: str | os.Pat
     summary: dict[str, object] = {"footprints": int(sim.cubes.shape[0]), "output": str(out)}
     if report_dir is not None:
         prog.update(0.7, "threshold study")
-        table = threshold_study(sim)
+        table = threshold_study(sim, points)
         _write_report_table(table, Path(report_dir) / "esfl_threshold_study.csv")
         summary["study"] = table
     prog.report(1.0, "done")
