@@ -199,7 +199,15 @@ def _lowest_peak(g: np.ndarray, m: int) -> float:
     is not symmetric) adds no peak of its own and so is not a ground."""
     if not g.size:
         return float("nan")
-    x = np.arange(0.0, m, 0.25)
+    # only the grid points within reach of a centre (and one either side) can be such a
+    # peak: the model there, on the same grid, is the whole model's
+    reach = np.maximum(g[:, 2], 1.0)
+    n_grid = len(np.arange(0.0, m, 0.25))
+    i0 = max(0, int(np.floor(float((g[:, 1] - reach).min()) / 0.25)) - 1)
+    i1 = min(n_grid, int(np.ceil(float((g[:, 1] + reach).max()) / 0.25)) + 2)
+    x = np.arange(i0, max(i0, i1), dtype=np.float64) * 0.25
+    if x.size < 3:
+        return float("nan")
     y = _model(x, g.reshape(-1))
     peaks = np.flatnonzero((y[1:-1] > y[:-2]) & (y[1:-1] >= y[2:])) + 1
     if peaks.size == 0:
