@@ -144,10 +144,10 @@ def accuracy(seeds: range, azimuths: tuple[float, ...]) -> None:
                                       key == "all"))
                     if key == "all":
                         print(f"{name} az {az:g} seed {seed} all: zero {o.status} "
-                              f"({o.along_track:+.2f} {o.cross_track:+.2f} +-{sd:.2f}, t "
+                              f"({o.along_track:+.2f} {o.cross_track:+.2f} +-{sd:.2f}, score "
                               f"{o.heldout_t:+.1f}); known {k.status} error {ea:+.2f} "
                               f"{ec:+.2f} (sd {k.along_track_sd:.2f} {k.cross_track_sd:.2f}, "
-                              f"t {k.heldout_t:+.1f}); detectable {o.detectable_along:.1f}/"
+                              f"score {k.heldout_t:+.1f}); detectable {o.detectable_along:.1f}/"
                               f"{o.detectable_cross:.1f} m", flush=True)
     f = np.array(found, dtype=float).reshape(-1, 5)
     herr = np.hypot(f[:, 0], f[:, 1])

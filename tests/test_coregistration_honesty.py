@@ -367,3 +367,43 @@ def test_run_coregister_says_what_it_applied(files, pdal_bin, sample, tmp_path):
         assert "was applied" not in section and "not applied" in section
         assert "stats_uncorrected" not in layers
         assert "undetermined" in err and "sim.h5" in err
+
+
+def test_signed_rank_score_matches_scipy():
+    """The held-out test's statistic against scipy's Wilcoxon (normal approximation, tie
+    and continuity corrections, zeros dropped, one-sided)."""
+    from scipy.special import ndtri
+    from scipy.stats import wilcoxon
+
+    from canopyblocks.validation.coregistration_checks import signed_rank_score
+
+    rng = np.random.default_rng(0)
+    for n in (8, 22, 60):
+        for shift in (-0.5, 0.0, 0.3, 1.0):
+            g = np.round(rng.standard_t(3, n) + shift, 1)
+            g[:2] = 0.0
+            p = wilcoxon(g, alternative="greater", method="approx", correction=True,
+                         zero_method="wilcox").pvalue
+            assert signed_rank_score(g) == pytest.approx(float(ndtri(1 - p)), abs=1e-9)
+    assert np.isnan(signed_rank_score(np.array([1.0, 2.0, 0.0, 0.0, 3.0])))
+
+
+def test_apply_offset_refuses_an_undetermined_offset():
+    import geopandas as gpd
+
+    from canopyblocks.errors import InputError
+    from canopyblocks.validation.coregistration import CoregOffset
+    from canopyblocks.validation.coregistration_targets import apply_offset
+
+    crs = pyproj.CRS(3005)
+    table = gpd.GeoDataFrame({"track": ["gt1r"], "x": [885100.0], "y": [629300.0],
+                              "ground": [300.0], "top": [320.0]},
+                             geometry=gpd.points_from_xy([885100.0], [629300.0]), crs=crs)
+    nan = float("nan")
+    off = CoregOffset("gt1r", 9.4, 0.0, 9.4, 0.0, 0.0, *([nan] * 5), *([nan] * 4), 10, 0,
+                      False, False, "no significant improvement on held-out blocks",
+                      crs.to_wkt())
+    with pytest.raises(InputError, match="undetermined.*not applied"):
+        apply_offset(table, off)
+    moved = apply_offset(table, off, force=True)
+    assert moved["x"].iloc[0] == pytest.approx(885109.4)

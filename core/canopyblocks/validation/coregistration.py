@@ -141,6 +141,8 @@ class CoregParams:
     min_segments: int = 6
 
     def __post_init__(self) -> None:
+        from ..arguments import check_fields
+        check_fields(self)
         for name in ("search_range", "step", "fine_step", "fine_range", "ground_scale",
                      "top_scale", "truncate", "max_sd", "segment"):
             v = getattr(self, name)
@@ -192,7 +194,7 @@ class CoregOffset:
     not significant on held-out stretches (or not constrained); ``reason`` says why, and
     it must not be applied. ``detectable_*``: the minimum detectable offset (m) along and
     across the track over this terrain (three standard deviations);
-    ``heldout_*``: the held-out test (t statistic, its critical value, held-out ground
+    ``heldout_*``: the held-out test (signed-rank score, its critical value, held-out ground
     RMSE at no shift and at the offsets fitted without them); ``coverage``: blocks and
     stretches of the track on valid raster cells.
     """
@@ -256,7 +258,8 @@ class CoregOffset:
             "status": self.status, "reason": self.reason,
             "minimum_detectable": {"along_track": num(self.detectable_along),
                                    "cross_track": num(self.detectable_cross)},
-            "held_out": {"t": num(self.heldout_t), "critical_t": num(self.heldout_critical),
+            "held_out": {"score": num(self.heldout_t),
+                         "critical_score": num(self.heldout_critical),
                          "rmse_before": num(self.heldout_rmse_before),
                          "rmse_after": num(self.heldout_rmse_after),
                          "stretches": int(self.n_segments)},
@@ -438,9 +441,9 @@ def _search_one(name: str, t: CoregTargets, dtm: RasterSurface, dsm: RasterSurfa
         reasons.append(f"the cost surface is flat (contrast {contrast:.3f} < "
                        f"{p.min_contrast}): the terrain does not constrain the position")
     if not held.significant:
-        reasons.append(f"no significant improvement on held-out blocks (t {held.t:.1f}, "
-                       f"needs > {held.critical:.1f}, over {held.n_segments} stretches of "
-                       f"{p.segment:g} m)")
+        reasons.append(f"no significant improvement on held-out blocks (signed-rank score "
+                       f"{held.t:.1f}, needs > {held.critical:.1f}, over {held.n_segments} "
+                       f"stretches of {p.segment:g} m)")
     if held.worse:
         reasons.append(f"the held-out ground RMSE gets worse ({held.rmse_before:.2f} -> "
                        f"{held.rmse_after:.2f} m)")

@@ -217,7 +217,8 @@ def _shift_xy(x: np.ndarray, y: np.ndarray, crs: pyproj.CRS, off: CoregOffset
     return _to_crs(xo + off.east, yo + off.north, ocrs, _horizontal(crs))
 
 
-def apply_offset(obj: Any, offset: CoregOffset, *, crs: Any = None) -> Any:
+def apply_offset(obj: Any, offset: CoregOffset, *, crs: Any = None,
+                 force: bool = False) -> Any:
     """A copy of a photon track, block table or footprint table shifted by ``offset``.
 
     Positions move by ``east``/``north`` (in the offset's CRS), along-track distances by
@@ -230,10 +231,22 @@ def apply_offset(obj: Any, offset: CoregOffset, *, crs: Any = None) -> Any:
     offset : CoregOffset
     crs : CRS-like, optional
         CRS of a plain DataFrame's ``x``/``y`` (a GeoDataFrame carries its own).
+    force : bool
+        Apply an undetermined offset too (by default it is refused: it is not
+        significant on held-out stretches of the track, or not constrained).
+
+    Raises
+    ------
+    InputError
+        The offset is undetermined (and ``force`` is False).
     """
     from ..arguments import check_instance
     from .coregistration import CoregOffset as _CoregOffset
     check_instance(offset, _CoregOffset, "apply_offset: offset", "a CoregOffset (an item of CoregResult.offsets from coregister)")
+    if not offset.determined and not force:
+        raise InputError(f"apply_offset: the offset of {offset.name} is undetermined "
+                         f"({offset.reason}); it is not applied (force=True applies it "
+                         "anyway)")
     if isinstance(obj, PhotonTrack):
         x, y = _shift_xy(obj.x, obj.y, obj.crs, offset)
         lon, lat = from_metric(x, y, obj.crs)
