@@ -141,13 +141,14 @@ def _run_processes(fn: Callable[[Any], Any], items: Sequence[Any], n: int, start
     pool = mp.get_context(start).Pool(processes=min(n, len(items)),
                                       initializer=_worker_signals)
     try:
-        it = pool.imap_unordered(_indexed_call, [(fn, i, it) for i, it in enumerate(items)])
+        pending = pool.imap_unordered(_indexed_call,
+                                      [(fn, i, item) for i, item in enumerate(items)])
         for _ in range(len(items)):
             while True:
                 if stop():
                     break
                 try:
-                    i, result = it.next(timeout=0.2)
+                    i, result = pending.next(timeout=0.2)
                 except mp.TimeoutError:
                     continue
                 results[i] = result
