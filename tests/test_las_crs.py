@@ -158,3 +158,27 @@ def test_a_few_points_off_the_earth_are_warned_not_refused(conifer, tmp_path) ->
     with pytest.warns(UserWarning, match="5 point"):
         pts = read_las(path)
     assert len(pts) == z.size
+
+
+def test_integer_height_tally_equals_the_float_one() -> None:
+    """las_summary counts on the integer coordinates; the count must equal the one on
+    the heights themselves (brute force), at the range's edges too."""
+    from canopyblocks.readers.cloud_checks import PLAUSIBLE_HEIGHTS, HeightTally
+
+    rng = np.random.default_rng(3)
+    scale, offset = 0.01, -600.0
+    lo_i = round((PLAUSIBLE_HEIGHTS[0] - offset) / scale)
+    hi_i = round((PLAUSIBLE_HEIGHTS[1] - offset) / scale)
+    zi = np.concatenate([rng.integers(-10**6, 2 * 10**6, 5000),
+                         [lo_i - 1, lo_i, lo_i + 1, hi_i - 1, hi_i, hi_i + 1]])
+    c = rng.choice(np.array([1, 2, 7, 18], np.uint8), zi.size)
+    a, b = HeightTally(), HeightTally()
+    a.add_scaled(zi, c, scale, offset)
+    z = zi * scale + offset
+    b.add(z, c)
+    keep = ~np.isin(c, (7, 18))
+    out = keep & ((z < PLAUSIBLE_HEIGHTS[0] - 1e-9) | (z > PLAUSIBLE_HEIGHTS[1] + 1e-9))
+    assert a.n_ground_out + a.n_other_out == int(out.sum())
+    assert (a.n_ground, a.n_ground_out, a.n_other, a.n_other_out) == \
+        (b.n_ground, b.n_ground_out, b.n_other, b.n_other_out)
+    assert a.zmin == pytest.approx(z[keep].min()) and a.zmax == pytest.approx(z[keep].max())
