@@ -9,10 +9,13 @@ which:
   value there: the survey saw the cell, only not its ground) or are enclosed by such
   cells (a gap inside the survey).  Cells outside the survey stay nodata: nothing there
   to interpolate from.
-* **how**: linear interpolation over a Delaunay triangulation (a TIN, as ground is
-  usually interpolated) of the measured cells around the holes (their centres and means);
-  a hole outside the triangulation (on the survey's edge) takes the value of the nearest
-  measured cell.
+* **how**: harmonic (Laplace) interpolation: each filled cell is the mean of its four
+  neighbours, the measured cells held fixed -- one sparse linear system for all holes.  It
+  reproduces planes exactly, never leaves the range of the measured ground around a hole,
+  and scales with the number of holes (a Delaunay TIN over grid cells was measured at
+  486 s for 1000 x 1000 cells with 11 % holes: the cell centres are a degenerate input
+  for the triangulation).  A group of holes with no measured neighbour (only possible when
+  the survey holds no ground near it) takes the value of the nearest measured cell.
 
 Every filled cell is marked in the fill mask (``dtm_fill_mask.tif``: 1 filled, 0 measured,
 255 no value), so a user can leave them out or judge them.
@@ -38,7 +41,6 @@ log = logging.getLogger(__name__)
 MASK_MEASURED = 0
 MASK_FILLED = 1
 MASK_NODATA = 255
-_RING = 3  # measured cells this many cells around a hole take part in its triangulation
 
 
 def fill_dtm_holes(dtm: np.ndarray, support: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -70,32 +72,56 @@ def fill_dtm_holes(dtm: np.ndarray, support: np.ndarray) -> tuple[np.ndarray, np
     filled = dtm.copy()
     if not holes.any() or not measured.any():
         return filled, np.zeros(dtm.shape, dtype=bool)
-    near = ndimage.binary_dilation(holes, structure=np.ones((3, 3), bool), iterations=_RING)
-    src = np.nonzero(measured & near)
-    dst = np.nonzero(holes)
-    values = _linear(np.column_stack(src).astype(np.float64), dtm[src],
-                     np.column_stack(dst).astype(np.float64))
-    outside = ~np.isfinite(values)
-    if outside.any():  # beyond the triangulation: the nearest measured cell
+    # a group of holes with no measured neighbour has nothing to be interpolated from:
+    # it takes the nearest measured cell
+    cross = ndimage.generate_binary_structure(2, 1)
+    labels, _ = ndimage.label(holes, structure=cross)
+    touching = np.unique(labels[ndimage.binary_dilation(measured, structure=cross) & holes])
+    solvable = np.isin(labels, touching[touching > 0])
+    if solvable.any():
+        filled[solvable] = _harmonic(dtm, measured, solvable)
+    rest = holes & ~solvable
+    if rest.any():
         idx = ndimage.distance_transform_edt(~measured, return_distances=False,
                                              return_indices=True)
-        r, c = dst[0][outside], dst[1][outside]
-        values[outside] = dtm[idx[0][r, c], idx[1][r, c]]
-    filled[dst] = values
+        filled[rest] = dtm[idx[0][rest], idx[1][rest]]
     return filled, holes
 
 
-def _linear(points: np.ndarray, values: np.ndarray, targets: np.ndarray) -> np.ndarray:
-    """Linear (TIN) interpolation; NaN outside the hull or when no triangle can be made."""
-    if len(points) < 3:
-        return np.full(len(targets), np.nan)
-    from scipy.interpolate import LinearNDInterpolator
+def _harmonic(dtm: np.ndarray, measured: np.ndarray, unknown: np.ndarray) -> np.ndarray:
+    """Values at the ``unknown`` cells (row-major order) solving Laplace's equation: each is
+    the mean of its 4 neighbours that are measured or unknown (cells outside the survey do
+    not take part), measured cells fixed.  One sparse linear system for all holes."""
+    from scipy.sparse import csr_matrix
+    from scipy.sparse.linalg import spsolve
 
-    try:
-        return np.asarray(LinearNDInterpolator(points, values)(targets), dtype=np.float64)
-    except Exception as exc:  # noqa: BLE001 - collinear cells: Qhull cannot triangulate
-        log.debug("no triangulation of the measured cells (%s); nearest cell instead", exc)
-        return np.full(len(targets), np.nan)
+    rows_n, cols_n = dtm.shape
+    n = int(unknown.sum())
+    index = np.full(dtm.shape, -1, dtype=np.int64)
+    index[unknown] = np.arange(n)
+    r, c = np.nonzero(unknown)
+    me = index[r, c]
+    degree = np.zeros(n)
+    rhs = np.zeros(n)
+    off_i: list[np.ndarray] = []
+    off_j: list[np.ndarray] = []
+    for dr, dc in ((-1, 0), (1, 0), (0, -1), (0, 1)):  # the 4 directions, not the cells
+        rr, cc = r + dr, c + dc
+        inside = (rr >= 0) & (rr < rows_n) & (cc >= 0) & (cc < cols_n)
+        rr_in, cc_in, me_in = rr[inside], cc[inside], me[inside]
+        known = measured[rr_in, cc_in]
+        np.add.at(rhs, me_in[known], dtm[rr_in[known], cc_in[known]])
+        np.add.at(degree, me_in[known], 1.0)
+        other = index[rr_in, cc_in]
+        linked = other >= 0
+        np.add.at(degree, me_in[linked], 1.0)
+        off_i.append(me_in[linked])
+        off_j.append(other[linked])
+    i = np.concatenate([np.arange(n), *off_i])
+    j = np.concatenate([np.arange(n), *off_j])
+    v = np.concatenate([degree, -np.ones(sum(len(a) for a in off_i))])
+    matrix = csr_matrix((v, (i, j)), shape=(n, n))
+    return np.asarray(spsolve(matrix, rhs), dtype=np.float64)
 
 
 def rasterio_module() -> Any:
