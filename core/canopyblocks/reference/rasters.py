@@ -22,8 +22,12 @@ tiles (see ``tests/test_rasters.py``).  Then:
   :func:`numpy.percentile`'s default linear interpolation (``v[k] + (v[k+1] - v[k]) * f``
   with ``k + f = 0.9 * (n - 1)`` over the sorted values).
 
-Cells with no point in their circle are nodata (-9999); nothing is interpolated
-(writers.gdal ``window_size=0``).  Rasters are float32 GeoTIFFs carrying the CRS.
+Cells with no point in their circle are nodata (-9999) in the DSMs (writers.gdal
+``window_size=0``).  The DTM's cells that hold points but no ground point (under dense
+canopy), and gaps enclosed by the survey, are then filled by harmonic interpolation and
+marked in ``dtm_fill_mask.tif`` (:mod:`canopyblocks.reference.dtm_fill`).  Rasters are
+float32 GeoTIFFs carrying the CRS with its authority codes
+(:func:`~canopyblocks.reference.raster_grid.authority_crs`).
 """
 
 from __future__ import annotations
