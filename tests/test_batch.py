@@ -202,3 +202,18 @@ def test_batch_applies_the_datum_rule_at_the_door(inputs, tmp_path):
     with pytest.raises(DatumError, match="CGVD28"):
         run_batch([inputs["granules"]], [inputs["tiles"]], out, BatchConfig(lengths=(25.0,)))
     assert not out.exists()
+
+
+def test_rerun_with_other_settings_refused(inputs, tmp_path):
+    """A rerun reuses finished units and rasters: with another corridor width or raster
+    resolution they would be reported as if made with the new settings."""
+    out = tmp_path / "out"
+    g = str(inputs["granules"] / "ATL03_sim1.h5")
+    run_batch([g], [inputs["tiles"]], out, CONFIG, beams=["gt1r"])
+    stats = (out / "stats.csv").read_text()
+    other = BatchConfig(lengths=(25.0,), width=7.0, offset=0.0)
+    with pytest.raises(InputError, match=r"width 13\.0 -> 7\.0"):
+        run_batch([g], [inputs["tiles"]], out, other, beams=["gt1r"])
+    assert (out / "stats.csv").read_text() == stats
+    again = run_batch([g], [inputs["tiles"]], out, CONFIG, beams=["gt1r"])
+    assert again.skipped == 1

@@ -57,7 +57,7 @@ def _leftovers(run: Run, out: Path) -> list[Path]:
 
 CASES = [(backend, stage, how) for backend in ("processes", "dask")
          for stage, how in (("pdal", "term"), ("pdal", "int-group"), ("seconds", "term"),
-                            ("seconds", "int-group"))]
+                            ("seconds", "int-group"))] + [("serial", "pdal", "term")]
 
 
 @pytest.mark.parametrize("backend,stage,how", CASES)
@@ -68,6 +68,7 @@ def test_batch_interrupted(batch_inputs, tmp_path, backend, stage, how) -> None:
     out = tmp_path / "out"
     args = ["batch", str(granules), "--tiles", str(tiles), "-o", str(out), "--offset", "0",
             "--backend", backend, "--workers", "2", "--resolution", "1"]
+    # the serial backend runs PDAL itself, not in a worker: the same test finds it
     run = Run(args, tmp_path)
     ready = _pdal_in_a_worker(run) if stage == "pdal" else _after(run, 5.0)
     sig, group = SIGNALS[how]
@@ -99,9 +100,9 @@ def test_batch_interrupted(batch_inputs, tmp_path, backend, stage, how) -> None:
     assert list(run.tmpdir.iterdir()) == [], f"left in TMPDIR: {list(run.tmpdir.iterdir())}"
     run.no_live_process()
     # a rerun completes from what was kept and leaves no partial file
-    again = subprocess.run([sys.executable, "-m", "canopyblocks", "-q", *args[:-4],
-                            "--backend", "serial"], capture_output=True, text=True,
-                           timeout=600, cwd=tmp_path)
+    again = subprocess.run([sys.executable, "-m", "canopyblocks", "-q", *args[:-6],
+                            "--backend", "serial", "--resolution", "1"],
+                           capture_output=True, text=True, timeout=600, cwd=tmp_path)
     assert again.returncode == 0, again.stderr
     assert (out / "stats.csv").exists()
     assert _leftovers(run, out) == []

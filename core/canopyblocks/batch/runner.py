@@ -79,6 +79,24 @@ def _load_manifest(out: Path) -> dict[str, dict]:
         return {}
 
 
+def _check_same_config(out: Path, config: BatchConfig) -> None:
+    """Refuse to continue a batch made with other settings: its finished units and its
+    rasters would be reused as if made with these (e.g. another corridor width)."""
+    p = out / MANIFEST
+    try:
+        old = json.loads(p.read_text(encoding="utf-8")).get("config")
+    except (OSError, ValueError, AttributeError):
+        return  # no manifest, or an unreadable one (every unit is run again)
+    new = json.loads(json.dumps(asdict(config)))
+    if not isinstance(old, dict) or old == new:
+        return
+    diff = ", ".join(f"{k} {old.get(k)!r} -> {new.get(k)!r}" for k in sorted(new)
+                     if old.get(k) != new.get(k))
+    raise InputError(f"{out} holds a batch made with other settings ({diff}); its finished "
+                     "units and rasters would be reused as if made with these: give another "
+                     "output folder, or the same settings to continue it")
+
+
 def _write_manifest(out: Path, units: dict[str, dict], config: BatchConfig) -> None:
     doc = {"config": asdict(config),
            "units": [units[k] for k in sorted(units)]}
@@ -155,6 +173,7 @@ def run_batch(granules: Sequence[str | os.PathLike[str]],
     prog.update(0.0, "indexing tiles and tracks")
     index = tile_index(t_paths)
     _check_datums(cfg, t_paths[0])
+    _check_same_config(out, cfg)
     out.mkdir(parents=True, exist_ok=True)
     remove_partial_outputs(out)  # left by a batch killed before its clean-up
     before = complete_outputs(out)
