@@ -24,7 +24,8 @@ log = logging.getLogger(__name__)
               default="icesat2", show_default=True,
               help="icesat2: photons (seed 002; --instrument mabel for MABEL); gedi: "
                    "waveforms in the GEDI L1B layout; esfl: flash-array data cubes "
-                   "(seed 003); dual: visible/NIR waveform pairs (seed 004).")
+                   "(electronically steerable flash lidar); dual: visible/NIR waveform "
+                   "pairs.")
 @click.option("--azimuth", type=float, default=None,
               help="Track through the survey centre at this azimuth, degrees clockwise "
                    "from grid north, clipped to the survey extent.")
@@ -65,6 +66,9 @@ log = logging.getLogger(__name__)
                    "--background-rate (1 MHz = 0.0067 photons per shot per metre).")
 @click.option("--geolocation-sigma", type=float, default=0.0, show_default=True,
               help="Horizontal geolocation error (Gaussian sigma), metres.")
+@click.option("--dual-noise", type=click.FloatRange(min=0.0, max=1.0), default=None,
+              help="--sensor dual: noise sd as a share of each pair's near-infrared peak "
+                   "(default 0.05, the dual-wavelength paper's; 0 = noise free).")
 @click.option("--realisations", type=click.IntRange(min=1), default=100, show_default=True,
               help="Photon draws per diameter for the statistics (the file holds the first).")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Random seed.")
@@ -87,7 +91,7 @@ def simulate_cmd(ctx: click.Context, las: tuple[str, ...], sensor: str, azimuth:
                  beam: Beam,
                  mean_photons: float | None, background_rate: float, light: str | None,
                  telemetry_window: float, noise_rate: float | None, geolocation_sigma: float,
-                 realisations: int, seed: int, crs: str | None, output: str, fmt: str | None,
+                 dual_noise: float | None, realisations: int, seed: int, crs: str | None, output: str, fmt: str | None,
                  photon_table: str | None, report: str | None) -> None:
     """Simulate lidar along a track over airborne LAS/LAZ tiles: ICESat-2/MABEL photons
     (default), GEDI waveforms, flash-array cubes or dual-wavelength pairs.
@@ -104,8 +108,10 @@ def simulate_cmd(ctx: click.Context, las: tuple[str, ...], sensor: str, azimuth:
             "give exactly one of --azimuth DEG, --line x0,y0,x1,y1 or --polyline 'x,y;x,y;...'")
     if sensor != "icesat2":
         _waveform_sensor(ctx, las, sensor, azimuth, line, polyline, centre, seed, crs,
-                         output, report, shot_spacing)
+                         output, report, shot_spacing, dual_noise)
         return
+    if dual_noise is not None:
+        raise click.BadParameter("applies to --sensor dual only", param_hint="--dual-noise")
     background_rate = _background_rate(background_rate, light, noise_rate, quiet=bool(
         ctx.obj and ctx.obj.get("quiet")))
     params = SimParams(instrument=instrument,
@@ -169,7 +175,8 @@ def simulate_cmd(ctx: click.Context, las: tuple[str, ...], sensor: str, azimuth:
 def _waveform_sensor(ctx: click.Context, las: tuple[str, ...], sensor: str,
                      azimuth: float | None, line: str | None, polyline: str | None,
                      centre: str | None, seed: int, crs: str | None, output: str,
-                     report: str | None, shot_spacing: float | None = None) -> None:
+                     report: str | None, shot_spacing: float | None = None,
+                     dual_noise: float | None = None) -> None:
     """``--sensor gedi|esfl|dual``: one core call writing the HDF5 (and the report)."""
     from ..simulate import SimTrack
     from ..simulate.gedi_waveforms import GediSimParams
@@ -181,6 +188,13 @@ def _waveform_sensor(ctx: click.Context, las: tuple[str, ...], sensor: str,
             raise click.BadParameter(f"applies to --sensor icesat2 and gedi, not {sensor}",
                                      param_hint="--shot-spacing")
         params = GediSimParams(spacing=shot_spacing)
+    if dual_noise is not None:
+        if sensor != "dual":
+            raise click.BadParameter(f"applies to --sensor dual only, not {sensor}",
+                                     param_hint="--dual-noise")
+        from ..simulate.sensor_files import DualAlsParams
+
+        params = DualAlsParams(noise=dual_noise)
 
     track = None
     if line is not None:

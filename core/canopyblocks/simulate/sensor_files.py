@@ -17,7 +17,8 @@ Layouts (HDF5, metres unless stated):
   ``pixel_size``, ``footprint``, ``sensor = "esfl"``.
 - dual: ``visible``, ``nir`` (footprints, bins) float32, ``top``, ``x``/``y``,
   ``noise_mean_visible|nir``, ``noise_sd_visible|nir``, ``truth/ground``,
-  ``truth/cover``; attributes ``bin_size``, ``sensor = "dual"``.
+  ``truth/cover``; attributes ``bin_size``, ``noise`` (sd as a share of the near-infrared
+  peak), ``sensor = "dual"``.
 """
 
 from __future__ import annotations
@@ -168,7 +169,8 @@ def simulate_dual_to_file(points: LasPoints, track: SimTrack, path: str | os.Pat
     h5py = _h5()
     out = Path(path)
     with atomic_output(out) as tmp, h5py.File(tmp, "w") as f:
-        f.attrs.update({"sensor": "dual", "bin_size": d.bin_size, "crs": str(points.crs)})
+        f.attrs.update({"sensor": "dual", "bin_size": d.bin_size, "crs": str(points.crs),
+                        "noise": float((params or DualAlsParams()).noise)})
         f.create_dataset("visible", data=d.visible.astype(np.float32), compression="gzip")
         f.create_dataset("nir", data=d.nir.astype(np.float32), compression="gzip")
         for k, v in (("top", d.top), ("x", sx), ("y", sy),
@@ -184,6 +186,7 @@ def simulate_dual_to_file(points: LasPoints, track: SimTrack, path: str | os.Pat
         table = pd.DataFrame({"x": sx, "y": sy, "truth_ground": d.ground_centre,
                               "truth_cover": d.cover,
                               "dual_ground": d.position_to_elevation(g.centre),
+                              "dual_tree_height": g.tree_height(d.bin_size),
                               "lowest_mode_ground": lowest_mode_ground(d)})
         table["dual_error"] = table["dual_ground"] - table["truth_ground"]
         table["mode_error"] = table["lowest_mode_ground"] - table["truth_ground"]
