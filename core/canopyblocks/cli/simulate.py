@@ -182,7 +182,7 @@ def _waveform_sensor(ctx: click.Context, las: tuple[str, ...], sensor: str,
     from ..simulate.gedi_waveforms import GediSimParams
     from ..simulate.sensor_files import simulate_sensor_over_tiles
 
-    params = None
+    params: object = None
     if shot_spacing is not None:   # the footprint spacing of GEDI; the others have theirs
         if sensor != "gedi":
             raise click.BadParameter(f"applies to --sensor icesat2 and gedi, not {sensor}",
