@@ -137,3 +137,74 @@ def test_seed002_analysis_of_the_simulation(chain_out) -> None:
     # forest floor; the canopy-top rule (max of 20 - 1 m) lands metres below the highest return
     assert (t["ground_bias"].abs() < 0.5).all() and (t["ground_rms"] < 1.5).all()
     assert (t["top_bias"] < -1.0).all()
+
+
+def _section(html: str, heading: str) -> str:
+    for part in html.split("<h2>")[1:]:
+        if part.startswith(heading):
+            return part
+    raise AssertionError(f"no section {heading!r}")
+
+
+def _table_rows(section: str) -> list[list[str]]:
+    body = section.split("<tbody>")[1].split("</tbody>")[0]
+    return [re.findall(r"<td>(.*?)</td>", tr, flags=re.S)
+            for tr in re.findall(r"<tr>(.*?)</tr>", body, flags=re.S)]
+
+
+def test_report_opens_with_the_recommended_estimators_like_with_like(chain_out) -> None:
+    """The first section names the recommended preset, and every number of its sentence
+    and table equals a re-computation from the residual layer it names (plain numpy)."""
+    import html as markup
+
+    from canopyblocks.blocks.estimators import RECOMMENDED_PRESET
+
+    page = markup.unescape((chain_out / "report.html").read_text())
+    first = page.split("<h2>")[1]
+    assert first.startswith("Summary")
+    assert f"The recommended estimators, '{RECOMMENDED_PRESET}'" in first
+    assert "footprint-matched" in first and "<img src='plots/residual_map.png'" in first
+    layer = re.search(r"layer '([a-z0-9_]+)' of validation.gpkg", first).group(1)
+    assert layer == f"stats_footprint_{RECOMMENDED_PRESET}"
+    res = gpd.read_file(chain_out / "validation.gpkg",
+                        layer=f"residuals_footprint_{RECOMMENDED_PRESET}")
+    used = res[res["use"].astype(bool)]
+    truth = {}
+    for length in (25.0, 50.0):
+        for m in ("ground", "hmax"):
+            sub = used[used["length"] == length].dropna(subset=[m, f"ref_{m}"])
+            r = (sub[m] - sub[f"ref_{m}"]).to_numpy()
+            truth[(length, m)] = (r.size, r.mean(), np.sqrt(np.mean(r ** 2)),
+                                  np.corrcoef(sub[f"ref_{m}"], sub[m])[0, 1] ** 2)
+            assert r.size >= 3
+    # the sentence: 'At 25 m: ground bias +0.07 m, RMSE 0.16 m, r2 0.96 (n = 21); ...'
+    said = re.search(r"At 25 m: ground bias ([-+.\d]+) m, RMSE ([.\d]+) m, r2 ([.\d]+) "
+                     r"\(n = (\d+)\); canopy height \(Hmax\) bias ([-+.\d]+) m, RMSE ([.\d]+) m, "
+                     r"r2 ([.\d]+) \(n = (\d+)\)", first)
+    assert said, first[:1500]
+    g, h = truth[(25.0, "ground")], truth[(25.0, "hmax")]
+    got = [float(v) for v in said.groups()]
+    want = [g[1], g[2], g[3], g[0], h[1], h[2], h[3], h[0]]
+    for a, b in zip(got, want):
+        assert a == pytest.approx(b, abs=0.0051)
+    # the table: length, metric, n, bias, rmse, r2 for every length
+    rows = _table_rows(first)
+    assert len(rows) == 4
+    for length, metric, n, bias, rmse, r2 in rows:
+        t = truth[(float(length), metric)]
+        assert int(n) == t[0]
+        for a, b in zip((bias, rmse, r2), t[1:]):
+            assert float(a) == pytest.approx(b, abs=0.00051)
+    # the paper's method comes second, against the same reference, with its bias stated
+    second = page.split("<h2>")[2]
+    assert second.startswith("The paper's method") and "footprint-matched" in second
+
+
+def test_report_tables_have_integer_lengths_units_no_intercepts_no_tiny_groups(
+        chain_out) -> None:
+    html = (chain_out / "report.html").read_text()
+    assert "intercept" not in html
+    assert "<th>length (m)</th>" in html and "<th>RMSE (m)</th>" in html
+    assert not re.search(r"<td>\d+\.0+</td>\s*<td>(ground|top|hmax|h90)</td>", html)
+    ns = [int(n) for n in re.findall(r"<td>(?:aspect|slope):[^<]*</td>\s*<td>(\d+)</td>", html)]
+    assert ns and min(ns) >= 3

@@ -17,6 +17,7 @@ from typing import Any
 import pandas as pd
 
 from .blocks import BlockParams
+from .blocks.estimators import RECOMMENDED_PRESET
 from .errors import FileFormatError, InputError
 from .outputs.atomic import check_writable, new_files_removed_on_failure
 from .outputs.report import ReportSection, write_report
@@ -43,6 +44,8 @@ class ChainResult:
     plots: list[Path] = field(default_factory=list)
     stats: pd.DataFrame | None = None
     simulated: bool = False
+    summary: list[str] = field(default_factory=list)
+    """The report summary's lines (the estimators it leads with, against its reference)."""
 
 
 def _simulate(las_paths: Sequence[Path], out: Path, *, azimuth: float, diameter: float,
@@ -100,9 +103,9 @@ def run_chain(
     realisations: int = 100,
     estimators: Any = None,
     calibration: Any = None,
-    compare_preset: str | None = "icesat2",
+    compare_preset: str | None = RECOMMENDED_PRESET,
     coregister: bool = False,
-    footprint_reference: bool = False,
+    footprint_reference: bool = True,
     progress: Progress | None = None,
 ) -> ChainResult:
     """Run photons -> blocks -> reference rasters -> validation -> report.
@@ -144,16 +147,21 @@ def run_chain(
         Bias calibration applied to the blocks.
     compare_preset : str, optional
         With the paper's estimators: also compute the blocks with this preset (default
-        ``icesat2``), validate them, fit a bias calibration with its held-out error, and
-        show both side by side in the report (layers ``residuals_<preset>``,
-        ``stats_<preset>``; ``bias_calibration_<preset>.json``). None skips it.
+        the recommended one, :data:`~canopyblocks.blocks.estimators.RECOMMENDED_PRESET`),
+        validate them, fit a bias calibration with its held-out error; the report leads
+        with them (layers ``residuals_<preset>``, ``stats_<preset>``, with the footprint
+        reference also ``residuals_footprint_<preset>``, ``stats_footprint_<preset>``;
+        ``bias_calibration_<preset>.json``). None skips it.
     coregister : bool
         Search the joint geolocation offset of the blocks against the DTM/DSM and
         validate the horizontally shifted blocks (DESIGN 2.8); ``offsets.json``, layer
         ``stats_uncorrected``.
     footprint_reference : bool
-        Also validate against the footprint-matched airborne reference (DESIGN 2.7):
-        layers ``residuals_footprint``, ``stats_footprint``.
+        Validate also against the footprint-matched airborne reference (DESIGN 2.7; the
+        default): the like-with-like reference the report and the summary lead with
+        (ground = mean footprint ground, top = ground + RH98 of footprints of
+        ``diameter`` m over the airborne points); layers ``residuals_footprint``,
+        ``stats_footprint``.  False leads with the corridor maximum.
     """
     from .arguments import check_path, check_paths
     check_paths(las_paths, "run_chain: las_paths", "a LAS/LAZ path or a non-empty list of them")
@@ -230,24 +238,30 @@ def run_chain(
         if footprint_reference:
             from .validation.footprints import validate_blocks_footprint
 
-            vf = validate_blocks_footprint(
-                blocks, tiles, geoid=geoid, offset=offset,
-                photon_vertical_crs=photon_vcrs, reference_vertical_crs=ref_vcrs)
+            fkw: dict[str, Any] = {"geoid": geoid, "offset": offset,
+                                   "photon_vertical_crs": photon_vcrs,
+                                   "reference_vertical_crs": ref_vcrs}
+            vf = validate_blocks_footprint(blocks, tiles, **fkw)
             layers.update({f"{LAYER_RESIDUALS}_footprint": vf.residuals,
                            f"{LAYER_STATS}_footprint": vf.stats})
         compared = None
+        compared_fp = None
         if compare_preset and estimators is None and calibration is None:
-            compared = _compare_preset(compare_preset, res.tracks, params, rasters, out,
-                                       vkw, photons, prog.sub(0.85, 0.9))
+            compared, cblocks = _compare_preset(compare_preset, res.tracks, params, rasters,
+                                                out, vkw, photons, prog.sub(0.85, 0.9))
             layers.update({f"{LAYER_RESIDUALS}_{compare_preset}": compared[0],
                            f"{LAYER_STATS}_{compare_preset}": compared[1]})
+            if footprint_reference:
+                compared_fp = validate_blocks_footprint(cblocks, tiles, **fkw)
+                layers.update({f"{LAYER_RESIDUALS}_footprint_{compare_preset}":
+                               compared_fp.residuals,
+                               f"{LAYER_STATS}_footprint_{compare_preset}": compared_fp.stats})
         cutoffs = None
         if calibrate:
             from .track_blocks import run_blocks
-            from .validation.calibration import calibrate_against_reference
 
             prog.update(0.9, "calibrating cut-offs")
-            cutoffs = calibrate_against_reference(res.tracks[0], val.residuals, params)
+            cutoffs = _calibrated_cutoffs(res.tracks[0], val.residuals, params)
             blocks_c, _ = run_blocks(res.tracks, cutoffs.params)
             val_c = validate_blocks(blocks_c, dtm=rasters.dtm, dsm_max=rasters.dsm_max,
                                     dsm_p90=rasters.dsm_p90, **vkw)
@@ -260,9 +274,13 @@ def run_chain(
                            f"{LAYER_STATS}_atl08": v8.stats})
         validation = write_layers(layers, out / "validation.gpkg")
         write_table(val.stats, out / "stats.csv", layer=LAYER_STATS)
-        plots = [plots_dir / "profile.png", *write_validation_plots(val.residuals, val.stats,
-                                                                     plots_dir)]
-        plots.append(_residual_map(val.residuals, rasters.dtm, plots_dir))
+        plots = [plots_dir / "profile.png",
+                 *write_validation_plots(val.residuals, val.stats, plots_dir,
+                                         datum=_vertical_name(ref_vcrs))]
+        lead, lead_res = _lead(estimators, compare_preset, compared, compared_fp,
+                               layers, val)
+        map_png = _residual_map(lead_res, rasters.dtm, plots_dir, lead)
+        plots.append(map_png)
         prog.update(0.95, "report")
         report = _report(out, tiles=tiles, photons=Path(photons), simulated=simulated,
                          params=params, width=width, resolution=resolution, blocks=blocks,
@@ -270,13 +288,58 @@ def run_chain(
                          diameter=diameter, preset=preset, seed=seed,
                          calibration=None if cutoffs is None else cutoffs.table,
                          seed002=seed002, seed002_png=seed002_png, compared=compared,
-                         compare_preset=compare_preset, offsets=offsets_doc)
+                         compare_preset=compare_preset, offsets=offsets_doc, lead=lead,
+                         layers=layers, tracks=res.tracks, map_png=map_png)
         prog.update(1.0, "done")
         return ChainResult(out_dir=out, photons=Path(photons), blocks=out / "blocks.gpkg",
                            rasters={"dtm": rasters.dtm, "dsm_max": rasters.dsm_max,
                                     "dsm_p90": rasters.dsm_p90},
                            validation=validation, report=report, plots=plots, stats=val.stats,
-                           simulated=simulated)
+                           simulated=simulated, summary=_summary_lines(lead))
+
+
+def _calibrated_cutoffs(track: Any, residuals: pd.DataFrame, params: BlockParams) -> Any:
+    """The paper's cut-offs fitted to the reference, with one warning for all lengths
+    whose best cut-off lies on the edge of the searched grid (instead of one per length
+    and cut-off)."""
+    import warnings
+
+    from .blocks.calibration import CutoffEdgeWarning
+    from .validation.calibration import calibrate_against_reference
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", CutoffEdgeWarning)
+        result = calibrate_against_reference(track, residuals, params)
+    edge = [w for w in caught if issubclass(w.category, CutoffEdgeWarning)]
+    for w in caught:
+        if w not in edge:
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    if edge:
+        which = sorted({" ".join(str(w.message).split(":")[1].split()[2:4]) for w in edge})
+        lengths = sorted({float(str(w.message).split(" m blocks")[0]) for w in edge})
+        warnings.warn(
+            f"calibrated cut-offs of the {', '.join(f'{v:g}' for v in lengths)} m blocks of "
+            f"track {track.track}: the best {' and '.join(which)} lie on the edge of the "
+            "searched grid, so the optimum may lie beyond it (at the low edge this is the "
+            "window floor of the paper's method, which the recommended estimators avoid)",
+            CutoffEdgeWarning, stacklevel=2)
+    return result
+
+
+def _vertical_name(crs: Any) -> str | None:
+    """The vertical datum's name of a (compound) CRS, e.g. 'CGVD28 height'; None if none."""
+    try:
+        import pyproj
+
+        c = pyproj.CRS.from_user_input(crs) if crs is not None else None
+    except Exception:  # an unreadable CRS only loses the axis label's datum
+        return None
+    if c is None:
+        return None
+    for sub in (c.sub_crs_list if c.is_compound else [c]):
+        if sub.is_vertical:
+            return str(sub.name)
+    return None
 
 
 def _tiles_crs(tiles: Sequence[Path]) -> Any:
@@ -326,9 +389,9 @@ def _coregistered(blocks: Any, tracks: Any, rasters: Any, out: Path, vkw: dict[s
 
 def _compare_preset(name: str, tracks: Any, params: BlockParams, rasters: Any, out: Path,
                     vkw: dict[str, Any], photons: Any, prog: Progress
-                    ) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame]:
+                    ) -> tuple[tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame], Any]:
     """Residuals and stats of the blocks made with preset ``name``, and the table of a
-    bias calibration fitted on them (with its parity hold-out error)."""
+    bias calibration fitted on them (with its parity hold-out error); the blocks."""
     from .blocks.estimators import preset
     from .errors import NoUsableDataError
     from .track_blocks import run_blocks, track_strengths
@@ -351,97 +414,144 @@ def _compare_preset(name: str, tracks: Any, params: BlockParams, rasters: Any, o
         write_bias_calibration(cal, out / f"bias_calibration_{name}.json")
         table = cal.table()
     prog.update(1.0)
-    return val.residuals, val.stats, table
+    return (val.residuals, val.stats, table), blocks
 
 
-def _residual_map(residuals: Any, dtm: Path, folder: Path) -> Path:
-    """Block corridors coloured by their Hmax residual over a hillshade of the DTM
-    (the middle block length)."""
+_FOOTPRINT_WORDS = "footprint-matched airborne reference (footprint RH98 and ground)"
+_CORRIDOR_WORDS = "corridor maximum (highest DSM cell and mean DTM of the corridor)"
+
+
+def _lead(estimators: Any, compare_preset: str | None, compared: Any, compared_fp: Any,
+          layers: dict[str, pd.DataFrame], val: Any) -> tuple[Any, pd.DataFrame]:
+    """The estimators the report leads with (the recommended preset when it was computed,
+    else the ones used) against the like-with-like reference when it was computed."""
+    from .blocks.estimators import Estimators, preset
+    from .chain_report import LeadResult
+
+    if compared is not None and compare_preset:
+        name, est = compare_preset, preset(compare_preset)
+        fp_layer, co_layer = f"footprint_{compare_preset}", compare_preset
+        fp = compared_fp
+        corridor = (compared[0], compared[1])
+    else:
+        est = estimators if estimators is not None else Estimators(name="paper")
+        name = est.name or "custom"
+        fp_layer, co_layer = "footprint", ""
+        fp_res = layers.get(f"{LAYER_RESIDUALS}_footprint")
+        fp = None if fp_res is None else (fp_res, layers[f"{LAYER_STATS}_footprint"])
+        corridor = (val.residuals, val.stats)
+    recommended = name == RECOMMENDED_PRESET
+    if fp is not None:
+        res, st = (fp.residuals, fp.stats) if hasattr(fp, "stats") else fp
+        return LeadResult(name, est, st, _FOOTPRINT_WORDS, f"{LAYER_STATS}_{fp_layer}",
+                          recommended), res
+    layer = f"{LAYER_STATS}_{co_layer}" if co_layer else LAYER_STATS
+    return LeadResult(name, est, corridor[1], _CORRIDOR_WORDS, layer, recommended), corridor[0]
+
+
+def _summary_lines(lead: Any) -> list[str]:
+    from .chain_report import summary_lines
+
+    return summary_lines(lead)
+
+
+def _residual_map(residuals: Any, dtm: Path, folder: Path, lead: Any) -> Path:
+    """Block corridors coloured by their Hmax residual (the lead estimators against the
+    lead reference) over a hillshade of the DTM (25 m blocks, else the middle length)."""
     from .outputs.footprint_maps import plot_footprint_map
 
-    lengths = sorted(residuals["length"].unique())
-    length = lengths[len(lengths) // 2]
+    lengths = sorted(float(v) for v in residuals["length"].unique())
+    length = 25.0 if 25.0 in lengths else lengths[len(lengths) // 2]
     sub = residuals[residuals["length"] == length]
+    ref = "footprint RH98" if lead.reference == _FOOTPRINT_WORDS else "corridor maximum"
     return plot_footprint_map(sub, "res_hmax", folder / "residual_map.png", dtm=dtm,
-                              title=f"Hmax residual of {length:g} m blocks (m)")
+                              title=f"Hmax residual of '{lead.name}' against the {ref}, "
+                                    f"{length:g} m blocks")
 
 
 def _report(out: Path, *, tiles: list[Path], photons: Path, simulated: bool,
             params: BlockParams, width: float, resolution: float, blocks: pd.DataFrame,
             stats: pd.DataFrame, datum: str, plots: list[Path], azimuth: float,
-            diameter: float, preset: str, seed: int,
+            diameter: float, preset: str, seed: int, lead: Any, layers: dict[str, Any],
+            tracks: Any, map_png: Path,
             calibration: pd.DataFrame | None = None, seed002: pd.DataFrame | None = None,
             seed002_png: Path | None = None,
             compared: tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame] | None = None,
             compare_preset: str | None = None, offsets: dict[str, Any] | None = None) -> Path:
-    source = (f"ICESat-2 photons simulated over the airborne tiles (seed paper 002 method): "
-              f"track azimuth {azimuth:g} degrees, {diameter:g} m footprints, '{preset}' photon "
-              f"rate, seed {seed}; written in the ATL03 layout to {photons.name} and read back."
+    from .chain_report import details_stats, paper_section, summary_section
+    from .outputs.report import report_stats_table
+
+    source = (f"ICESat-2 photons simulated over the airborne tiles: track azimuth "
+              f"{azimuth:g} degrees, {diameter:g} m footprints, '{preset}' photon rate, "
+              f"seed {seed}; written in the ATL03 layout to {photons.name} and read back."
               if simulated else f"Photons read from {photons}.")
     counts = (blocks.groupby(["length", "flag"]).size().unstack(fill_value=0).reset_index()
               if len(blocks) else pd.DataFrame())
-    overall = stats[stats["group"] == "all"] if len(stats) else stats
-    by_aspect = stats[stats["group"].astype(str).str.startswith("aspect:")] if len(stats) else stats
-    sections = [
+    counts = report_stats_table(counts) if len(counts) else counts
+    beams = [str(t.track) for t in tracks]
+    sections = [summary_section(
+        lead, source=photons.name + (" (simulated)" if simulated else ""),
+        n_tracks=len(tracks), n_photons=int(sum(len(t) for t in tracks)), beams=beams,
+        lengths=params.lengths, tiles=tiles, n_blocks=len(blocks),
+        map_png=map_png)]
+    fp_paper = layers.get(f"{LAYER_STATS}_footprint")
+    if fp_paper is not None:
+        sections.append(paper_section(fp_paper, reference=_FOOTPRINT_WORDS,
+                                      layer=f"{LAYER_STATS}_footprint", lead=lead))
+    else:
+        sections.append(paper_section(stats, reference=_CORRIDOR_WORDS, layer=LAYER_STATS,
+                                      lead=lead))
+    sections += [
         ReportSection("Inputs", [
             source,
             "Airborne tiles: " + ", ".join(t.name for t in tiles) + ".",
-            f"Block lengths {', '.join(f'{v:g}' for v in params.lengths)} m; noise filter "
-            f"'{params.noise}' (k = {params.k_sigma:g}); corridor width {width:g} m; "
-            f"reference rasters at {resolution:g} m from PDAL; vertical datums: "
+            f"Block lengths {', '.join(f'{v:g}' for v in params.lengths)} m; corridor width "
+            f"{width:g} m; reference rasters at {resolution:g} m from PDAL; vertical datums: "
             + ("the tiles' own (the photons were simulated from them)." if simulated
                else f"{datum}."),
         ]),
-        ReportSection("Block heights", [
+        ReportSection("Block heights (the paper's method)", [
             f"{len(blocks)} blocks, {int((blocks['flag'] == FLAG_OK).sum())} flagged ok "
-            f"(layer '{LAYER_BLOCKS}' of blocks.gpkg)."], {"blocks per length and flag": counts},
+            f"(layer '{LAYER_BLOCKS}' of blocks.gpkg; estimators "
+            f"{blocks['estimators'].iloc[0] if 'estimators' in blocks and len(blocks) else 'paper'})."],
+            {"blocks per length and flag": counts},
             [p for p in plots if p.name == "profile.png"]),
-        ReportSection("Validation against the airborne lidar", [
+        ReportSection("The paper's method against the corridor maximum", [
+            "Reference: the corridor maximum -- the highest DSM cell and the mean DTM of the "
+            f"cells a {width:g} m corridor touches. Sparse photons rarely hit the single "
+            "highest crown of a corridor, so this reference sits above what photons can see; "
+            "the footprint-matched reference of the summary is the like-with-like one. "
             "Residual = photon value minus reference value, per block, over blocks flagged ok "
             "whose corridor lies inside the rasters. r2 and slope are of the OLS fit of the "
-            "photon values on the reference values."],
-            {"statistics (all blocks)": overall, "by aspect class": by_aspect},
-            [p for p in plots if p.name != "profile.png"]),
+            f"photon values on the reference values (layer '{LAYER_STATS}')."],
+            details_stats(stats),
+            [p for p in plots if p.name not in ("profile.png", map_png.name)]),
     ]
+    if compared is not None and compare_preset:
+        _, pstats, ptable = compared
+        sections.append(ReportSection(
+            f"The '{compare_preset}' estimators against the corridor maximum", [
+                f"Layer '{LAYER_STATS}_{compare_preset}'. A bias calibration per block length "
+                "and beam strength, fitted on these blocks, with its held-out error (fitted "
+                "on even blocks, scored on odd ones and vice versa); fit one on other sites "
+                "to apply it (canopyblocks calibrate --method bias)."],
+            {**details_stats(pstats), "bias calibration (metres)": ptable}))
     if seed002 is not None:
-        sections.append(ReportSection("Simulated photons against truth (seed 002)", [
+        sections.append(ReportSection("Simulated photons against truth", [
             "Each simulated footprint keeps its truth (ground = the lowest peak of the "
-            "pseudo-waveform, top = the highest return). The photons are classified as in seed "
-            "002 (steps of 20 photons: ground below min + 3 PSF, canopy top above max - 1 m) and "
+            "pseudo-waveform, top = the highest return). The photons are classified by "
+            "steps of 20 photons (ground below min + 3 PSF, canopy top above max - 1 m) and "
             "compared with the truth, over many realisations per footprint diameter. "
             "Residual = photon minus truth, metres."],
-            {"residuals per footprint diameter": seed002},
+            {"residuals per footprint diameter (m)": seed002},
             [seed002_png] if seed002_png is not None else []))
     if calibration is not None:
-        sections.append(ReportSection("Calibrated cut-offs", [
-            "The canopy-top and ground fractions fitted to the reference (seed 001 calibrated "
-            "its cut-offs this way). The RMSE columns are held out: cut-offs fitted on the even "
-            "blocks are scored on the odd blocks and vice versa. Layers residuals_calibrated "
-            "and stats_calibrated of validation.gpkg hold the validation with the cut-offs "
-            "fitted on all blocks."], {"calibration (metres)": calibration}))
-    if compared is not None:
-        _, pstats, ptable = compared
-        keep = ["length", "metric", "n", "bias", "rmse", "r2"]
-        paper = overall[[c for c in keep if c in overall.columns]]
-        other = pstats[pstats["group"] == "all"][[c for c in keep if c in pstats.columns]]
-        side = paper.merge(other, on=["length", "metric"], how="outer",
-                           suffixes=("_paper", f"_{compare_preset}"))
-        sections.append(ReportSection(f"The paper's method and the '{compare_preset}' preset", [
-            "Why the paper's numbers on ICESat-2 are biased: seed 001's estimators were built "
-            "for dense MABEL photons. On sparse ICESat-2 photons its ground is at least the "
-            "lowest photon plus the ground window (about +1.5 m), its canopy top at least the "
-            "top window below the highest kept photon, and its 2.5-sigma filter removes real "
-            "tree-top photons in many blocks, so Hmax comes out several metres low. The "
-            f"'{compare_preset}' preset (DESIGN 1.10) keeps photons by local density, fits a "
-            "robust ground surface along the track and takes a high percentile of the canopy "
-            "photons as the top; a bias calibration per block length and beam strength, "
-            "fitted on reference blocks, removes what bias remains. Use the preset with a "
-            "calibration fitted on other sites (canopyblocks calibrate --method bias), and "
-            "quote its held-out error.",
-            "Statistics of both against the same corridor reference (all blocks):"],
-            {"paper vs preset": side,
-             "bias calibration of the preset (held-out columns: fitted on even blocks, "
-             "scored on odd ones and vice versa)": ptable}))
+        sections.append(ReportSection("Calibrated cut-offs of the paper's method", [
+            "The canopy-top and ground fractions fitted to the corridor reference. The RMSE "
+            "columns are held out: cut-offs fitted on the even blocks are scored on the odd "
+            "blocks and vice versa. Layers residuals_calibrated and stats_calibrated of "
+            "validation.gpkg hold the validation with the cut-offs fitted on all blocks."],
+            {"calibration (metres)": report_stats_table(calibration)}))
     if offsets is not None:
         rows = pd.DataFrame([{"track": k, **{c: v.get(c) for c in (
             "along_track", "cross_track", "east", "north", "vertical", "rmse_before",
@@ -458,6 +568,6 @@ def _report(out: Path, *, tiles: list[Path], photons: Path, simulated: bool,
             "Offsets (m) that would align the blocks with the DTM: the shift to add to the "
             "reported positions. An offset is 'ok' only when, fitted on some stretches of "
             "the track, it also improves the held-out stretches significantly. " + applied],
-            {"offsets": rows}))
+            {"offsets (m)": rows}))
     return write_report(out / "report.html", "canopyblocks: block heights and validation",
                         sections)

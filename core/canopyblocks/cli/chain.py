@@ -48,20 +48,23 @@ from .common import (
 @vertical_options
 @click.option("--calibrate", is_flag=True,
               help="Also fit the cut-offs to the reference and validate again with them.")
-@click.option("--estimators", "estimator_preset", type=click.Choice(["paper", "icesat2", "mabel"]),
-              default=None, help="Block estimators (DESIGN 1.10; default the paper's). "
+@click.option("--estimators", "estimator_preset",
+              type=click.Choice(["paper", "icesat2", "mabel", "atl08"]), default=None, help="Block estimators (DESIGN 1.10; default the paper's). "
               "(--preset names the simulated photon rate.)")
 @click.option("--calibration", type=click.Path(dir_okay=False), default=None,
               help="Bias calibration JSON to apply to the blocks (fitted for --estimators).")
 @click.option("--compare/--no-compare", default=True, show_default=True,
-              help="With the paper's estimators, also validate the icesat2 preset and fit "
-                   "its bias calibration, side by side in the report.")
+              help="With the paper's estimators, also validate the recommended estimators "
+                   "and fit their bias calibration; the report leads with them.")
 @click.option("--coregister", is_flag=True,
               help="Find the track's geolocation offset against the DTM/DSM and validate the "
                    "shifted blocks (offsets.json, layer stats_uncorrected).")
-@click.option("--footprint-reference", is_flag=True,
-              help="Also validate against the footprint-matched airborne points "
-                   "(layers residuals_footprint, stats_footprint).")
+@click.option("--footprint-reference/--no-footprint-reference", default=True,
+              show_default=True,
+              help="Validate also against the footprint-matched airborne points, the "
+                   "like-with-like reference the report leads with (layers "
+                   "residuals_footprint, stats_footprint); without it the report leads with "
+                   "the corridor maximum.")
 @click.pass_context
 def run_cmd(ctx: click.Context, tiles: tuple[str, ...], out_dir: str, photons: str | None,
             simulate: bool, beams: tuple[str, ...], channel: str | None, atl08: str | None,
@@ -73,6 +76,7 @@ def run_cmd(ctx: click.Context, tiles: tuple[str, ...], out_dir: str, photons: s
             footprint_reference: bool) -> None:
     """Photons + airborne TILES -> blocks, reference rasters, validation, plots, report."""
     from ..blocks import BlockParams
+    from ..blocks.estimators import RECOMMENDED_PRESET
     from ..blocks.estimators import preset as named_preset
     from ..whole_chain import run_chain
 
@@ -91,16 +95,13 @@ def run_cmd(ctx: click.Context, tiles: tuple[str, ...], out_dir: str, photons: s
                            estimators=None if estimator_preset in (None, "paper")
                            else named_preset(estimator_preset),
                            calibration=calibration,
-                           compare_preset="icesat2" if compare else None,
+                           compare_preset=RECOMMENDED_PRESET if compare else None,
                            coregister=coregister, footprint_reference=footprint_reference,
                            progress=progress)
     if quiet:
         return
-    if result.stats is not None and len(result.stats):
-        s = result.stats[result.stats["group"] == "all"]
-        for row in s.itertuples():
-            click.echo(f"  {row.length:>5g} m  {row.metric:<6}  n={row.n:<4} "
-                       f"bias={row.bias:+.2f}  rmse={row.rmse:.2f}  r2={row.r2:.2f}", err=True)
+    for line in result.summary:
+        click.echo(line, err=True)
     click.echo(f"canopyblocks: wrote {result.report}", err=True)
 
 

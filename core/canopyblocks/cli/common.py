@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import signal
 import sys
 import threading
@@ -92,8 +93,41 @@ class _CliFormatter(logging.Formatter):
         return f"canopyblocks: {level}{record.getMessage()}"
 
 
+def _echo_above_bar(line: str) -> None:
+    """One line on stderr, above a running progress bar (not glued to its end)."""
+    try:
+        from tqdm import tqdm
+    except ImportError:
+        click.echo(line, err=True)
+        return
+    if getattr(tqdm, "_instances", None):
+        tqdm.write(line, file=sys.stderr)
+    else:
+        click.echo(line, err=True)
+
+
 class _StderrHandler(logging.StreamHandler):
-    """A handler writing to whatever ``sys.stderr`` is now (test capture, redirections)."""
+    """A handler writing to whatever ``sys.stderr`` is now (test capture, redirections);
+    a warning said once is not said again in the same run (every fold or track would
+    repeat it)."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._said: set[str] = set()
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.levelno >= logging.WARNING:
+            text = record.getMessage()
+            if text in self._said:
+                return False
+            self._said.add(text)
+        return bool(super().filter(record))
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            _echo_above_bar(self.format(record))
+        except Exception:  # logging must never raise
+            self.handleError(record)
 
     @property
     def stream(self) -> Any:
@@ -123,7 +157,7 @@ def setup_logging(verbose: int, quiet: bool) -> None:
         if text in said:  # the same warning from every fold or track: say it once
             return
         said.add(text)
-        click.echo(f"canopyblocks: warning: {text}", err=True)
+        _echo_above_bar(f"canopyblocks: warning: {text}")
 
     warnings.showwarning = _show  # one line per warning, never a source excerpt
     warnings.simplefilter("default", CanopyBlocksWarning)
@@ -310,9 +344,17 @@ def summary(message: str, *, err: bool = True) -> None:
 def _tqdm_progress(label: str) -> Iterator[Progress]:
     from tqdm import tqdm
 
+    # a pseudo-terminal without a size (script, some CI and IDE consoles) reports 0
+    # columns and rows, and tqdm then draws nothing: give it 80 x 24
+    try:
+        size = os.get_terminal_size(sys.stderr.fileno())
+        cols, rows = size.columns, size.lines
+    except (OSError, ValueError, AttributeError):
+        cols = rows = 0
     bar = tqdm(total=1000, desc=label, unit="", leave=False, file=sys.stderr,
                bar_format="{desc}: {percentage:3.0f}%|{bar}| {elapsed}<{remaining} {postfix}",
-               disable=None)
+               disable=None, ncols=None if cols > 0 else 80,
+               nrows=None if rows > 0 else 24)
 
     def cb(fraction: float, message: str) -> None:
         n = int(round(fraction * 1000))
@@ -345,6 +387,9 @@ _NUMPY_NOISE = (r"invalid value encountered", r"divide by zero encountered",
 def _quiet_numpy() -> None:
     for pattern in _NUMPY_NOISE:
         warnings.filterwarnings("ignore", message=pattern, category=RuntimeWarning)
+    # a second, older mpl_toolkits on the path (Debian's, shared with QGIS) makes
+    # matplotlib warn that it cannot import Axes3D; no plot of ours is 3-D
+    warnings.filterwarnings("ignore", message=r"Unable to import Axes3D")
 
 
 def run_main(group: click.Group, argv: list[str] | None) -> int:

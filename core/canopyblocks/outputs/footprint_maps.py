@@ -33,7 +33,9 @@ log = logging.getLogger(__name__)
 
 _LABELS = {"rh98": "RH98 (m)", "ground": "ground (m)", "rh50": "RH50 (m)", "cover": "cover",
            "res_rh98": "RH98 residual (m)", "res_ground": "ground residual (m)",
-           "res_rh50": "RH50 residual (m)", "res_cover": "cover residual"}
+           "res_rh50": "RH50 residual (m)", "res_cover": "cover residual",
+           "res_hmax": "Hmax residual (m)", "res_top": "canopy-top residual (m)",
+           "res_h90": "H90 residual (m)", "hmax": "Hmax (m)", "ref_hmax": "reference Hmax (m)"}
 
 
 def hillshade(dem: np.ndarray, xres: float, yres: float, azimuth: float = 315.0,
@@ -151,8 +153,11 @@ def plot_footprint_map(residuals: Any, column: str, path: str | os.PathLike[str]
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.ticklabel_format(useOffset=False, style="plain")
-    ax.set_title(title or f"Footprints: {_LABELS.get(column, column)} "
-                 f"({int(col.sum())} of {len(gdf)})")
+    import textwrap
+
+    ax.set_title("\n".join(textwrap.wrap(title or f"Footprints: {_LABELS.get(column, column)} "
+                                          f"({int(col.sum())} of {len(gdf)})", 48)),
+                 fontsize=10)
     return save_figure(fig, path)
 
 

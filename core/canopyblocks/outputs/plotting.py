@@ -33,5 +33,6 @@ def save_figure(fig: Figure, path: str | os.PathLike[str], *, dpi: int = 150) ->
     """Write ``fig`` as PNG to ``path`` atomically (temporary name, then rename)."""
     p = Path(path)
     with atomic_output(p) as tmp:
-        fig.savefig(tmp, dpi=dpi, format="png")
+        # tight: no axis label, title or outside legend is ever cut at the edge
+        fig.savefig(tmp, dpi=dpi, format="png", bbox_inches="tight", pad_inches=0.1)
     return p

@@ -53,7 +53,8 @@ def plot_profile(
     path : path-like
         PNG to write (atomically).
     length : float, optional
-        Which block length to draw (default: the smallest in ``blocks``).
+        Whose photon labels to colour (default: the smallest length in ``blocks``);
+        the canopy top and ground of every block length are drawn.
     labels : mapping, optional
         Per-photon labels by block length (``compute_blocks(..., labels=True)``):
         removed photons are drawn grey, window photons coloured.
@@ -84,18 +85,23 @@ def plot_profile(
             if m.any():
                 ax.scatter(s_plot[idx][m], track.h[idx][m], s=1.5, c=colour, lw=0, label=name,
                            rasterized=True)
-    if length is not None:
-        bl = tb[(tb["length"] == length) & (tb["flag"] == FLAG_OK)]
-        if len(bl):
-            xs = np.column_stack([bl["s_start"] - s_ref, bl["s_end"] - s_ref,
-                                 np.full(len(bl), np.nan)]).ravel()
-            top = np.repeat(bl["top"].to_numpy(), 3)
-            gr = np.repeat(bl["ground"].to_numpy(), 3)
-            ax.plot(xs, top, color="#00a000", lw=1.8, label=f"canopy top ({length:g} m blocks)")
-            ax.plot(xs, gr, color="#8c510a", lw=1.8, label=f"mean ground ({length:g} m blocks)")
+    styles = ("-", "--", ":", "-.")
+    for i, ln in enumerate(lengths):  # every block length, thinner for longer blocks
+        bl = tb[(tb["length"] == ln) & (tb["flag"] == FLAG_OK)]
+        if not len(bl):
+            continue
+        xs = np.column_stack([bl["s_start"] - s_ref, bl["s_end"] - s_ref,
+                              np.full(len(bl), np.nan)]).ravel()
+        top = np.repeat(bl["top"].to_numpy(), 3)
+        gr = np.repeat(bl["ground"].to_numpy(), 3)
+        lw = max(0.8, 2.0 - 0.4 * i)
+        ax.plot(xs, top, color="#00a000", lw=lw, ls=styles[i % 4],
+                label=f"canopy top ({float(ln):g} m blocks)")
+        ax.plot(xs, gr, color="#8c510a", lw=lw, ls=styles[i % 4],
+                label=f"mean ground ({float(ln):g} m blocks)")
     ax.set_xlabel("along-track distance s (m)" if s_ref == 0 else
                   f"along-track distance s - {s_ref:.0f} (m)")
-    ax.set_ylabel(f"height (m, {track.vertical_datum})")
+    ax.set_ylabel(f"elevation (m, {track.vertical_datum})")
     ax.set_title(title or f"{track.track} - {Path(track.source).name or 'photons'}")
     if n:
         # frame the signal: with labels, the photons the noise filter kept
@@ -103,5 +109,6 @@ def plot_profile(
         lo, hi = np.nanpercentile(kept, [0.5, 99.5])
         pad = max(2.0, 0.1 * (hi - lo))
         ax.set_ylim(lo - pad, hi + pad)
-    ax.legend(loc="upper right", fontsize=8, markerscale=4, framealpha=0.8)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, markerscale=4,
+              borderaxespad=0.0)  # outside the data
     return save_figure(fig, path)

@@ -14,7 +14,7 @@ import pandas as pd
 from ..progress import Progress
 from .atomic import atomic_output, atomic_outputs, will_exist
 
-__all__ = ["ReportSection", "write_report"]
+__all__ = ["ReportSection", "write_report", "report_stats_table", "STATS_HEADERS"]
 
 log = logging.getLogger(__name__)
 
@@ -32,11 +32,31 @@ class ReportSection:
 _CSS = """
 body{font-family:system-ui,sans-serif;max-width:70rem;margin:2rem auto;padding:0 1rem;color:#222}
 h1{font-size:1.6rem}h2{font-size:1.25rem;border-bottom:1px solid #ccc;padding-bottom:.2rem}
-table{border-collapse:collapse;font-size:.85rem;margin:.5rem 0 1rem}
+table{border-collapse:collapse;font-size:.85rem;margin:.5rem 0 1rem;display:block;
+overflow-x:auto;max-width:100%}th{white-space:normal;vertical-align:bottom}
 td,th{border:1px solid #ccc;padding:.2rem .5rem;text-align:right}th{background:#f3f3f3}
 td:first-child,th:first-child{text-align:left}img{max-width:100%;border:1px solid #ddd;margin:.5rem 0}
 .cap{font-size:.85rem;color:#555}
 """
+
+
+#: Report headers of the statistics columns, with units (metres unless stated).
+STATS_HEADERS: dict[str, str] = {
+    "length": "length (m)", "metric": "metric", "group": "group", "n": "n (blocks)",
+    "bias": "bias (m)", "rmse": "RMSE (m)", "mae": "MAE (m)", "slope": "slope (m/m)",
+    "r2": "r2",
+}
+
+
+def report_stats_table(stats: pd.DataFrame) -> pd.DataFrame:
+    """A statistics table as the report shows it: lengths and counts as integers, units
+    in the headers, no intercept (an intercept fitted on absolute elevations says
+    nothing; bias and slope do)."""
+    df = pd.DataFrame(stats).drop(columns=["intercept", "geometry"], errors="ignore").copy()
+    for c in ("length", "n"):
+        if c in df.columns:
+            df[c] = pd.to_numeric(df[c], errors="coerce").round().astype("Int64")
+    return df.rename(columns=STATS_HEADERS)
 
 
 def _table_html(df: pd.DataFrame) -> str:

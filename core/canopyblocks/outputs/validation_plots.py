@@ -30,8 +30,15 @@ __all__ = ["plot_validation_scatter", "plot_aspect_errors", "write_validation_pl
 
 log = logging.getLogger(__name__)
 
-_TITLES = {"ground": "Ground (m)", "top": "Canopy top (m)", "hmax": "Hmax (m)",
-           "h90": "H90 (m)"}
+_TITLES = {"ground": "Ground (m)", "top": "Canopy top (m)", "hmax": "Hmax (m above ground)",
+           "h90": "H90 (m above ground)"}
+
+
+def _axis_title(metric: str, datum: str | None) -> str:
+    """Axis label with units; elevations name their vertical datum."""
+    if metric in ("ground", "top") and datum:
+        return _TITLES[metric].replace("(m)", f"(m, {datum})")
+    return _TITLES.get(metric, metric)
 _ASPECTS = ("N", "NE", "E", "SE", "S", "SW", "W", "NW")
 
 
@@ -43,7 +50,8 @@ def _length_rows(df: pd.DataFrame, length: float) -> pd.DataFrame:
 
 
 def plot_validation_scatter(residuals: pd.DataFrame, path: str | os.PathLike[str], *,
-                            length: float, metrics: Sequence[str] = METRICS) -> Path:
+                            length: float, metrics: Sequence[str] = METRICS,
+                            datum: str | None = None) -> Path:
     """Photon vs reference scatter for one block length, one panel per metric.
 
     Parameters
@@ -54,9 +62,11 @@ def plot_validation_scatter(residuals: pd.DataFrame, path: str | os.PathLike[str
         PNG to write (atomically).
     length : float
         Block length, metres.
+    datum : str, optional
+        Vertical datum of the elevations (ground, top), named on their axes.
     """
     sub = _length_rows(residuals, length)
-    fig, axes = new_figure(figsize=(3.6 * len(metrics), 3.8), ncols=len(metrics), squeeze=False)
+    fig, axes = new_figure(figsize=(3.6 * len(metrics), 4.4), ncols=len(metrics), squeeze=False)
     for ax, m in zip(axes[0], metrics):
         if m not in RESIDUAL_PAIRS:
             raise InputError(f"unknown metric {m!r}; use {', '.join(RESIDUAL_PAIRS)}")
@@ -78,16 +88,18 @@ def plot_validation_scatter(residuals: pd.DataFrame, path: str | os.PathLike[str
             ax.set_xlim(lim)
             ax.set_ylim(lim)
             ax.set_aspect("equal")
-        ax.set_xlabel(f"reference {_TITLES.get(m, m)}")
-        ax.set_ylabel(f"photon {_TITLES.get(m, m)}")
-        ax.set_title(m)
+        ax.set_xlabel(f"reference {_axis_title(m, datum)}", fontsize=8)
+        ax.set_ylabel(f"photon {_axis_title(m, datum)}", fontsize=8)
+        ax.set_title(m, fontsize=10)
         ax.text(0.03, 0.97,
                 f"n = {st['n']}\nr² = {st['r2']:.2f}\nRMSE = {st['rmse']:.2f} m\n"
                 f"bias = {st['bias']:+.2f} m",
                 transform=ax.transAxes, va="top", ha="left", fontsize=8,
                 bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "0.8"})
-        if x.size:
-            ax.legend(loc="lower right", fontsize=7)
+    handles, names = axes[0][0].get_legend_handles_labels()
+    if handles:  # one legend for all panels, below them (never over the data)
+        fig.legend(handles, names, loc="outside lower center", ncols=len(handles),
+                   fontsize=8)
     fig.suptitle(f"Photon blocks vs reference, {length:g} m blocks")
     return save_figure(fig, path)
 
@@ -111,7 +123,9 @@ def plot_aspect_errors(stats: pd.DataFrame, path: str | os.PathLike[str], *, len
         ns = [int(sm["n"].get(f"aspect:{c}", 0)) for c in _ASPECTS]
         ax.set_theta_zero_location("N")
         ax.set_theta_direction(-1)
-        colours = ["tab:red" if v < 0 else "tab:blue" for v in np.nan_to_num(vals)]
+        # classes with fewer than 3 blocks are greyed (too few to say anything)
+        colours = ["0.8" if k < 3 else "tab:red" if v < 0 else "tab:blue"
+                   for v, k in zip(np.nan_to_num(vals), ns)]
         ax.bar(theta, np.abs(np.nan_to_num(vals)), width=np.radians(40), color=colours,
                alpha=0.75)
         ax.set_xticks(theta)
@@ -125,13 +139,16 @@ def plot_aspect_errors(stats: pd.DataFrame, path: str | os.PathLike[str], *, len
             if np.isfinite(v):
                 ax.text(th, abs(v) + 0.08 * top, f"n={k}", ha="center", fontsize=6)
         ax.set_title(f"{m}: {value} by aspect (m)", fontsize=9)
-    fig.suptitle(f"Errors by aspect, {length:g} m blocks")
+    fig.suptitle(f"Errors by aspect, {length:g} m blocks (red: negative bias; grey: "
+                 "fewer than 3 blocks)", fontsize=10)
     return save_figure(fig, path)
 
 
 def write_validation_plots(residuals: pd.DataFrame, stats: pd.DataFrame,
-                           folder: str | os.PathLike[str]) -> list[Path]:
-    """Scatter and aspect figures for every block length into ``folder``.
+                           folder: str | os.PathLike[str], *,
+                           datum: str | None = None) -> list[Path]:
+    """Scatter and aspect figures for every block length into ``folder`` (``datum``:
+    the elevations' vertical datum, named on their axes).
 
     Files: ``validation_<L>m.png`` and ``aspect_rmse_<L>m.png``.
     """
@@ -140,7 +157,7 @@ def write_validation_plots(residuals: pd.DataFrame, stats: pd.DataFrame,
     for length in sorted(pd.unique(residuals["length"])):
         tag = f"{float(length):g}m"
         paths.append(plot_validation_scatter(residuals, out / f"validation_{tag}.png",
-                                             length=float(length)))
+                                             length=float(length), datum=datum))
         paths.append(plot_aspect_errors(stats, out / f"aspect_rmse_{tag}.png",
                                         length=float(length)))
     log.info("wrote %d validation figures to %s", len(paths), out)
