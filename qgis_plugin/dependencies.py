@@ -94,12 +94,18 @@ def dependency_problem(alg_id: str, display_name: str) -> str | None:
     missing = missing_packages(alg_id)
     if not missing:
         return None
+    env_note = ("(A package installed elsewhere can be made visible with Settings > Options > "
+                "System > Environment: PYTHONPATH, 'Append', its folder.)")
+    if "canopyblocks" in missing:  # the core itself: its own, fuller instructions
+        from .core_bridge import install_hint
+
+        return (f"{display_name} needs the canopyblocks library, which the Python that runs "
+                f"QGIS cannot import; {install_hint()}. {env_note}")
     what = ", ".join(missing)
     s = "s" if len(missing) > 1 else ""
     return (f"{display_name} needs the Python package{s} {what}, which the Python that runs "
             f"QGIS cannot import. Install {'them' if s else 'it'}: {install_command(missing)}; "
-            "then restart QGIS. (A package installed elsewhere can be made visible with "
-            "Settings > Options > System > Environment: PYTHONPATH, 'Append', its folder.)")
+            "then restart QGIS. " + env_note)
 
 
 #: The Processing setting (Settings > Options > Processing > Providers > canopyblocks).
