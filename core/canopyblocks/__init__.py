@@ -112,6 +112,8 @@ if TYPE_CHECKING:  # loaded on first use, see __getattr__
         write_offsets,
     )
     from .waveforms import WaveformBatch, WaveformParams, process_waveforms
+    from .waveforms.dual_wavelength import DualParams, dual_wavelength_ground
+    from .waveforms.esfl import EsflCubes, EsflParams, esfl_chain
     from .whole_chain import ChainResult, run_chain
 
 __version__ = "0.1.0"
@@ -211,6 +213,11 @@ _LAZY: dict[str, str] = {
     "WaveformBatch": ".waveforms",
     "WaveformParams": ".waveforms",
     "process_waveforms": ".waveforms",
+    "EsflCubes": ".waveforms.esfl",
+    "EsflParams": ".waveforms.esfl",
+    "esfl_chain": ".waveforms.esfl",
+    "DualParams": ".waveforms.dual_wavelength",
+    "dual_wavelength_ground": ".waveforms.dual_wavelength",
 }
 
 
@@ -283,6 +290,11 @@ __all__ = [
     "WaveformBatch",
     "WaveformParams",
     "process_waveforms",
+    "EsflCubes",
+    "EsflParams",
+    "esfl_chain",
+    "DualParams",
+    "dual_wavelength_ground",
     # many granules
     "BatchConfig",
     "BatchResult",
