@@ -6,6 +6,10 @@ and fit the Gaussian's width to the half of the distribution below the mode (sig
 only ever adds values above the noise, so that half is noise alone); the detection
 threshold is ``mean + k * sd`` with ``k = 4`` by default.
 
+:func:`fit_histogram_noise` then fits a Gaussian to the histogram itself (the flash-lidar
+paper's wording), started from that estimate; the flash-lidar chain uses it. GEDI never
+uses this module: its L1B files carry the noise statistics.
+
 Vectorised over shots: one 2-D histogram (shots x bins) built with ``np.bincount``.
 """
 
