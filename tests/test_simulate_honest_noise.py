@@ -217,3 +217,17 @@ def test_photon_track_carries_the_rate_a_written_file_gives(sims, tmp_path):
     assert direct.background is not None and read.background is not None
     assert np.allclose(direct.background.at(direct.time), RATE_MHZ * 1e6)
     assert np.allclose(read.background.at(read.time), direct.background.at(read.time))
+
+
+def test_reader_takes_the_vertical_crs_the_simulated_file_states(tmp_path):
+    """A simulated ATL03 keeps the airborne tiles' heights; the reader must not call them WGS84."""
+    from canopyblocks.readers.atl03 import read_atl03
+
+    src = Path(__file__).parent / "data" / "icesat2" / "vegr_atl03_clip.h5"
+    real = read_atl03(src, beam="gt1r")
+    assert real.vertical_datum == "EPSG:4979"  # a real granule: ellipsoidal heights
+    copy = tmp_path / "stated.h5"
+    copy.write_bytes(src.read_bytes())
+    with h5py.File(copy, "a") as f:
+        f.attrs["canopyblocks_height_crs"] = "EPSG:5713"
+    assert read_atl03(copy, beam="gt1r").vertical_datum == "EPSG:5713"

@@ -337,7 +337,9 @@ def read_atl03(
     -------
     PhotonTrack
         ``time`` = ``delta_time`` (s since the ATLAS SDP epoch), ``h`` = ``h_ph``
-        (m above the WGS84 ellipsoid, ``vertical_datum="EPSG:4979"``),
+        (m above the WGS84 ellipsoid, ``vertical_datum="EPSG:4979"``; a file written by
+        canopyblocks from airborne lidar states its heights' CRS in the root attribute
+        ``canopyblocks_height_crs``, which then becomes ``vertical_datum``),
         ``s = segment_dist_x + dist_ph_along`` (m), ``signal_conf`` = land column,
         ``background`` = ``bckgrd_atlas/bckgrd_rate`` (photons/s) when present;
         sorted by ``s``.
@@ -478,6 +480,8 @@ def read_atl03(
         keep = None
         rgt_cycle = (f.scalar("orbit_info/rgt"), f.scalar("orbit_info/cycle_number"))
         src = str(f.path)
+        stated = f.attr("/", "canopyblocks_height_crs")
+        height_crs = stated if isinstance(stated, str) and stated.strip() else "EPSG:4979"
         background = read_background_rate(f, beam, float(np.min(cols["time"])),
                                           float(np.max(cols["time"])))
     if atl08 is not None and seg_ids is not None and within_k is not None:
@@ -495,7 +499,7 @@ def read_atl03(
         time=cols["time"], lat=cols["lat"], lon=cols["lon"], h=cols["h"], x=x, y=y,
         s=cols["s"], track=beam, crs=used, signal_conf=cols.get("signal_conf"),
         classification=cols.get("classification"), extra=extra, source=src,
-        vertical_datum="EPSG:4979", background=background,
+        vertical_datum=height_crs, background=background,
     )
     prog.update(1.0, f"{beam}: {len(track)} photons")
     log.info("read %d photons of %s from %s", len(track), beam, src)
