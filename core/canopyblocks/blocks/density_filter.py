@@ -122,12 +122,15 @@ def _box_counts(s: np.ndarray, z: np.ndarray, p: DensityParams) -> np.ndarray:
     # below 2**31 photons a segment)
     grid = np.bincount((ri + 1) * (nc + 1) + (ci + 1), minlength=(nr + 1) * (nc + 1))
     grid = grid.astype(np.int32).reshape(nr + 1, nc + 1)
-    sat = grid.cumsum(0, dtype=np.int32).cumsum(1, dtype=np.int32)  # cells [0, r) x [0, c)
-    c0 = np.clip(ci - sub, 0, nc)
-    c1 = np.clip(ci + sub + 1, 0, nc)
-    r0 = np.clip(ri - sub, 0, nr)
-    r1 = np.clip(ri + sub + 1, 0, nr)
-    return sat[r1, c1] - sat[r0, c1] - sat[r1, c0] + sat[r0, c0]
+    # cells [0, r) x [0, c); the contiguous axis first, then rows; read flat
+    sat = grid.cumsum(1, dtype=np.int32).cumsum(0, dtype=np.int32).ravel()
+    w = nc + 1
+    c0 = np.maximum(ci - sub, 0)
+    c1 = np.minimum(ci + sub + 1, nc)
+    r0 = np.maximum(ri - sub, 0) * w
+    r1 = np.minimum(ri + sub + 1, nr) * w
+    return (sat.take(r1 + c1) - sat.take(r0 + c1) - sat.take(r1 + c0)
+            + sat.take(r0 + c0)).astype(np.int64)
 
 
 def _segment_rate(z: np.ndarray, length: float, p: DensityParams) -> float:
@@ -186,6 +189,7 @@ def density_filter(s: np.ndarray, z: np.ndarray,
     ends = np.concatenate([bounds, [ss.size]])
     # the grid box: (2 SUB + 1) cells of along/SUB by height/SUB around the photon's cell
     area = ((2 * p.cells + 1) * p.along / p.cells) * ((2 * p.cells + 1) * p.height / p.cells)
+    quantiles: dict[float, float] = {}
     for a, b in zip(starts, ends):  # loop over along-track segments (each a numpy grid)
         # the segment with a margin of one box on each side, so counts near its ends see
         # their true neighbours
@@ -206,7 +210,9 @@ def density_filter(s: np.ndarray, z: np.ndarray,
         else:
             lam = _segment_rate(z[here], length, p)
         mu = lam * area
-        t = poisson_quantile(p.quantile, mu)
+        t = quantiles.get(mu)
+        if t is None:  # rates repeat from segment to segment: one quantile each
+            t = quantiles[mu] = poisson_quantile(p.quantile, mu)
         count[here] = cnt
         rates[here] = lam
         thr[here] = t

@@ -129,10 +129,13 @@ def _local_linear(s: np.ndarray, z: np.ndarray, w: np.ndarray, nodes: np.ndarray
         return same(np.bincount(b, weights=v, minlength=m), k[::-1])
 
     w0 = binned(w)
-    sw_d = conv(w * ds, kernel) + conv(w, klag)
-    sw_dd = conv(w * ds * ds, kernel) + 2 * conv(w * ds, klag) + conv(w, klag2)
-    swz = conv(w * z, kernel)
-    swzd = conv(w * z * ds, kernel) + conv(w * z, klag)
+    wds = w * ds
+    wz = w * z
+    wds_lag = conv(wds, klag)  # used twice
+    sw_d = conv(wds, kernel) + conv(w, klag)
+    sw_dd = conv(wds * ds, kernel) + 2 * wds_lag + conv(w, klag2)
+    swz = conv(wz, kernel)
+    swzd = conv(wz * ds, kernel) + conv(wz, klag)
     det = w0 * sw_dd - sw_d * sw_d
     with np.errstate(invalid="ignore", divide="ignore"):
         level = np.where(det > 1e-9 * np.maximum(w0, 1e-300) ** 2,
