@@ -278,9 +278,13 @@ class CanopyBlocksAlgorithm(QgsProcessingAlgorithm):
             "INPUT", "Photon file (ATL03 / MABEL HDF5, CSV, Parquet)",
             behavior=QgsProcessingParameterFile.File,
             fileFilter="Photon files (*.h5 *.hdf5 *.he5 *.csv *.parquet);;All files (*.*)"))
-        self.addParameter(QgsProcessingParameterString(
+        from ..beam_widget import track_widget_metadata
+
+        track = QgsProcessingParameterString(
             "TRACK", "Beam (gt1l..gt3r) or MABEL channel (number or 'most')",
-            defaultValue="", optional=True))
+            defaultValue="", optional=True)
+        track.setMetadata(track_widget_metadata())  # the dialog lists the file's beams
+        self.addParameter(track)
         self.addParameter(QgsProcessingParameterString(
             "LENGTHS", "Block lengths (m, comma separated)", defaultValue=default_lengths))
 

@@ -172,7 +172,7 @@ def _canvas_screenshot(layers: list[Any], blocks: Any, path: Path) -> dict[str, 
     return {"size": [canvas.width(), canvas.height()], "points": points}
 
 
-def _dialog(alg_id: str, path: Path) -> dict[str, Any]:
+def _dialog(alg_id: str, path: Path, photon_file: Path | None = None) -> dict[str, Any]:
     """Open the algorithm's dialog as the toolbox does, grab it to a PNG, and report what it
     shows: the number boxes' texts, the labels, the collapsible groups."""
     import processing
@@ -184,6 +184,16 @@ def _dialog(alg_id: str, path: Path) -> dict[str, Any]:
     dlg.show()
     for _ in range(20):
         QgsApplication.processEvents()
+    beams: list[str] = []
+    if photon_file is not None:  # choose the file as a user would: the beam box fills
+        from qgis.core import QgsProcessingContext
+
+        wrappers = dlg.mainWidget().wrappers
+        wrappers["INPUT"].setParameterValue(str(photon_file), QgsProcessingContext())
+        for _ in range(10):
+            QgsApplication.processEvents()
+        box = wrappers["TRACK"].widget
+        beams = [box.itemData(i) for i in range(box.count()) if box.itemData(i)]
     dlg.grab().save(str(path), "png")
     spins = {}
     for spin in dlg.findChildren(QgsDoubleSpinBox):
@@ -191,7 +201,7 @@ def _dialog(alg_id: str, path: Path) -> dict[str, Any]:
         spins[spin.objectName() or str(len(spins))] = spin.text()
     from qgis.PyQt.QtWidgets import QWidget
 
-    info = {"spins": sorted(spins.values()),
+    info = {"spins": sorted(spins.values()), "beams": beams,
             "labels": [lbl.text() for lbl in dlg.findChildren(QLabel) if lbl.text()],
             "visible_labels": [lbl.text() for lbl in dlg.findChildren(QLabel)
                                if lbl.text() and lbl.isVisible()],
@@ -248,7 +258,7 @@ def run() -> None:
         from qgis.utils import iface
 
         iface.mainWindow().grab().save(str(OUT / "window.png"), "png")
-        result["dialog"] = _dialog("blockheights", OUT / "dialog.png")
+        result["dialog"] = _dialog("blockheights", OUT / "dialog.png", OUT / "sim.h5")
     except Exception:  # noqa: BLE001 - reported to the test
         result["error"] = traceback.format_exc()
     result["messages"] = MESSAGES

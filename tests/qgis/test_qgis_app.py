@@ -211,3 +211,15 @@ def test_the_dialog_shows_plain_numbers_and_an_advanced_group(app_run) -> None:
     text = " ".join(d["labels"])
     assert "[optional] [optional]" not in text and "(optional) [optional]" not in text
     assert "seed-001" not in text and "DESIGN" not in text
+
+
+def test_the_beam_box_lists_the_beams_of_the_chosen_file(app_run) -> None:
+    """Choosing the photon file in the dialog fills the beam list with the file's beams that
+    hold photons (checked against the file read here with h5py)."""
+    import h5py
+
+    with h5py.File(Path(app_run["out"]) / "sim.h5") as f:
+        truth = [b for b in ("gt1l", "gt1r", "gt2l", "gt2r", "gt3l", "gt3r")
+                 if f"{b}/heights/h_ph" in f and f[f"{b}/heights/h_ph"].shape[0] > 0]
+    assert truth
+    assert app_run["dialog"]["beams"] == truth
