@@ -214,3 +214,31 @@ def test_blocks_against_footprint_reference(tile: LasPoints) -> None:
     np.testing.assert_allclose(r["res_hmax"], -3.5, atol=1e-9)
     np.testing.assert_allclose(r.geometry.area, 25.0 * 13.0, rtol=1e-6)
     assert set(res.stats["metric"]) == {"ground", "top", "hmax", "h90"}
+
+
+def test_blocks_against_footprint_reference_on_tiles_without_crs(tile: LasPoints, tile_path,  # noqa: ANN001
+                                                                 tmp_path) -> None:
+    """``points_crs`` (``validate --points-crs``) is the CRS of tiles whose files state none."""
+    import laspy
+
+    from canopyblocks.errors import CanopyBlocksError
+
+    las = laspy.read(tile_path)
+    las.header.vlrs = [v for v in las.header.vlrs  # GeoTIFF keys and WKT records
+                       if v.user_id != "LASF_Projection" and v.record_id != 2112]
+    bare = tmp_path / "no_crs.laz"
+    las.write(bare)
+    x0, y0, x1, y1 = tile.bounds
+    mid = np.arange(4) * 25.0 + 12.5
+    bx, by = x0 + 30 + mid * 0.7, y0 + 30 + mid * 0.7
+    blocks = gpd.GeoDataFrame(
+        {"track": "gt2l", "length": 25.0, "block": np.arange(4), "s_start": mid - 12.5,
+         "s_end": mid + 12.5, "x": bx, "y": by, "flag": "ok", "ground": 300.0, "top": 320.0,
+         "z90": 318.0, "hmax": 20.0, "h90": 18.0},
+        geometry=gpd.points_from_xy(bx, by), crs=tile.crs)
+    want = validate_blocks_footprint(blocks, [tile_path], offset=0.0).residuals
+    with pytest.raises(CanopyBlocksError):
+        validate_blocks_footprint(blocks, [bare], offset=0.0)
+    got = validate_blocks_footprint(blocks, [bare], offset=0.0, points_crs=tile.crs).residuals
+    np.testing.assert_allclose(got["ref_ground"], want["ref_ground"], atol=1e-9)
+    np.testing.assert_allclose(got["ref_rh98"], want["ref_rh98"], atol=1e-9)

@@ -392,6 +392,7 @@ def validate_blocks_footprint(
     photon_vertical_crs: object = None,
     reference_vertical_crs: object = None,
     slope_threshold: float = 2.0,
+    points_crs: object = None,
     progress: Progress | None = None,
 ) -> ValidationResult:
     """Validate photon blocks against the footprint-matched reference (``validate
@@ -399,6 +400,7 @@ def validate_blocks_footprint(
     the reference of :func:`~canopyblocks.reference.footprint.block_footprint_reference`
     (ground = mean footprint ground, top = mean ground + RH98) and slope/aspect from the
     footprints' ground planes; residual polygons are corridors one diameter wide.
+    ``points_crs`` is the tiles' CRS when their files state none (``--points-crs``).
     """
     from ..reference.corridor import block_corridors
 
@@ -414,7 +416,8 @@ def validate_blocks_footprint(
         paths = [points] if isinstance(points, (str, os.PathLike)) else list(points)
         if not paths:
             raise InputError("no LAS/LAZ tile given; pass --points TILE.laz")
-        tiles_crs = las_crs(paths[0])
+        tiles_crs = las_crs(paths[0]) if points_crs is None \
+            else as_crs(points_crs, "points CRS")
         if tiles_crs is not None and blocks.crs is not None and \
                 not tiles_crs.equals(blocks.crs, ignore_axis_order=True):
             blocks = blocks.to_crs(tiles_crs)   # the tiles' bbox is in their own CRS
@@ -424,6 +427,7 @@ def validate_blocks_footprint(
         bbox = (float(np.nanmin(xb) - m), float(np.nanmin(yb) - m), float(np.nanmax(xb) + m),
                 float(np.nanmax(yb) + m))
         pts = read_las(paths, bbox=bbox, exclude_classes=params.exclude_classes,
+                       crs=tiles_crs if points_crs is not None else None,
                        progress=prog.sub(0.0, 0.3))
     if not pts.crs.equals(blocks.crs, ignore_axis_order=True):
         blocks = blocks.to_crs(pts.crs)

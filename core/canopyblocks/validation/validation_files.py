@@ -361,7 +361,8 @@ def _validate(kind: str, table: pd.DataFrame, reference: str, dtm: Any, dsm_max:
                                       geoid=geoid, offset=offset,
                                       photon_vertical_crs=photon_vertical_crs,
                                       reference_vertical_crs=reference_vertical_crs,
-                                      slope_threshold=slope_threshold, progress=prog)
+                                      slope_threshold=slope_threshold, points_crs=points_crs,
+                                      progress=prog)
     else:
         from .block_validation import validate_blocks
 
