@@ -231,3 +231,19 @@ def test_reader_takes_the_vertical_crs_the_simulated_file_states(tmp_path):
     with h5py.File(copy, "a") as f:
         f.attrs["canopyblocks_height_crs"] = "EPSG:5713"
     assert read_atl03(copy, beam="gt1r").vertical_datum == "EPSG:5713"
+
+
+def test_api_simulation_over_an_all_noise_cloud_names_the_classes():
+    """Every point classed noise: the message says so, not that the track misses the cloud."""
+    from canopyblocks.errors import NoUsableDataError
+    from canopyblocks.readers.las import LasPoints
+    from canopyblocks.simulate import SimParams, simulate_photons
+    from canopyblocks.simulate.tracks import SimTrack
+
+    rng = np.random.default_rng(0)
+    n = 2000
+    pts = LasPoints.from_arrays(rng.uniform(0, 100, n), rng.uniform(0, 100, n),
+                                rng.uniform(100, 120, n), classification=np.full(n, 7),
+                                crs="EPSG:32610")
+    with pytest.raises(NoUsableDataError, match="classed noise"):
+        simulate_photons(pts, SimTrack.line(0.0, 50.0, 100.0, 50.0), SimParams())

@@ -20,6 +20,7 @@ import pyproj
 from ..errors import InputError, NoUsableDataError
 from ..photons import BackgroundRate, PhotonTrack
 from ..progress import Progress, as_progress
+from ..readers.cloud_checks import refuse_all_noise
 from ..readers.las import LasPoints
 from .footprints import CloudIndex, _ranges
 from .params import SimParams
@@ -191,6 +192,8 @@ def cloud_index(points: LasPoints, params: SimParams | None = None) -> CloudInde
     params = params or SimParams()
     keep = np.isfinite(points.x) & np.isfinite(points.y) & np.isfinite(points.z)
     if params.exclude_classes:
+        refuse_all_noise(points.classification, ", ".join(points.sources) or "the points",
+                         tuple(params.exclude_classes))
         keep &= ~np.isin(points.classification, params.exclude_classes)
     ids = np.flatnonzero(keep)
     return CloudIndex(points.x[ids], points.y[ids], points.z[ids], ids=points.rows[ids])
