@@ -34,17 +34,20 @@ def _image_array(img: Any) -> np.ndarray:
     return np.frombuffer(ptr, np.uint8).reshape(img.height(), img.width(), 4).copy()
 
 
-def _layer(height_field: str, with_length: bool) -> Any:
-    from qgis.core import QgsFeature, QgsGeometry, QgsPointXY, QgsVectorLayer
+def _layer(height_field: str, with_length: bool, z: bool = False) -> Any:
+    from qgis.core import QgsFeature, QgsGeometry, QgsPoint, QgsPointXY, QgsVectorLayer
 
     fields = "&field=length:double" if with_length else ""
-    layer = QgsVectorLayer(f"Point?crs=EPSG:32613{fields}&field=ground:double"
-                           f"&field={height_field}:double", "bars", "memory")
+    layer = QgsVectorLayer(f"{'PointZ' if z else 'Point'}?crs=EPSG:32613{fields}"
+                           f"&field=ground:double&field={height_field}:double", "bars",
+                           "memory")
     feats = []
     for d, ground, h in BARS:
         f = QgsFeature(layer.fields())
         f.setAttributes(([25.0] if with_length else []) + [ground, h])
-        f.setGeometry(QgsGeometry.fromPointXY(QgsPointXY(500000.0 + d, 4600000.0)))
+        # GEDI footprints are PointZ at their ground
+        f.setGeometry(QgsGeometry(QgsPoint(500000.0 + d, 4600000.0, ground)) if z else
+                      QgsGeometry.fromPointXY(QgsPointXY(500000.0 + d, 4600000.0)))
         feats.append(f)
     # a second block length on its own colour scale
     if with_length:
@@ -81,13 +84,14 @@ def _row(z: float) -> int:
     return int(round((Z1 - z) / (Z1 - Z0) * H))
 
 
-@pytest.mark.parametrize("height_field,with_length", [("hmax", True), ("rh98", False)],
-                         ids=["block bars", "GEDI footprints"])
+@pytest.mark.parametrize("height_field,with_length,z", [
+    ("hmax", True, False), ("rh98", False, False), ("rh98", False, True)],
+    ids=["block bars", "footprints with a ground field", "GEDI footprints (PointZ)"])
 def test_bars_draw_with_the_default_respect_layer_symbology(qgis_session, height_field,
-                                                            with_length) -> None:
+                                                            with_length, z) -> None:
     from qgis_plugin import styles
 
-    layer = _layer(height_field, with_length)
+    layer = _layer(height_field, with_length, z)
     try:
         layer.setRenderer(styles.height_renderer(layer, height_field))
         assert styles.set_elevation(layer)
