@@ -60,14 +60,13 @@ def _initial_peaks(s: np.ndarray, thr: float, max_n: int) -> list[tuple[float, f
     d2 = np.diff(s, 2)
     sign = np.sign(d2)
     infl = np.flatnonzero(sign[:-1] != sign[1:]) + 1.5    # zero crossings, sample units
-    out = []
-    for p in peak:
-        left = infl[infl < p]
-        right = infl[infl > p]
-        lo = left[-1] if left.size else p - _MIN_SIGMA
-        hi = right[0] if right.size else p + _MIN_SIGMA
-        sigma = float(np.clip((hi - lo) / 2.0, _MIN_SIGMA, _MAX_SIGMA))
-        out.append((float(s[p]), float(p), sigma))
+    # the inflection points either side of each peak (they lie between samples)
+    k = np.searchsorted(infl, peak)
+    lo = np.where(k > 0, infl[np.maximum(k - 1, 0)] if infl.size else 0.0, peak - _MIN_SIGMA)
+    hi = np.where(k < infl.size, infl[np.minimum(k, max(infl.size - 1, 0))] if infl.size
+                  else 0.0, peak + _MIN_SIGMA)
+    sigma = np.clip((hi - lo) / 2.0, _MIN_SIGMA, _MAX_SIGMA)
+    out = list(zip(s[peak].tolist(), peak.astype(np.float64).tolist(), sigma.tolist()))
     out.sort(key=lambda t: -t[0])
     return sorted(out[:max_n], key=lambda t: t[1])
 
@@ -101,8 +100,10 @@ def _problem(y: np.ndarray, s: np.ndarray, threshold: float, max_gaussians: int
     yy = y[lo:hi]
     p0 = np.array([v for g in init for v in g])
     amax = max(float(yy.max()), threshold) * 2.0
-    lb = np.tile([0.0, lo, _MIN_SIGMA], len(init))
-    ub = np.tile([amax, hi - 1.0, _MAX_SIGMA], len(init))
+    lb = np.empty(len(p0))
+    ub = np.empty(len(p0))
+    lb[0::3], lb[1::3], lb[2::3] = 0.0, lo, _MIN_SIGMA
+    ub[0::3], ub[1::3], ub[2::3] = amax, hi - 1.0, _MAX_SIGMA
     p0 = np.clip(p0, lb + 1e-9, ub - 1e-9)
     return _Problem(yy, lo, hi, p0, lb, ub)
 
