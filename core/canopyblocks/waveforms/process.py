@@ -2,19 +2,21 @@
 
 Steps, each vectorised over the shots of a chunk (one module each):
 
-1. residual = waveform - noise mean (``noise_mean_corrected``); search window from the
-   raw samples above ``mean + 4 sd`` (:mod:`.extent`);
+1. one pass over the raw samples (:mod:`.scan`): unusable shots, the search window
+   (samples above ``mean + 4 sd``, L2A's ``search_start`` / ``search_end``) and the part
+   of it where a signal top or bottom can lie at all;
 2. linear interpolation to the 0.25-sample grid and Gaussian smoothing, once for the
    signal locations (6.5 samples) and once for the mode search (:mod:`.smoothing`);
 3. signal top / bottom from the front / back thresholds (:mod:`.extent`);
-4. modes, ground = lowest mode (:mod:`.modes`);
+4. the signal alone, bottom first (:mod:`.profile`): modes, ground = lowest mode
+   (:mod:`.modes`);
 5. cumulative energy -> RH0..RH100 (:mod:`.rh`), cover and penetration (:mod:`.cover`);
 6. flags, and the seed-003 terrain filter along the beam (:mod:`.terrain_filter`).
 
-Only each shot's search window (plus the kernels' reach) is smoothed -- results inside
-the window are those of smoothing the whole waveform -- and shots are processed in
-chunks of similar window width, so a few tall or long waveforms do not widen every
-row. The only Python loop is over chunks of ``CHUNK_SHOTS`` shots.
+Only the part of each shot's search window where a signal can lie (plus the kernels'
+reach) is smoothed -- results there are those of smoothing the whole waveform -- and
+shots are processed in chunks of similar width, so a few tall or long waveforms do not
+widen every row. The only Python loop is over chunks of ``CHUNK_SHOTS`` shots.
 """
 
 from __future__ import annotations
