@@ -223,3 +223,48 @@ def test_messages_name_what_was_received() -> None:
     msg = _refused(read_las, 42)
     assert "42" in msg and "path" in msg, msg
     assert isinstance(InputError("x"), ValueError)
+
+
+# ---- parameter objects: every field checked against its annotation ------------------------------
+
+PARAM_CLASSES = ("BlockParams", "SimParams", "WaveformParams", "CoregParams",
+                 "FootprintReferenceParams", "BatchConfig", "Estimators")
+FIELD_MISUSE = {"str": "abc", "list": [1, 2], "dict": {"a": 1}, "nan": float("nan")}
+
+
+def _field_cases() -> list[Any]:
+    import dataclasses
+
+    import canopyblocks
+
+    out = []
+    for cname in PARAM_CLASSES:
+        cls = getattr(canopyblocks, cname)
+        for f in dataclasses.fields(cls):
+            if not f.init:
+                continue
+            for kind in FIELD_MISUSE:
+                out.append(pytest.param(cls, f.name, kind, id=f"{cname}-{f.name}-{kind}"))
+    return out
+
+
+#: Fields whose misuse value is a valid setting (value: why).
+VALID_FIELDS = {
+    "BatchConfig-geoid-str": "'abc' is a geoid file name, checked when the batch runs",
+    "BatchConfig-photon_vcrs-str": "a CRS name, checked when the batch runs",
+    "BatchConfig-reference_vcrs-str": "a CRS name, checked when the batch runs",
+    "Estimators-name-str": "a label",
+    "BlockParams-lengths-list": "block lengths of 1 and 2 m",
+    "BatchConfig-lengths-list": "block lengths of 1 and 2 m",
+    "SimParams-exclude_classes-list": "ASPRS classes 1 and 2",
+    "FootprintReferenceParams-exclude_classes-list": "ASPRS classes 1 and 2",
+}
+
+
+@pytest.mark.parametrize(("cls", "field", "kind"), _field_cases())
+def test_parameter_fields_are_checked(cls, field, kind, request) -> None:
+    if request.node.callspec.id in VALID_FIELDS:
+        cls(**{field: FIELD_MISUSE[kind]})
+        return
+    msg = _refused(cls, **{field: FIELD_MISUSE[kind]})
+    assert field.rstrip("s") in msg.replace(" ", "_"), msg   # (lengths: "block length")

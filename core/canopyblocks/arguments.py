@@ -229,3 +229,67 @@ def check_reference_metres(est: np.ndarray, ref: np.ndarray, est_name: str,
             f"{name}: {ref_name} has a median of {med:.4g} against {est_name} "
             f"{float(np.median(est[ok])):.4g} (ratio {ratio:.3g}): taller than any tree; "
             "the reference looks like centimetres -- give heights in metres")
+
+
+def check_fields(obj: Any) -> None:
+    """Check a parameter dataclass's fields against their annotations, at the top of its
+    ``__post_init__``: ``float`` a real number (not NaN), ``int`` an integer, ``bool`` a
+    bool, ``str`` a string, a ``Literal`` name a string (which one is the class's to
+    judge), ``tuple[float, ...]`` no mapping and numbers inside, a nested parameter class
+    an instance of it; each may be None when annotated ``| None`` or defaulting to None."""
+    import dataclasses
+    import typing
+
+    try:
+        hints = typing.get_type_hints(type(obj))
+    except Exception:  # noqa: BLE001 - unresolvable annotations: nothing to check here
+        return
+    cls = type(obj).__name__
+    for f in dataclasses.fields(obj):
+        value = getattr(obj, f.name)
+        if not f.init or f.name not in hints or (value is None and f.default is None):
+            continue
+        _check_field(value, hints[f.name], f"{cls}: {f.name}")
+
+
+def _check_field(value: object, hint: Any, name: str) -> None:
+    import types
+    import typing
+
+    args = typing.get_args(hint)
+    origin = typing.get_origin(hint)
+    if origin in (typing.Union, types.UnionType):
+        if value is None and type(None) in args:
+            return
+        rest = [a for a in args if a is not type(None)]
+        if len(rest) == 1:
+            _check_field(value, rest[0], name)
+        return
+    if hint is bool:
+        if not isinstance(value, (bool, np.bool_)):
+            raise _fail(name, "True or False", value)
+    elif hint is int:
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
+            raise _fail(name, "an integer", value)
+    elif hint is float:
+        if isinstance(value, (bool, np.bool_)) or not isinstance(
+                value, (int, float, np.integer, np.floating)) or math.isnan(float(value)):
+            raise _fail(name, "a number", value)
+    elif hint is str:
+        if not isinstance(value, str):
+            raise _fail(name, "a string", value)
+    elif origin is typing.Literal:   # a string is the class's to judge (its own message)
+        if not isinstance(value, str):
+            raise _fail(name, "one of " + ", ".join(repr(a) for a in args), value)
+    elif isinstance(hint, type) and hasattr(hint, "__dataclass_fields__"):
+        if not isinstance(value, hint):
+            raise _fail(name, f"a {hint.__name__}", value)
+    elif origin is tuple and len(args) == 2 and args[1] is Ellipsis and args[0] in (int, float):
+        # one length and strings are the class's to judge; mappings and sets never fit, nor
+        # anything but a sequence for integers (class codes)
+        if isinstance(value, (Mapping, set)) or (args[0] is int and not isinstance(
+                value, (list, tuple, np.ndarray))):
+            raise _fail(name, f"a sequence of {args[0].__name__}s", value)
+        if isinstance(value, (list, tuple, np.ndarray)):
+            for v in value:
+                _check_field(v, args[0], name)

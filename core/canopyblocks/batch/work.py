@@ -60,6 +60,8 @@ class BatchConfig:
     resolution: float = 2.0
 
     def __post_init__(self) -> None:
+        from ..arguments import check_fields
+        check_fields(self)
         from ..blocks import BlockParams
         from ..blocks.estimators import preset
         from ..errors import InputError

@@ -95,6 +95,8 @@ class Estimators:
     name: str = "custom"
 
     def __post_init__(self) -> None:
+        from ..arguments import check_fields
+        check_fields(self)
         for what, value, allowed in (("noise", self.noise, NOISE_ESTIMATORS),
                                      ("ground", self.ground, GROUND_ESTIMATORS),
                                      ("top", self.top, TOP_ESTIMATORS)):

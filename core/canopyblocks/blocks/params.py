@@ -134,6 +134,8 @@ class BlockParams:
     min_signal_conf: int | None = None
 
     def __post_init__(self) -> None:
+        from ..arguments import check_fields
+        check_fields(self)
         set_ = object.__setattr__
         # lengths
         raw: object = self.lengths

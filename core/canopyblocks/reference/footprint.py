@@ -157,6 +157,8 @@ class FootprintReferenceParams:
     exclude_classes: tuple[int, ...] = (7, 18)
 
     def __post_init__(self) -> None:
+        from ..arguments import check_fields
+        check_fields(self)
         for name in ("diameter", "cut", "density_cell"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):

@@ -162,6 +162,8 @@ class SimParams:
     truth: TruthParams = field(default_factory=TruthParams)
 
     def __post_init__(self) -> None:
+        from ..arguments import check_fields
+        check_fields(self)
         if self.instrument not in INSTRUMENTS:
             raise InputError(
                 f"instrument must be one of {', '.join(INSTRUMENTS)}; got {self.instrument!r}")

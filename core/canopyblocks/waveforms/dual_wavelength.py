@@ -132,6 +132,12 @@ def dual_wavelength_ground(visible: np.ndarray, nir: np.ndarray, *,
     DualGround
         Fractional sample positions; convert with ``WaveformBatch.elevation``.
     """
+    from ..arguments import check_array, check_instance, check_optional
+    check_array(visible, "dual_wavelength_ground: visible", ndim=2)
+    check_array(nir, "dual_wavelength_ground: nir", ndim=2)
+    for k, v in (("noise_mean", noise_mean), ("noise_sd", noise_sd)):
+        check_instance(v, (tuple, list), f"dual_wavelength_ground: {k}", "a (visible, nir) pair of per-shot arrays")
+    check_optional(params, DualParams, "dual_wavelength_ground: params")
     p = params or DualParams()
     vis = np.asarray(visible, float)
     ir = np.asarray(nir, float)

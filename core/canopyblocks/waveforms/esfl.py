@@ -296,6 +296,9 @@ def esfl_process(wf: EsflWaveforms, params: EsflParams | None = None) -> pd.Data
 def esfl_chain(data: EsflCubes, params: EsflParams | None = None
                ) -> tuple[EsflWaveforms, pd.DataFrame]:
     """The whole chain: :func:`esfl_waveforms` then :func:`esfl_process`."""
+    from ..arguments import check_instance, check_optional
+    check_instance(data, EsflCubes, "esfl_chain: data", "EsflCubes (flash-array data cubes)")
+    check_optional(params, EsflParams, "esfl_chain: params")
     p = params or EsflParams()
     wf = esfl_waveforms(data, p)
     return wf, esfl_process(wf, p)

@@ -149,6 +149,8 @@ class WaveformParams:
     mode_smoothing: float | None = None
 
     def __post_init__(self) -> None:
+        from ..arguments import check_fields
+        check_fields(self)
         if self.setting not in SETTINGS:
             raise InputError(
                 f"setting {self.setting!r} is not an L2A setting group; "
