@@ -51,7 +51,7 @@ def run_waveform_chain(
     ChainResult
     """
     from .outputs.footprint_maps import write_footprint_plots
-    from .outputs.report import ReportSection, write_report
+    from .outputs.report import ReportSection, footprint_stats_table, write_report
     from .outputs.tables import write_layers, write_table
     from .validation.footprints import (
         LAYER_RESIDUALS_FOOTPRINTS,
@@ -101,7 +101,8 @@ def run_waveform_chain(
                 "Each footprint is compared with the airborne points weighted by a Gaussian "
                 "footprint (DESIGN 2.7): ground, RH98, RH50 and cover. Residual = waveform "
                 "value minus reference value (m)."],
-                {"statistics (all footprints)": overall, "by group": val.stats},
+                {"statistics (all footprints)": footprint_stats_table(overall),
+                 "by group": footprint_stats_table(val.stats)},
                 maps),
         ]
         report = write_report(out / "report.html", "canopyblocks: GEDI footprints and "

@@ -91,8 +91,8 @@ def run_chain(
     atl08: str | os.PathLike[str] | None = None,
     azimuth: float = 0.0,
     diameter: float = 13.0,
-    preset: str = "temperate",
-    seed: int = 1,
+    photon_rate: str = "temperate",
+    seed: int = 0,
     params: BlockParams | None = None,
     width: float | None = None,
     resolution: float = 2.0,
@@ -107,6 +107,7 @@ def run_chain(
     coregister: bool = False,
     footprint_reference: bool = True,
     progress: Progress | None = None,
+    preset: str | None = None,
 ) -> ChainResult:
     """Run photons -> blocks -> reference rasters -> validation -> report.
 
@@ -122,8 +123,11 @@ def run_chain(
         ATL03 / MABEL / table photon file, or a GEDI L1B file (then the chain is
         :func:`~canopyblocks.waveform_chain.run_waveform_chain`: footprints validated
         against the tiles).  When None, ICESat-2 photons are simulated
-        over the tiles (seed 002 method) along a line at ``azimuth`` degrees through
-        the survey centre, with ``diameter`` m footprints and the ``preset`` photon rate.
+        over the tiles along a line at ``azimuth`` degrees through the survey centre,
+        with ``diameter`` m footprints and the ``photon_rate`` (``boreal``, ``temperate``,
+        ``tropical``; as ``simulate(..., preset=)`` of the simulation parameters).
+    preset : str, optional
+        Deprecated name of ``photon_rate`` (a FutureWarning; it will be removed).
     params : BlockParams, optional
         Default: lengths 10, 25 and 50 m (seed 001).
     width : float, optional
@@ -171,6 +175,12 @@ def run_chain(
     from .reference.rasters import make_reference_rasters
     from .validation.block_validation import validate_atl08, validate_blocks
 
+    if preset is not None:
+        import warnings
+
+        warnings.warn("run_chain(preset=) is deprecated; use photon_rate=", FutureWarning,
+                      stacklevel=2)
+        photon_rate = preset
     prog = as_progress(progress)
     if photons is not None and str(photons).lower().endswith((".h5", ".hdf5")):
         from .readers.gedi import is_gedi_l1b
@@ -196,7 +206,7 @@ def run_chain(
         seed002_png: Path | None = None
         if photons is None:
             photons, crs, seed002, seed002_png = _simulate(
-                tiles, out, azimuth=azimuth, diameter=diameter, preset=preset, seed=seed,
+                tiles, out, azimuth=azimuth, diameter=diameter, preset=photon_rate, seed=seed,
                 realisations=realisations, progress=prog.sub(0.0, 0.25))
             # simulated heights are the tiles' own heights: same vertical datum by construction
             offset, geoid, photon_vcrs = 0.0, None, _tiles_crs(tiles) or crs
@@ -285,7 +295,7 @@ def run_chain(
         report = _report(out, tiles=tiles, photons=Path(photons), simulated=simulated,
                          params=params, width=width, resolution=resolution, blocks=blocks,
                          stats=val.stats, datum=val.datum, plots=plots, azimuth=azimuth,
-                         diameter=diameter, preset=preset, seed=seed,
+                         diameter=diameter, preset=photon_rate, seed=seed,
                          calibration=None if cutoffs is None else cutoffs.table,
                          seed002=seed002, seed002_png=seed002_png, compared=compared,
                          compare_preset=compare_preset, offsets=offsets_doc, lead=lead,

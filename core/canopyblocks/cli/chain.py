@@ -13,6 +13,7 @@ from .common import (
     progress_bar,
     vertical_options,
 )
+from .vocabulary import deprecated_option, say_deprecated, take_alias
 
 
 @click.command("run")
@@ -32,9 +33,10 @@ from .common import (
               help="Simulated track direction, degrees clockwise from north.")
 @click.option("--diameter", type=float, default=13.0, show_default=True,
               help="Simulated footprint diameter, m.")
-@click.option("--preset", type=click.Choice(["boreal", "temperate", "tropical"]),
-              default="temperate", show_default=True, help="Simulated photon rate.")
-@click.option("--seed", type=int, default=1, show_default=True, help="Simulation seed.")
+@click.option("--photon-rate", "photon_rate",
+              type=click.Choice(["boreal", "temperate", "tropical"]), default="temperate",
+              show_default=True, help="Simulated photon rate (as simulate --photon-rate).")
+@click.option("--seed", type=int, default=0, show_default=True, help="Simulation seed.")
 @click.option("--realisations", type=click.IntRange(min=0), default=100, show_default=True,
               help="Simulated runs: photon draws per footprint diameter for the seed 002 "
                    "analysis against truth (0 skips it).")
@@ -48,11 +50,16 @@ from .common import (
 @vertical_options
 @click.option("--calibrate", is_flag=True,
               help="Also fit the cut-offs to the reference and validate again with them.")
-@click.option("--estimators", "estimator_preset",
-              type=click.Choice(["paper", "icesat2", "mabel", "atl08"]), default=None, help="Block estimators (DESIGN 1.10; default the paper's). "
-              "(--preset names the simulated photon rate.)")
+@click.option("--preset", "estimator_preset",
+              type=click.Choice(["paper", "icesat2", "mabel", "atl08",
+                                 "boreal", "temperate", "tropical"]), default=None,
+              help="Block estimators, as blocks --preset (default the paper's; with it the "
+                   "recommended ones are computed too, see --compare). The photon-rate "
+                   "names are deprecated here: use --photon-rate.")
+@deprecated_option("--estimators", "old_estimators",
+                   type=click.Choice(["paper", "icesat2", "mabel", "atl08"]))
 @click.option("--calibration", type=click.Path(dir_okay=False), default=None,
-              help="Bias calibration JSON to apply to the blocks (fitted for --estimators).")
+              help="Bias calibration JSON to apply to the blocks (fitted for --preset).")
 @click.option("--compare/--no-compare", default=True, show_default=True,
               help="With the paper's estimators, also validate the recommended estimators "
                    "and fit their bias calibration; the report leads with them.")
@@ -68,10 +75,11 @@ from .common import (
 @click.pass_context
 def run_cmd(ctx: click.Context, tiles: tuple[str, ...], out_dir: str, photons: str | None,
             simulate: bool, beams: tuple[str, ...], channel: str | None, atl08: str | None,
-            azimuth: float, diameter: float, preset: str, seed: int,
+            azimuth: float, diameter: float, photon_rate: str, seed: int,
             lengths: tuple[float, ...], min_signal_conf: int | None, width: float | None,
             resolution: float, smrf: bool, geoid: str | None, offset: float | None,
             calibrate: bool, realisations: int, estimator_preset: str | None,
+            old_estimators: str | None,
             calibration: str | None, compare: bool, coregister: bool,
             footprint_reference: bool) -> None:
     """Photons + airborne TILES -> blocks, reference rasters, validation, plots, report."""
@@ -82,13 +90,19 @@ def run_cmd(ctx: click.Context, tiles: tuple[str, ...], out_dir: str, photons: s
 
     if simulate and photons:
         raise click.UsageError("give either --photons or --simulate, not both")
+    estimator_preset = take_alias(estimator_preset, old_estimators, old="--estimators",
+                                  new="--preset")
+    if estimator_preset in ("boreal", "temperate", "tropical"):  # the old meaning of --preset
+        say_deprecated(f"--preset {estimator_preset}", f"--photon-rate {estimator_preset}")
+        photon_rate, estimator_preset = estimator_preset, None
     params = BlockParams(lengths=tuple(lengths) or (10.0, 25.0, 50.0),
                          min_signal_conf=min_signal_conf)
     quiet = bool(ctx.obj and ctx.obj.get("quiet"))
     chan = parse_channel(channel)
     with progress_bar("run", quiet=quiet) as progress:
         result = run_chain(tiles, out_dir, photons=photons, beams=beams, channel=chan,
-                           atl08=atl08, azimuth=azimuth, diameter=diameter, preset=preset,
+                           atl08=atl08, azimuth=azimuth, diameter=diameter,
+                           photon_rate=photon_rate,
                            seed=seed, params=params, width=width, resolution=resolution,
                            ground="smrf" if smrf else "class2", geoid=geoid, offset=offset,
                            calibrate=calibrate, realisations=realisations,

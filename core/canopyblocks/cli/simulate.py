@@ -10,6 +10,7 @@ import click
 
 from .common import parse_floats as _floats
 from .common import progress_bar
+from .vocabulary import deprecated_option, take_alias
 
 if TYPE_CHECKING:
     from ..simulate import SimTrack
@@ -43,13 +44,17 @@ log = logging.getLogger(__name__)
               show_default=True, help="Sets footprint, shot spacing and pulse rate defaults.")
 @click.option("--shot-spacing", type=float, default=None,
               help="Metres between footprint centres (ICESat-2 0.7, MABEL 0.04, GEDI 60).")
-@click.option("--preset", type=click.Choice(["boreal", "temperate", "tropical"]),
+@click.option("--photon-rate", "preset", type=click.Choice(["boreal", "temperate", "tropical"]),
               default="temperate", show_default=True,
-              help="Poisson mean photons per strong-beam shot: 1.0 / 1.9 / 0.6 (seed 002).")
-@click.option("--beam", type=click.Choice(["strong", "weak"]), default="strong",
-              show_default=True, help="The weak beam gets a quarter of the photons.")
+              help="Poisson mean photons per strong-beam shot: 1.0 / 1.9 / 0.6.")
+@deprecated_option("--preset", "old_preset", type=click.Choice(["boreal", "temperate",
+                                                                 "tropical"]))
+@click.option("--beam-strength", "beam", type=click.Choice(["strong", "weak"]),
+              default="strong", show_default=True,
+              help="The weak beam gets a quarter of the photons.")
+@deprecated_option("--beam", "old_beam", type=click.Choice(["strong", "weak"]))
 @click.option("--mean-photons", type=float, default=None,
-              help="Poisson mean photons per shot (overrides --preset/--beam).")
+              help="Poisson mean photons per shot (overrides --photon-rate/--beam-strength).")
 @click.option("--background-rate", type=float, default=0.0, show_default=True,
               help="Solar background noise, MHz, the same for strong and weak beams "
                    "(0 = off; night ~0.1-0.3, day ~1-5). Noise photons fall uniformly in "
@@ -88,7 +93,7 @@ def simulate_cmd(ctx: click.Context, las: tuple[str, ...], sensor: str, azimuth:
                  line: str | None, polyline: str | None, centre: str | None,
                  diameters: tuple[float, ...],
                  instrument: Instrument, shot_spacing: float | None, preset: Ecosystem,
-                 beam: Beam,
+                 old_preset: Ecosystem | None, beam: Beam, old_beam: Beam | None,
                  mean_photons: float | None, background_rate: float, light: str | None,
                  telemetry_window: float, noise_rate: float | None, geolocation_sigma: float,
                  dual_noise: float | None, realisations: int, seed: int, crs: str | None, output: str, fmt: str | None,
@@ -103,6 +108,9 @@ def simulate_cmd(ctx: click.Context, las: tuple[str, ...], sensor: str, azimuth:
     from ..simulate import SimParams, SimTrack, line_through, seed002_experiment
     from ..simulate.writers import check_simulation_outputs, write_simulation_outputs
 
+    preset = take_alias(preset, old_preset, old="--preset", new="--photon-rate",
+                        default="temperate")
+    beam = take_alias(beam, old_beam, old="--beam", new="--beam-strength", default="strong")
     if sum(v is not None for v in (azimuth, line, polyline)) != 1:
         raise click.UsageError(
             "give exactly one of --azimuth DEG, --line x0,y0,x1,y1 or --polyline 'x,y;x,y;...'")

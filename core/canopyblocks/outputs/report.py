@@ -14,7 +14,8 @@ import pandas as pd
 from ..progress import Progress
 from .atomic import atomic_output, atomic_outputs, will_exist
 
-__all__ = ["ReportSection", "write_report", "report_stats_table", "STATS_HEADERS"]
+__all__ = ["ReportSection", "write_report", "report_stats_table", "footprint_stats_table",
+           "STATS_HEADERS"]
 
 log = logging.getLogger(__name__)
 
@@ -57,6 +58,12 @@ def report_stats_table(stats: pd.DataFrame) -> pd.DataFrame:
         if c in df.columns:
             df[c] = pd.to_numeric(df[c], errors="coerce").round().astype("Int64")
     return df.rename(columns=STATS_HEADERS)
+
+
+def footprint_stats_table(stats: pd.DataFrame) -> pd.DataFrame:
+    """A footprint statistics table as the report shows it: as :func:`report_stats_table`,
+    its ``length`` column named for what it is, the footprint diameter."""
+    return report_stats_table(stats).rename(columns={"length (m)": "footprint diameter (m)"})
 
 
 def _table_html(df: pd.DataFrame) -> str:

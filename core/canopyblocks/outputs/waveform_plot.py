@@ -52,7 +52,7 @@ def waveform_markers(d: ShotDetails) -> WaveformMarkers:
 
 
 def plot_waveform(details: ShotDetails, path: str | os.PathLike[str], *,
-                  title: str | None = None) -> Path:
+                  title: str | None = None, vertical_datum: str = "WGS84 ellipsoid") -> Path:
     """PNG of one processed shot (written atomically).
 
     Parameters
@@ -63,6 +63,8 @@ def plot_waveform(details: ShotDetails, path: str | os.PathLike[str], *,
         PNG to write.
     title : str, optional
         Default: beam, shot number, setting and flag.
+    vertical_datum : str
+        Named on the elevation axis (GEDI L1B elevations are WGS84 ellipsoidal).
     """
     d = details
     mk = waveform_markers(d)
@@ -83,10 +85,10 @@ def plot_waveform(details: ShotDetails, path: str | os.PathLike[str], *,
                                  (mk.ground, "tab:brown", "ground (lowest mode)")):
         if np.isfinite(value):
             ax.axhline(value, color=colour, lw=1.2, label=label)
-    for k, z in mk.rh_elevations.items():
-        ax.axhline(z, color="tab:red", lw=0.6, ls="--")
+    for k, z in mk.rh_elevations.items():  # the line stops where its label begins
+        ax.hlines(z, lo - 0.05 * (hi - lo), hi, color="tab:red", lw=0.6, ls="--")
         ax.text(hi, z, f" RH{k} {d.rh[k]:.1f} m", va="center", ha="left", fontsize=7,
-                color="tab:red")
+                color="tab:red", bbox={"facecolor": "white", "edgecolor": "none", "pad": 0.5})
     if d.gaussians is not None and len(d.gaussians):
         elev = np.asarray(d.elevation, float)
         for amp_g, centre, sigma in np.asarray(d.gaussians, float):
@@ -97,11 +99,12 @@ def plot_waveform(details: ShotDetails, path: str | os.PathLike[str], *,
         span = max(mk.top - mk.bottom, 5.0)
         ax.set_ylim(mk.bottom - 0.6 * span, mk.top + 0.6 * span)
     ax.set_xlabel("received energy (counts)")
-    ax.set_ylabel("elevation (m)")
+    ax.set_ylabel(f"elevation (m, {vertical_datum})")
     ax.ticklabel_format(useOffset=False, style="plain", axis="y")
     ax.set_title(title or f"{d.beam} shot {d.shot_number} ({d.setting}, {d.flag})",
                  fontsize=9)
-    ax.legend(loc="lower right", fontsize=7)
+    ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), fontsize=7,
+              borderaxespad=0.0)  # outside the waveform
     return save_figure(fig, path)
 
 

@@ -1,0 +1,76 @@
+"""One vocabulary across the commands: renamed options keep their old name for one release
+as a hidden, deprecated alias that says which name replaces it.
+
+:data:`DEPRECATED_OPTIONS` lists every such alias (command, old name -> new name); the
+option walk test (tests/test_option_vocabulary.py) checks that every hidden option is
+listed here and that its new name exists on the same command.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any, TypeVar
+
+import click
+
+__all__ = ["DEPRECATED_OPTIONS", "DEPRECATED_VALUES", "deprecated_option", "take_alias",
+           "deprecated_value", "say_deprecated"]
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+#: (command, old option) -> the option that replaces it.
+DEPRECATED_OPTIONS: dict[tuple[str, str], str] = {
+    ("simulate", "--preset"): "--photon-rate",
+    ("simulate", "--beam"): "--beam-strength",
+    ("run", "--estimators"): "--preset",
+    ("blocks", "--photons"): "--photon-layer",
+    ("segments", "--photons"): "--photon-layer",
+    ("coregister", "--range"): "--search-range",
+    ("validate", "--coregister-range"): "--search-range",
+}
+
+#: (command, option, old value) -> the value that replaces it.
+DEPRECATED_VALUES: dict[tuple[str, str, str], str] = {
+    ("validate", "--reference", "rasters"): "corridor",
+    ("run", "--preset", "boreal"): "--photon-rate boreal",
+    ("run", "--preset", "temperate"): "--photon-rate temperate",
+    ("run", "--preset", "tropical"): "--photon-rate tropical",
+}
+
+
+def _say(text: str) -> None:
+    click.echo(f"canopyblocks: warning: {text}", err=True)
+
+
+def say_deprecated(old: str, new: str) -> None:
+    """The one warning line for a deprecated spelling ``old`` replaced by ``new``."""
+    _say(f"{old} is deprecated and will be removed; use {new}")
+
+
+def deprecated_option(old: str, dest: str, **kwargs: Any) -> Callable[[F], F]:
+    """A hidden option ``old`` whose value arrives in parameter ``dest`` (None when not
+    given); pass it to :func:`take_alias` with the new option's value."""
+    kwargs.setdefault("default", None)
+    return click.option(old, dest, hidden=True, **kwargs)
+
+
+def take_alias(new_value: Any, old_value: Any, *, old: str, new: str,
+               default: Any = None) -> Any:
+    """The value to use: the new option's, or the deprecated alias's (with a warning).
+
+    Both given with different values is a usage error naming both.
+    """
+    if old_value is None or old_value is False or old_value == ():
+        return new_value
+    _say(f"{old} is deprecated and will be removed; use {new}")
+    if new_value not in (None, default, False, ()) and new_value != old_value:
+        raise click.UsageError(f"give {new} only, not also the deprecated {old}")
+    return old_value
+
+
+def deprecated_value(value: Any, *, option: str, old: str, new: str) -> Any:
+    """``new`` when ``value`` is the deprecated ``old`` (with a warning), else ``value``."""
+    if value == old:
+        _say(f"{option} {old} is deprecated and will be removed; use {option} {new}")
+        return new
+    return value
