@@ -43,6 +43,22 @@ def test_not_hdf5(tmp_path):
         open_track(p)
 
 
+def test_not_hdf5_message_names_the_kind_once(tmp_path):
+    """The generic reader says "an HDF5 file", never "an HDF5 HDF5 file"."""
+    from canopyblocks.readers._h5 import open_h5
+
+    p = tmp_path / "fake.h5"
+    p.write_text("this is not an HDF5 file\n" * 100)
+    for target in (p, tmp_path):
+        with pytest.raises(FileFormatError) as err, open_h5(target):
+            pass
+        assert "expected an HDF5 file" in str(err.value)
+        assert "HDF5 HDF5" not in str(err.value)
+    with pytest.raises(FileFormatError, match="expected an HDF5 ATL03 file"), \
+            open_h5(p, "ATL03"):
+        pass
+
+
 @pytest.mark.parametrize("fraction", [0.001, 0.3, 0.9, 0.999])
 def test_truncated_hdf5(tmp_path, sample, fraction):
     data = sample(VEGR).read_bytes()

@@ -269,18 +269,18 @@ def open_h5(path: str | os.PathLike[str], product: str = "HDF5") -> Iterator[H5F
         When the file does not exist, is not HDF5, or cannot be opened
         (truncated, corrupt); the message names the file.
     """
+    kind = "an HDF5 file" if product == "HDF5" else f"an HDF5 {product} file"
     if not isinstance(path, (str, os.PathLike)):
         from ..arguments import describe
-        raise InputError(f"expected the path of an HDF5 {product} file (str or Path), got "
-                         f"{describe(path)}")
+        raise InputError(f"expected the path of {kind} (str or Path), got {describe(path)}")
     p = Path(path)
     if not p.exists():
         raise FileFormatError(f"{p}: file does not exist")
     if p.is_dir():
-        raise FileFormatError(f"{p}: is a folder, expected an HDF5 {product} file")
+        raise FileFormatError(f"{p}: is a folder, expected {kind}")
     if not _looks_like_hdf5(p):
         raise FileFormatError(
-            f"{p}: not an HDF5 file (no HDF5 signature); expected an HDF5 {product} file"
+            f"{p}: not an HDF5 file (no HDF5 signature); expected {kind}"
         )
     h5py = _import_h5py()
     try:
