@@ -138,9 +138,10 @@ def plot_aspect_errors(stats: pd.DataFrame, path: str | os.PathLike[str], *, len
         for th, v, k in zip(theta, vals, ns):
             if np.isfinite(v):
                 ax.text(th, abs(v) + 0.08 * top, f"n={k}", ha="center", fontsize=6)
-        ax.set_title(f"{m}: {value} by aspect (m)", fontsize=9)
-    fig.suptitle(f"Errors by aspect, {length:g} m blocks (red: negative bias; grey: "
-                 "fewer than 3 blocks)", fontsize=10)
+        ax.set_title(f"{m}: {value} by aspect (m)", fontsize=9, pad=16)
+    note = "red: negative bias; " if value == "bias" else ""
+    fig.suptitle(f"Errors by aspect, {length:g} m blocks ({note}grey: fewer than 3 blocks)",
+                 fontsize=10, y=1.06)  # above the panel titles (saved with a tight box)
     return save_figure(fig, path)
 
 

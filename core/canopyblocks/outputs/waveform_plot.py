@@ -83,8 +83,8 @@ def plot_waveform(details: ShotDetails, path: str | os.PathLike[str], *,
     for value, colour, label in ((mk.top, "tab:green", "signal top"),
                                  (mk.bottom, "tab:purple", "signal bottom"),
                                  (mk.ground, "tab:brown", "ground (lowest mode)")):
-        if np.isfinite(value):
-            ax.axhline(value, color=colour, lw=1.2, label=label)
+        if np.isfinite(value):  # left of the RH labels' column
+            ax.hlines(value, lo - 0.05 * (hi - lo), hi, color=colour, lw=1.2, label=label)
     for k, z in mk.rh_elevations.items():  # the line stops where its label begins
         ax.hlines(z, lo - 0.05 * (hi - lo), hi, color="tab:red", lw=0.6, ls="--")
         ax.text(hi, z, f" RH{k} {d.rh[k]:.1f} m", va="center", ha="left", fontsize=7,
