@@ -149,3 +149,20 @@ def test_bad_arguments():
                   (1.0, 1.0), 0.7)
     with pytest.raises(InputError, match="1-D"):
         mcc_ground(np.zeros((2, 2)), np.zeros((2, 2)), np.zeros((2, 2)))
+
+
+def test_footprints_without_a_window_are_left_out():
+    """A footprint with nothing under it (top NaN, as the simulator writes it) gives no
+    waveform; the others are processed as before."""
+    m = 60
+    cubes = np.zeros((3, 12, 12, m))
+    cubes[:, 4:8, 4:8, :] = _gauss(m, 10.0, 1.2, 1.0) + _gauss(m, 30.0, 1.0, 0.8)
+    cubes += np.random.default_rng(2).normal(0.0, 0.01, cubes.shape)
+    top = np.array([100.0, np.nan, 100.0])
+    data = EsflCubes(cubes, top, 0.75, np.array([0.0, 8.4, 16.8]), np.zeros(3), (1.0, 0.0),
+                     0.7)
+    for cell in (0.0, 5.0):
+        wf, res = esfl_chain(data, EsflParams(cell=cell, mcc=None))
+        assert np.all(np.isfinite(wf.top))
+        assert not np.any((wf.x > 4.2) & (wf.x < 12.6))     # nothing from footprint 1
+        np.testing.assert_allclose(res["ground_gauss"], 100 - 30 * 0.75, atol=0.1)

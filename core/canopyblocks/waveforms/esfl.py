@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from ..errors import InputError
+from ..errors import InputError, NoUsableDataError
 from .decompose import fit_gaussians
 from .flash import footprint_mask
 from .mcc import MccParams, mcc_ground, terrain_surface
@@ -184,18 +184,22 @@ def esfl_waveforms(data: EsflCubes, params: EsflParams | None = None) -> EsflWav
     n, rows, cols, m = cubes.shape
     mask, _ = footprint_mask(cubes, p.fraction, p.region)
     px, py = data.pixel_xy()
-    fp = np.repeat(np.arange(n), int(mask.sum()))
-    sel_x = px[:, mask].ravel()
-    sel_y = py[:, mask].ravel()
-    vals = cubes[:, mask, :].reshape(-1, m)        # (pixels, bins), footprint-major
+    # footprints without a window (nothing under them: top NaN) give no pixel
+    live = np.flatnonzero(np.isfinite(np.asarray(data.top, float)))
+    if live.size == 0:
+        raise NoUsableDataError("no flash-lidar footprint has a recorded window (every top "
+                                "is missing); nothing to process")
+    fp = np.repeat(live, int(mask.sum()))
+    sel_x = px[live][:, mask].ravel()
+    sel_y = py[live][:, mask].ravel()
+    vals = cubes[live][:, mask, :].reshape(-1, m)   # (pixels, bins), footprint-major
     top_px = np.asarray(data.top, float)[fp]
     if p.cell > 0:
         key = np.stack([np.floor(sel_x / p.cell), np.floor(sel_y / p.cell)], 1).astype(np.int64)
         _, group = np.unique(key, axis=0, return_inverse=True)
         group = group.ravel()
     else:
-        group = fp.copy()
-        # keep footprints in order even where one has no pixel (all have: mask is shared)
+        group = np.repeat(np.arange(live.size), int(mask.sum()))
     ng = int(group.max()) + 1
     g_top = np.full(ng, -np.inf)
     np.maximum.at(g_top, group, top_px)
