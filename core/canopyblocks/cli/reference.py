@@ -15,7 +15,8 @@ log = logging.getLogger(__name__)
 @click.command("rasters")
 @click.argument("las", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False),
-              help="Output folder: dtm.tif, dsm_max.tif, dsm_p90.tif.")
+              help="Output folder: dtm.tif, dsm_max.tif, dsm_p90.tif and dtm_fill_mask.tif "
+                   "(1 where a DTM hole was filled).")
 @click.option("--resolution", type=float, default=2.0, show_default=True,
               help="Cell size in metres.")
 @click.option("--crs", default=None,
@@ -53,8 +54,12 @@ def rasters_cmd(ctx: click.Context, las: tuple[str, ...], out_dir: str, resoluti
     g = result.grid
     summary(f"grid: {g.width} x {g.height} cells of {g.resolution:g} m, "
             f"bounds {g.bounds}, CRS {result.crs_label}", err=False)
-    for path in (result.dtm, result.dsm_max, result.dsm_p90):
-        summary(str(path), err=False)
+    for path in (result.dtm, result.dsm_max, result.dsm_p90, result.dtm_fill_mask):
+        if path is not None:
+            summary(str(path), err=False)
+    filled = result.stats.get("dtm_filled")
+    if filled:
+        summary(f"DTM: {filled:,} empty cells filled (marked in dtm_fill_mask.tif)", err=False)
 
 
 def register(group: click.Group) -> None:
