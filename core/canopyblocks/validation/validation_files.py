@@ -29,9 +29,10 @@ __all__ = ["FileValidation", "validate_file", "is_footprint_table", "REFERENCE_K
 
 log = logging.getLogger(__name__)
 
-ReferenceKind = Literal["rasters", "atl08", "footprint"]
+ReferenceKind = Literal["corridor", "atl08", "footprint", "rasters"]
 #: The references a block table can be validated against.
-REFERENCE_KINDS: tuple[str, ...] = ("rasters", "atl08", "footprint")
+REFERENCE_KINDS: tuple[str, ...] = ("corridor", "atl08", "footprint")
+"""Reference kinds (``rasters`` is the former name of ``corridor``, still accepted)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -121,7 +122,7 @@ def validate_file(
     path: str | os.PathLike[str],
     output: str | os.PathLike[str],
     *,
-    reference: ReferenceKind = "rasters",
+    reference: ReferenceKind = "corridor",
     dtm: str | os.PathLike[str] | None = None,
     dsm_max: str | os.PathLike[str] | None = None,
     dsm_p90: str | os.PathLike[str] | None = None,
@@ -154,8 +155,9 @@ def validate_file(
         ``.gpkg`` (layers ``residuals``/``stats``, plus ``stats_uncorrected`` with
         ``coregister``; footprints: ``residuals_footprints``/``stats_footprints``) or
         ``.csv``/``.parquet``.  Must differ from ``path``.
-    reference : {"rasters", "atl08", "footprint"}
-        Blocks only: the corridor rasters (``dtm``, ``dsm_max``, ``dsm_p90``), ATL08
+    reference : {"corridor", "atl08", "footprint"}
+        Blocks only: the corridor maximum of the rasters (``dtm``, ``dsm_max``,
+        ``dsm_p90``; ``"rasters"``, its former name, is still accepted), ATL08
         land segments (``atl08``), or the footprint-matched ALS reference (``points``).
         Footprint tables are always validated against the footprint reference.
     points : sequence of path
@@ -195,6 +197,8 @@ def validate_file(
     if geoid is not None and offset is not None:
         raise InputError("give either --geoid (a geoid raster) or --offset (a constant), "
                          "not both")
+    if reference == "rasters":
+        reference = "corridor"
     if reference not in REFERENCE_KINDS:
         raise InputError(f"reference must be one of {', '.join(REFERENCE_KINDS)}; "
                          f"got {reference!r}")
@@ -319,7 +323,7 @@ def _layer_names(kind: str) -> tuple[str, str]:
 def _check_reference_inputs(reference: str, dtm: object, dsm_max: object, dsm_p90: object,
                             atl08: object, points: Sequence[object]) -> None:
     rasters = (dtm, dsm_max, dsm_p90)
-    if reference == "rasters":
+    if reference == "corridor":
         if atl08 is not None:
             raise InputError("give either the rasters (--dtm ...) or --atl08, not both")
         if any(r is None for r in rasters):
