@@ -3,15 +3,19 @@ surface fitted to the signal photons (noise removed first).
 
 1. start: a low percentile (``start_percentile``, 5) of the photons' heights in each
    along-track window of ``window`` metres (30 m), a running median over three windows
-   (a window whose low photons are stray noise is ignored), joined linearly;
+   (a window whose low photons are stray noise is ignored), joined linearly (with
+   ``footprint_radius``: taken again on heights detrended by the slope of that first
+   guess, since on a slope a window's low percentile is its downhill end);
 2. passes: for each band half-width in ``bands`` (a narrowing sequence, e.g. 3, 2, 1,
-   0.6 m), the photons within the band around the current surface are weighted by Tukey's
-   biweight of their residual (scale = the band) -- photons above the surface by
-   ``above_weight`` less, since understory sits above the ground and never below it (except
-   in the last, narrowest pass, which is symmetric so the surface is not biased low) -- and
-   a Gaussian-kernel local linear fit along the track (``bandwidth``, the smoothing) gives
-   the next surface (the fit of :mod:`.ground_surface`, on 1 m nodes, linear in photons and
-   track length).
+   0.6 m; with ``footprint_radius`` widened in quadrature by the height spread the
+   footprint has on the local slope, |slope| x 6.5 m: 1 m on a 15 % slope), the photons
+   within the band around the current surface are weighted by Tukey's biweight of their
+   residual (scale = the band) -- photons above the surface by ``above_weight`` less,
+   since understory sits above the ground and never below it (except in the last,
+   narrowest pass, which is symmetric so the surface is not biased low) -- and a
+   Gaussian-kernel local linear fit along the track (``bandwidth``, the smoothing) gives
+   the next surface (the fit of :mod:`.ground_surface`, on 1 m nodes, linear in photons
+   and track length).
 
 Stretches without photons near the surface are bridged linearly from their neighbours.
 Heights are in the photons' vertical datum (m), ``s`` along-track (m).
@@ -51,6 +55,16 @@ class SurfaceParams:
         Gaussian kernel sigma of the along-track fit (5 m).
     min_support : float
         Nodes whose kernel weight sum is below this many photons are bridged (0.3).
+    footprint_radius : float
+        Half the laser footprint (6.5 m for ICESat-2's 13 m), or 0 (default: off). On a
+        slope the ground photons of one shot spread by +-slope x this much, so each pass's
+        band is widened in quadrature by that spread (the along-track slope of the current
+        surface over +-25 m), and the starting percentile is taken on heights detrended by
+        the slope of a first guess. On synthetic sloped tracks it removes most of the low
+        bias (15 % slope: block RMSE 0.68-0.74 -> 0.49-0.54 m; 30 %: 2.4-3.0 -> 1.3 m);
+        on the unseen airborne tiles it helped strong beams' ground (1.04 -> 0.93 m at
+        1.5 MHz) but cost weak beams by day (2.6-2.7 -> 3.5 m) and strong-beam Hmax at
+        4.5 MHz (2.39 -> 2.74 m), so it is not the default.
     """
 
     window: float = 30.0
@@ -59,8 +73,13 @@ class SurfaceParams:
     above_weight: float = 0.2
     bandwidth: float = 5.0
     min_support: float = 0.3
+    footprint_radius: float = 0.0
 
     def __post_init__(self) -> None:
+        if not (isinstance(self.footprint_radius, (int, float))
+                and np.isfinite(self.footprint_radius) and self.footprint_radius >= 0):
+            raise InputError(f"ground surface footprint_radius must be a number of metres >= 0, "
+                             f"got {self.footprint_radius!r}")
         for name in ("window", "bandwidth", "min_support"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
@@ -95,7 +114,33 @@ def _start(ss: np.ndarray, zz: np.ndarray, p: SurfaceParams, nodes: np.ndarray) 
     if low.size >= 3:  # a running median of 3 windows: one window on stray noise is ignored
         padded = np.concatenate([low[:1], low, low[-1:]])
         low = np.median(np.stack([padded[:-2], padded[1:-1], padded[2:]]), axis=0)
-    return np.interp(nodes, centre, low)
+    start = np.interp(nodes, centre, low)
+    if p.footprint_radius <= 0 or centre.size < 2:
+        return start
+    # again on heights detrended by the local slope of that first guess: on a slope the
+    # window's low percentile is its downhill end, not the ground under its centre
+    slope = np.gradient(low, centre)
+    wc = ss[0] + (win + 0.5) * p.window  # each photon's window centre (all are in `centre`)
+    k = np.clip(np.searchsorted(centre, wc), 0, centre.size - 1)
+    det = zz - slope[k] * (ss - wc)
+    low2 = percentile_by_group(win, det, p.start_percentile, n_win)[good]
+    if low2.size >= 3:
+        padded = np.concatenate([low2[:1], low2, low2[-1:]])
+        low2 = np.median(np.stack([padded[:-2], padded[1:-1], padded[2:]]), axis=0)
+    return np.interp(nodes, centre, low2)
+
+
+def _spread(nodes: np.ndarray, surf: np.ndarray, radius: float) -> np.ndarray:
+    """Height spread (m) of a footprint of ``radius`` at each node: |slope| x radius, the
+    slope over +-12 m of the surface."""
+    if radius <= 0 or nodes.size < 2:
+        return np.zeros(nodes.size)
+    half = min(25, nodes.size - 1)
+    i = np.arange(nodes.size)
+    a = np.clip(i - half, 0, nodes.size - 1)
+    b = np.clip(i + half, 0, nodes.size - 1)
+    slope = (surf[b] - surf[a]) / np.maximum(nodes[b] - nodes[a], _NODE)
+    return np.abs(slope) * radius
 
 
 def fit_atl08_surface(s: np.ndarray, z: np.ndarray,
@@ -142,7 +187,8 @@ def fit_atl08_surface(s: np.ndarray, z: np.ndarray,
     w = np.zeros(ss.size)
     for k, band in enumerate(p.bands):
         r = zz - np.interp(ss, nodes, surf)
-        u = r / band
+        spread = np.interp(ss, nodes, _spread(nodes, surf, p.footprint_radius))
+        u = r / np.hypot(band, spread)
         w = np.where(np.abs(u) < 1.0, (1.0 - u * u) ** 2, 0.0)
         if k < len(p.bands) - 1:  # the last, narrowest pass is symmetric: no bias
             w = np.where(r > 0, w * p.above_weight, w)
