@@ -261,9 +261,10 @@ def classify_photons(track: PhotonTrack, params: Atl08Params | None = None) -> A
         reach, toc = _gap_and_top(win, hrel[idx], n_win, p.max_gap, p.toc_depth)
         classes[idx[reach]] = CLASS_CANOPY
         classes[idx[reach & toc]] = CLASS_TOP
-    log.info("track %s: ATL08-style classes %s (background %s, median %.3g photons/m^2)",
-             track.track, {int(k): int(v) for k, v in zip(*np.unique(classes,
-                                                                     return_counts=True))},
-             source, float(np.median(res.rate)) if res.rate.size else 0.0)
+    if log.isEnabledFor(logging.INFO):  # (the tally and median cost a sort each)
+        log.info("track %s: ATL08-style classes %s (background %s, median %.3g photons/m^2)",
+                 track.track, {int(k): int(v) for k, v in zip(*np.unique(classes,
+                                                                         return_counts=True))},
+                 source, float(np.median(res.rate)) if res.rate.size else 0.0)
     return Atl08Classes(classes, np.where(classes >= 0, hrel, np.nan), surface, res.rate,
                         source)

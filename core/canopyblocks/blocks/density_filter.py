@@ -190,33 +190,38 @@ def density_filter(s: np.ndarray, z: np.ndarray,
     # the grid box: (2 SUB + 1) cells of along/SUB by height/SUB around the photon's cell
     area = ((2 * p.cells + 1) * p.along / p.cells) * ((2 * p.cells + 1) * p.height / p.cells)
     quantiles: dict[float, float] = {}
-    for a, b in zip(starts, ends):  # loop over along-track segments (each a numpy grid)
-        # the segment with a margin of one box on each side, so counts near its ends see
-        # their true neighbours
-        lo = int(np.searchsorted(ss, ss[a] - p.along, side="left"))
-        hi = int(np.searchsorted(ss, ss[b - 1] + p.along, side="right"))
-        idx = order[lo:hi]
-        cnt = _box_counts(s[idx], z[idx], p)[a - lo:b - lo]
-        here = order[a:b]
-        if p.edge_correction:
-            inside = (np.minimum(ss[a:b] - ss[0], p.along) + np.minimum(ss[-1] - ss[a:b], p.along)
-                      ) / (2.0 * p.along)
-            cnt = np.rint(1 + (cnt - 1) / np.maximum(inside, 0.5)).astype(np.int64)
+    zs = z[order]  # sorted once: each segment is then a contiguous slice
+    rs = rate[order] if rate is not None else None
+    cnt_s = np.empty(ss.size, np.int64)
+    lam_s = np.empty(ss.size)
+    thr_s = np.empty(ss.size)
+    lo_all = np.searchsorted(ss, ss[starts] - p.along, side="left")
+    hi_all = np.searchsorted(ss, ss[ends - 1] + p.along, side="right")
+    for a, b, lo, hi in zip(starts.tolist(), ends.tolist(), lo_all.tolist(), hi_all.tolist()):
+        # one numpy grid per along-track segment, with a margin of one box on each side,
+        # so counts near its ends see their true neighbours
+        cnt_s[a:b] = _box_counts(ss[lo:hi], zs[lo:hi], p)[a - lo:b - lo]
         length = max(float(ss[b - 1] - ss[a]), p.along)
         if p.background is not None:
             lam = p.background
-        elif rate is not None:
-            lam = float(np.mean(rate[here]))
+        elif rs is not None:
+            lam = float(np.mean(rs[a:b]))
         else:
-            lam = _segment_rate(z[here], length, p)
+            lam = _segment_rate(zs[a:b], length, p)
         mu = lam * area
         t = quantiles.get(mu)
         if t is None:  # rates repeat from segment to segment: one quantile each
             t = quantiles[mu] = poisson_quantile(p.quantile, mu)
-        count[here] = cnt
-        rates[here] = lam
-        thr[here] = t
-        keep[here] = cnt - 1 > t  # the count includes the photon itself
+        lam_s[a:b] = lam
+        thr_s[a:b] = t
+    if p.edge_correction:
+        inside = (np.minimum(ss - ss[0], p.along) + np.minimum(ss[-1] - ss, p.along)
+                  ) / (2.0 * p.along)
+        cnt_s = np.rint(1 + (cnt_s - 1) / np.maximum(inside, 0.5)).astype(np.int64)
+    count[order] = cnt_s
+    rates[order] = lam_s
+    thr[order] = thr_s
+    keep[order] = cnt_s - 1 > thr_s  # the count includes the photon itself
     return DensityResult(keep, count, rates, thr)
 
 
