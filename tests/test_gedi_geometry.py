@@ -15,6 +15,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from badinputs.gedi_corpus import assert_no_contradiction  # noqa: E402
 from badinputs.gedi_damage import (  # noqa: E402
     BEAM,
     DAMAGES,
@@ -66,6 +67,7 @@ def test_damaged_l1b(damage: GediDamage, gedi_l1b: Path, truth, tmp_path: Path) 
     assert not damage.refuse, f"accepted ({dict(table['flag'].value_counts())})"
     check_footprints(table, truth, damaged_shot_numbers(gedi_l1b, damage.shots))
     said = " ".join(str(w.message) for w in caught)
+    assert_no_contradiction([str(w.message) for w in caught])
     assert not damage.warn_words or any(w in said for w in damage.warn_words), \
         f"no warning naming it: {said}"
 
@@ -134,6 +136,31 @@ def test_bad_dataset_types_exit_2_naming_file_and_dataset(name, gedi_l1b, tmp_pa
     lines = err.strip().splitlines()
     assert code == 2 and len(lines) == 1 and "Traceback" not in err, err
     assert path.name in lines[0] and d.needles[0] in lines[0], lines[0]
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("name", ["count-strings", "rxwaveform-2d"])
+def test_a_worker_refusing_a_beam_ends_the_command(name, gedi_l1b, tmp_path) -> None:
+    """``waveforms --workers 2`` (the default on two cores): one worker refuses a damaged
+    beam while the other reads another; the command ends at once with the one-line
+    refusal. (It hung for ever: the idle worker swallowed the pool's SIGTERM inside a
+    weakref callback, printed 'Exception ignored ... SystemExit: 143', and was waited for.)"""
+    import subprocess
+    import time
+
+    d = next(x for x in DAMAGES if x.name == name)
+    path = damaged(gedi_l1b, tmp_path / f"{name}.h5", d.edit)
+    out = tmp_path / "f.gpkg"
+    t0 = time.monotonic()
+    r = subprocess.run([sys.executable, "-m", "canopyblocks", "waveforms", str(path),
+                        "--workers", "2", "-o", str(out)], capture_output=True, text=True,
+                       timeout=120)
+    took = time.monotonic() - t0
+    lines = [ln for ln in r.stderr.splitlines() if ln.strip() and "XDG_RUNTIME" not in ln]
+    assert r.returncode == 2 and len(lines) == 1, r.stderr
+    assert "Exception ignored" not in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert path.name in lines[0] and d.needles[0] in lines[0], lines[0]
+    assert took < 60, f"{took:.0f} s to refuse"
     assert not out.exists()
 
 

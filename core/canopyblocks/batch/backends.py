@@ -168,27 +168,63 @@ def _run_processes(fn: Callable[[Any], Any], items: Sequence[Any], n: int, start
     return results
 
 
+#: Seconds a worker has for its clean-up after SIGTERM before it is ended regardless (a
+#: ``SystemExit`` raised inside a callback is swallowed by Python; a clean-up may hang).
+CLEANUP_SECONDS = 15
+
+
 def _worker_signals() -> None:
     """In a worker: Ctrl-C is the parent's to handle; SIGTERM (the parent's
-    ``Pool.terminate``, or ``kill`` of the process group) ends the worker through a
-    ``SystemExit``, so that its context managers run (atomic outputs and temporary
-    folders removed, PDAL stopped) and it exits without a traceback."""
+    ``Pool.terminate``, or ``kill`` of the process group) ends an idle worker at once and a
+    busy one through a ``SystemExit`` (:func:`_indexed_call`), so that its context managers
+    run (atomic outputs and temporary folders removed, PDAL stopped) and it exits without a
+    traceback."""
     import signal
+    import sys
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, _exit_at_sigterm)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    sys.unraisablehook = _quiet_exit_in_callback
+
+
+def _quiet_exit_in_callback(unraisable: Any) -> None:
+    """The SIGTERM's ``SystemExit`` landed in a callback (a weakref's, a ``__del__``),
+    where Python ignores it: say nothing (the alarm set at SIGTERM ends the worker)."""
+    import sys
+
+    if isinstance(unraisable.exc_value, SystemExit):
+        return
+    sys.__unraisablehook__(unraisable)
+
+
+_TERMINATED: list[int] = []   # in a worker: the SIGTERM received, if any
 
 
 def _exit_at_sigterm(signum: int, frame: object) -> None:
     import signal
 
+    _TERMINATED.append(signum)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)  # once: the clean-up is not interrupted
+    signal.signal(signal.SIGALRM, signal.SIG_DFL)  # ... but it does not outlive this alarm
+    signal.alarm(CLEANUP_SECONDS)
     raise SystemExit(128 + signum)
 
 
 def _indexed_call(job: tuple[Callable[[Any], Any], int, Any]) -> tuple[int, Any]:
+    """``fn(item)`` in a worker, a SIGTERM during it raising ``SystemExit`` (an idle worker,
+    with nothing to clean up, ends at SIGTERM: it could not otherwise leave the pool's
+    queue once the parent stops feeding it, and the parent's ``terminate`` would wait
+    for it forever)."""
+    import signal
+
     fn, i, item = job
-    return i, fn(item)
+    previous = signal.signal(signal.SIGTERM, _exit_at_sigterm)
+    try:
+        return i, fn(item)
+    finally:
+        if _TERMINATED:   # its SystemExit was swallowed by a callback: the unit is over
+            raise SystemExit(128 + _TERMINATED[0])  # noqa: B012 - nothing to return to
+        signal.signal(signal.SIGTERM, previous)
 
 
 @contextlib.contextmanager

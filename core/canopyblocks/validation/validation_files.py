@@ -256,7 +256,8 @@ def validate_file(
                                  photon_vertical_crs=photon_vertical_crs,
                                  reference_vertical_crs=reference_vertical_crs,
                                  params=coreg_params, progress=prog.sub(0.0, 0.3))
-        joint = offset_to_apply(coreg, path)
+        joint = offset_to_apply(coreg, path if coregister_photons is None  # what was fitted
+                                else coregister_photons)
         if joint is not None:
             before = _validate(kind, table, reference, dtm, dsm_max, dsm_p90, atl08, points,
                                footprint_params, width, geoid, offset,

@@ -34,6 +34,9 @@ def check_waveform_args(batch: Any, params: Any, name: str) -> None:
     check_optional(params, WaveformParams, f"{name}: params",
                    "a WaveformParams (e.g. WaveformParams(setting='a1')) or None")
     two = batch.n_samples >= 2
+    flagged = batch.extra.get("invalid_shot")   # the reader's own flag and warning
+    if flagged is not None:
+        two &= np.asarray(flagged) == 0
     with np.errstate(invalid="ignore"):
         up = two & (np.asarray(batch.elev_bin0) < np.asarray(batch.elev_lastbin))
     if not up.any():
