@@ -84,6 +84,10 @@ CASES = [pytest.param(fn, kind, id=f"{name}-{kind}") for name, fn in _functions(
 
 def test_the_walk_covers_the_api() -> None:
     assert len(_functions()) >= 50 and len(CASES) >= 28 * 7
+    names = {n for n, _ in _functions()}
+    assert {"PhotonTrack.from_xy", "PhotonTrack.from_lonlat", "Grid.from_bounds",
+            "SimTrack.line"} <= names, names
+    assert {"BlockParams", "EsflParams", "DualParams", "BatchConfig"} <= set(PARAM_CLASSES)
 
 
 @pytest.mark.parametrize(("fn", "kind"), CASES)
@@ -227,8 +231,18 @@ def test_messages_name_what_was_received() -> None:
 
 # ---- parameter objects: every field checked against its annotation ------------------------------
 
-PARAM_CLASSES = ("BlockParams", "SimParams", "WaveformParams", "CoregParams",
-                 "FootprintReferenceParams", "BatchConfig", "Estimators")
+def _param_classes() -> tuple[str, ...]:
+    """Every public parameter set: the ``...Params`` dataclasses, BatchConfig, Estimators."""
+    import dataclasses
+
+    import canopyblocks
+
+    return tuple(n for n in canopyblocks.__all__
+                 if dataclasses.is_dataclass(getattr(canopyblocks, n))
+                 and (n.endswith("Params") or n in ("BatchConfig", "Estimators")))
+
+
+PARAM_CLASSES = _param_classes()
 FIELD_MISUSE = {"str": "abc", "list": [1, 2], "dict": {"a": 1}, "nan": float("nan")}
 
 

@@ -293,3 +293,5 @@ def _check_field(value: object, hint: Any, name: str) -> None:
         if isinstance(value, (list, tuple, np.ndarray)):
             for v in value:
                 _check_field(v, args[0], name)
+        elif not isinstance(value, (str, bytes)):   # one number: a number (not NaN)
+            _check_field(value, args[0], name)

@@ -216,9 +216,16 @@ class PhotonTrack:
         crs : CRS-like, optional
             Metric CRS for ``x``/``y``; default the UTM zone of the track centre.
         """
-        lon_a = np.asarray(lon, dtype=np.float64)
-        lat_a = np.asarray(lat, dtype=np.float64)
-        check_lonlat(lon_a, lat_a, f"PhotonTrack.from_lonlat (track {track})")
+        if not isinstance(track, str):
+            from .arguments import describe
+            raise InputError(f"PhotonTrack.from_lonlat: track must be a beam or channel name "
+                             f"(str); got {describe(track)}")
+        name = f"PhotonTrack.from_lonlat (track {track})"
+        lon_a = check_array(lon, f"{name}: lon", scalar=True).astype(np.float64)
+        lat_a = check_array(lat, f"{name}: lat", scalar=True).astype(np.float64)
+        check_array(time, f"{name}: time", scalar=True)
+        check_array(h, f"{name}: h", scalar=True)
+        check_lonlat(lon_a, lat_a, name)
         x, y, used = to_metric(lon_a, lat_a, None if crs is None else _crs(crs))
         t = np.asarray(time, dtype=np.float64)
         if s is None:

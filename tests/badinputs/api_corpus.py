@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["MISUSE", "VALID", "public_functions", "required", "api_cases", "RUNNERS"]
+__all__ = ["MISUSE", "VALID", "public_functions", "required", "resolve", "api_cases", "RUNNERS"]
 
 MISUSE: dict[str, Any] = {
     "None": None,
@@ -37,14 +37,38 @@ VALID = {
     "default_cutoffs-int": "a 42 m block length",
     "find_pdal-None": "None: look for pdal where it is installed",
     "atomic_output-str": "'abc' is a file name to write (not entered here)",
+    "PhotonTrack.from_lonlat-int": "one photon at 42 E 42 N, 42 m, time 42 s",
+    "PhotonTrack.from_lonlat-list": "two photons at 1-2 E 1-2 N",
 }
 
 
 def public_functions() -> list[tuple[str, Callable[..., Any]]]:
+    """Every function in ``canopyblocks.__all__`` and every class method of its classes
+    that takes an argument (``PhotonTrack.from_xy``, ``Grid.from_bounds`` ...)."""
     import canopyblocks
 
-    return [(n, getattr(canopyblocks, n)) for n in canopyblocks.__all__
-            if inspect.isfunction(getattr(canopyblocks, n))]
+    out = []
+    for n in canopyblocks.__all__:
+        obj = getattr(canopyblocks, n)
+        if inspect.isfunction(obj):
+            out.append((n, obj))
+        elif inspect.isclass(obj) and not issubclass(obj, BaseException):
+            for m, raw in vars(obj).items():
+                fn = getattr(obj, m)
+                if not m.startswith("_") and isinstance(raw, classmethod) and \
+                        required(fn)[0] >= 1:
+                    out.append((f"{n}.{m}", fn))
+    return out
+
+
+def resolve(name: str) -> Callable[..., Any]:
+    """The public callable called ``name`` (``read_las`` or ``PhotonTrack.from_xy``)."""
+    import canopyblocks
+
+    obj: Any = canopyblocks
+    for part in name.split("."):
+        obj = getattr(obj, part)
+    return obj  # type: ignore[no-any-return]
 
 
 def required(fn: Callable[..., Any]) -> tuple[int, list[str]]:
@@ -66,9 +90,7 @@ def _make(name: str, kind: str) -> Callable[[Path, Any], dict[str, Any]]:
 def run_api(i: dict[str, Any], folder: Path) -> Any:
     import os
 
-    import canopyblocks
-
-    fn = getattr(canopyblocks, i["function"])
+    fn = resolve(i["function"])
     value = MISUSE[i["kind"]]
     pos, kw = required(fn)
     here = os.getcwd()

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
+import numpy as np
 import pyproj
 
 from ..errors import CRSError, InputError
@@ -65,7 +66,16 @@ class Grid:
     @classmethod
     def from_bounds(cls, bounds: Sequence[float], resolution: float, crs_wkt: str) -> Grid:
         """The smallest grid with edges on multiples of ``resolution`` covering ``bounds``."""
-        minx, miny, maxx, maxy = (float(v) for v in bounds)
+        from ..arguments import check_array, check_number
+
+        b = check_array(bounds, "Grid.from_bounds: bounds",
+                        what="(minx, miny, maxx, maxy) in metres", size=4)
+        resolution = check_number(resolution, "Grid.from_bounds: resolution", above=0.0,
+                                  unit=" m")
+        if not (bool(np.isfinite(b).all()) and b[2] >= b[0] and b[3] >= b[1]):
+            raise InputError(f"Grid.from_bounds: bounds must be finite (minx, miny, maxx, "
+                             f"maxy) in metres; got {tuple(b.tolist())}")
+        minx, miny, maxx, maxy = (float(v) for v in b)
         x0 = math.floor(minx / resolution) * resolution
         y0 = math.floor(miny / resolution) * resolution
         width = max(1, math.ceil(round((maxx - x0) / resolution, 9)))

@@ -29,10 +29,15 @@ class SimTrack:
     name: str = "gt1r"
 
     def __post_init__(self) -> None:
-        v = np.asarray(self.vertices, dtype=float)
+        try:
+            v = np.asarray(self.vertices, dtype=float)
+        except (TypeError, ValueError):
+            raise InputError(f"a track needs at least two finite (x, y) vertices in metres; "
+                             f"got {_describe(self.vertices)}") from None
         if v.ndim != 2 or v.shape[0] < 2 or v.shape[1] != 2 or not np.all(np.isfinite(v)):
             raise InputError(
-                f"a track needs at least two finite (x, y) vertices; got {self.vertices!r}")
+                f"a track needs at least two finite (x, y) vertices in metres; got "
+                f"{_describe(self.vertices)}")
         if float(np.sum(np.hypot(*np.diff(v, axis=0).T))) <= 0:
             raise InputError("the track has zero length: give two different end points")
         object.__setattr__(self, "vertices", tuple((float(a), float(b)) for a, b in v))
@@ -119,3 +124,9 @@ def shots_along(track: SimTrack, spacing: float) -> tuple[np.ndarray, np.ndarray
 def polyline_from_points(points: Sequence[tuple[float, float]], name: str = "gt1r") -> SimTrack:
     """A :class:`SimTrack` from a sequence of (x, y) vertices (metres)."""
     return SimTrack(tuple((float(x), float(y)) for x, y in points), name)
+
+
+def _describe(value: object) -> str:
+    from ..arguments import describe
+
+    return describe(value)

@@ -73,6 +73,11 @@ class DualParams:
     method: str = "paper"
 
     def __post_init__(self) -> None:
+        from ..arguments import check_fields
+        check_fields(self)   # every field against its annotation, at the door
+        if isinstance(self.widths, (str, bytes)) or np.ndim(self.widths) != 1:
+            raise InputError(f"DualParams: widths must be a sequence of smoothing widths "
+                             f"(samples), wide to narrow; got {self.widths!r}")
         if not self.widths or any(not (np.isfinite(w) and w > 0) for w in self.widths):
             raise InputError(f"smoothing widths must be positive numbers of samples, got "
                              f"{self.widths!r}")

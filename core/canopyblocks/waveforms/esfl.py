@@ -141,6 +141,8 @@ class EsflParams:
     neighbours: int = 5
 
     def __post_init__(self) -> None:
+        from ..arguments import check_fields
+        check_fields(self)   # every field against its annotation, at the door
         if not (0.0 < self.fraction <= 1.0):
             raise InputError(f"energy fraction must be in (0, 1]; got {self.fraction!r}")
         if not (math.isfinite(self.cell) and self.cell >= 0):
