@@ -526,3 +526,36 @@ def test_atl03_with_nan_heights(inputs, tmp_path, fraction) -> None:
         assert f"{n_nan} in /gt1r/heights/h_ph" in r.stderr
         blocks = pd.read_csv(out / "b.csv")
         assert len(blocks) > 0 and np.isfinite(blocks.loc[blocks["flag"] == "ok", "top"]).all()
+
+
+def test_simulated_gedi_states_and_keeps_its_tiles_datum(sample, gedi_l1b, tmp_path) -> None:
+    """A GEDI L1B simulated over CGVD28 tiles holds CGVD28 elevations: the file says so on
+    its elevations, the footprints, plots and validation use it (``run TILES --photons
+    SIM.h5`` was refused as 'ellipsoidal heights against CGVD28' and plots said 'WGS84
+    ellipsoid'); a real L1B stays WGS84-ellipsoidal."""
+    from canopyblocks.readers.gedi import gedi_vertical_datum
+    from canopyblocks.readers.las import read_las
+    from canopyblocks.simulate.sensor_files import simulate_gedi_to_file
+    from canopyblocks.simulate.tracks import line_through
+    from canopyblocks.validation.footprints import validate_footprints
+    from canopyblocks.waveform_footprints import footprints_from_l1b
+
+    tile = sample("als/lasR_bcts_1.laz")   # GeoTIFF keys: NAD83 / BC Albers + CGVD28
+    pts = read_las([tile])
+    l1b = tmp_path / "sim.h5"
+    simulate_gedi_to_file(pts, line_through(pts.bounds, 10.0, inset=15.0), l1b, seed=1)
+    with h5py.File(l1b) as f:
+        beam = next(k for k in f if k.startswith("BEAM"))
+        assert f[f"{beam}/geolocation/elevation_bin0"].attrs["vertical_crs"] == "EPSG:5713"
+    assert gedi_vertical_datum(l1b) == "EPSG:5713"
+    assert gedi_vertical_datum(gedi_l1b) == "EPSG:4979"
+    fp, plots = footprints_from_l1b(l1b, plots_dir=tmp_path / "plots", plot_shots=None)
+    assert fp.attrs["vertical_datum"] == "EPSG:5713"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")   # neither refused nor 'compared as they are'
+        val = validate_footprints(fp, [tile])
+    assert val.datum == "same", val.datum   # EPSG:5713 both (GEDI's would be refused)
+    g = val.stats[(val.stats["metric"] == "ground") & (val.stats["group"] == "all")].iloc[0]
+    assert g["n"] >= 2 and abs(g["bias"]) < 1.0, g   # simulated from these very points
+    real, _ = footprints_from_l1b(gedi_l1b, beams=["BEAM0101"])
+    assert real.attrs["vertical_datum"] == "EPSG:4979"

@@ -28,7 +28,7 @@ def run_waveform_chain(
     params: Any = None,
     geoid: str | os.PathLike[str] | None = None,
     offset: float | None = None,
-    photon_vertical_crs: Any = "EPSG:4979",
+    photon_vertical_crs: Any = None,
     progress: Progress | None = None,
 ) -> Any:
     """GEDI L1B + airborne tiles -> ``footprints.gpkg``, ``validation.gpkg`` (layers
@@ -43,8 +43,8 @@ def run_waveform_chain(
         GEDI L1B granule or subset (or a simulated one).
     params : WaveformParams, optional
     geoid, offset, photon_vertical_crs
-        The datum rule: GEDI elevations are WGS84-ellipsoidal; simulated ones keep the
-        tiles' datum (``offset=0``).
+        The datum rule: GEDI elevations are WGS84-ellipsoidal; a simulated file states the
+        tiles' datum it keeps (``photon_vertical_crs`` None: the file's own).
 
     Returns
     -------

@@ -25,6 +25,7 @@ import pandas as pd
 
 from .errors import CanopyBlocksWarning, InputError, NoUsableDataError
 from .progress import Progress, as_progress
+from .readers.gedi import gedi_vertical_datum, vertical_datum_label
 from .schema import LAYER_FOOTPRINTS
 
 __all__ = ["FootprintRunSummary", "footprints_from_l1b", "footprints_to_file",
@@ -209,7 +210,7 @@ def footprints_from_l1b(
     z = table["ground"].to_numpy(float)
     geom = gpd.points_from_xy(x, y, np.where(np.isfinite(z), z, np.nan), crs=out_crs)
     gdf = gpd.GeoDataFrame(table, geometry=geom, crs=out_crs)
-    gdf.attrs["vertical_datum"] = GEDI_VERTICAL_DATUM
+    gdf.attrs["vertical_datum"] = gedi_vertical_datum(path)  # EPSG:4979 unless simulated
     prog.update(1.0, f"{len(gdf)} footprints")
     return gdf, plots
 
@@ -227,9 +228,11 @@ def _plot(batch: Any, table: pd.DataFrame, wanted: set[int] | None, plotted: dic
         idx = ok[:max(0, _PLOT_DEFAULT - done)]
         plotted[batch.beam] = done + len(idx)
     out = []
+    label = vertical_datum_label(gedi_vertical_datum(batch.source)) if len(idx) else ""
     for i in idx:
         details = shot_details(batch, int(i), params)
-        out.append(plot_waveform(details, folder / f"waveform_{batch.beam}_{sn[i]}.png"))
+        out.append(plot_waveform(details, folder / f"waveform_{batch.beam}_{sn[i]}.png",
+                                 vertical_datum=label))
     return out
 
 
@@ -353,8 +356,9 @@ def footprints_to_file(
         comparison = None
         if l2a is not None or l2b is not None:
             joined, comparison = compare_with_l2a(gdf, l2a, l2b, setting=setting)
+            datum = gdf.attrs["vertical_datum"]
             gdf = gpd.GeoDataFrame(joined, geometry="geometry", crs=gdf.crs)
-            gdf.attrs["vertical_datum"] = GEDI_VERTICAL_DATUM
+            gdf.attrs["vertical_datum"] = datum
         if plots:
             from .outputs.waveform_plot import plots_index
 

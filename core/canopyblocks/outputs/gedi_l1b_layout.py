@@ -75,7 +75,14 @@ def write_gedi_l1b(path: str | os.PathLike[str], batches: Sequence[WaveformBatch
                               ("longitude_bin0", b.lon_bin0),
                               ("longitude_lastbin", b.lon_lastbin)):
                 fill = np.where(np.isfinite(arr), arr, -9999.0)
-                geo.create_dataset(name, data=np.asarray(fill, np.float64))
+                ds = geo.create_dataset(name, data=np.asarray(fill, np.float64))
+                if name.startswith("elevation") and (attrs or {}).get("vertical_datum"):
+                    vd = str((attrs or {})["vertical_datum"])   # a simulated file's datum
+                    ds.attrs["units"] = "meters"
+                    ds.attrs["vertical_crs"] = vd
+                    ds.attrs["description"] = (
+                        f"Elevation of the {name.split('_')[1]} sample in the vertical CRS "
+                        f"{vd} (that of the airborne lidar it was simulated from)")
             geo.create_dataset("degrade", data=b.degraded.astype(np.int8))
             geo.create_dataset("shot_number", data=b.shot_number.astype(np.uint64))
             if truth is not None and b.beam in truth:

@@ -47,6 +47,7 @@ from .gedi_geometry import (
 )
 
 __all__ = ["GEDI_BEAMS", "GediBeamInfo", "SkippedBeamWarning", "gedi_beams", "gedi_beam_info", "is_gedi_l1b",
+           "gedi_vertical_datum",
            "read_gedi_l1b", "iter_gedi_l1b", "gedi_file_info"]
 
 log = logging.getLogger(__name__)
@@ -113,6 +114,27 @@ def _power(f: H5File, beam: str) -> str:
 
 def _beams_in(f: H5File) -> list[str]:
     return sorted(k for k in f.keys() if _BEAM_RE.match(k) and f.is_group(k))
+
+
+#: GEDI L1B/L2A elevations are heights above the WGS84 ellipsoid.
+GEDI_ELLIPSOID = "EPSG:4979"
+
+
+def gedi_vertical_datum(path: str | os.PathLike[str]) -> str:
+    """The vertical CRS of an L1B file's elevations: the ``vertical_datum`` a simulated
+    file states (that of the airborne lidar it was simulated from, e.g. ``EPSG:5713``),
+    otherwise GEDI's WGS84 ellipsoid (``EPSG:4979``)."""
+    try:
+        with open_h5(path) as f:
+            stated = f.attr("/", "vertical_datum")
+    except Exception:  # noqa: BLE001 - an unreadable file is refused by the reader itself
+        return GEDI_ELLIPSOID
+    return stated.strip() if isinstance(stated, str) and stated.strip() else GEDI_ELLIPSOID
+
+
+def vertical_datum_label(datum: str) -> str:
+    """How a plot names the datum: ``WGS84 ellipsoid`` or the CRS itself."""
+    return "WGS84 ellipsoid" if datum == GEDI_ELLIPSOID else datum
 
 
 def is_gedi_l1b(path: str | os.PathLike[str]) -> bool:

@@ -173,7 +173,7 @@ def validate_footprints(
     points: LasPoints | str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
     *,
     params: FootprintReferenceParams | None = None,
-    photon_vertical_crs: object = GEDI_VERTICAL_CRS,
+    photon_vertical_crs: object = None,
     reference_vertical_crs: object = None,
     geoid: str | os.PathLike[str] | None = None,
     offset: float | None = None,
@@ -195,8 +195,9 @@ def validate_footprints(
     params : FootprintReferenceParams, optional
         Default :meth:`FootprintReferenceParams.gedi` (22 m, points within 1.5 R,
         density weights).
-    photon_vertical_crs : CRS-like
-        Datum of the footprint elevations (GEDI: EPSG:4979, WGS84 ellipsoid).
+    photon_vertical_crs : CRS-like, optional
+        Datum of the footprint elevations; default the table's ``attrs["vertical_datum"]``
+        (a simulated file's: its tiles' datum), else GEDI's EPSG:4979 (WGS84 ellipsoid).
     reference_vertical_crs : CRS-like, optional
         Datum of the airborne heights; default the tiles' vertical CRS (unknown ->
         warned, compared as they are).
@@ -234,7 +235,11 @@ def validate_footprints(
                                        prog.sub(0.0, 0.3))
     ref_v = reference_vertical_crs if reference_vertical_crs is not None \
         else _tiles_vertical(pts)
-    decision = check_vertical_datums(photon_vertical_crs, ref_v, geoid=geoid, offset=offset)
+    # the footprints' own datum (a simulated file keeps its tiles'), else GEDI's ellipsoid
+    pv = photon_vertical_crs or footprints.attrs.get("vertical_datum") or GEDI_VERTICAL_CRS
+    if pv == "unknown":   # simulated from tiles that state no vertical datum: warned
+        pv = "EPSG:4326"   # horizontal only: the rule's 'unknown'
+    decision = check_vertical_datums(pv, ref_v, geoid=geoid, offset=offset)
     heights = pd.DataFrame({"lon": lon, "lat": lat,
                             **{c: fp[c].to_numpy(float) for c in _ABSOLUTE if c in fp}})
     if geoid is not None or offset is not None:
