@@ -45,7 +45,9 @@ def _make_cli(d: GediDamage) -> Callable[[Path, Any], dict[str, Any]]:
     def make(folder: Path, base: Any) -> dict[str, Any]:
         i = inner(folder, base)
         out = folder / "out" / "footprints.gpkg"
-        i["args"] = ["waveforms", str(i["path"]), "-o", str(out)] + \
+        # two workers (the default on two cores): a refusal inside a worker ends the
+        # command (it hung when an idle worker swallowed the pool's SIGTERM)
+        i["args"] = ["waveforms", str(i["path"]), "--workers", "2", "-o", str(out)] + \
             [a for b in (d.beams or ()) for a in ("--beam", b)]
         i["outputs"] = [out]
         return i

@@ -856,7 +856,8 @@ SUBPROCESS_SAMPLE = ("cli-baseline-simulate", "cli-blocks-atl03-vegr-truncated-0
                      "cli-rasters-laz-truncated-0.5",
                      "cli-validate-tif-dtm-undeclared-9999",
                      "cli-simulate-report-unwritable",
-                     "cli-waveforms-gedi-rxwaveform-2d", "cli-waveforms-gedi-sample-1e6")
+                     "cli-waveforms-gedi-rxwaveform-2d", "cli-waveforms-gedi-sample-1e6",
+                     "cli-waveforms-gedi-count-strings")
 """CLI cases also run as real subprocesses (the others run in-process through run_main)."""
 
 
