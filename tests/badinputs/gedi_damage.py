@@ -85,6 +85,25 @@ def _add(name: str, i: int, delta: int) -> Edit:
     return edit
 
 
+def _add_float(name: str, i: int, delta: float) -> Edit:
+    def edit(f: h5py.File) -> None:
+        a = f[f"{BEAM}/{name}"][()]
+        a[i] += delta
+        f[f"{BEAM}/{name}"][()] = a
+    return edit
+
+
+def _same_shot_number(i: int, j: int) -> Edit:
+    """Shot ``j`` carries shot ``i``'s number (a join by shot number pairs them wrongly)."""
+    def edit(f: h5py.File) -> None:
+        for name in ("shot_number", "geolocation/shot_number"):
+            if f"{BEAM}/{name}" in f:
+                a = f[f"{BEAM}/{name}"][()]
+                a[j] = a[i]
+                f[f"{BEAM}/{name}"][()] = a
+    return edit
+
+
 def _swap_elevations(sel: int | slice, equal: bool = False) -> Edit:
     def edit(f: h5py.File) -> None:
         g = f[f"{BEAM}/geolocation"]
@@ -159,6 +178,10 @@ DAMAGES: tuple[GediDamage, ...] = (
     GediDamage("lat-200", _set(G + "latitude_bin0", 5, 200.0), (5,)),
     GediDamage("lon-400", _set(G + "longitude_lastbin", 5, 400.0), (5,)),
     GediDamage("lat-nan", _set(G + "latitude_lastbin", 5, np.nan), (5,)),
+    # first and last sample kilometres apart: the interpolated footprint position invented
+    GediDamage("lastbin-lat-far", _set(G + "latitude_lastbin", 5, -10.0), (5,)),
+    GediDamage("bin0-lon-1km", _add_float(G + "longitude_bin0", 5, 0.01), (5,)),
+    GediDamage("shot-number-duplicate", _same_shot_number(5, 6), (5, 6)),
     GediDamage("bin0-nan", _set(G + "elevation_bin0", 5, np.nan), (5,)),
     GediDamage("bin0-fill", _set(G + "elevation_bin0", 5, -9999.0), (5,)),
     GediDamage("lastbin-f32max", _set(G + "elevation_lastbin", 5,

@@ -43,6 +43,7 @@ from .gedi_geometry import (
     InvalidShotWarning,
     amplitude_problems,
     describe_problems,
+    duplicate_problems,
     geometry_problems,
 )
 
@@ -305,6 +306,7 @@ def _problems(f: H5File, beam: str, cols: dict[str, np.ndarray]) -> np.ndarray:
     problems = geometry_problems(count, cols["start"].astype(np.int64), e0, e1,
                                  _float(cols["lat_bin0"]), _float(cols["lat_lastbin"]),
                                  _float(cols["lon_bin0"]), _float(cols["lon_lastbin"]))
+    problems |= duplicate_problems(cols["shot_number"])
     bad = problems != 0
     if not bad.any():
         return problems

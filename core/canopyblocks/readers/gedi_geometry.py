@@ -13,11 +13,16 @@ with ``start = rx_sample_start_index``. A shot fails when
   spacing 0.12 % longer on a 850-sample shot: beyond the range);
 * ``position``: ``elevation_bin0``/``elevation_lastbin``/latitude/longitude are missing
   (fill, NaN) for a shot with samples, or out of range (latitude beyond +-90 degrees,
-  longitude beyond +-180, elevation outside :data:`ELEVATION_RANGE`);
+  longitude beyond +-180, elevation outside :data:`ELEVATION_RANGE`), or the first and
+  last samples lie further apart horizontally than a beam at most 8 degrees off nadir
+  allows (:data:`MAX_TILT`: the footprint's latitude/longitude, interpolated between
+  them, would be invented);
 * ``pool``: its samples overlap another shot's or come before the previous shot's in the
   beam's ``rxwaveform`` (start indices increase, shot after shot, in real granules and
   subsets); both shots of an overlap are marked -- either one's index may be the wrong one;
-* ``amplitude``: a sample lies outside :data:`DIGITISER_RANGE`.
+* ``amplitude``: a sample lies outside :data:`DIGITISER_RANGE`;
+* ``shot number``: two shots of the beam carry the same ``shot_number`` (a join with
+  L2A/L2B by shot number would pair one with the other's values).
 
 Shots that fail are flagged ``invalid_shot`` in the footprint table (their heights are
 not given); when every shot of a beam fails, the file is refused.
@@ -31,9 +36,9 @@ import numpy.typing as npt
 from ..errors import CanopyBlocksWarning
 
 __all__ = ["SAMPLE_SPACING_M", "SPACING_TOLERANCE", "DIGITISER_RANGE", "ELEVATION_RANGE",
-           "SPACING", "POSITION", "POOL", "AMPLITUDE", "PROBLEM_NAMES", "INVALID_SHOT",
+           "SPACING", "POSITION", "POOL", "AMPLITUDE", "DUPLICATE", "PROBLEM_NAMES", "INVALID_SHOT",
            "InvalidShotWarning", "geometry_problems", "amplitude_problems",
-           "describe_problems"]
+           "duplicate_problems", "describe_problems", "MAX_TILT"]
 
 #: Range of GEDI's 1 ns sample (two-way), metres.
 SAMPLE_SPACING_M = 0.299792458 / 2.0
@@ -49,9 +54,16 @@ DIGITISER_RANGE: tuple[float, float] = (-1024.0, 16384.0)
 #: and last sample.
 ELEVATION_RANGE: tuple[float, float] = (-1000.0, 10000.0)
 
-SPACING, POSITION, POOL, AMPLITUDE = 1, 2, 4, 8
+#: Horizontal over vertical distance of the first and last sample at most (tan 8 degrees,
+#: GEDI's pointing; the 300 real shots in tests/data/gedi: 0.020 median, 0.027 at most), plus
+#: :data:`TILT_SLACK_M` for the positions' rounding.
+MAX_TILT = 0.1405
+TILT_SLACK_M = 5.0
+_M_PER_DEG = 111_320.0
+
+SPACING, POSITION, POOL, AMPLITUDE, DUPLICATE = 1, 2, 4, 8, 16
 PROBLEM_NAMES = {SPACING: "bin spacing", POSITION: "position", POOL: "sample pool",
-                 AMPLITUDE: "amplitude"}
+                 AMPLITUDE: "amplitude", DUPLICATE: "shot number"}
 #: The footprint flag of shots with a problem.
 INVALID_SHOT = "invalid_shot"
 
@@ -100,6 +112,10 @@ def geometry_problems(count: npt.ArrayLike, start: npt.ArrayLike, elev0: npt.Arr
         finite = np.isfinite(elev).all(0) & np.isfinite(la).all(0) & np.isfinite(lo).all(0)
         beyond = ((np.abs(la) > 90.0) | (np.abs(lo) > 180.0)).any(0)
         beyond |= ((elev < ELEVATION_RANGE[0]) | (elev > ELEVATION_RANGE[1])).any(0)
+        dy = (la[0] - la[1]) * _M_PER_DEG
+        dlon = (lo[0] - lo[1] + 180.0) % 360.0 - 180.0
+        dx = dlon * _M_PER_DEG * np.cos(np.radians(la[0]))
+        beyond |= np.hypot(dx, dy) > MAX_TILT * np.abs(e0 - e1) + TILT_SLACK_M
         out[(has & ~finite) | beyond] |= POSITION
     later, earlier = _pool_clashes(c, s)
     # of two clashing shots, one whose count already misfits its elevation span is the
@@ -122,6 +138,13 @@ def _pool_clashes(count: npt.NDArray[np.int64], start: npt.NDArray[np.int64]
     holder = np.maximum.accumulate(np.where(end == run, np.arange(idx.size), 0))
     clash = np.flatnonzero(st[1:] < run[:-1]) + 1
     return idx[clash], idx[holder[clash - 1]]
+
+
+def duplicate_problems(shot_number: npt.ArrayLike) -> npt.NDArray[np.uint8]:
+    """:data:`DUPLICATE` for every shot whose ``shot_number`` another shot also carries."""
+    sn = np.asarray(shot_number)
+    _, inverse, counts = np.unique(sn, return_inverse=True, return_counts=True)
+    return np.where(counts[inverse] > 1, DUPLICATE, 0).astype(np.uint8)
 
 
 def amplitude_problems(waveforms: npt.NDArray[np.floating], n_samples: npt.ArrayLike
@@ -159,7 +182,10 @@ def describe_problems(problems: npt.NDArray[np.uint8], shot_number: npt.ArrayLik
                      f"samples are {SAMPLE_SPACING_M:.4f} m apart (less up to 1 % off "
                      "nadir), bin0 highest")
         elif bit == POSITION:
-            what += ": elevation, latitude or longitude missing or out of range"
+            what += (": elevation, latitude or longitude missing or out of range, or the "
+                     "first and last samples impossibly far apart")
+        elif bit == DUPLICATE:
+            what += ": another shot of the beam has the same shot_number"
         elif bit == POOL:
             what += ": its rx_sample_start_index/rx_sample_count overlap another shot's "
             what += "samples in rxwaveform"
