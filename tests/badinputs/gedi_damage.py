@@ -169,6 +169,9 @@ DAMAGES: tuple[GediDamage, ...] = (
     GediDamage("count-minus-40", _add("rx_sample_count", 5, -40), (5,)),
     GediDamage("last-count-plus-1", _add("rx_sample_count", 72, 1), refuse=True,
                needles=("rx_sample_count", "rxwaveform")),
+    # the first shot's index one too small: it (not the last shot, shifted by it) is named
+    GediDamage("first-start-minus-1", _add("rx_sample_start_index", 0, -1), refuse=True,
+               needles=("19640513500108370",)),
     GediDamage("start-back-300", _add("rx_sample_start_index", 6, -300), (6,)),
     GediDamage("start-forward-50", _add("rx_sample_start_index", 5, 50), (5,)),
     GediDamage("starts-swapped", _swap_starts(5, 6), (5, 6)),

@@ -290,11 +290,15 @@ def _relative_starts(f: H5File, beam: str, cols: dict[str, np.ndarray]) -> np.nd
     bad = (count > 0) & ((rel_all < 0) | (rel_all + count > n_rx))
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
+        k = int(np.argmin(start))   # its index places every shot: it may be the wrong one
+        first = "" if k == i else (
+            f" (or shot {int(cols['shot_number'][k])}'s rx_sample_start_index {int(start[k])}, "
+            "the smallest, from which the samples are counted, is too small)")
         raise FileFormatError(
             f"{f.path}: {beam} shot {int(cols['shot_number'][i])} points at samples "
-            f"{int(rel_all[i])}..{int(rel_all[i] + count[i])} of an rxwaveform of {n_rx}; "
-            "rx_sample_start_index/rx_sample_count do not match rxwaveform (truncated or "
-            "inconsistent subset)")
+            f"{int(rel_all[i])}..{int(rel_all[i] + count[i])} of an rxwaveform of {n_rx}"
+            f"{first}; rx_sample_start_index/rx_sample_count do not match rxwaveform "
+            "(truncated or inconsistent subset)")
     return rel_all
 
 
