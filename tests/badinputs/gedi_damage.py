@@ -198,6 +198,8 @@ DAMAGES: tuple[GediDamage, ...] = (
                needles=("bin spacing",)),
     GediDamage("rx-scaled-1000", _every_beam_scaled(1000.0), refuse=True,
                needles=("amplitude",), beams=None),
+    GediDamage("count-all-1", _replace("rx_sample_count", lambda a: np.ones_like(a)),
+               refuse=True, needles=("bin spacing",)),
     GediDamage("count-strings", _replace("rx_sample_count",
                                          lambda a: np.array([str(v) for v in a], "S8")),
                refuse=True, needles=("rx_sample_count",)),

@@ -107,6 +107,8 @@ def geometry_problems(count: npt.ArrayLike, start: npt.ArrayLike, elev0: npt.Arr
         rel = spacing / SAMPLE_SPACING_M - 1.0
         ok_spacing = (rel >= SPACING_TOLERANCE[0]) & (rel <= SPACING_TOLERANCE[1])
         out[two & np.isfinite(spacing) & ~ok_spacing] |= SPACING
+        # one sample cannot span more than one sample's range
+        out[(c == 1) & (np.abs(e0 - e1) > SAMPLE_SPACING_M)] |= SPACING
         # positions
         elev = np.stack([e0, e1])
         finite = np.isfinite(elev).all(0) & np.isfinite(la).all(0) & np.isfinite(lo).all(0)
