@@ -179,16 +179,39 @@ def _worker_signals() -> None:
     signal.signal(signal.SIGTERM, _exit_at_sigterm)
 
 
+#: Seconds a worker has for its clean-up after SIGTERM before SIGALRM ends it.
+_CLEANUP_GRACE_S = 30
+#: Set in a worker by SIGTERM: the unit it runs is the last.
+_terminating = False
+
+
 def _exit_at_sigterm(signum: int, frame: object) -> None:
+    """End a worker at SIGTERM through a ``SystemExit``, with two backstops.
+
+    Python ignores an exception raised where it cannot propagate (a ``__del__``, a
+    weak-reference or C callback: "Exception ignored in ..."), and a signal handler runs
+    at whatever line the worker is on.  A swallowed ``SystemExit`` left the worker alive,
+    SIGTERM ignored, blocked on the pool's queue, and the parent's ``Pool.terminate``
+    waiting for it for ever (seen in the test suite).  So the worker also ends when its
+    unit returns (:func:`_indexed_call`), and SIGALRM's default action ends it after
+    :data:`_CLEANUP_GRACE_S` whatever it does.
+    """
     import signal
 
+    global _terminating
+    _terminating = True
     signal.signal(signal.SIGTERM, signal.SIG_IGN)  # once: the clean-up is not interrupted
+    signal.signal(signal.SIGALRM, signal.SIG_DFL)
+    signal.alarm(_CLEANUP_GRACE_S)
     raise SystemExit(128 + signum)
 
 
 def _indexed_call(job: tuple[Callable[[Any], Any], int, Any]) -> tuple[int, Any]:
     fn, i, item = job
-    return i, fn(item)
+    result = fn(item)
+    if _terminating:  # the SIGTERM's SystemExit was swallowed inside the unit
+        raise SystemExit(143)
+    return i, result
 
 
 @contextlib.contextmanager
