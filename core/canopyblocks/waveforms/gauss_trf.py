@@ -249,16 +249,20 @@ def trf_many(x: FloatArray, y: FloatArray, weight: FloatArray, p0: FloatArray,
                 g_h[new] = d[new] * gr
                 jh = J[new] * d[new][:, None, :]
                 J_h[new] = jh
-                aug = np.zeros((len(new), width + n_par, n_par))
-                aug[:, :width] = jh
+                # the SVD of the augmented Jacobian [J_h; diag_h^1/2] by way of its R
+                # factor: R = U_r S V^T, U^T f = U_r^T Q^T f, and Q^T f is the last
+                # column of the R factor of [J_h f] (LAPACK's SVD of a tall matrix
+                # starts with the same QR)
+                aug = np.zeros((len(new), width + n_par, n_par + 1))
+                aug[:, :width, :n_par] = jh
                 idx = np.arange(n_par)
                 aug[:, width + idx, idx] = diag_h[new] ** 0.5
-                f_aug = np.zeros((len(new), width + n_par))
-                f_aug[:, :width] = f[new]
-                U, s_, Vt = np.linalg.svd(aug, full_matrices=False)
+                aug[:, :width, n_par] = f[new]
+                r_ext = np.linalg.qr(aug, mode="r")
+                U, s_, Vt = np.linalg.svd(r_ext[:, :n_par, :n_par])
                 sv[new] = s_
                 V[new] = np.swapaxes(Vt, 1, 2)
-                uf[new] = np.einsum("bki,bk->bi", U, f_aug)
+                uf[new] = np.einsum("bki,bk->bi", U, r_ext[:, :n_par, n_par])
                 theta[new] = np.maximum(0.995, 1 - g_norm)
                 fresh[new] = False
         act = np.nonzero(running)[0]
