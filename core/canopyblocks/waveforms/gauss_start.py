@@ -42,20 +42,6 @@ class FitStarts:
     upper: FloatArray
 
 
-def _last_flag_at_or_before(flag: npt.NDArray[np.bool_]) -> IntArray:
-    """Per row, the column of the last True at or before each column (-1: none)."""
-    cols = np.arange(flag.shape[1])
-    return np.maximum.accumulate(np.where(flag, cols, -1), axis=1)
-
-
-def _first_flag_at_or_after(flag: npt.NDArray[np.bool_]) -> IntArray:
-    """Per row, the column of the first True at or after each column (``width``: none)."""
-    width = flag.shape[1]
-    cols = np.arange(width)
-    rev = np.where(flag, cols, width)[:, ::-1]
-    return np.minimum.accumulate(rev, axis=1)[:, ::-1]
-
-
 def fit_starts(resid: FloatArray, smoothed: FloatArray, n_samples: IntArray,
                thr: FloatArray, usable: npt.NDArray[np.bool_], max_gaussians: int
                ) -> FitStarts:
@@ -98,13 +84,18 @@ def fit_starts(resid: FloatArray, smoothed: FloatArray, n_samples: IntArray,
     d2 = np.diff(s, 2, axis=1)
     sign = np.sign(d2)
     infl = (sign[:, :-1] != sign[:, 1:]) & (cols[:-3][None, :] < (m - 3)[:, None])
-    before = _last_flag_at_or_before(infl)
-    after = _first_flag_at_or_after(infl)
-    jb = np.where(pos >= 2, before[row, np.maximum(pos - 2, 0)], -1)
-    ja = after[row, np.minimum(pos - 1, infl.shape[1] - 1)]
-    ja = np.where(pos - 1 < infl.shape[1], ja, infl.shape[1])
+    # found in the flat (row-major) indices of the inflections by binary search
+    k = infl.shape[1]
+    flat = np.flatnonzero(infl)
+    base = row * k
+    ib = np.searchsorted(flat, base + pos - 2, side="right") - 1
+    jb = flat[np.maximum(ib, 0)] - base if len(flat) else np.full(len(pos), -1)
+    jb = np.where((pos >= 2) & (ib >= 0) & (jb >= 0), jb, -1)
+    ia = np.searchsorted(flat, base + pos - 1, side="left")
+    ja = flat[np.minimum(ia, len(flat) - 1)] - base if len(flat) else np.full(len(pos), k)
+    ja = np.where((ia < len(flat)) & (ja < k), ja, k)
     lo_i = np.where(jb >= 0, jb + 1.5, pos - MIN_SIGMA)
-    hi_i = np.where(ja < infl.shape[1], ja + 1.5, pos + MIN_SIGMA)
+    hi_i = np.where(ja < k, ja + 1.5, pos + MIN_SIGMA)
     sigma = np.clip((hi_i - lo_i) / 2.0, MIN_SIGMA, MAX_SIGMA)
     # the max_gaussians highest of each shot (ties: the earlier), kept in centre order
     order = np.lexsort((pos, -amp, row))
