@@ -265,3 +265,17 @@ def test_ground_is_the_lowest_peak_on_the_whole_grid(gedi_l1b: Path) -> None:
                                        err_msg=str(i))
             n_ground += bool(near)
     assert n_ground >= 250
+
+
+def test_starts_by_blocks_of_rows(gedi_l1b: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A batch larger than the block of rows gives the same decomposition."""
+    from canopyblocks.waveforms import gauss_start
+
+    b = read_gedi_l1b(gedi_l1b, "BEAM0101")
+    whole = decompose_waveforms(b)
+    monkeypatch.setattr(gauss_start, "ROWS", 7)
+    blocks = decompose_waveforms(b)
+    np.testing.assert_array_equal(whole["n_gaussians"], blocks["n_gaussians"])
+    np.testing.assert_array_equal(whole["ground_gauss"], blocks["ground_gauss"])
+    for g, h in zip(whole.attrs["gaussians"], blocks.attrs["gaussians"]):
+        np.testing.assert_array_equal(g, h)

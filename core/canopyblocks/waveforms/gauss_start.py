@@ -12,7 +12,7 @@ instead of a Python call per shot.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 import numpy.typing as npt
@@ -25,6 +25,8 @@ IntArray = npt.NDArray[np.int64]
 MARGIN = 15          # samples added on both sides of the signal window
 MIN_SIGMA = 2.0      # samples (GEDI's pulse sd is about 6.6 ns = 6.6 samples)
 MAX_SIGMA = 60.0
+#: Shots whose starts are found together at most (temporaries of ~8 bytes x samples each).
+ROWS = 4096
 
 
 @dataclass(frozen=True)
@@ -63,6 +65,20 @@ def fit_starts(resid: FloatArray, smoothed: FloatArray, n_samples: IntArray,
     -------
     FitStarts
     """
+    n = smoothed.shape[0]
+    if n > ROWS:   # a block of rows at a time: the temporaries stay ~ROWS rows wide
+        parts = [fit_starts(resid[a:a + ROWS], smoothed[a:a + ROWS], n_samples[a:a + ROWS],
+                            thr[a:a + ROWS], usable[a:a + ROWS], max_gaussians)
+                 for a in range(0, n, ROWS)]
+        return FitStarts(*(np.concatenate([getattr(p, f.name) for p in parts])
+                           for f in fields(FitStarts)))
+    return _fit_starts(resid, smoothed, n_samples, thr, usable, max_gaussians)
+
+
+def _fit_starts(resid: FloatArray, smoothed: FloatArray, n_samples: IntArray,
+                thr: FloatArray, usable: npt.NDArray[np.bool_], max_gaussians: int
+                ) -> FitStarts:
+    """:func:`fit_starts` of at most :data:`ROWS` shots."""
     n, width = smoothed.shape
     m = np.where(usable, n_samples, 0).astype(np.int64)
     if width < 3:
