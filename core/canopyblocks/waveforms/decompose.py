@@ -304,7 +304,9 @@ def decompose_waveforms(batch: WaveformBatch, *, max_gaussians: int = 10,
         with np.errstate(invalid="ignore", divide="ignore"):
             share = np.where(total[:, None] > 0, energy / total[:, None], 0.0)
         good = (g[:, :, 0] >= thr[rows, None]) & (share >= min_share)
-        pos = _lowest_peaks(g, good, n_samples[rows])
+        pos = np.concatenate([_lowest_peaks(g[a:a + _FIT_ROWS], good[a:a + _FIT_ROWS],
+                                            n_samples[rows[a:a + _FIT_ROWS]])
+                              for a in range(0, len(rows), _FIT_ROWS)])
         ground[rows] = np.where(np.isfinite(pos), batch.elev_bin0[rows] + pos * step[rows],
                                 np.nan)
         at = (ends[rows] - n_gauss)[:, None] + np.arange(n_gauss)
