@@ -24,6 +24,7 @@ import pandas as pd
 
 from ..errors import InputError, NoUsableDataError
 from ..readers.las import LasPoints
+from .footprint_returns import footprint_index
 from .footprints import CloudIndex
 from .tracks import SimTrack, shots_along
 from .waveform_binning import bin_returns
@@ -128,9 +129,7 @@ def simulate_flash_cubes(points: LasPoints, track: SimTrack,
     if sx.size > max_footprints:
         raise InputError(f"{sx.size} footprints exceed max_footprints={max_footprints}; use a "
                          "shorter track or a larger spacing")
-    ok = np.isfinite(points.x) & np.isfinite(points.y) & np.isfinite(points.z)
-    ids = np.flatnonzero(ok)
-    index = CloudIndex(points.x[ids], points.y[ids], points.z[ids])
+    index, ids = footprint_index(points)   # noise points (7, 18) are no surface
     half = p.pixels * p.pixel_size / 2
     pairs = index.pairs(sx, sy, half * math.sqrt(2.0))
     shot, pt = pairs.shot, pairs.point
