@@ -58,6 +58,8 @@ def esfl_compare(res: pd.DataFrame, ref: pd.DataFrame) -> dict[str, float]:
         row[f"{name}_rmse"] = float(np.sqrt(np.mean(e * e))) if e.size else float("nan")
         row[f"{name}_bias"] = float(e.mean()) if e.size else float("nan")
         row[f"{name}_sd"] = float(e.std(ddof=1)) if e.size > 1 else float("nan")
+        if name == "height":
+            row["ref_height_sd"] = float(want[ok].std(ddof=1)) if e.size > 1 else float("nan")
         row[f"{name}_nmad"] = (1.4826 * float(np.median(np.abs(e - np.median(e))))
                                if e.size else float("nan"))
     return row
