@@ -32,7 +32,6 @@ _BINS = 64            # histogram bins over +-4 robust sd around the median
 _HALF_RANGE = 4.0     # in robust sd
 _MAD_TO_SD = 1.4826   # sd of a Gaussian from its median absolute deviation
 _REFINE = 3           # truncated-mean refinements of the centre
-_ZOOM = 3             # histograms again at the noise's own width, at most
 _UPPER = 1.0          # histogram fit: first-guess sd above the mode
 _LM_STEPS = 25        # Levenberg-Marquardt steps of the histogram fit
 
@@ -101,20 +100,24 @@ def estimate_noise(waveforms: npt.ArrayLike, *, k: float = 4.0,
         med = np.nanmedian(vals, axis=1)
         mad = np.nanmedian(np.abs(vals - med[:, None]), axis=1) * _MAD_TO_SD
     scale = np.where(mad > 0, mad, np.maximum(np.nanstd(vals, axis=1), 1e-6))
-    mode = _histogram_mode(vals, med, scale)
+    width = 2 * _HALF_RANGE * scale / _BINS
+    # 2-D histogram of values around the median (shots x bins)
+    idx = np.floor((vals - (med - _HALF_RANGE * scale)[:, None]) / width[:, None])
+    inside = np.isfinite(idx) & (idx >= 0) & (idx < _BINS)
+    r = np.broadcast_to(np.arange(len(rows))[:, None], idx.shape)
+    flat = r[inside] * _BINS + idx[inside].astype(np.int64)
+    hist = np.bincount(flat, minlength=len(rows) * _BINS).reshape(len(rows), _BINS)
+    # mode, refined by a parabola through the peak bin and its neighbours
+    peak = np.argmax(hist, axis=1)
+    left = hist[np.arange(len(rows)), np.clip(peak - 1, 0, _BINS - 1)].astype(float)
+    top = hist[np.arange(len(rows)), peak].astype(float)
+    right = hist[np.arange(len(rows)), np.clip(peak + 1, 0, _BINS - 1)].astype(float)
+    denom = left - 2 * top + right
+    shift = np.where(np.abs(denom) > 0, 0.5 * (left - right) / np.where(denom == 0, 1, denom),
+                     0.0)
+    shift = np.clip(shift, -0.5, 0.5)
+    mode = med - _HALF_RANGE * scale + (peak + 0.5 + shift) * width
     half_sd = _half_sd(vals, mode, scale)
-    # where the noise is far narrower than the spread of all values (strong signal, little
-    # noise) its peak fills a bin or two: histogram again around it at its own width
-    # (the width measured below the peak bin's upper edge, which the mode may sit under)
-    for _ in range(_ZOOM):
-        edge = mode + _HALF_RANGE * scale / _BINS
-        narrow = _half_sd(vals, edge, scale)
-        fine = narrow < 0.5 * scale
-        if not fine.any():
-            break
-        scale = np.where(fine, narrow, scale)
-        mode = np.where(fine, _histogram_mode(vals, mode, scale), mode)
-        half_sd = np.where(fine, _half_sd(vals, mode, scale), half_sd)
     # the mode of a histogram is coarse: refine the centre with a few truncated means of
     # the samples within 2 sd (symmetric about the true mean, so the iteration converges
     # to it; signal above the window does not enter)
@@ -127,28 +130,6 @@ def estimate_noise(waveforms: npt.ArrayLike, *, k: float = 4.0,
     mean[rows] = mode
     sd[rows] = half_sd
     return NoiseEstimate(mean, sd, mean + k * sd, float(k))
-
-
-def _histogram_mode(vals: FloatArray, centre: FloatArray, scale: FloatArray) -> FloatArray:
-    """Mode of each row's values: a histogram of ``_BINS`` bins over ``centre +-
-    _HALF_RANGE * scale`` (rows x bins at once), its peak refined by a parabola through
-    the peak bin and its neighbours."""
-    n = vals.shape[0]
-    width = 2 * _HALF_RANGE * scale / _BINS
-    lo = centre - _HALF_RANGE * scale
-    idx = np.floor((vals - lo[:, None]) / width[:, None])
-    inside = np.isfinite(idx) & (idx >= 0) & (idx < _BINS)
-    r = np.broadcast_to(np.arange(n)[:, None], idx.shape)
-    flat = r[inside] * _BINS + idx[inside].astype(np.int64)
-    hist = np.bincount(flat, minlength=n * _BINS).reshape(n, _BINS)
-    peak = np.argmax(hist, axis=1)
-    left = hist[np.arange(n), np.clip(peak - 1, 0, _BINS - 1)].astype(float)
-    top = hist[np.arange(n), peak].astype(float)
-    right = hist[np.arange(n), np.clip(peak + 1, 0, _BINS - 1)].astype(float)
-    denom = left - 2 * top + right
-    shift = np.where(np.abs(denom) > 0, 0.5 * (left - right) / np.where(denom == 0, 1, denom),
-                     0.0)
-    return lo + (peak + 0.5 + np.clip(shift, -0.5, 0.5)) * width
 
 
 def _half_sd(vals: FloatArray, centre: FloatArray, fallback: FloatArray) -> FloatArray:
