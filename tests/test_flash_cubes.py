@@ -128,7 +128,10 @@ def test_threshold_study_over_a_real_tile(sample):
     """The paper's table over a real tile: fractions up to 0.5 keep all 16 pixels of the
     4 x 4 region (under the Gaussian beam its corner pixels get 0.80 of the brightest's
     energy; the scene's reflectance varies it a little) and so give the same row; 0.9
-    keeps a few central pixels, a noisier waveform, and is no better."""
+    keeps a few central pixels. The terrain at 0.5 is within 1 m RMSE of the airborne
+    ground (TIN of class 2; measured 0.6 m). Which fraction gives the best height is
+    measured in the study bench, not asserted: fewer pixels mean more noise but tops less
+    diluted."""
     pts = read_las([sample("als/lasR_bcts_1.laz"), sample("als/lasR_bcts_2.laz")])
     b = pts.bounds
     cx, cy = (b[0] + b[2]) / 2, (b[1] + b[3]) / 2
@@ -140,7 +143,7 @@ def test_threshold_study_over_a_real_tile(sample):
     assert px[:2] == [16, 16] and 4 <= px[2] < 16
     for col in ("terrain_rmse", "height_rmse", "outliers_pct"):
         assert table.loc[0.1, col] == table.loc[0.5, col]
-    assert table.loc[0.5, "height_rmse"] <= table.loc[0.9, "height_rmse"], table
+    assert table.loc[0.5, "terrain_rmse"] <= 1.0, table
 
 
 def _flat_with_wall(z: float = 100.0, wall: float = 35.0) -> LasPoints:
