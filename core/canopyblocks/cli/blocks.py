@@ -17,6 +17,7 @@ from .common import (
     parse_floats,
     progress_bar,
 )
+from .vocabulary import deprecated_option, take_alias
 
 if TYPE_CHECKING:
     from ..blocks.estimators import Estimators
@@ -57,7 +58,7 @@ def info_cmd(path: str, as_json: bool) -> None:
                    "classifier, with the file's background rate when it has one), none.")
 @click.option("--preset", type=click.Choice(["paper", "icesat2", "mabel", "atl08"]),
               default=None,
-              help="Named estimator set: paper (seed 001, the default), "
+              help="Named estimator set: paper (the paper's method, the default), "
                    "icesat2 (density filter, the paper's ground window, 98th-percentile top), mabel "
                    "(density filter, ground surface, 98th-percentile top), atl08 (photons "
                    "classified as ATL08 does; ground = its ground surface, Hmax = 98th "
@@ -70,7 +71,7 @@ def info_cmd(path: str, as_json: bool) -> None:
               help="Bias calibration JSON (canopyblocks calibrate --method bias) to apply.")
 @min_signal_conf_option
 @click.option("--top-cutoff", type=float, default=None,
-              help="Canopy-top window fraction (default by block length, DESIGN 1.7).")
+              help="Canopy-top window fraction (default by block length, as the paper).")
 @click.option("--ground-cutoff", type=float, default=None,
               help="Ground window fraction (default by block length).")
 @click.option("--min-photons", type=int, default=10, show_default=True,
@@ -79,10 +80,11 @@ def info_cmd(path: str, as_json: bool) -> None:
               help="Matching ATL08 file: adds its photon classes to the photons layer.")
 @click.option("--bbox", default=None, help="lon_min,lat_min,lon_max,lat_max (degrees) subset.")
 @click.option("--crs", default=None, help="Metric CRS for x/y (default: UTM zone of the track).")
-@click.option("--photons", "with_photons", is_flag=True,
+@click.option("--photon-layer", "with_photons", is_flag=True,
               help="Also write layer 'photons' with per-photon labels (GeoPackage output; "
                    "with --noise atl08 also classed_pc_flag: 0 noise, 1 ground, 2 canopy, "
                    "3 top of canopy).")
+@deprecated_option("--photons", "old_photons", is_flag=True)
 @click.option("--profile", type=click.Path(dir_okay=False), default=None,
               help="Write a profile plot PNG (photons, canopy top and ground per block).")
 @click.option("--workers", type=click.IntRange(1, 512), default=None,
@@ -96,13 +98,14 @@ def blocks_cmd(ctx: click.Context, path: str, output: str, beams: tuple[str, ...
                top_estimator: str | None, calibration: str | None,
                min_signal_conf: int | None, top_cutoff: float | None,
                ground_cutoff: float | None, min_photons: int, atl08: str | None,
-               bbox: str | None, crs: str | None, with_photons: bool,
+               bbox: str | None, crs: str | None, with_photons: bool, old_photons: bool,
                profile: str | None, workers: int | None) -> None:
-    """Canopy top, mean ground, Hmax and H90 per along-track block (seed 001 method,
+    """Canopy top, mean ground, Hmax and H90 per along-track block (the paper's method,
     or the estimators of --preset)."""
     from ..blocks import BlockParams
     from ..track_blocks import blocks_from_file
 
+    with_photons = take_alias(with_photons, old_photons, old="--photons", new="--photon-layer")
     estimators = estimators_from_options(preset, noise, ground_estimator, top_estimator,
                                          min_signal_conf)
     params = BlockParams(

@@ -22,6 +22,7 @@ F = TypeVar("F", bound=Callable[..., Any])
 DEPRECATED_OPTIONS: dict[tuple[str, str], str] = {
     ("simulate", "--preset"): "--photon-rate",
     ("simulate", "--beam"): "--beam-strength",
+    ("simulate", "--noise-rate"): "--background-rate",
     ("run", "--estimators"): "--preset",
     ("blocks", "--photons"): "--photon-layer",
     ("segments", "--photons"): "--photon-layer",
