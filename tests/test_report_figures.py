@@ -148,7 +148,39 @@ def test_datum_sentence_names_the_conversion() -> None:
     from canopyblocks.chain_report import datum_sentence
 
     s = datum_sentence("differ", offset=0.0, tiles="CGVD28 height")
-    assert s == ("the photons' heights (WGS84 ellipsoid) were converted to the tiles' "
-                 "(CGVD28 height) datum with a constant offset of +0 m.")
+    assert s == ("the photons' heights were converted to the tiles' (CGVD28 height) datum "
+                 "with a constant offset of +0 m.")
     assert "geoid raster g.tif" in datum_sentence("differ", geoid="/x/g.tif")
     assert "differ" not in datum_sentence("same", tiles="NAVD88 height")
+
+
+def test_waveform_axis_names_the_datum_the_file_states(tmp_path) -> None:
+    """GEDI's L1B elevations are ellipsoidal; a simulated L1B keeps the tiles' datum and
+    says so in its attributes (the plot said 'WGS84 ellipsoid' over CGVD28 heights)."""
+    import h5py
+
+    from canopyblocks.outputs.waveform_plot import elevation_datum
+
+    with h5py.File(tmp_path / "sim.h5", "w") as f:
+        f.attrs["simulated"] = "canopyblocks GEDI waveform simulation"
+        f.attrs["vertical_datum"] = "EPSG:5713"
+    with h5py.File(tmp_path / "real.h5", "w") as f:
+        f.attrs["short_name"] = "GEDI01_B"
+    assert elevation_datum(tmp_path / "sim.h5") == "CGVD28 height"
+    assert elevation_datum(tmp_path / "real.h5") == "WGS84 ellipsoid"
+    assert elevation_datum(tmp_path / "missing.h5") == "WGS84 ellipsoid"
+
+
+def test_footprint_scatter_names_the_datum_on_the_ground_axes(tmp_path, monkeypatch) -> None:
+    from canopyblocks.outputs.footprint_maps import plot_footprint_scatter
+
+    figs = _captured(monkeypatch)
+    res = pd.DataFrame({"ground": [328.0, 329.5, 331.0], "ref_ground": [327.8, 329.0, 331.2],
+                        "rh98": [10.0, 15.0, 20.0], "ref_rh98": [11.0, 14.0, 21.0],
+                        "use": [True] * 3})
+    plot_footprint_scatter(res, tmp_path / "s.png", datum="CGVD28 height")
+    ground, rh98 = figs[0].axes[:2]
+    assert ground.get_xlabel() == "ALS reference ground (m, CGVD28 height)"
+    assert ground.get_ylabel() == "footprint ground (m, CGVD28 height)"
+    assert rh98.get_xlabel() == "ALS reference RH98 (m)"  # a height above ground: no datum
+

@@ -173,8 +173,7 @@ def datum_sentence(decision: str, *, geoid: Any = None, offset: float | None = N
         how = (f"the geoid raster {Path(geoid).name}" if geoid is not None
                else f"a constant offset of {offset:+g} m" if offset is not None
                else "the conversion given")
-        return (f"the photons' heights (WGS84 ellipsoid) were converted to {theirs} datum "
-                f"with {how}.")
+        return f"the photons' heights were converted to {theirs} datum with {how}."
     return ("the datum of the photons or of the tiles is not stated; the heights were "
             "compared as they are.")
 

@@ -216,7 +216,7 @@ def footprints_from_l1b(
 
 def _plot(batch: Any, table: pd.DataFrame, wanted: set[int] | None, plotted: dict[str, int],
           folder: Path, params: Any, shot_details: Any) -> list[Path]:
-    from .outputs.waveform_plot import plot_waveform
+    from .outputs.waveform_plot import elevation_datum, plot_waveform
 
     sn = table["shot_number"].to_numpy(np.int64)
     if wanted is not None:
@@ -227,9 +227,11 @@ def _plot(batch: Any, table: pd.DataFrame, wanted: set[int] | None, plotted: dic
         idx = ok[:max(0, _PLOT_DEFAULT - done)]
         plotted[batch.beam] = done + len(idx)
     out = []
+    datum = elevation_datum(batch.source) if len(idx) else ""
     for i in idx:
         details = shot_details(batch, int(i), params)
-        out.append(plot_waveform(details, folder / f"waveform_{batch.beam}_{sn[i]}.png"))
+        out.append(plot_waveform(details, folder / f"waveform_{batch.beam}_{sn[i]}.png",
+                                 vertical_datum=datum))
     return out
 
 

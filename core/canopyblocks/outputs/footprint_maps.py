@@ -209,8 +209,10 @@ def plot_footprint_map(residuals: Any, column: str, path: str | os.PathLike[str]
 
 
 def plot_footprint_scatter(residuals: pd.DataFrame, path: str | os.PathLike[str], *,
-                           metrics: Sequence[str] = ("ground", "rh98")) -> Path:
-    """Footprint value vs footprint-matched reference, one panel per metric."""
+                           metrics: Sequence[str] = ("ground", "rh98"),
+                           datum: str | None = None) -> Path:
+    """Footprint value vs footprint-matched reference, one panel per metric; ``datum``
+    (e.g. 'CGVD28 height', the reference's) is named on the ground elevation axes."""
     sub = residuals[residuals["use"].to_numpy(bool)] if "use" in residuals else residuals
     fig, axes = new_figure(figsize=(3.8 * len(metrics), 3.9), ncols=len(metrics),
                            squeeze=False)
@@ -231,8 +233,11 @@ def plot_footprint_scatter(residuals: pd.DataFrame, path: str | os.PathLike[str]
             ax.set_xlim(lim)
             ax.set_ylim(lim)
             ax.set_aspect("equal")
-        ax.set_xlabel(f"ALS reference {_LABELS.get(m, m)}")
-        ax.set_ylabel(f"footprint {_LABELS.get(m, m)}")
+        label = _LABELS.get(m, m)
+        if m == "ground" and datum:
+            label = f"ground (m, {datum})"
+        ax.set_xlabel(f"ALS reference {label}")
+        ax.set_ylabel(f"footprint {label}")
         ax.text(0.03, 0.97, f"n = {st['n']}\nRMSE = {st['rmse']:.2f}\nbias = {st['bias']:+.2f}",
                 transform=ax.transAxes, va="top", ha="left", fontsize=8,
                 bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "0.8"})
@@ -241,11 +246,13 @@ def plot_footprint_scatter(residuals: pd.DataFrame, path: str | os.PathLike[str]
 
 
 def write_footprint_plots(residuals: Any, folder: str | os.PathLike[str], *,
-                          dtm: str | os.PathLike[str] | None = None) -> list[Path]:
+                          dtm: str | os.PathLike[str] | None = None,
+                          datum: str | None = None) -> list[Path]:
     """``footprints_scatter.png``, ``footprints_rh98.png``, ``footprints_res_rh98.png``,
-    ``footprints_res_ground.png`` into ``folder``."""
+    ``footprints_res_ground.png`` into ``folder`` (``datum``: the reference's vertical
+    datum, named on the ground axes)."""
     out = Path(folder)
-    paths = [plot_footprint_scatter(residuals, out / "footprints_scatter.png")]
+    paths = [plot_footprint_scatter(residuals, out / "footprints_scatter.png", datum=datum)]
     for c in ("rh98", "res_rh98", "res_ground"):
         paths.append(plot_footprint_map(residuals, c, out / f"footprints_{c}.png", dtm=dtm))
     log.info("wrote %d footprint figures to %s", len(paths), out)
