@@ -209,9 +209,21 @@ def footprints_from_l1b(
     z = table["ground"].to_numpy(float)
     geom = gpd.points_from_xy(x, y, np.where(np.isfinite(z), z, np.nan), crs=out_crs)
     gdf = gpd.GeoDataFrame(table, geometry=geom, crs=out_crs)
+    gdf.insert(len(gdf.columns) - 1, "time_utc", _utc(path, table["time"].to_numpy(float)))
     gdf.attrs["vertical_datum"] = GEDI_VERTICAL_DATUM
     prog.update(1.0, f"{len(gdf)} footprints")
     return gdf, plots
+
+
+def _utc(path: str | os.PathLike[str], delta_time: np.ndarray) -> np.ndarray:
+    """UTC of the shots (``time_utc``, beside ``time`` = delta_time), to the millisecond
+    (a GeoPackage's precision: finer times were written as '08:21:60' by GDAL); NaT for a
+    simulated file, whose clock starts at its first shot."""
+    from .utc_time import file_counts_from_sdp_epoch, utc_from_delta_time
+
+    if not file_counts_from_sdp_epoch(path):
+        return np.full(len(delta_time), np.datetime64("NaT"), dtype="datetime64[ns]")
+    return utc_from_delta_time(delta_time).astype("datetime64[ms]").astype("datetime64[ns]")
 
 
 def _plot(batch: Any, table: pd.DataFrame, wanted: set[int] | None, plotted: dict[str, int],
