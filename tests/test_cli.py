@@ -153,3 +153,4 @@ def test_main_returns_exit_codes_in_process(sample, tmp_path, capsys) -> None:
     assert main(["--version"]) == 0
     assert main(["blocks", str(tmp_path / "nope.h5"), "-o", str(tmp_path / "o.gpkg")]) == 2
     assert "does not exist" in capsys.readouterr().err
+

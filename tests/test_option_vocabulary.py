@@ -184,3 +184,13 @@ def test_a_deprecated_value_is_mapped_to_its_new_name() -> None:
             assert deprecated_value(old, option=option, old=old, new=new) == new
     r = CliRunner().invoke(cli, ["validate", "--help"])
     assert "[corridor|atl08|footprint]" in r.output and "|rasters" not in r.output
+
+
+def test_hidden_commands_are_listed_deprecated_ones() -> None:
+    from canopyblocks.cli.vocabulary import DEPRECATED_COMMANDS
+
+    hidden = {n for n, c in cli.commands.items() if c.hidden}
+    assert hidden == set(DEPRECATED_COMMANDS)
+    for new in DEPRECATED_COMMANDS.values():
+        assert new in cli.commands and not cli.commands[new].hidden
+    assert "validate-footprints" not in CliRunner().invoke(cli, ["--help"]).output

@@ -38,6 +38,13 @@ def register(group: click.Group) -> None:
               help="Airborne LAS/LAZ tile for the footprint reference (repeatable).")
 @click.option("--diameter", type=float, default=None,
               help="Footprint diameter, m (default 13 for blocks, 22 for GEDI footprints).")
+@click.option("--cut", type=float, default=None,
+              help="Footprint reference: points within cut x R count (default 1 for blocks, "
+                   "1.5 = 3 sigma for GEDI footprints).")
+@click.option("--weighting", type=click.Choice(["gaussian", "gaussian_density"]),
+              default=None, help="Footprint reference: Gaussian weights, optionally divided "
+              "by the points per 1.5 m cell (default gaussian for blocks, gaussian_density "
+              "for GEDI footprints).")
 @click.option("--points-crs", help="CRS of tiles that state none.")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Output .gpkg (layers residuals, stats), or .csv/.parquet.")
@@ -70,7 +77,8 @@ def register(group: click.Group) -> None:
 @click.pass_context
 def validate(ctx: click.Context, blocks_path: str, dtm: str | None, dsm_max: str | None,
              dsm_p90: str | None, atl08: str | None, reference: str | None,
-             points: tuple[str, ...], diameter: float | None, points_crs: str | None,
+             points: tuple[str, ...], diameter: float | None, cut: float | None,
+             weighting: str | None, points_crs: str | None,
              output: str, width: float, geoid: str | None, offset: float | None,
              reference_vcrs: str | None, photon_vcrs: str, slope_threshold: float,
              blocks_crs: str | None, coregister: bool, coregister_vertical: bool,
@@ -95,10 +103,12 @@ def validate(ctx: click.Context, blocks_path: str, dtm: str | None, dsm_max: str
         reference = "atl08" if atl08 is not None else ("footprint" if points and dtm is None
                                                       else "corridor")
     footprints = is_footprint_table(blocks_path)
+    given = {k: v for k, v in (("diameter", diameter), ("cut", cut),
+                               ("weighting", weighting)) if v is not None}
     fparams = None
-    if diameter is not None:
-        fparams = (FootprintReferenceParams(diameter=diameter) if footprints
-                   else FootprintReferenceParams.icesat2(diameter=diameter))
+    if given:  # the sensor's footprint, with what was given changed
+        fparams = (FootprintReferenceParams.gedi(**given) if footprints
+                   else FootprintReferenceParams.icesat2(**given))
     quiet = bool(ctx.obj.get("quiet")) if ctx.obj else False
     with progress_bar("validate", quiet=quiet) as prog:
         result = validate_file(
