@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import logging
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import click
 
@@ -103,8 +103,8 @@ def validate(ctx: click.Context, blocks_path: str, dtm: str | None, dsm_max: str
         reference = "atl08" if atl08 is not None else ("footprint" if points and dtm is None
                                                       else "corridor")
     footprints = is_footprint_table(blocks_path)
-    given = {k: v for k, v in (("diameter", diameter), ("cut", cut),
-                               ("weighting", weighting)) if v is not None}
+    given: dict[str, Any] = {k: v for k, v in (("diameter", diameter), ("cut", cut),
+                                               ("weighting", weighting)) if v is not None}
     fparams = None
     if given:  # the sensor's footprint, with what was given changed
         fparams = (FootprintReferenceParams.gedi(**given) if footprints
