@@ -40,7 +40,8 @@ def info_cmd(path: str, as_json: bool) -> None:
 
 
 @click.command("blocks")
-@click.argument("path", type=click.Path(dir_okay=False))
+@click.argument("paths", metavar="PATH...", nargs=-1, required=True,
+                type=click.Path(dir_okay=False))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Block table: .gpkg (layer 'blocks'), .parquet or .csv.")
 @click.option("--beam", "beams", multiple=True,
@@ -79,6 +80,12 @@ def info_cmd(path: str, as_json: bool) -> None:
 @click.option("--atl08", type=click.Path(dir_okay=False), default=None,
               help="Matching ATL08 file: adds its photon classes to the photons layer.")
 @click.option("--bbox", default=None, help="lon_min,lat_min,lon_max,lat_max (degrees) subset.")
+@click.option("--polygon", type=click.Path(dir_okay=False), default=None,
+              help="Vector file of polygons (any CRS): keep the blocks whose centre lies "
+                   "inside.")
+@click.option("--time", "time_range", nargs=2, default=None, metavar="START END",
+              help="UTC dates or times (2022-04-01 or 2022-04-01T22:00:00): skip ATL03 "
+                   "granules taken outside.")
 @click.option("--crs", default=None, help="Metric CRS for x/y (default: UTM zone of the track).")
 @click.option("--photon-layer", "with_photons", is_flag=True,
               help="Also write layer 'photons' with per-photon labels (GeoPackage output; "
@@ -92,16 +99,23 @@ def info_cmd(path: str, as_json: bool) -> None:
                    "(default: the machine's cores, capped by the memory available; the "
                    "table is the same as with 1).")
 @click.pass_context
-def blocks_cmd(ctx: click.Context, path: str, output: str, beams: tuple[str, ...],
+def blocks_cmd(ctx: click.Context, paths: tuple[str, ...], output: str,
+               beams: tuple[str, ...],
                channel: str | None, lengths: tuple[float, ...], s0: float | None, k_sigma: float,
                noise: str | None, preset: str | None, ground_estimator: str | None,
                top_estimator: str | None, calibration: str | None,
                min_signal_conf: int | None, top_cutoff: float | None,
                ground_cutoff: float | None, min_photons: int, atl08: str | None,
-               bbox: str | None, crs: str | None, with_photons: bool, old_photons: bool,
+               bbox: str | None, polygon: str | None,
+               time_range: tuple[str, str] | None, crs: str | None, with_photons: bool,
+               old_photons: bool,
                profile: str | None, workers: int | None) -> None:
     """Canopy top, mean ground, Hmax and H90 per along-track block (the paper's method,
-    or the estimators of --preset)."""
+    or the estimators of --preset).
+
+    Several PATHs (granules) give one table with a 'granule' column, filtered by
+    --bbox, --polygon and --time.
+    """
     from ..blocks import BlockParams
     from ..track_blocks import blocks_from_file
 
@@ -115,12 +129,31 @@ def blocks_cmd(ctx: click.Context, path: str, output: str, beams: tuple[str, ...
         min_photons=min_photons,
     )
     quiet = bool(ctx.obj and ctx.obj.get("quiet"))
+    box = parse_floats(bbox, 4, "lon_min,lat_min,lon_max,lat_max", "--bbox")
+    if len(paths) > 1 or polygon is not None or time_range is not None:
+        many = [n for n, v in (("--photon-layer", with_photons), ("--profile", profile),
+                               ("--atl08", atl08)) if v]
+        if many:
+            raise click.UsageError(f"{', '.join(many)}: one PATH at a time (not with "
+                                   "several granules, --polygon or --time)")
+        from ..granule_blocks import blocks_from_granules
+
+        with progress_bar("blocks", quiet=quiet) as progress:
+            table = blocks_from_granules(
+                paths, params, output=output, bbox=box,  # type: ignore[arg-type]
+                polygon=polygon, time_range=time_range, crs=crs, estimators=estimators,
+                calibration=calibration, beams=beams, channel=parse_channel(channel),
+                workers=workers, progress=progress)
+        if not quiet:
+            click.echo(f"canopyblocks: {len(table)} blocks from "
+                       f"{table['granule'].nunique()} granule(s) -> {Path(output)}", err=True)
+        return
+    path = paths[0]
     with progress_bar("blocks", quiet=quiet) as progress:
         result = blocks_from_file(
             path, params, estimators=estimators, calibration=calibration,
             beams=beams, channel=parse_channel(channel), atl08=atl08,
-            bbox=parse_floats(bbox, 4, "lon_min,lat_min,lon_max,lat_max", "--bbox"),  # type: ignore[arg-type]
-            crs=crs, output=output, with_photons=with_photons,
+            bbox=box, crs=crs, output=output, with_photons=with_photons,  # type: ignore[arg-type]
             profile=profile, workers=workers, progress=progress,
         )
     n_ok = int((result.blocks["flag"] == "ok").sum()) if len(result.blocks) else 0
