@@ -59,3 +59,46 @@ def test_a_simulated_file_has_no_utc(tmp_path) -> None:
         f.attrs["simulated"] = "canopyblocks GEDI waveform simulation"
     assert not file_counts_from_sdp_epoch(tmp_path / "s.h5")
     assert file_counts_from_sdp_epoch(tmp_path / "nope.h5")
+
+
+def test_photon_layer_has_utc_inside_the_granule_range(sample, tmp_path) -> None:
+    """blocks --photon-layer on the real ATL03 file: time_utc beside time, every photon
+    inside the range its METADATA states."""
+    import geopandas as gpd
+
+    from canopyblocks.cli import main
+
+    path = sample("icesat2/harmony_ATL03_gt1l.h5")
+    out = tmp_path / "b.gpkg"
+    assert main(["-q", "blocks", str(path), "--length", "25", "--photon-layer",
+                 "-o", str(out)]) == 0
+    ph = gpd.read_file(out, layer="photons")
+    cols = list(ph.columns)
+    assert cols[cols.index("time") + 1] == "time_utc"
+    t = ph["time_utc"]
+    t = (t.dt.tz_localize(None) if t.dt.tz is not None else t).to_numpy("datetime64[ns]")
+    with h5py.File(path, "r") as f:
+        ext = f["METADATA/Extent"].attrs
+        begin = np.datetime64(ext["rangeBeginningDateTime"].decode().rstrip("Z"), "ns")
+        end = np.datetime64(ext["rangeEndingDateTime"].decode().rstrip("Z"), "ns")
+    assert len(t) and not np.isnat(t).any()
+    assert begin - np.timedelta64(1, "ms") <= t.min() and t.max() <= end
+
+
+def test_files_canopyblocks_wrote_have_no_utc(tmp_path) -> None:
+    """An ATL03-layout file canopyblocks wrote counts from its first shot: no UTC, and
+    --time refuses it rather than dating it 2018-01-01."""
+    import pytest
+
+    from canopyblocks.errors import InputError
+    from canopyblocks.granule_blocks import granule_time_span
+    from canopyblocks.utc_time import file_counts_from_sdp_epoch
+
+    p = tmp_path / "sim.h5"
+    with h5py.File(p, "w") as f:
+        f.attrs["description"] = ("ATL03-layout photons written by canopyblocks (simulated "
+                                  "or converted); not a NASA product")
+        f["gt1r/heights/delta_time"] = np.array([0.0, 1.0])
+    assert not file_counts_from_sdp_epoch(p)
+    with pytest.raises(InputError, match="leave --time out"):
+        granule_time_span(p)

@@ -46,7 +46,11 @@ def granule_time_span(path: str | os.PathLike[str]) -> tuple[np.datetime64, np.d
     """First and last photon time (UTC) of an ATL03 granule, over all its beams."""
     import h5py
 
-    from .utc_time import utc_from_delta_time
+    from .utc_time import file_counts_from_sdp_epoch, utc_from_delta_time
+
+    if not file_counts_from_sdp_epoch(path):
+        raise InputError(f"{path}: written by canopyblocks (simulated), its delta_time "
+                         "counts from its first shot; leave --time out")
 
     lo, hi = np.inf, -np.inf
     try:

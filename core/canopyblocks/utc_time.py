@@ -55,12 +55,15 @@ def utc_from_delta_time(delta_time: npt.ArrayLike,
 
 
 def file_counts_from_sdp_epoch(path: str | os.PathLike[str]) -> bool:
-    """False for a file written by canopyblocks' simulator (its ``delta_time`` counts from
-    its first shot, not from the missions' epoch), True otherwise."""
+    """False for a file written by canopyblocks (simulated GEDI waveforms, ATL03-layout
+    photons simulated or converted: their ``delta_time`` counts from the first shot, not
+    from the missions' epoch), True otherwise."""
     try:
         import h5py
 
         with h5py.File(path, "r") as f:
-            return "simulated" not in f.attrs
+            said = f.attrs.get("description", "")
+            said = said.decode() if isinstance(said, bytes) else str(said)
+            return "simulated" not in f.attrs and "written by canopyblocks" not in said
     except (OSError, ImportError):
         return True
