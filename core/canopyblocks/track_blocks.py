@@ -217,10 +217,18 @@ def concat_blocks(frames: Sequence[pd.DataFrame], crs: Any) -> gpd.GeoDataFrame:
 
 def photon_layer(tracks: Sequence[PhotonTrack],
                  labels: dict[str, dict[float, np.ndarray]]) -> gpd.GeoDataFrame:
-    """Photons of all tracks as points, with a ``label_<L>m`` column per block length."""
+    """Photons of all tracks as points, with a ``label_<L>m`` column per block length
+    (and ``time_utc`` beside ``time`` for ATL03 granules)."""
+    from .readers import detect_product
+    from .utc_time import file_counts_from_sdp_epoch, utc_from_delta_time
+
     frames = []
     for t in tracks:
         g = t.to_geodataframe()
+        if t.source and detect_product(str(t.source)) == "ATL03" and \
+                file_counts_from_sdp_epoch(t.source):  # UTC beside delta_time, to the ms
+            utc = utc_from_delta_time(t.time).astype("datetime64[ms]")
+            g.insert(g.columns.get_loc("time") + 1, "time_utc", utc.astype("datetime64[ns]"))
         for length, lab in sorted(labels.get(t.track, {}).items()):
             names = np.array([LABEL_NAMES.get(i, "outside") for i in range(-1, 4)], dtype=object)
             g[f"label_{length:g}m"] = names[np.asarray(lab, dtype=np.int64) + 1]
