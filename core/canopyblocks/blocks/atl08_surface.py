@@ -74,6 +74,7 @@ class SurfaceParams:
     bandwidth: float = 5.0
     min_support: float = 0.3
     footprint_radius: float = 0.0
+    detrend_start: bool = False
 
     def __post_init__(self) -> None:
         if not (isinstance(self.footprint_radius, (int, float))
@@ -115,7 +116,7 @@ def _start(ss: np.ndarray, zz: np.ndarray, p: SurfaceParams, nodes: np.ndarray) 
         padded = np.concatenate([low[:1], low, low[-1:]])
         low = np.median(np.stack([padded[:-2], padded[1:-1], padded[2:]]), axis=0)
     start = np.interp(nodes, centre, low)
-    if p.footprint_radius <= 0 or centre.size < 2:
+    if (p.footprint_radius <= 0 and not p.detrend_start) or centre.size < 2:
         return start
     # again on heights detrended by the local slope of that first guess: on a slope the
     # window's low percentile is its downhill end, not the ground under its centre
@@ -144,7 +145,8 @@ def _spread(nodes: np.ndarray, surf: np.ndarray, radius: float) -> np.ndarray:
 
 
 def fit_atl08_surface(s: np.ndarray, z: np.ndarray,
-                      params: SurfaceParams | None = None) -> GroundSurface:
+                      params: SurfaceParams | None = None,
+                      start: GroundSurface | None = None) -> GroundSurface:
     """Fit the ground surface to signal photons.
 
     Parameters
@@ -154,6 +156,8 @@ def fit_atl08_surface(s: np.ndarray, z: np.ndarray,
     z : ndarray
         Heights (m) of the photons kept by the noise filter.
     params : SurfaceParams, optional
+    start : GroundSurface, optional
+        A first guess to start the passes from instead of the windows' low percentile.
 
     Returns
     -------
@@ -181,7 +185,7 @@ def fit_atl08_surface(s: np.ndarray, z: np.ndarray,
         order = idx[np.argsort(s[idx], kind="stable")]
     ss, zz = s[order], z[order]
     nodes = np.arange(ss[0], ss[-1] + _NODE, _NODE)
-    surf = _start(ss, zz, p, nodes)
+    surf = _start(ss, zz, p, nodes) if start is None else start(nodes)
     kernel = _kernel(p.bandwidth, _NODE)
     support = np.zeros(nodes.size)
     w = np.zeros(ss.size)
