@@ -155,7 +155,7 @@ def footprints_from_l1b(
     """
     from .geo import as_crs, to_metric
     from .readers.gedi import iter_gedi_l1b
-    from .waveforms.process import process_waveforms, shot_details
+    from .waveforms.process import _footprint_table, shot_details
     from .waveforms.settings import WaveformParams
 
     base = params if params is not None else WaveformParams()
@@ -181,7 +181,7 @@ def footprints_from_l1b(
     for batch in ([] if in_workers else
                   iter_gedi_l1b(path, beams, bbox=bbox, quality=quality,
                                 chunk_shots=chunk_shots, progress=reading)):
-        table = flag_invalid_shots(process_waveforms(batch, chunk_params), batch)
+        table = flag_invalid_shots(_footprint_table(batch, chunk_params), batch)
         problems |= int(np.bitwise_or.reduce(batch.extra.get("invalid_shot", [0]), initial=0))
         per_beam.setdefault(batch.beam, []).append(table)
         if plots_dir is not None:
