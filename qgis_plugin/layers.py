@@ -128,8 +128,12 @@ def _python_values(frame: Any, columns: list[str]) -> list[list[Any]]:
     out = []
     for col in columns:
         s = frame[col]
-        if s.dtype.kind == "M":
-            vals = [None if pd.isna(v) else v.to_pydatetime() for v in s]
+        if s.dtype.kind == "M":  # QDateTime in UTC: PyQGIS does not convert a datetime
+            from qgis.PyQt.QtCore import QDateTime, Qt
+
+            ms = s.to_numpy("datetime64[ms]").astype("int64")
+            vals = [None if pd.isna(v) else QDateTime.fromMSecsSinceEpoch(int(m), Qt.UTC)
+                    for v, m in zip(s, ms)]
         else:
             vals = s.astype(object).where(s.notna(), None).tolist()
         out.append(vals)

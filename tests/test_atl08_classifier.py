@@ -341,10 +341,27 @@ def test_surface_follows_a_slope_under_a_wide_footprint(slope_):
 @pytest.mark.parametrize("seed", [11, 12, 13])
 def test_weak_beam_finds_the_ground(slope_, rate_mhz, seed):
     # a weak beam (0.475 photons a shot), 200 m telemetry window; measured: at night on a
-    # 15 % slope median block error 0.54-0.59 m, 86-91 % of blocks within 1 m (0.42-0.46 m
-    # and 93-96 % with footprint_radius 6.5); by day (4.5 MHz) on flat ground median
-    # 0.22-0.27 m, 87-91 % within 1 m
+    # 15 % slope median block error 0.56-0.60 m, 91-96 % of blocks within 1 m; by day
+    # (4.5 MHz) on flat ground median 0.15 m, 100 % within 1 m (without the sparse
+    # track's flat ground box: 0.54-0.59 m, 86-91 %; by day 0.22-0.27 m, 86-91 %)
     track, ground = footprint_track(slope_, rate_mhz, 0.475, seed=seed)
     err = _block_ground_error(track, ground)
-    assert float(np.median(np.abs(err))) <= (0.7 if slope_ else 0.35)
-    assert np.mean(np.abs(err) <= 1.0) >= (0.82 if slope_ else 0.84)
+    assert float(np.median(np.abs(err))) <= (0.7 if slope_ else 0.2)
+    assert np.mean(np.abs(err) <= 1.0) >= (0.88 if slope_ else 0.95)
+
+
+def test_surface_start_ignores_a_crown_at_the_track_end():
+    # the first 30 m are under a dense crown (10-14 m up) with few ground photons: the end
+    # window's low percentile is the crown; the end window then takes the median of itself,
+    # its neighbour and the line through the next two, so the surface starts on the ground
+    # (measured, seeds 5-7: at most 0.3-1.4 m off over the first 25 m; with the end window
+    # repeated as its own neighbour the surface started on the crown, 11 m up)
+    rng = np.random.default_rng(5)
+    s = np.sort(rng.uniform(0.0, 600.0, 1200))
+    ground = 100.0 + 0.05 * s
+    crown = (s < 30.0) & (rng.random(s.size) < 0.97)
+    h = np.where(crown, ground + rng.uniform(10.0, 14.0, s.size),
+                 ground + rng.normal(0.0, 0.2, s.size))
+    surface = fit_atl08_surface(s, h)
+    x = np.arange(0.0, 25.0, 1.0)
+    assert np.abs(surface(x) - (100.0 + 0.05 * x)).max() <= 2.0

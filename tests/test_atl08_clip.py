@@ -5,10 +5,14 @@ The official product is the yardstick: its per-photon classes (joined by segment
 index: 1,610 photons) and its 100 m land segments. Only the 8 land segments that lie whole
 in the clip are compared (the ninth holds 1 of its 5 geolocation segments). Bounds are
 what the classifier reaches, measured, with a margin; the issue's targets are above them
-where not met (see README): ground photons 0.84 of ATL08's (target 0.90); segment terrain
-(h_te_best_fit) within 0.6 m on 5 of 8 segments and 2.6 m at worst (the first 200 m of the
-clip, where ATL08 saw the track before the clip starts and under dense low canopy);
-h_canopy within 1.5 m on 5 of 8.
+where not met (see README): ground photons 0.848 of ATL08's (target 0.90; 0.915 in the 5
+segments whose terrain agrees with ATL08's within 0.5 m); segment terrain (h_te_best_fit)
+within 0.5 m on 5 of 8 segments and 2.6 m at worst; h_canopy within 1.5 m on 5 of 8.
+Where they disagree (the first 200 m of the clip and the last 120 m), ATL08's ground runs
+1-2.5 m under a dense layer of low vegetation through 1-2 photons per 20 m, as many as the
+background puts there (ATL08's own ground photons there are 1-4 m below our surface and
+have 1-7 neighbours in the noise filter's box, as background photons do): ATL08 saw the
+track before the clip starts; from the clip's photons alone that ground is not found.
 """
 
 from __future__ import annotations
@@ -47,14 +51,28 @@ def test_clip_confusion_matrix(clip):
     cm = np.zeros((4, 4), int)
     np.add.at(cm, (a[m], classes.classes[m]), 1)
     recall = cm[:, :] / cm.sum(axis=1, keepdims=True)
-    # measured: ATL08 ground -> ours ground 0.836; ATL08 noise -> ours noise 0.847;
-    # ATL08 canopy or top -> ours canopy or top 0.820
-    assert recall[1, 1] >= 0.80
-    assert recall[0, 0] >= 0.80
+    # measured: ATL08 ground -> ours ground 0.848 (0.836 with one surface fit); ATL08
+    # noise -> ours noise 0.840; ATL08 canopy or top -> ours canopy or top 0.839 (0.820)
+    assert recall[1, 1] >= 0.84
+    assert recall[0, 0] >= 0.82
     canopy_ours = cm[2:, 2:].sum() / cm[2:].sum()
-    assert canopy_ours >= 0.78
-    # ATL08's ground photons are almost never taken for canopy by us (measured 8 of 171)
+    assert canopy_ours >= 0.82
+    # ATL08's ground photons are almost never taken for canopy by us (measured 10 of 171)
     assert cm[1, 2:].sum() <= 0.08 * cm[1].sum()
+
+
+def test_clip_ground_where_the_terrain_agrees(clip):
+    # in the segments whose terrain agrees with ATL08's (h_te_best_fit within 0.5 m),
+    # ATL08's ground photons are classed ground (measured 118 of 129, 0.915)
+    track, classes, seg, ref = clip
+    d_best = seg["h_te_best_fit"].to_numpy()[:8] - ref["terrain/h_te_best_fit"][:8]
+    agree = seg["segment"].to_numpy()[:8][np.abs(d_best) <= 0.5]
+    with h5py.File(A03) as f:
+        s0 = float(f["gt1r/geolocation/segment_dist_x"][0])
+    k = np.floor((track.s - s0) / 100.0)
+    theirs = (track.classification == 1) & np.isin(k, agree)
+    assert agree.size >= 5
+    assert (classes.classes[theirs] == 1).mean() >= 0.89
 
 
 def test_clip_segments(clip):
@@ -63,11 +81,11 @@ def test_clip_segments(clip):
     whole = slice(0, 8)
     d_best = seg["h_te_best_fit"].to_numpy()[whole] - ref["terrain/h_te_best_fit"][whole]
     d_can = seg["h_canopy"].to_numpy()[whole] - ref["canopy/h_canopy"][whole]
-    # measured: |d_best| 2.60 1.19 0.30 1.98 0.09 0.02 0.58 0.25 m (median 0.44)
-    assert np.sum(np.abs(d_best) <= 0.6) >= 5
+    # measured: |d_best| 2.58 1.25 0.17 1.82 0.14 0.02 0.49 0.28 m (median 0.39)
+    assert np.sum(np.abs(d_best) <= 0.5) >= 5
     assert np.abs(d_best).max() <= 3.0
-    assert np.median(np.abs(d_best)) <= 0.5
-    # measured: |d_canopy| 0.03 4.71 2.52 0.68 0.09 2.55 1.04 0.40 m (median 0.86)
+    assert np.median(np.abs(d_best)) <= 0.45
+    # measured: |d_canopy| 0.34 4.73 2.66 0.70 0.06 2.32 1.09 0.50 m (median 0.90)
     assert np.sum(np.abs(d_can) <= 1.5) >= 5
     assert np.median(np.abs(d_can)) <= 1.1
     assert np.abs(d_can).max() <= 5.5

@@ -51,7 +51,7 @@ def test_blocks_on_the_real_atl03_clip_matches_the_oracle(sample, tmp_path) -> N
     out = tmp_path / "out.gpkg"
     png = tmp_path / "profile.png"
     r = run_cli("blocks", str(sample(ATL03)), "--length", "10", "--length", "25",
-                "--length", "50", "-o", str(out), "--profile", str(png), "--photons")
+                "--length", "50", "-o", str(out), "--profile", str(png), "--photon-layer")
     assert r.returncode == 0, r.stderr
     assert {n for n, _ in pyogrio.list_layers(out)} == {"blocks", "photons"}
     blocks = gpd.read_file(out, layer="blocks")
@@ -153,3 +153,4 @@ def test_main_returns_exit_codes_in_process(sample, tmp_path, capsys) -> None:
     assert main(["--version"]) == 0
     assert main(["blocks", str(tmp_path / "nope.h5"), "-o", str(tmp_path / "o.gpkg")]) == 2
     assert "does not exist" in capsys.readouterr().err
+

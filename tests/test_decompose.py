@@ -186,3 +186,100 @@ def test_batched_trust_region_follows_scipy() -> None:
     for k, p in enumerate(probs):
         np.testing.assert_allclose(got[k], dec._fit_one(p), rtol=1e-9, atol=1e-9,
                                    err_msg=str(k))
+
+
+def test_batched_starts_are_the_per_shot_problems(gedi_l1b: Path) -> None:
+    """The initial peaks, windows, starts and bounds found for the whole batch at once
+    are, bit for bit, those of the per-shot construction -- on the real shots of every
+    beam, and on made-up shots with more peaks than allowed, equal peaks, peaks at the
+    ends and no inflection points."""
+    from scipy.ndimage import gaussian_filter1d
+
+    from canopyblocks.waveforms import decompose as dec
+    from canopyblocks.waveforms.gauss_start import fit_starts
+
+    rng = np.random.default_rng(4)
+    made = [np.r_[0.0, 5.0, 0.0, 5.0, 0.0, 5.0, 0.0], np.r_[1.0, 2.0, 9.0],
+            np.r_[9.0, 2.0, 1.0, 2.0, 9.0], np.full(6, 7.0), np.r_[0.0, 8.0, 0.0, 0.0]]
+    made += [sum(_gauss(np.arange(300.0), rng.uniform(5, 40), rng.uniform(0, 300), 4.0)
+                 for _ in range(30)) + rng.normal(0, 1, 300) for _ in range(6)]
+    cases: list[tuple[list[np.ndarray], list[float]]] = [(made, [4.0] * len(made))]
+    for beam in BEAMS:
+        b = read_gedi_l1b(gedi_l1b, beam)
+        resid = b.waveforms.astype(np.float64) - b.noise_mean[:, None]
+        cases.append(([resid[i, :int(b.n_samples[i])] for i in range(len(b))],
+                      list(4.0 * b.noise_sd)))
+    n_checked = 0
+    for ys, thrs in cases:
+        width = max(len(y) for y in ys)
+        resid = np.zeros((len(ys), width))
+        smooth = np.zeros_like(resid)
+        for i, y in enumerate(ys):
+            resid[i, :len(y)] = y
+            smooth[i, :len(y)] = gaussian_filter1d(y, 3.0, mode="nearest")
+        lengths = np.array([len(y) for y in ys])
+        for max_g in (2, 10):
+            st = fit_starts(resid, smooth, lengths, np.array(thrs, dtype=float),
+                            lengths >= 3, max_g)
+            for i, y in enumerate(ys):
+                prob = dec._problem(y, smooth[i, :len(y)], float(thrs[i]), max_g)
+                if prob is None:
+                    assert st.count[i] == 0
+                    continue
+                n_par = len(prob.p0)
+                assert 3 * st.count[i] == n_par
+                assert (st.lo[i], st.hi[i]) == (prob.lo, prob.hi)
+                np.testing.assert_array_equal(st.p0[i, :n_par], prob.p0)
+                np.testing.assert_array_equal(st.lower[i, :n_par], prob.lower)
+                np.testing.assert_array_equal(st.upper[i, :n_par], prob.upper)
+                n_checked += 1
+    assert n_checked > 500
+
+
+def test_ground_is_the_lowest_peak_on_the_whole_grid(gedi_l1b: Path) -> None:
+    """The ground search, on the fitted Gaussians of the real shots: the lowest local
+    maximum, on the whole 0.25-sample grid of the shot, of the model of the Gaussians
+    that pass, that lies within one sigma of one of them."""
+    n_ground = 0
+    for beam in BEAMS:
+        b = read_gedi_l1b(gedi_l1b, beam)
+        res = decompose_waveforms(b)
+        thr = 4.0 * b.noise_sd
+        step = (b.elev_lastbin - b.elev_bin0) / np.maximum(b.n_samples - 1, 1)
+        for i, g in enumerate(res.attrs["gaussians"]):
+            if not len(g):
+                assert np.isnan(res["ground_gauss"].iloc[i])
+                continue
+            amp, sigma = g[:, 0], g[:, 2] / abs(step[i])
+            centre = (g[:, 1] - b.elev_bin0[i]) / step[i]
+            share = amp * sigma / (amp * sigma).sum()
+            good = (amp >= thr[i]) & (share >= 0.05)
+            x = np.arange(0.0, int(b.n_samples[i]), 0.25)
+            y = sum(_gauss(x, a, c, s) for a, c, s in zip(amp[good], centre[good], sigma[good]))
+            peaks = np.flatnonzero((y[1:-1] > y[:-2]) & (y[1:-1] >= y[2:])) + 1 \
+                if good.any() else np.zeros(0, int)
+            near = [p for p in peaks if (np.abs(x[p] - centre[good]) <= np.maximum(
+                sigma[good], 1.0)).any()]
+            want = b.elev_bin0[i] + x[max(near)] * step[i] if near else np.nan
+            np.testing.assert_allclose(res["ground_gauss"].iloc[i], want, atol=1e-6,
+                                       err_msg=str(i))
+            n_ground += bool(near)
+    assert n_ground >= 250
+
+
+def test_starts_by_blocks_of_rows(gedi_l1b: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A batch larger than the blocks of rows (starts, fits, ground search) gives the same
+    decomposition (the fits to rounding: a block's padding is as wide as its widest
+    window)."""
+    from canopyblocks.waveforms import decompose as dec
+    from canopyblocks.waveforms import gauss_start
+
+    b = read_gedi_l1b(gedi_l1b, "BEAM0101")
+    whole = decompose_waveforms(b)
+    monkeypatch.setattr(gauss_start, "ROWS", 7)
+    monkeypatch.setattr(dec, "_FIT_ROWS", 5)
+    blocks = decompose_waveforms(b)
+    np.testing.assert_array_equal(whole["n_gaussians"], blocks["n_gaussians"])
+    np.testing.assert_allclose(whole["ground_gauss"], blocks["ground_gauss"], atol=1e-6)
+    for g, h in zip(whole.attrs["gaussians"], blocks.attrs["gaussians"]):
+        np.testing.assert_allclose(g, h, rtol=1e-9)

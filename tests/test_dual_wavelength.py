@@ -104,3 +104,11 @@ def test_deterministic_and_validated():
         dual_wavelength_ground(np.zeros((2, 5)), np.zeros((2, 6)),
                                noise_mean=(np.zeros(2), np.zeros(2)),
                                noise_sd=(np.ones(2), np.ones(2)))
+
+
+def test_no_tree_height_truth_without_trees():
+    """Cover 0 has no crowns: its tree-height error is undefined (NaN), not a 20 m miss."""
+    from canopyblocks.simulate.dual_pairs import dual_cover_study
+
+    t = dual_cover_study((0.0, 0.5), slope=10.0, noise=0.05, n=10, seed=0)
+    assert np.isnan(t["height_rmse"].iloc[0]) and np.isfinite(t["height_rmse"].iloc[1])

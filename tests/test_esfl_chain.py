@@ -139,6 +139,8 @@ def test_bad_arguments():
         EsflParams(fraction=0.0)
     with pytest.raises(InputError, match="cell"):
         EsflParams(cell=-1.0)
+    with pytest.raises(InputError, match="noise_fit"):
+        EsflParams(noise_fit="mode")
     with pytest.raises(InputError, match="scale"):
         MccParams(scale=0.0)
     with pytest.raises(InputError, match="one value per footprint"):

@@ -128,7 +128,10 @@ def test_threshold_study_over_a_real_tile(sample):
     """The paper's table over a real tile: fractions up to 0.5 keep all 16 pixels of the
     4 x 4 region (under the Gaussian beam its corner pixels get 0.80 of the brightest's
     energy; the scene's reflectance varies it a little) and so give the same row; 0.9
-    keeps a few central pixels, a noisier waveform, and is no better."""
+    keeps a few central pixels. The terrain at 0.5 is within 1 m RMSE of the airborne
+    ground (TIN of class 2; measured 0.6 m). Which fraction gives the best height is
+    measured in the study bench, not asserted: fewer pixels mean more noise but tops less
+    diluted."""
     pts = read_las([sample("als/lasR_bcts_1.laz"), sample("als/lasR_bcts_2.laz")])
     b = pts.bounds
     cx, cy = (b[0] + b[2]) / 2, (b[1] + b[3]) / 2
@@ -140,4 +143,76 @@ def test_threshold_study_over_a_real_tile(sample):
     assert px[:2] == [16, 16] and 4 <= px[2] < 16
     for col in ("terrain_rmse", "height_rmse", "outliers_pct"):
         assert table.loc[0.1, col] == table.loc[0.5, col]
-    assert table.loc[0.5, "height_rmse"] <= table.loc[0.9, "height_rmse"], table
+    assert table.loc[0.5, "terrain_rmse"] <= 1.0, table
+
+
+def _flat_with_wall(z: float = 100.0, wall: float = 35.0) -> LasPoints:
+    """A flat plane at ``z`` and a 0.25 m-wide wall ``wall`` m high along the track,
+    3.9 m to its side: inside every footprint's 12 x 12 subset (row 0), outside its
+    central 4 x 4, and tall enough that the scene needs two 41-bin range gates."""
+    g = np.arange(0.0, 200.0, 0.25)
+    gx, gy = np.meshgrid(g, np.arange(0.0, 40.0, 0.25))
+    x, y = 500_000 + gx.ravel(), 5_000_000 + gy.ravel()
+    wx = 500_000 + g
+    cls = np.concatenate([np.full(x.size, 2), np.full(wx.size, 1)]).astype(np.uint8)
+    return LasPoints.from_arrays(np.concatenate([x, wx]),
+                                 np.concatenate([y, np.full(wx.size, 5_000_016.1)]),
+                                 np.concatenate([np.full(x.size, z), np.full(wx.size, z + wall)]),
+                                 crs=32610, classification=cls)
+
+
+def test_cycled_range_gates_are_slices_of_the_whole_window():
+    """The paper's sliding range gates (pulses 1.7 m apart, each recording one 41-bin
+    gate in turn): pulse i holds gate i mod 2 of the window its scene needs, and the
+    lower gate puts the plane's energy centroid at the plane (100.3 m)."""
+    scene = _flat_with_wall(100.3)
+    track = SimTrack.line(500_010, 5_000_020, 500_190, 5_000_020)
+    whole = simulate_flash_cubes(scene, track, FlashSimParams(noise_sd=0.0, spacing=1.7))
+    cyc = simulate_flash_cubes(scene, track, FlashSimParams(noise_sd=0.0, spacing=1.7,
+                                                            gate_cycle=True))
+    assert whole.cubes.shape[-1] == 82 and cyc.cubes.shape[-1] == 41
+    gate = np.arange(len(cyc.top)) % 2
+    np.testing.assert_allclose(cyc.top, whole.top - gate * 41 * 0.75)
+    for i in range(len(cyc.top)):
+        np.testing.assert_array_equal(cyc.cubes[i], whole.cubes[i, ..., 41 * gate[i]:
+                                                                 41 * gate[i] + 41])
+    low = np.flatnonzero(gate == 1)
+    core = cyc.cubes[low][:, 4:8, 4:8, :].sum(axis=(1, 2))
+    z = cyc.top[low, None] - np.arange(41)[None, :] * 0.75
+    np.testing.assert_allclose((core * z).sum(1) / core.sum(1), 100.3, atol=1e-6)
+
+
+def test_noise_points_are_no_surface():
+    """A low-noise point (class 7) 20 m under a footprint's centre changes nothing."""
+    scene = _flat_scene(100.0)
+    track = SimTrack.line(500_010, 5_000_020, 500_190, 5_000_020)
+    noisy = LasPoints.from_arrays(np.append(scene.x, 500_010.1), np.append(scene.y, 5_000_020.1),
+                                  np.append(scene.z, 80.0), crs=32610,
+                                  classification=np.append(scene.classification, 7)
+                                  .astype(np.uint8))
+    a = simulate_flash_cubes(scene, track, FlashSimParams(noise_sd=0.0))
+    b = simulate_flash_cubes(noisy, track, FlashSimParams(noise_sd=0.0))
+    np.testing.assert_array_equal(a.cubes, b.cubes)
+    np.testing.assert_array_equal(a.top, b.top)
+
+
+def test_pixel_reference_chm_is_the_mean_canopy_surface():
+    """Flat ground at 100 m with a 15 m block over two 1 m cells: four pixels across
+    the block's edge see a highest point 15 m up, a 1 m maximum-elevation canopy height
+    model of 15, 15, 0, 0 m (mean 7.5 m), and the ground at 100 m."""
+    from canopyblocks.reference.pixel_reference import pixel_reference
+
+    g = np.arange(0.0, 40.0, 0.25)
+    gx, gy = np.meshgrid(g, g)
+    bx, by = np.meshgrid(np.arange(10.0, 12.0, 0.25), np.arange(10.0, 11.0, 0.25))
+    x = 500_000 + np.concatenate([gx.ravel(), bx.ravel()])
+    y = 5_000_000 + np.concatenate([gy.ravel(), by.ravel()])
+    z = np.concatenate([np.full(gx.size, 100.0), np.full(bx.size, 115.0)])
+    cls = np.concatenate([np.full(gx.size, 2), np.full(bx.size, 1)]).astype(np.uint8)
+    pts = LasPoints.from_arrays(x, y, z, crs=32610, classification=cls)
+    px = 500_000 + np.array([10.5, 11.5, 12.5, 13.5, 20.5])
+    py = 5_000_000 + np.array([10.5, 10.5, 10.5, 10.5, 20.5])
+    ref = pixel_reference(pts, px, py, np.array([0, 0, 0, 0, 1]), 2, 0.7, (1.0, 0.0))
+    np.testing.assert_allclose(ref["ref_ground"], [100.0, 100.0], atol=1e-9)
+    np.testing.assert_allclose(ref["ref_height"], [15.0, 0.0], atol=1e-9)
+    np.testing.assert_allclose(ref["ref_height_chm"], [7.5, 0.0], atol=1e-9)

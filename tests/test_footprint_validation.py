@@ -242,3 +242,32 @@ def test_blocks_against_footprint_reference_on_tiles_without_crs(tile: LasPoints
     got = validate_blocks_footprint(blocks, [bare], offset=0.0, points_crs=tile.crs).residuals
     np.testing.assert_allclose(got["ref_ground"], want["ref_ground"], atol=1e-9)
     np.testing.assert_allclose(got["ref_rh98"], want["ref_rh98"], atol=1e-9)
+
+
+def test_validate_footprints_is_validate(tile, tile_path, footprints, tmp_path) -> None:
+    """`validate FOOTPRINTS --points` gives what the deprecated `validate-footprints`
+    gave, defaults and --diameter alike (a --diameter used to drop GEDI's 3-sigma cut and
+    density weights)."""
+    from canopyblocks.outputs.tables import read_layer, write_table
+    from test_cli import run_cli
+
+    gdf = gpd.GeoDataFrame(footprints, geometry=gpd.points_from_xy(
+        footprints["lon"], footprints["lat"]), crs="EPSG:4326").to_crs(tile.crs)
+    src = tmp_path / "fp.gpkg"
+    write_table(gdf, src, layer="footprints")
+    common = [str(src), "--points", str(tile_path), "--offset", str(N_GEOID)]
+    got = {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FootprintOutsideWarning)
+        for name, args in {"old": ["validate-footprints", *common],
+                           "new": ["validate", *common],
+                           "new22": ["validate", *common, "--diameter", "22"]}.items():
+            out = tmp_path / f"{name}.gpkg"
+            r = run_cli(*args, "-o", str(out))
+            assert r.returncode == 0, r.stderr
+            assert ("deprecated" in r.stderr) == (name == "old"), r.stderr
+            got[name] = read_layer(out, "residuals_footprints")
+    for name in ("new", "new22"):
+        for col in ("ref_ground", "ref_rh98", "res_rh98"):
+            np.testing.assert_allclose(got[name][col], got["old"][col], equal_nan=True,
+                                       err_msg=f"{name} {col}")

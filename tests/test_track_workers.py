@@ -152,3 +152,26 @@ def test_photon_layer_written_track_by_track(granule, tmp_path):
     want = np.concatenate([res.labels[b][25.0] for b in BEAMS])
     assert ph["label_25m"].tolist() == [names.get(int(v), "?") for v in want]
     assert ph.crs == res.blocks.crs
+
+
+def test_small_pages_is_scoped() -> None:
+    """Blocks are computed without numpy's huge-page requests; the caller's setting is
+    back afterwards, also after an error."""
+    import numpy as np
+
+    from canopyblocks.track_blocks import small_pages
+
+    setter = np.core.multiarray._set_madvise_hugepage
+    before = setter(True)
+    try:
+        with small_pages():
+            assert setter(False) is False        # off inside
+        assert setter(True) is True              # on again after
+        try:
+            with small_pages():
+                raise KeyError("x")
+        except KeyError:
+            pass
+        assert setter(True) is True
+    finally:
+        setter(before)

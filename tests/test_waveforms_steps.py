@@ -330,7 +330,7 @@ def test_table_columns_and_types() -> None:
     from canopyblocks.schema import FOOTPRINT_COLUMNS
     w = MEAN + pulse(400, 200.0, 150.0, 5.0)
     table = process_waveforms(make_batch([w, w]))
-    assert list(table.columns) == list(FOOTPRINT_COLUMNS)
+    assert list(table.columns) == [*FOOTPRINT_COLUMNS, "geometry"]
     assert table["shot_number"].dtype == np.int64
     assert (table["setting"] == "a1").all()
     wide = process_waveforms(make_batch([w]), WaveformParams(all_rh=True))
@@ -360,7 +360,7 @@ def test_empty_batch_and_progress_cancellation() -> None:
     w = MEAN + pulse(400, 200.0, 150.0, 5.0)
     batch = make_batch([w] * 3)
     empty = process_waveforms(batch.subset(np.array([], dtype=np.intp)))
-    assert empty.shape == (0, 19) and empty["shot_number"].dtype == np.int64
+    assert empty.shape == (0, 20) and empty["shot_number"].dtype == np.int64  # + geometry
     seen: list[float] = []
     process_waveforms(batch, progress=Progress(callback=lambda f, msg: seen.append(f)))
     assert seen and seen[-1] == 1.0

@@ -25,7 +25,8 @@ import pandas as pd
 from .outputs.report import ReportSection, report_stats_table
 
 __all__ = ["LeadResult", "estimators_sentence", "lead_numbers", "summary_section",
-           "paper_section", "summary_lines", "SUMMARY_METRICS"]
+           "paper_section", "summary_lines", "datum_sentence", "bias_calibration_part",
+           "SUMMARY_METRICS"]
 
 #: The metrics the summary states (metres): ground elevation and canopy height.
 SUMMARY_METRICS: tuple[str, ...] = ("ground", "hmax")
@@ -109,7 +110,8 @@ def summary_section(lead: LeadResult, *, source: str, n_tracks: int, n_photons: 
     table = lead_numbers(lead.stats)
     length = _headline_length(table)
     what = (f"Block heights of {', '.join(f'{v:g}' for v in lengths)} m blocks ({n_blocks} "
-            f"blocks) from {n_photons:,} photons of {n_tracks} beam(s) "
+            f"blocks) from {n_photons:,} photons of {n_tracks} "
+            f"{'beam' if n_tracks == 1 else 'beams'} "
             f"({', '.join(beams) or 'none'}) of {source}, validated against the airborne "
             f"lidar tiles {', '.join(t.name for t in tiles)}.")
     who = (f"The recommended estimators, '{lead.name}'" if lead.recommended
@@ -158,6 +160,39 @@ def summary_lines(lead: LeadResult) -> list[str]:
         out.append(f"  {r.length:>5g} m  {str(r.metric):<6}  n={int(r.n):<4} "
                    f"bias={_fmt(r.bias, True)} m  rmse={_fmt(r.rmse)} m  r2={_fmt(r.r2)}")
     return out
+
+
+def datum_sentence(decision: str, *, geoid: Any = None, offset: float | None = None,
+                   tiles: str | None = None) -> str:
+    """The report's words for the vertical-datum decision of a validation ("same",
+    "differ" with the conversion that was given, "unknown")."""
+    theirs = f"the tiles' ({tiles})" if tiles else "the tiles'"
+    if decision == "same":
+        return f"the photons' heights are in {theirs} datum."
+    if decision == "differ":
+        how = (f"the geoid raster {Path(geoid).name}" if geoid is not None
+               else f"a constant offset of {offset:+g} m" if offset is not None
+               else "the conversion given")
+        return f"the photons' heights were converted to {theirs} datum with {how}."
+    return ("the datum of the photons or of the tiles is not stated; the heights were "
+            "compared as they are.")
+
+
+def bias_calibration_part(table: pd.DataFrame, preset: str
+                          ) -> tuple[str, dict[str, pd.DataFrame]]:
+    """Words and tables of the bias calibration fitted in the chain: its table with the
+    held-out error, or why there is none (``table.attrs['why']``)."""
+    from .outputs.report import calibration_table
+
+    if table is None or not len(table):
+        why = getattr(table, "attrs", {}).get("why", "too few validated blocks")
+        return (f"No bias calibration was fitted for the '{preset}' estimators: "
+                f"{why.rstrip('.')}.", {})
+    return ("A bias calibration per block length and beam strength, fitted on these blocks, "
+            "with its held-out error (fitted on even blocks, scored on odd ones and vice "
+            "versa); fit one on other sites to apply it (canopyblocks calibrate --method "
+            "bias).", {"bias calibration: correction per block length and beam strength "
+                       "(m)": calibration_table(table)})
 
 
 def details_stats(stats: pd.DataFrame) -> dict[str, pd.DataFrame]:

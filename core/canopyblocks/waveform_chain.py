@@ -50,6 +50,7 @@ def run_waveform_chain(
     -------
     ChainResult
     """
+    from .chain_report import datum_sentence
     from .outputs.footprint_maps import write_footprint_plots
     from .outputs.report import ReportSection, footprint_stats_table, write_report
     from .outputs.tables import write_layers, write_table
@@ -83,23 +84,26 @@ def run_waveform_chain(
                                    LAYER_STATS_FOOTPRINTS: val.stats},
                                   out / "validation.gpkg")
         write_table(val.stats, out / "stats.csv", layer="stats")
-        maps = write_footprint_plots(val.residuals, plots_dir)
+        from .whole_chain import _tiles_crs, _vertical_name
+
+        tiles_datum = _vertical_name(_tiles_crs(tiles))
+        maps = write_footprint_plots(val.residuals, plots_dir, datum=tiles_datum)
         prog.update(0.95, "report")
         flags = fp["flag"].value_counts().rename_axis("flag").reset_index(name="footprints")
         overall = val.stats[val.stats["group"] == "all"] if "group" in val.stats else val.stats
         sections = [
             ReportSection("Inputs", [
                 f"GEDI L1B waveforms from {Path(l1b).name}, processed with the GEDI L2A "
-                f"algorithm (setting {getattr(params, 'setting', 'a1')}; DESIGN 4.3).",
-                "Airborne tiles: " + ", ".join(t.name for t in tiles) + f"; vertical datums: "
-                f"{val.datum}."]),
+                f"algorithm (setting {getattr(params, 'setting', 'a1')}).",
+                "Airborne tiles: " + ", ".join(t.name for t in tiles) + "; vertical datums: "
+                + datum_sentence(val.datum, geoid=geoid, offset=offset, tiles=tiles_datum)]),
             ReportSection("Footprints", [
                 f"{len(fp)} footprints (layer 'footprints' of footprints.gpkg: ground, top, "
                 "RH25-RH100, cover, penetration, flags)."], {"footprints per flag": flags},
                 wave_plots[:6]),
             ReportSection("Validation against the airborne lidar", [
                 "Each footprint is compared with the airborne points weighted by a Gaussian "
-                "footprint (DESIGN 2.7): ground, RH98, RH50 and cover. Residual = waveform "
+                "footprint: ground, RH98, RH50 and cover. Residual = waveform "
                 "value minus reference value (m)."],
                 {"statistics (all footprints)": footprint_stats_table(overall),
                  "by group": footprint_stats_table(val.stats)},

@@ -25,7 +25,7 @@ import pandas as pd
 
 from .errors import CanopyBlocksWarning, InputError, NoUsableDataError
 from .progress import Progress, as_progress
-from .readers.gedi import gedi_vertical_datum, vertical_datum_label
+from .readers.gedi import gedi_vertical_datum
 from .schema import LAYER_FOOTPRINTS
 
 __all__ = ["FootprintRunSummary", "footprints_from_l1b", "footprints_to_file",
@@ -156,7 +156,7 @@ def footprints_from_l1b(
     """
     from .geo import as_crs, to_metric
     from .readers.gedi import iter_gedi_l1b
-    from .waveforms.process import process_waveforms, shot_details
+    from .waveforms.process import _footprint_table, shot_details
     from .waveforms.settings import WaveformParams
 
     base = params if params is not None else WaveformParams()
@@ -182,7 +182,7 @@ def footprints_from_l1b(
     for batch in ([] if in_workers else
                   iter_gedi_l1b(path, beams, bbox=bbox, quality=quality,
                                 chunk_shots=chunk_shots, progress=reading)):
-        table = flag_invalid_shots(process_waveforms(batch, chunk_params), batch)
+        table = flag_invalid_shots(_footprint_table(batch, chunk_params), batch)
         problems |= int(np.bitwise_or.reduce(batch.extra.get("invalid_shot", [0]), initial=0))
         per_beam.setdefault(batch.beam, []).append(table)
         if plots_dir is not None:
@@ -210,14 +210,26 @@ def footprints_from_l1b(
     z = table["ground"].to_numpy(float)
     geom = gpd.points_from_xy(x, y, np.where(np.isfinite(z), z, np.nan), crs=out_crs)
     gdf = gpd.GeoDataFrame(table, geometry=geom, crs=out_crs)
+    gdf.insert(len(gdf.columns) - 1, "time_utc", _utc(path, table["time"].to_numpy(float)))
     gdf.attrs["vertical_datum"] = gedi_vertical_datum(path)  # EPSG:4979 unless simulated
     prog.update(1.0, f"{len(gdf)} footprints")
     return gdf, plots
 
 
+def _utc(path: str | os.PathLike[str], delta_time: np.ndarray) -> np.ndarray:
+    """UTC of the shots (``time_utc``, beside ``time`` = delta_time), to the millisecond
+    (a GeoPackage's precision: finer times were written as '08:21:60' by GDAL); NaT for a
+    simulated file, whose clock starts at its first shot."""
+    from .utc_time import file_counts_from_sdp_epoch, utc_from_delta_time
+
+    if not file_counts_from_sdp_epoch(path):
+        return np.full(len(delta_time), np.datetime64("NaT"), dtype="datetime64[ns]")
+    return utc_from_delta_time(delta_time).astype("datetime64[ms]").astype("datetime64[ns]")
+
+
 def _plot(batch: Any, table: pd.DataFrame, wanted: set[int] | None, plotted: dict[str, int],
           folder: Path, params: Any, shot_details: Any) -> list[Path]:
-    from .outputs.waveform_plot import plot_waveform
+    from .outputs.waveform_plot import elevation_datum, plot_waveform
 
     sn = table["shot_number"].to_numpy(np.int64)
     if wanted is not None:
@@ -228,11 +240,11 @@ def _plot(batch: Any, table: pd.DataFrame, wanted: set[int] | None, plotted: dic
         idx = ok[:max(0, _PLOT_DEFAULT - done)]
         plotted[batch.beam] = done + len(idx)
     out = []
-    label = vertical_datum_label(gedi_vertical_datum(batch.source)) if len(idx) else ""
+    datum = elevation_datum(batch.source) if len(idx) else ""
     for i in idx:
         details = shot_details(batch, int(i), params)
         out.append(plot_waveform(details, folder / f"waveform_{batch.beam}_{sn[i]}.png",
-                                 vertical_datum=label))
+                                 vertical_datum=datum))
     return out
 
 

@@ -57,7 +57,7 @@ def run_beam_job(job: BeamJob) -> BeamOutcome:
     """Read, process and flag the shots of one beam (runs in a worker)."""
     from .readers.gedi import iter_gedi_l1b
     from .waveform_footprints import _plot, flag_invalid_shots
-    from .waveforms.process import process_waveforms, shot_details
+    from .waveforms.process import _footprint_table, shot_details
 
     out = BeamOutcome(job)
     wanted = None if job.plot_shots is None else set(job.plot_shots)
@@ -66,7 +66,7 @@ def run_beam_job(job: BeamJob) -> BeamOutcome:
         warnings.simplefilter("always")
         for batch in iter_gedi_l1b(job.path, [job.beam], bbox=job.bbox, quality=job.quality,
                                    chunk_shots=job.chunk_shots):
-            table = flag_invalid_shots(process_waveforms(batch, job.params), batch)
+            table = flag_invalid_shots(_footprint_table(batch, job.params), batch)
             out.problems |= int(np.bitwise_or.reduce(batch.extra.get("invalid_shot", [0]),
                                                      initial=0))
             out.tables.append(table)

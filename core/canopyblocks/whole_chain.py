@@ -18,12 +18,13 @@ import pandas as pd
 
 from .blocks import BlockParams
 from .blocks.estimators import RECOMMENDED_PRESET
+from .chain_report import datum_sentence
 from .errors import FileFormatError, InputError
 from .outputs.atomic import check_writable, new_files_removed_on_failure
 from .outputs.report import ReportSection, write_report
 from .outputs.tables import write_layers, write_table
 from .progress import Progress, as_progress
-from .schema import FLAG_OK, LAYER_BLOCKS, LAYER_RESIDUALS, LAYER_STATS
+from .schema import FLAG_OK, FLAGS, LAYER_BLOCKS, LAYER_RESIDUALS, LAYER_STATS
 from .track_blocks import blocks_from_file
 
 __all__ = ["ChainResult", "run_chain"]
@@ -294,7 +295,9 @@ def run_chain(
         prog.update(0.95, "report")
         report = _report(out, tiles=tiles, photons=Path(photons), simulated=simulated,
                          params=params, width=width, resolution=resolution, blocks=blocks,
-                         stats=val.stats, datum=val.datum, plots=plots, azimuth=azimuth,
+                         stats=val.stats, plots=plots, azimuth=azimuth,
+                         datum=datum_sentence(val.datum, geoid=geoid, offset=offset,
+                                              tiles=_vertical_name(ref_vcrs)),
                          diameter=diameter, preset=photon_rate, seed=seed,
                          calibration=None if cutoffs is None else cutoffs.table,
                          seed002=seed002, seed002_png=seed002_png, compared=compared,
@@ -420,6 +423,7 @@ def _compare_preset(name: str, tracks: Any, params: BlockParams, rasters: Any, o
     except NoUsableDataError as exc:
         log.warning("no bias calibration for the %s preset: %s", name, exc)
         table = pd.DataFrame()
+        table.attrs["why"] = str(exc)  # said in the report instead of an empty table
     else:
         write_bias_calibration(cal, out / f"bias_calibration_{name}.json")
         table = cal.table()
@@ -488,8 +492,8 @@ def _report(out: Path, *, tiles: list[Path], photons: Path, simulated: bool,
             seed002_png: Path | None = None,
             compared: tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame] | None = None,
             compare_preset: str | None = None, offsets: dict[str, Any] | None = None) -> Path:
-    from .chain_report import details_stats, paper_section, summary_section
-    from .outputs.report import report_stats_table
+    from .chain_report import bias_calibration_part, details_stats, paper_section, summary_section
+    from .outputs.report import calibration_table, report_stats_table
 
     source = (f"ICESat-2 photons simulated over the airborne tiles: track azimuth "
               f"{azimuth:g} degrees, {diameter:g} m footprints, '{preset}' photon rate, "
@@ -497,7 +501,8 @@ def _report(out: Path, *, tiles: list[Path], photons: Path, simulated: bool,
               if simulated else f"Photons read from {photons}.")
     counts = (blocks.groupby(["length", "flag"]).size().unstack(fill_value=0).reset_index()
               if len(blocks) else pd.DataFrame())
-    counts = report_stats_table(counts) if len(counts) else counts
+    counts = (report_stats_table(counts.rename_axis(columns=None)).rename(
+        columns={f: f"{f} (blocks)" for f in FLAGS}) if len(counts) else counts)
     beams = [str(t.track) for t in tracks]
     sections = [summary_section(
         lead, source=photons.name + (" (simulated)" if simulated else ""),
@@ -518,7 +523,7 @@ def _report(out: Path, *, tiles: list[Path], photons: Path, simulated: bool,
             f"Block lengths {', '.join(f'{v:g}' for v in params.lengths)} m; corridor width "
             f"{width:g} m; reference rasters at {resolution:g} m from PDAL; vertical datums: "
             + ("the tiles' own (the photons were simulated from them)." if simulated
-               else f"{datum}."),
+               else datum),
         ]),
         ReportSection("Block heights (the paper's method)", [
             f"{len(blocks)} blocks, {int((blocks['flag'] == FLAG_OK).sum())} flagged ok "
@@ -539,13 +544,11 @@ def _report(out: Path, *, tiles: list[Path], photons: Path, simulated: bool,
     ]
     if compared is not None and compare_preset:
         _, pstats, ptable = compared
+        words, tables = bias_calibration_part(ptable, compare_preset)
         sections.append(ReportSection(
             f"The '{compare_preset}' estimators against the corridor maximum", [
-                f"Layer '{LAYER_STATS}_{compare_preset}'. A bias calibration per block length "
-                "and beam strength, fitted on these blocks, with its held-out error (fitted "
-                "on even blocks, scored on odd ones and vice versa); fit one on other sites "
-                "to apply it (canopyblocks calibrate --method bias)."],
-            {**details_stats(pstats), "bias calibration (metres)": ptable}))
+                f"Layer '{LAYER_STATS}_{compare_preset}'. {words}"],
+            {**details_stats(pstats), **tables}))
     if seed002 is not None:
         sections.append(ReportSection("Simulated photons against truth", [
             "Each simulated footprint keeps its truth (ground = the lowest peak of the "
@@ -561,7 +564,8 @@ def _report(out: Path, *, tiles: list[Path], photons: Path, simulated: bool,
             "columns are held out: cut-offs fitted on the even blocks are scored on the odd "
             "blocks and vice versa. Layers residuals_calibrated and stats_calibrated of "
             "validation.gpkg hold the validation with the cut-offs fitted on all blocks."],
-            {"calibration (metres)": report_stats_table(calibration)}))
+            {"calibrated cut-offs (fractions of the block's photons) and their held-out "
+             "RMSE (m)": calibration_table(calibration)}))
     if offsets is not None:
         rows = pd.DataFrame([{"track": k, **{c: v.get(c) for c in (
             "along_track", "cross_track", "east", "north", "vertical", "rmse_before",

@@ -32,6 +32,15 @@ def test_gedi_footprints_reproduce_l2a(run_alg, open_layer, layer_rows, gedi_l1b
                   if r["flag"] == "ok" and int(r["shot_number"]) in ref])
     assert d.size >= 80 and np.sqrt(np.mean(d ** 2)) < 0.05
     assert all("d_rh98" in r for r in rows)
+    # the shot's UTC as a QGIS date-time, inside the orbit the granule name states
+    # (O01964 started 2019-04-18 08:03:38 UTC; an orbit lasts about 92 minutes)
+    from qgis.PyQt.QtCore import QDateTime, Qt
+
+    start = QDateTime.fromString("2019-04-18T08:03:38Z", Qt.ISODate)
+    for r in rows:
+        t = r["time_utc"]
+        assert isinstance(t, QDateTime) and t.isValid(), t
+        assert 0 <= start.secsTo(t) <= 93 * 60, t.toString(Qt.ISODate)
 
 
 def test_footprint_validation_and_plots(run_alg, open_layer, layer_rows, sample, gedi_l1b,

@@ -168,11 +168,6 @@ def _run_processes(fn: Callable[[Any], Any], items: Sequence[Any], n: int, start
     return results
 
 
-#: Seconds a worker has for its clean-up after SIGTERM before it is ended regardless (a
-#: ``SystemExit`` raised inside a callback is swallowed by Python; a clean-up may hang).
-CLEANUP_SECONDS = 15
-
-
 def _worker_signals() -> None:
     """In a worker: Ctrl-C is the parent's to handle; SIGTERM (the parent's
     ``Pool.terminate``, or ``kill`` of the process group) ends an idle worker at once and a
@@ -189,7 +184,8 @@ def _worker_signals() -> None:
 
 def _quiet_exit_in_callback(unraisable: Any) -> None:
     """The SIGTERM's ``SystemExit`` landed in a callback (a weakref's, a ``__del__``),
-    where Python ignores it: say nothing (the alarm set at SIGTERM ends the worker)."""
+    where Python ignores it: say nothing (the worker ends when its unit returns, or at the
+    alarm)."""
     import sys
 
     if isinstance(unraisable.exc_value, SystemExit):
@@ -197,34 +193,48 @@ def _quiet_exit_in_callback(unraisable: Any) -> None:
     sys.__unraisablehook__(unraisable)
 
 
-_TERMINATED: list[int] = []   # in a worker: the SIGTERM received, if any
+#: Seconds a worker has for its clean-up after SIGTERM before SIGALRM ends it.
+_CLEANUP_GRACE_S = 30
+#: Set in a worker by SIGTERM: the unit it runs is the last.
+_terminating = False
 
 
 def _exit_at_sigterm(signum: int, frame: object) -> None:
+    """End a worker at SIGTERM through a ``SystemExit``, with two backstops.
+
+    Python ignores an exception raised where it cannot propagate (a ``__del__``, a
+    weak-reference or C callback: "Exception ignored in ..."), and a signal handler runs
+    at whatever line the worker is on.  A swallowed ``SystemExit`` left the worker alive,
+    SIGTERM ignored, blocked on the pool's queue, and the parent's ``Pool.terminate``
+    waiting for it for ever (seen in the test suite, and as ``waveforms --workers 2`` on a
+    damaged L1B hanging).  So the worker also ends when its unit returns
+    (:func:`_indexed_call`), an idle worker ends at SIGTERM's default action, and
+    SIGALRM's default action ends it after :data:`_CLEANUP_GRACE_S` whatever it does.
+    """
     import signal
 
-    _TERMINATED.append(signum)
+    global _terminating
+    _terminating = True
     signal.signal(signal.SIGTERM, signal.SIG_IGN)  # once: the clean-up is not interrupted
-    signal.signal(signal.SIGALRM, signal.SIG_DFL)  # ... but it does not outlive this alarm
-    signal.alarm(CLEANUP_SECONDS)
+    signal.signal(signal.SIGALRM, signal.SIG_DFL)
+    signal.alarm(_CLEANUP_GRACE_S)
     raise SystemExit(128 + signum)
 
 
 def _indexed_call(job: tuple[Callable[[Any], Any], int, Any]) -> tuple[int, Any]:
-    """``fn(item)`` in a worker, a SIGTERM during it raising ``SystemExit`` (an idle worker,
-    with nothing to clean up, ends at SIGTERM: it could not otherwise leave the pool's
-    queue once the parent stops feeding it, and the parent's ``terminate`` would wait
-    for it forever)."""
+    """``fn(item)`` in a worker, SIGTERM raising ``SystemExit`` only while it runs (idle,
+    with nothing to clean up, the worker ends at SIGTERM's default action)."""
     import signal
 
     fn, i, item = job
     previous = signal.signal(signal.SIGTERM, _exit_at_sigterm)
     try:
-        return i, fn(item)
+        result = fn(item)
     finally:
-        if _TERMINATED:   # its SystemExit was swallowed by a callback: the unit is over
-            raise SystemExit(128 + _TERMINATED[0])  # noqa: B012 - nothing to return to
+        if _terminating:  # the SIGTERM's SystemExit was swallowed inside the unit
+            raise SystemExit(143)  # noqa: B012 - the unit is over; nothing to return to
         signal.signal(signal.SIGTERM, previous)
+    return i, result
 
 
 @contextlib.contextmanager

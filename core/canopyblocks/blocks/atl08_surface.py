@@ -3,7 +3,8 @@ surface fitted to the signal photons (noise removed first).
 
 1. start: a low percentile (``start_percentile``, 5) of the photons' heights in each
    along-track window of ``window`` metres (30 m), a running median over three windows
-   (a window whose low photons are stray noise is ignored), joined linearly (with
+   (a window whose low photons are stray noise or a crown is ignored; an end window with
+   its neighbour and the line through the next two), joined linearly (with
    ``footprint_radius``: taken again on heights detrended by the slope of that first
    guess, since on a slope a window's low percentile is its downhill end);
 2. passes: for each band half-width in ``bands`` (a narrowing sequence, e.g. 3, 2, 1,
@@ -103,6 +104,19 @@ class SurfaceParams:
 _NODE = 1.0  # m between surface nodes
 
 
+def _median3(low: np.ndarray) -> np.ndarray:
+    """Running median of 3 windows (one window on stray noise or a crown is ignored); an
+    end window takes the median of itself, its neighbour and the line through the next
+    two (on a slope that line is the end window's value; a crown there is ignored)."""
+    if low.size < 3:
+        return low
+    padded = np.concatenate([[2 * low[1] - low[2]], low, [2 * low[-2] - low[-3]]])
+    mid = np.median(np.stack([padded[:-2], padded[1:-1], padded[2:]]), axis=0)
+    mid[0] = np.median([low[0], low[1], 2 * low[1] - low[2]])
+    mid[-1] = np.median([low[-1], low[-2], 2 * low[-2] - low[-3]])
+    return mid
+
+
 def _start(ss: np.ndarray, zz: np.ndarray, p: SurfaceParams, nodes: np.ndarray) -> np.ndarray:
     """Low percentile per window, placed at the window centres and joined linearly."""
     win = np.floor((ss - ss[0]) / p.window).astype(np.int64)
@@ -111,9 +125,7 @@ def _start(ss: np.ndarray, zz: np.ndarray, p: SurfaceParams, nodes: np.ndarray) 
     centre = ss[0] + (np.arange(n_win) + 0.5) * p.window
     good = np.isfinite(low)
     low, centre = low[good], centre[good]
-    if low.size >= 3:  # a running median of 3 windows: one window on stray noise is ignored
-        padded = np.concatenate([low[:1], low, low[-1:]])
-        low = np.median(np.stack([padded[:-2], padded[1:-1], padded[2:]]), axis=0)
+    low = _median3(low)
     start = np.interp(nodes, centre, low)
     if p.footprint_radius <= 0 or centre.size < 2:
         return start
@@ -124,9 +136,7 @@ def _start(ss: np.ndarray, zz: np.ndarray, p: SurfaceParams, nodes: np.ndarray) 
     k = np.clip(np.searchsorted(centre, wc), 0, centre.size - 1)
     det = zz - slope[k] * (ss - wc)
     low2 = percentile_by_group(win, det, p.start_percentile, n_win)[good]
-    if low2.size >= 3:
-        padded = np.concatenate([low2[:1], low2, low2[-1:]])
-        low2 = np.median(np.stack([padded[:-2], padded[1:-1], padded[2:]]), axis=0)
+    low2 = _median3(low2)
     return np.interp(nodes, centre, low2)
 
 
@@ -144,7 +154,8 @@ def _spread(nodes: np.ndarray, surf: np.ndarray, radius: float) -> np.ndarray:
 
 
 def fit_atl08_surface(s: np.ndarray, z: np.ndarray,
-                      params: SurfaceParams | None = None) -> GroundSurface:
+                      params: SurfaceParams | None = None,
+                      start: GroundSurface | None = None) -> GroundSurface:
     """Fit the ground surface to signal photons.
 
     Parameters
@@ -154,6 +165,8 @@ def fit_atl08_surface(s: np.ndarray, z: np.ndarray,
     z : ndarray
         Heights (m) of the photons kept by the noise filter.
     params : SurfaceParams, optional
+    start : GroundSurface, optional
+        A first guess to start the passes from instead of the windows' low percentile.
 
     Returns
     -------
@@ -181,7 +194,7 @@ def fit_atl08_surface(s: np.ndarray, z: np.ndarray,
         order = idx[np.argsort(s[idx], kind="stable")]
     ss, zz = s[order], z[order]
     nodes = np.arange(ss[0], ss[-1] + _NODE, _NODE)
-    surf = _start(ss, zz, p, nodes)
+    surf = _start(ss, zz, p, nodes) if start is None else start(nodes)
     kernel = _kernel(p.bandwidth, _NODE)
     support = np.zeros(nodes.size)
     w = np.zeros(ss.size)

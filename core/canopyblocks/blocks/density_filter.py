@@ -26,7 +26,7 @@ import numpy as np
 
 from ..errors import InputError
 
-__all__ = ["DensityParams", "DensityResult", "density_filter"]
+__all__ = ["DensityParams", "DensityResult", "density_filter", "box_area", "poisson_quantile"]
 
 log = logging.getLogger(__name__)
 
@@ -187,8 +187,7 @@ def density_filter(s: np.ndarray, z: np.ndarray,
     bounds = np.flatnonzero(np.diff(seg)) + 1
     starts = np.concatenate([[0], bounds])
     ends = np.concatenate([bounds, [ss.size]])
-    # the grid box: (2 SUB + 1) cells of along/SUB by height/SUB around the photon's cell
-    area = ((2 * p.cells + 1) * p.along / p.cells) * ((2 * p.cells + 1) * p.height / p.cells)
+    area = box_area(p)
     quantiles: dict[float, float] = {}
     zs = z[order]  # sorted once: each segment is then a contiguous slice
     rs = rate[order] if rate is not None else None
@@ -223,6 +222,12 @@ def density_filter(s: np.ndarray, z: np.ndarray,
     thr[order] = thr_s
     keep[order] = cnt_s - 1 > thr_s  # the count includes the photon itself
     return DensityResult(keep, count, rates, thr)
+
+
+def box_area(p: DensityParams) -> float:
+    """Area (m^2) of the counting box: (2 cells + 1) grid cells of along/cells by
+    height/cells around the photon's cell."""
+    return ((2 * p.cells + 1) * p.along / p.cells) * ((2 * p.cells + 1) * p.height / p.cells)
 
 
 def poisson_quantile(q: float, mu: float) -> float:

@@ -17,6 +17,7 @@ from .common import (
     parse_floats,
     progress_bar,
 )
+from .vocabulary import deprecated_option, take_alias
 
 if TYPE_CHECKING:
     from ..blocks.estimators import Estimators
@@ -39,7 +40,8 @@ def info_cmd(path: str, as_json: bool) -> None:
 
 
 @click.command("blocks")
-@click.argument("path", type=click.Path(dir_okay=False))
+@click.argument("paths", metavar="PATH...", nargs=-1, required=True,
+                type=click.Path(dir_okay=False))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Block table: .gpkg (layer 'blocks'), .parquet or .csv.")
 @click.option("--beam", "beams", multiple=True,
@@ -57,7 +59,7 @@ def info_cmd(path: str, as_json: bool) -> None:
                    "classifier, with the file's background rate when it has one), none.")
 @click.option("--preset", type=click.Choice(["paper", "icesat2", "mabel", "atl08"]),
               default=None,
-              help="Named estimator set: paper (seed 001, the default), "
+              help="Named estimator set: paper (the paper's method, the default), "
                    "icesat2 (density filter, the paper's ground window, 98th-percentile top), mabel "
                    "(density filter, ground surface, 98th-percentile top), atl08 (photons "
                    "classified as ATL08 does; ground = its ground surface, Hmax = 98th "
@@ -70,7 +72,7 @@ def info_cmd(path: str, as_json: bool) -> None:
               help="Bias calibration JSON (canopyblocks calibrate --method bias) to apply.")
 @min_signal_conf_option
 @click.option("--top-cutoff", type=float, default=None,
-              help="Canopy-top window fraction (default by block length, DESIGN 1.7).")
+              help="Canopy-top window fraction (default by block length, as the paper).")
 @click.option("--ground-cutoff", type=float, default=None,
               help="Ground window fraction (default by block length).")
 @click.option("--min-photons", type=int, default=10, show_default=True,
@@ -78,11 +80,18 @@ def info_cmd(path: str, as_json: bool) -> None:
 @click.option("--atl08", type=click.Path(dir_okay=False), default=None,
               help="Matching ATL08 file: adds its photon classes to the photons layer.")
 @click.option("--bbox", default=None, help="lon_min,lat_min,lon_max,lat_max (degrees) subset.")
+@click.option("--polygon", type=click.Path(dir_okay=False), default=None,
+              help="Vector file of polygons (any CRS): keep the blocks whose centre lies "
+                   "inside.")
+@click.option("--time", "time_range", nargs=2, default=None, metavar="START END",
+              help="UTC dates or times (2022-04-01 or 2022-04-01T22:00:00): skip ATL03 "
+                   "granules taken outside.")
 @click.option("--crs", default=None, help="Metric CRS for x/y (default: UTM zone of the track).")
-@click.option("--photons", "with_photons", is_flag=True,
+@click.option("--photon-layer", "with_photons", is_flag=True,
               help="Also write layer 'photons' with per-photon labels (GeoPackage output; "
                    "with --noise atl08 also classed_pc_flag: 0 noise, 1 ground, 2 canopy, "
                    "3 top of canopy).")
+@deprecated_option("--photons", "old_photons", is_flag=True)
 @click.option("--profile", type=click.Path(dir_okay=False), default=None,
               help="Write a profile plot PNG (photons, canopy top and ground per block).")
 @click.option("--workers", type=click.IntRange(1, 512), default=None,
@@ -90,19 +99,27 @@ def info_cmd(path: str, as_json: bool) -> None:
                    "(default: the machine's cores, capped by the memory available; the "
                    "table is the same as with 1).")
 @click.pass_context
-def blocks_cmd(ctx: click.Context, path: str, output: str, beams: tuple[str, ...],
+def blocks_cmd(ctx: click.Context, paths: tuple[str, ...], output: str,
+               beams: tuple[str, ...],
                channel: str | None, lengths: tuple[float, ...], s0: float | None, k_sigma: float,
                noise: str | None, preset: str | None, ground_estimator: str | None,
                top_estimator: str | None, calibration: str | None,
                min_signal_conf: int | None, top_cutoff: float | None,
                ground_cutoff: float | None, min_photons: int, atl08: str | None,
-               bbox: str | None, crs: str | None, with_photons: bool,
+               bbox: str | None, polygon: str | None,
+               time_range: tuple[str, str] | None, crs: str | None, with_photons: bool,
+               old_photons: bool,
                profile: str | None, workers: int | None) -> None:
-    """Canopy top, mean ground, Hmax and H90 per along-track block (seed 001 method,
-    or the estimators of --preset)."""
+    """Canopy top, mean ground, Hmax and H90 per along-track block (the paper's method,
+    or the estimators of --preset).
+
+    Several PATHs (granules) give one table with a 'granule' column, filtered by
+    --bbox, --polygon and --time.
+    """
     from ..blocks import BlockParams
     from ..track_blocks import blocks_from_file
 
+    with_photons = take_alias(with_photons, old_photons, old="--photons", new="--photon-layer")
     estimators = estimators_from_options(preset, noise, ground_estimator, top_estimator,
                                          min_signal_conf)
     params = BlockParams(
@@ -112,12 +129,31 @@ def blocks_cmd(ctx: click.Context, path: str, output: str, beams: tuple[str, ...
         min_photons=min_photons,
     )
     quiet = bool(ctx.obj and ctx.obj.get("quiet"))
+    box = parse_floats(bbox, 4, "lon_min,lat_min,lon_max,lat_max", "--bbox")
+    if len(paths) > 1 or polygon is not None or time_range is not None:
+        many = [n for n, v in (("--photon-layer", with_photons), ("--profile", profile),
+                               ("--atl08", atl08)) if v]
+        if many:
+            raise click.UsageError(f"{', '.join(many)}: one PATH at a time (not with "
+                                   "several granules, --polygon or --time)")
+        from ..granule_blocks import blocks_from_granules
+
+        with progress_bar("blocks", quiet=quiet) as progress:
+            table = blocks_from_granules(
+                paths, params, output=output, bbox=box,  # type: ignore[arg-type]
+                polygon=polygon, time_range=time_range, crs=crs, estimators=estimators,
+                calibration=calibration, beams=beams, channel=parse_channel(channel),
+                workers=workers, progress=progress)
+        if not quiet:
+            click.echo(f"canopyblocks: {len(table)} blocks from "
+                       f"{table['granule'].nunique()} granule(s) -> {Path(output)}", err=True)
+        return
+    path = paths[0]
     with progress_bar("blocks", quiet=quiet) as progress:
         result = blocks_from_file(
             path, params, estimators=estimators, calibration=calibration,
             beams=beams, channel=parse_channel(channel), atl08=atl08,
-            bbox=parse_floats(bbox, 4, "lon_min,lat_min,lon_max,lat_max", "--bbox"),  # type: ignore[arg-type]
-            crs=crs, output=output, with_photons=with_photons,
+            bbox=box, crs=crs, output=output, with_photons=with_photons,  # type: ignore[arg-type]
             profile=profile, workers=workers, progress=progress,
         )
     n_ok = int((result.blocks["flag"] == "ok").sum()) if len(result.blocks) else 0

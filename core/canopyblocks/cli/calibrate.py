@@ -20,8 +20,8 @@ from .common import (
 @click.argument("photons", type=click.Path(dir_okay=False))
 @click.option("--method", type=click.Choice(["cutoffs", "bias"]), default="cutoffs",
               show_default=True, help="cutoffs: fit the paper's top/ground window cut-offs "
-              "(seed 001); bias: fit an additive (or linear) correction of Hmax/H90 per "
-              "length and beam strength for the chosen estimators (DESIGN 1.10).")
+              "(as the paper did); bias: fit an additive (or linear) correction of Hmax/H90 per "
+              "length and beam strength for the chosen estimators.")
 @click.option("--dtm", type=click.Path(dir_okay=False), help="Terrain GeoTIFF.")
 @click.option("--dsm-max", type=click.Path(dir_okay=False), help="Maximum-surface GeoTIFF.")
 @click.option("--dsm-p90", type=click.Path(dir_okay=False),
@@ -69,7 +69,7 @@ def calibrate_cmd(ctx: click.Context, photons: str, method: str, dtm: str | None
 
     --method cutoffs: blocks are computed with the paper's cut-offs, their corridor
     reference values read from the rasters, and for each length the (top, ground)
-    fractions that best match are searched (seed 001 calibrated its cut-offs this way).
+    fractions that best match are searched (the paper calibrated its cut-offs this way).
     The RMSE columns are held out: cut-offs fitted on even blocks are scored on odd
     blocks and vice versa.
 

@@ -38,8 +38,8 @@ from .vocabulary import deprecated_option, say_deprecated, take_alias
               show_default=True, help="Simulated photon rate (as simulate --photon-rate).")
 @click.option("--seed", type=int, default=0, show_default=True, help="Simulation seed.")
 @click.option("--realisations", type=click.IntRange(min=0), default=100, show_default=True,
-              help="Simulated runs: photon draws per footprint diameter for the seed 002 "
-                   "analysis against truth (0 skips it).")
+              help="Simulated runs: photon draws per footprint diameter for the analysis "
+                   "of the simulation against its truth (0 skips it).")
 @lengths_option(default="10, 25, 50")
 @min_signal_conf_option
 @click.option("--width", type=float, default=None,

@@ -9,6 +9,7 @@ import numpy as np
 
 from ..errors import InputError
 from .common import min_signal_conf_option, vertical_options
+from .vocabulary import deprecated_option, take_alias
 
 log = logging.getLogger(__name__)
 
@@ -33,8 +34,9 @@ def register(group: click.Group) -> None:
 @click.option("--reference-vcrs", help="Vertical/compound CRS of the rasters (default: the "
               "DTM's CRS).")
 @min_signal_conf_option
-@click.option("--range", "search_range", type=float, default=15.0, show_default=True,
+@click.option("--search-range", "search_range", type=float, default=15.0, show_default=True,
               help="Search +- this many metres along and across the track.")
+@deprecated_option("--range", "old_range", type=float)
 @click.option("--step", type=float, default=1.0, show_default=True,
               help="Coarse grid step, m (then refined by 0.25 m).")
 @click.option("--use-top", type=click.Choice(["auto", "yes", "no"]), default="auto",
@@ -46,7 +48,8 @@ def register(group: click.Group) -> None:
 def coregister(ctx: click.Context, source: str, dtm: str, dsm_max: str | None,
                beams: tuple[str, ...], crs: str | None, geoid: str | None,
                offset: float | None, photon_vcrs: str, reference_vcrs: str | None,
-               min_signal_conf: int | None, search_range: float, step: float, use_top: str,
+               min_signal_conf: int | None, search_range: float, old_range: float | None,
+               step: float, use_top: str,
                output: str, plot: str | None) -> None:
     """Find the along-track, cross-track and vertical shift that aligns a track
     (photons, blocks or GEDI footprints) with the airborne DTM (and DSM).
@@ -66,6 +69,8 @@ def coregister(ctx: click.Context, source: str, dtm: str, dsm_max: str | None,
     )
     from .common import progress_bar
 
+    search_range = take_alias(search_range, old_range, old="--range", new="--search-range",
+                              default=15.0)
     if not output.lower().endswith(".json"):
         raise InputError(f"-o {output}: the offsets are written as JSON; name it *.json")
     check_writable(output)

@@ -8,6 +8,7 @@ import click
 
 from ..errors import InputError
 from .common import vertical_options
+from .vocabulary import say_deprecated
 
 log = logging.getLogger(__name__)
 
@@ -17,7 +18,7 @@ def register(group: click.Group) -> None:
     group.add_command(validate_footprints_cmd)
 
 
-@click.command("validate-footprints")
+@click.command("validate-footprints", hidden=True)
 @click.argument("footprints", metavar="FOOTPRINTS", type=click.Path(dir_okay=False))
 @click.option("--points", "points", multiple=True, required=True,
               type=click.Path(dir_okay=False), help="Airborne LAS/LAZ tile (repeatable).")
@@ -51,11 +52,13 @@ def validate_footprints_cmd(ctx: click.Context, footprints: str, points: tuple[s
                             reference_vcrs: str | None, points_crs: str | None,
                             table_crs: str | None, slope_threshold: float, dtm: str | None,
                             output: str, plots: str | None) -> None:
-    """Validate waveform footprints (GEDI) against airborne lidar tiles.
+    """Deprecated: use ``validate FOOTPRINTS --points TILE`` (the same reference and
+    defaults for GEDI footprints).
 
     Each footprint is compared with the ALS points weighted by a Gaussian footprint
     (ground, RH98, RH50, cover); statistics per beam, aspect, slope and cover class.
     """
+    say_deprecated("the command validate-footprints", "validate FOOTPRINTS --points TILE")
     from ..reference.footprint import FootprintReferenceParams
     from ..validation.footprints import validate_footprints_file
     from .common import progress_bar

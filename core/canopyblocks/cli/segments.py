@@ -7,6 +7,7 @@ from pathlib import Path
 import click
 
 from .common import channel_option, parse_channel, parse_floats, progress_bar
+from .vocabulary import deprecated_option, take_alias
 
 
 @click.command("segments")
@@ -22,18 +23,20 @@ from .common import channel_option, parse_channel, parse_floats, progress_bar
               help="Segment origin along the track, m (default: the track start).")
 @click.option("--bbox", default=None, help="lon_min,lat_min,lon_max,lat_max (degrees) subset.")
 @click.option("--crs", default=None, help="Metric CRS for x/y (default: UTM zone of the track).")
-@click.option("--photons", "with_photons", is_flag=True,
+@click.option("--photon-layer", "with_photons", is_flag=True,
               help="Also write layer 'photons' with each photon's class (classed_pc_flag: "
                    "0 noise, 1 ground, 2 canopy, 3 top of canopy; GeoPackage output).")
+@deprecated_option("--photons", "old_photons", is_flag=True)
 @click.pass_context
 def segments_cmd(ctx: click.Context, path: str, output: str, beams: tuple[str, ...],
                  channel: str | None, length: float, s0: float | None, bbox: str | None,
-                 crs: str | None, with_photons: bool) -> None:
+                 crs: str | None, with_photons: bool, old_photons: bool) -> None:
     """Classify photons as ATL08 does (noise, ground, canopy, top of canopy) and summarise
     them in along-track segments with ATL08's column names (h_te_median, h_te_best_fit,
     h_canopy, canopy_h_metrics_NN, canopy_openness, photon counts)."""
     from ..track_segments import segments_from_file
 
+    with_photons = take_alias(with_photons, old_photons, old="--photons", new="--photon-layer")
     quiet = bool(ctx.obj and ctx.obj.get("quiet"))
     with progress_bar("segments", quiet=quiet) as progress:
         table = segments_from_file(

@@ -23,7 +23,7 @@ log = logging.getLogger(__name__)
 @click.argument("las", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("--sensor", type=click.Choice(["icesat2", "gedi", "esfl", "dual"]),
               default="icesat2", show_default=True,
-              help="icesat2: photons (seed 002; --instrument mabel for MABEL); gedi: "
+              help="icesat2: photons (--instrument mabel for MABEL); gedi: "
                    "waveforms in the GEDI L1B layout; esfl: flash-array data cubes "
                    "(electronically steerable flash lidar); dual: visible/NIR waveform "
                    "pairs.")
@@ -66,9 +66,7 @@ log = logging.getLogger(__name__)
 @click.option("--telemetry-window", type=float, default=100.0, show_default=True,
               help="Half-height of the window the background photons fill, m, around "
                    "the airborne ground smoothed over 1 km.")
-@click.option("--noise-rate", type=float, default=None,
-              help="Deprecated: background photons per shot per metre of window; use "
-                   "--background-rate (1 MHz = 0.0067 photons per shot per metre).")
+@deprecated_option("--noise-rate", "noise_rate", type=float)  # photons per shot per metre
 @click.option("--geolocation-sigma", type=float, default=0.0, show_default=True,
               help="Horizontal geolocation error (Gaussian sigma), metres.")
 @click.option("--dual-noise", type=click.FloatRange(min=0.0, max=1.0), default=None,
@@ -86,7 +84,7 @@ log = logging.getLogger(__name__)
 @click.option("--photons", "photon_table", type=click.Path(dir_okay=False), default=None,
               help="Also write every realisation's photons with truth (.parquet/.gpkg/.csv).")
 @click.option("--report", type=click.Path(file_okay=False), default=None,
-              help="Folder for the seed-002 table (CSV), residuals by cover (CSV), the "
+              help="Folder for the table of errors against truth (CSV), residuals by cover (CSV), the "
                    "cover plot (PNG) and the per-footprint truth (CSV).")
 @click.pass_context
 def simulate_cmd(ctx: click.Context, las: tuple[str, ...], sensor: str, azimuth: float | None,

@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 import logging
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import click
 
 from .common import vertical_options
+from .vocabulary import deprecated_option, deprecated_value, take_alias
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -28,14 +29,22 @@ def register(group: click.Group) -> None:
               help="90th-percentile surface GeoTIFF.")
 @click.option("--atl08", type=click.Path(dir_okay=False),
               help="Validate against ATL08 land segments instead of rasters.")
-@click.option("--reference", "reference", type=click.Choice(["rasters", "atl08", "footprint"]),
-              default=None, help="Reference for blocks: corridor rasters (default), ATL08, "
+@click.option("--reference", "reference",
+              type=click.Choice(["corridor", "atl08", "footprint", "rasters"]),
+              metavar="[corridor|atl08|footprint]", default=None, help="Reference for blocks: corridor rasters (default), ATL08, "
               "or the footprint-matched airborne points (--points). Footprint tables (GEDI) "
               "always use the footprint reference.")
 @click.option("--points", "points", multiple=True, type=click.Path(dir_okay=False),
               help="Airborne LAS/LAZ tile for the footprint reference (repeatable).")
 @click.option("--diameter", type=float, default=None,
               help="Footprint diameter, m (default 13 for blocks, 22 for GEDI footprints).")
+@click.option("--cut", type=float, default=None,
+              help="Footprint reference: points within cut x R count (default 1 for blocks, "
+                   "1.5 = 3 sigma for GEDI footprints).")
+@click.option("--weighting", type=click.Choice(["gaussian", "gaussian_density"]),
+              default=None, help="Footprint reference: Gaussian weights, optionally divided "
+              "by the points per 1.5 m cell (default gaussian for blocks, gaussian_density "
+              "for GEDI footprints).")
 @click.option("--points-crs", help="CRS of tiles that state none.")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Output .gpkg (layers residuals, stats), or .csv/.parquet.")
@@ -56,8 +65,9 @@ def register(group: click.Group) -> None:
 @click.option("--coregister-vertical", is_flag=True,
               help="With --coregister: also apply the vertical offset (it then absorbs the "
                    "ground bias, which is reported as zero).")
-@click.option("--coregister-range", type=float, default=15.0, show_default=True,
-              help="With --coregister: search +- this many metres.")
+@click.option("--search-range", type=float, default=15.0, show_default=True,
+              help="With --coregister: search +- this many metres along and across the track.")
+@deprecated_option("--coregister-range", "old_range", type=float)
 @click.option("--coregister-photons", type=click.Path(dir_okay=False),
               help="With --coregister: find the offset from these photons (the file the "
                    "blocks were made from) instead of the blocks; the same offsets as "
@@ -67,11 +77,12 @@ def register(group: click.Group) -> None:
 @click.pass_context
 def validate(ctx: click.Context, blocks_path: str, dtm: str | None, dsm_max: str | None,
              dsm_p90: str | None, atl08: str | None, reference: str | None,
-             points: tuple[str, ...], diameter: float | None, points_crs: str | None,
+             points: tuple[str, ...], diameter: float | None, cut: float | None,
+             weighting: str | None, points_crs: str | None,
              output: str, width: float, geoid: str | None, offset: float | None,
              reference_vcrs: str | None, photon_vcrs: str, slope_threshold: float,
              blocks_crs: str | None, coregister: bool, coregister_vertical: bool,
-             coregister_range: float, coregister_photons: str | None,
+             search_range: float, old_range: float | None, coregister_photons: str | None,
              plots: str | None) -> None:
     """Validate a block table (or GEDI footprints) against reference lidar.
 
@@ -85,14 +96,19 @@ def validate(ctx: click.Context, blocks_path: str, dtm: str | None, dsm_max: str
     from ..validation.validation_files import is_footprint_table, validate_file
     from .common import progress_bar
 
+    search_range = take_alias(search_range, old_range, old="--coregister-range",
+                              new="--search-range", default=15.0)
+    reference = deprecated_value(reference, option="--reference", old="rasters", new="corridor")
     if reference is None:
         reference = "atl08" if atl08 is not None else ("footprint" if points and dtm is None
-                                                      else "rasters")
+                                                      else "corridor")
     footprints = is_footprint_table(blocks_path)
+    given: dict[str, Any] = {k: v for k, v in (("diameter", diameter), ("cut", cut),
+                                               ("weighting", weighting)) if v is not None}
     fparams = None
-    if diameter is not None:
-        fparams = (FootprintReferenceParams(diameter=diameter) if footprints
-                   else FootprintReferenceParams.icesat2(diameter=diameter))
+    if given:  # the sensor's footprint, with what was given changed
+        fparams = (FootprintReferenceParams.gedi(**given) if footprints
+                   else FootprintReferenceParams.icesat2(**given))
     quiet = bool(ctx.obj.get("quiet")) if ctx.obj else False
     with progress_bar("validate", quiet=quiet) as prog:
         result = validate_file(
@@ -102,7 +118,7 @@ def validate(ctx: click.Context, blocks_path: str, dtm: str | None, dsm_max: str
             reference_vertical_crs=reference_vcrs, photon_vertical_crs=photon_vcrs,
             slope_threshold=slope_threshold, table_crs=blocks_crs, points_crs=points_crs,
             plots=plots, coregister=coregister, coregister_vertical=coregister_vertical,
-            coreg_params=CoregParams(search_range=coregister_range) if coregister else None,
+            coreg_params=CoregParams(search_range=search_range) if coregister else None,
             coregister_photons=coregister_photons,
             progress=prog)
     if result.coregistration is not None and not quiet:

@@ -13,7 +13,7 @@ from typing import Any, TypeVar
 
 import click
 
-__all__ = ["DEPRECATED_OPTIONS", "DEPRECATED_VALUES", "deprecated_option", "take_alias",
+__all__ = ["DEPRECATED_OPTIONS", "DEPRECATED_VALUES", "DEPRECATED_COMMANDS", "deprecated_option", "take_alias",
            "deprecated_value", "say_deprecated"]
 
 F = TypeVar("F", bound=Callable[..., Any])
@@ -22,11 +22,17 @@ F = TypeVar("F", bound=Callable[..., Any])
 DEPRECATED_OPTIONS: dict[tuple[str, str], str] = {
     ("simulate", "--preset"): "--photon-rate",
     ("simulate", "--beam"): "--beam-strength",
+    ("simulate", "--noise-rate"): "--background-rate",
     ("run", "--estimators"): "--preset",
     ("blocks", "--photons"): "--photon-layer",
     ("segments", "--photons"): "--photon-layer",
     ("coregister", "--range"): "--search-range",
     ("validate", "--coregister-range"): "--search-range",
+}
+
+#: Old command -> the command that replaces it (hidden, warns when run).
+DEPRECATED_COMMANDS: dict[str, str] = {
+    "validate-footprints": "validate",
 }
 
 #: (command, option, old value) -> the value that replaces it.

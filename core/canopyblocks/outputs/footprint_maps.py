@@ -80,6 +80,41 @@ def _dtm_window(dtm: str | os.PathLike[str], bounds: tuple[float, float, float, 
     return data, extent, abs(t.a), abs(t.e)
 
 
+def _dtm_crs(dtm: str | os.PathLike[str]) -> Any:
+    """The DTM's CRS (pyproj), or None when it states none or cannot be read."""
+    try:
+        import pyproj
+        import rasterio
+
+        with rasterio.open(dtm) as src:
+            return None if src.crs is None else pyproj.CRS.from_user_input(src.crs.to_wkt())
+    except Exception:  # the map then draws without a hillshade, with a warning
+        return None
+
+
+def _in_dtm_crs(gdf: Any, dtm: str | os.PathLike[str] | None) -> Any:
+    """``gdf`` in the DTM's horizontal CRS when the two differ (so the hillshade lies under
+    the polygons); unchanged when either CRS is unknown."""
+    if dtm is None or getattr(gdf, "crs", None) is None or not os.path.exists(dtm):
+        return gdf
+    crs = _dtm_crs(dtm)
+    if crs is None:
+        return gdf
+    horiz = crs.sub_crs_list[0] if crs.is_compound else crs
+    gcrs = gdf.crs.sub_crs_list[0] if gdf.crs.is_compound else gdf.crs
+    return gdf if horiz.equals(gcrs) else gdf.to_crs(horiz)
+
+
+def _crs_label(gdf: Any) -> str:
+    """' EPSG:NNNN' of a GeoDataFrame's horizontal CRS for the axis labels, or ''."""
+    crs = getattr(gdf, "crs", None)
+    if crs is None:
+        return ""
+    horiz = crs.sub_crs_list[0] if crs.is_compound else crs
+    code = horiz.to_epsg()
+    return f", EPSG:{code}" if code else ""
+
+
 def plot_footprint_map(residuals: Any, column: str, path: str | os.PathLike[str], *,
                        dtm: str | os.PathLike[str] | None = None, only_used: bool = True,
                        title: str | None = None) -> Path:
@@ -89,13 +124,14 @@ def plot_footprint_map(residuals: Any, column: str, path: str | os.PathLike[str]
     ----------
     residuals : GeoDataFrame
         From :func:`~canopyblocks.validation.footprints.validate_footprints` (polygons in
-        a metric CRS).
+        a metric CRS; drawn in the DTM's CRS when a DTM in another CRS is given).
     column : str
         Column to colour by.
     path : path
         PNG to write (atomically).
     dtm : path, optional
-        DTM GeoTIFF in the same CRS, drawn as a hillshade underneath.
+        DTM GeoTIFF, drawn as a hillshade underneath (the polygons are reprojected to
+        its CRS when it differs).
     only_used : bool
         Colour only footprints with ``use``; the others are drawn as grey outlines.
     """
@@ -105,7 +141,7 @@ def plot_footprint_map(residuals: Any, column: str, path: str | os.PathLike[str]
     from matplotlib.colors import TwoSlopeNorm
     from matplotlib.patches import Polygon as MplPolygon
 
-    gdf = residuals
+    gdf = _in_dtm_crs(residuals, dtm)
     use = gdf["use"].to_numpy(bool) if (only_used and "use" in gdf.columns) else \
         np.ones(len(gdf), bool)
     vals = gdf[column].to_numpy(float)
@@ -145,14 +181,25 @@ def plot_footprint_map(residuals: Any, column: str, path: str | os.PathLike[str]
         ax.add_collection(pc)
         fig.colorbar(pc, ax=ax, shrink=0.8, label=_LABELS.get(column, column))
     if (~col).any():
+        from matplotlib.patches import Patch
+
         ax.add_collection(PatchCollection([p for p, c in zip(patches, col) if not c],
-                                          facecolor="none", edgecolor="0.5", linewidth=0.5))
+                                          facecolor="none", edgecolor="0.3", linewidth=0.8,
+                                          hatch="///"))
+        ax.legend(handles=[Patch(facecolor="none", edgecolor="0.3", hatch="///",
+                                 label=f"no value ({int((~col).sum())})")],
+                  loc="upper left", bbox_to_anchor=(0.0, -0.16), frameon=False, fontsize=8)
+    from matplotlib.ticker import MaxNLocator
+
     ax.set_xlim(bounds[0], bounds[2])
     ax.set_ylim(bounds[1], bounds[3])
     ax.set_aspect("equal")
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
+    where = _crs_label(gdf)
+    ax.set_xlabel(f"x (m{where})")
+    ax.set_ylabel(f"y (m{where})")
     ax.ticklabel_format(useOffset=False, style="plain")
+    ax.xaxis.set_major_locator(MaxNLocator(nbins=4))  # six-digit eastings must not touch
+    ax.tick_params(axis="x", labelrotation=30)
     import textwrap
 
     ax.set_title("\n".join(textwrap.wrap(title or f"Footprints: {_LABELS.get(column, column)} "
@@ -162,8 +209,10 @@ def plot_footprint_map(residuals: Any, column: str, path: str | os.PathLike[str]
 
 
 def plot_footprint_scatter(residuals: pd.DataFrame, path: str | os.PathLike[str], *,
-                           metrics: Sequence[str] = ("ground", "rh98")) -> Path:
-    """Footprint value vs footprint-matched reference, one panel per metric."""
+                           metrics: Sequence[str] = ("ground", "rh98"),
+                           datum: str | None = None) -> Path:
+    """Footprint value vs footprint-matched reference, one panel per metric; ``datum``
+    (e.g. 'CGVD28 height', the reference's) is named on the ground elevation axes."""
     sub = residuals[residuals["use"].to_numpy(bool)] if "use" in residuals else residuals
     fig, axes = new_figure(figsize=(3.8 * len(metrics), 3.9), ncols=len(metrics),
                            squeeze=False)
@@ -184,8 +233,11 @@ def plot_footprint_scatter(residuals: pd.DataFrame, path: str | os.PathLike[str]
             ax.set_xlim(lim)
             ax.set_ylim(lim)
             ax.set_aspect("equal")
-        ax.set_xlabel(f"ALS reference {_LABELS.get(m, m)}")
-        ax.set_ylabel(f"footprint {_LABELS.get(m, m)}")
+        label = _LABELS.get(m, m)
+        if m == "ground" and datum:
+            label = f"ground (m, {datum})"
+        ax.set_xlabel(f"ALS reference {label}")
+        ax.set_ylabel(f"footprint {label}")
         ax.text(0.03, 0.97, f"n = {st['n']}\nRMSE = {st['rmse']:.2f}\nbias = {st['bias']:+.2f}",
                 transform=ax.transAxes, va="top", ha="left", fontsize=8,
                 bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "0.8"})
@@ -194,11 +246,13 @@ def plot_footprint_scatter(residuals: pd.DataFrame, path: str | os.PathLike[str]
 
 
 def write_footprint_plots(residuals: Any, folder: str | os.PathLike[str], *,
-                          dtm: str | os.PathLike[str] | None = None) -> list[Path]:
+                          dtm: str | os.PathLike[str] | None = None,
+                          datum: str | None = None) -> list[Path]:
     """``footprints_scatter.png``, ``footprints_rh98.png``, ``footprints_res_rh98.png``,
-    ``footprints_res_ground.png`` into ``folder``."""
+    ``footprints_res_ground.png`` into ``folder`` (``datum``: the reference's vertical
+    datum, named on the ground axes)."""
     out = Path(folder)
-    paths = [plot_footprint_scatter(residuals, out / "footprints_scatter.png")]
+    paths = [plot_footprint_scatter(residuals, out / "footprints_scatter.png", datum=datum)]
     for c in ("rh98", "res_rh98", "res_ground"):
         paths.append(plot_footprint_map(residuals, c, out / f"footprints_{c}.png", dtm=dtm))
     log.info("wrote %d footprint figures to %s", len(paths), out)

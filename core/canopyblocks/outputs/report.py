@@ -15,7 +15,7 @@ from ..progress import Progress
 from .atomic import atomic_output, atomic_outputs, will_exist
 
 __all__ = ["ReportSection", "write_report", "report_stats_table", "footprint_stats_table",
-           "STATS_HEADERS"]
+           "calibration_table", "STATS_HEADERS", "CALIBRATION_HEADERS"]
 
 log = logging.getLogger(__name__)
 
@@ -47,6 +47,33 @@ STATS_HEADERS: dict[str, str] = {
     "bias": "bias (m)", "rmse": "RMSE (m)", "mae": "MAE (m)", "slope": "slope (m/m)",
     "r2": "r2",
 }
+
+
+#: Report headers of the calibration tables (cut-offs and bias), with units.
+CALIBRATION_HEADERS: dict[str, str] = {
+    "length": "length (m)", "metric": "metric", "strength": "beam strength",
+    "top_cutoff": "top cut-off, fitted", "ground_cutoff": "ground cut-off, fitted",
+    "default_top_cutoff": "top cut-off, default",
+    "default_ground_cutoff": "ground cut-off, default",
+    "n": "n (blocks)", "n_holdout": "n held out (blocks)",
+    **{f"rmse_{m}_{k}": f"{m} RMSE, {'fitted' if k == 'calibrated' else k} cut-offs (m)"
+       for m in ("top", "ground", "hmax") for k in ("default", "calibrated")},
+    "slope": "slope (m/m)", "intercept": "correction added (m)",
+    "rmse_before": "RMSE before (m)", "rmse_after": "RMSE after (m)",
+    "holdout_rmse_before": "held-out RMSE before (m)",
+    "holdout_rmse_after": "held-out RMSE after (m)",
+}
+
+
+def calibration_table(table: pd.DataFrame) -> pd.DataFrame:
+    """A calibration table (cut-offs or bias) as the report shows it: lengths and counts
+    as integers, headers in words with units (so they wrap on a narrow page).  A bias
+    calibration's intercept is its correction and is kept."""
+    df = pd.DataFrame(table).drop(columns=["geometry"], errors="ignore").copy()
+    for c in ("length", "n", "n_holdout"):
+        if c in df.columns:
+            df[c] = pd.to_numeric(df[c], errors="coerce").round().astype("Int64")
+    return df.rename(columns=CALIBRATION_HEADERS)
 
 
 def report_stats_table(stats: pd.DataFrame) -> pd.DataFrame:

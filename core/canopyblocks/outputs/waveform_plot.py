@@ -22,7 +22,8 @@ from ..waveforms.details import ShotDetails
 from .atomic import atomic_output
 from .plotting import new_figure, save_figure
 
-__all__ = ["plot_waveform", "waveform_html", "plots_index", "WaveformMarkers", "waveform_markers"]
+__all__ = ["plot_waveform", "waveform_html", "plots_index", "WaveformMarkers", "waveform_markers",
+           "elevation_datum"]
 
 RH_MARKED: tuple[int, ...] = (25, 50, 75, 98)
 
@@ -49,6 +50,28 @@ def waveform_markers(d: ShotDetails) -> WaveformMarkers:
                            tuple(float(m) for m in np.asarray(d.modes, float)), rh,
                            float(d.noise_mean), float(d.front_threshold),
                            float(d.back_threshold))
+
+
+def elevation_datum(source: str | os.PathLike[str]) -> str:
+    """The vertical datum of an L1B file's elevations, as the plot's axis names it: the
+    WGS84 ellipsoid (GEDI), or the datum a simulated file states in its
+    ``vertical_datum`` attribute (the airborne tiles' own, e.g. 'CGVD28 height')."""
+    try:
+        import h5py
+        import pyproj
+
+        with h5py.File(source, "r") as f:
+            stated = f.attrs.get("vertical_datum") if "simulated" in f.attrs else None
+        if stated is None:
+            return "WGS84 ellipsoid"
+        crs = pyproj.CRS.from_user_input(stated.decode() if isinstance(stated, bytes)
+                                         else str(stated))
+    except Exception:  # not an HDF5 file or an unreadable datum: GEDI's own
+        return "WGS84 ellipsoid"
+    for sub in (crs.sub_crs_list if crs.is_compound else [crs]):
+        if sub.is_vertical:
+            return str(sub.name)
+    return "WGS84 ellipsoid" if crs.to_epsg() == 4979 else str(crs.name)
 
 
 def plot_waveform(details: ShotDetails, path: str | os.PathLike[str], *,

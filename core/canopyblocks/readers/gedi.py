@@ -133,11 +133,6 @@ def gedi_vertical_datum(path: str | os.PathLike[str]) -> str:
     return stated.strip() if isinstance(stated, str) and stated.strip() else GEDI_ELLIPSOID
 
 
-def vertical_datum_label(datum: str) -> str:
-    """How a plot names the datum: ``WGS84 ellipsoid`` or the CRS itself."""
-    return "WGS84 ellipsoid" if datum == GEDI_ELLIPSOID else datum
-
-
 def is_gedi_l1b(path: str | os.PathLike[str]) -> bool:
     """True when ``path`` is an HDF5 file with a ``BEAMxxxx/rxwaveform`` dataset."""
     try:

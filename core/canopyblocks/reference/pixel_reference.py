@@ -13,6 +13,12 @@ across the track). Per waveform (a group of pixels), from the airborne points al
 ``ref_height_p99``
     99th percentile of the elevations of those points (nearest rank below) minus
     ``ref_ground``: a top a waveform's energy can show.
+``ref_height_chm``
+    Canopy height as the flash-lidar paper's reference had it: a 1 m canopy height
+    model of maximum elevations (highest point per 1 m cell of the CRS grid minus the
+    terrain at the cell's centre; 0 where a cell has no point), read at each pixel
+    centre and averaged over the group's pixels: the mean canopy surface the waveform
+    sees, where ``ref_height`` is its single highest point.
 ``ref_points``
     Points inside the group's pixels.
 
@@ -108,6 +114,11 @@ def pixel_reference(points: LasPoints, pixel_x: npt.ArrayLike, pixel_y: npt.Arra
     with np.errstate(invalid="ignore", divide="ignore"):
         ground = np.where(c > 0, s / c, np.nan)
     top = np.where(np.isfinite(top), top, np.nan)
+    chm = _chm_at_pixels(x[ok], y[ok], z[ok], px, py, tin)
+    fc = np.isfinite(chm)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        chm_mean = (np.bincount(g[fc], weights=chm[fc], minlength=n_groups)
+                    / np.bincount(g[fc], minlength=n_groups))
     # 99th percentile per group: sort by (group, z), take the rank floor(0.99 (count - 1))
     order = np.lexsort((zin, g[pix]))
     zs = zin[order]
@@ -116,4 +127,26 @@ def pixel_reference(points: LasPoints, pixel_x: npt.ArrayLike, pixel_y: npt.Arra
     p99 = np.where(count > 0, zs[np.minimum(rank, max(zs.size - 1, 0))] if zs.size
                    else np.nan, np.nan)
     return pd.DataFrame({"ref_ground": ground, "ref_top": top, "ref_height": top - ground,
-                         "ref_height_p99": p99 - ground, "ref_points": count})
+                         "ref_height_p99": p99 - ground, "ref_height_chm": chm_mean,
+                         "ref_points": count})
+
+
+def _chm_at_pixels(x: np.ndarray, y: np.ndarray, z: np.ndarray, px: np.ndarray,
+                   py: np.ndarray, tin: LinearNDInterpolator) -> np.ndarray:
+    """The 1 m maximum-elevation canopy height model (m) at the pixel centres: the
+    highest point of the 1 m cell holding the centre minus the terrain (``tin``) at the
+    cell's centre; 0 for a cell without points (open ground); NaN off the terrain."""
+    ix, iy = np.floor(x).astype(np.int64), np.floor(y).astype(np.int64)
+    qx, qy = np.floor(px).astype(np.int64), np.floor(py).astype(np.int64)
+    x0 = min(int(ix.min()), int(qx.min())) if ix.size else int(qx.min())
+    y0 = min(int(iy.min()), int(qy.min())) if iy.size else int(qy.min())
+    span = max(int(iy.max()) if iy.size else 0, int(qy.max())) - y0 + 1
+    key = (ix - x0) * span + (iy - y0)
+    cells, inv = np.unique(key, return_inverse=True)
+    zmax = np.full(cells.size, -np.inf)
+    np.maximum.at(zmax, inv.ravel(), z)
+    qkey = (qx - x0) * span + (qy - y0)
+    pos = np.clip(np.searchsorted(cells, qkey), 0, max(cells.size - 1, 0))
+    hit = (cells[pos] == qkey) if cells.size else np.zeros(qkey.size, bool)
+    terrain = tin(qx + 0.5, qy + 0.5)
+    return np.where(hit, np.maximum(zmax[pos] - terrain, 0.0), 0.0) + 0.0 * terrain

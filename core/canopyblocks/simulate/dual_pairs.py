@@ -182,7 +182,8 @@ def simulate_dual_pairs(n: int, params: DualSimParams | None = None, *, seed: in
 
 def dual_cover_study(covers: tuple[float, ...] = (0.1, 0.3, 0.5, 0.7, 0.9), *,
                      slope: float = 30.0, n: int = 100, noise: float = PAPER_NOISE,
-                     seed: int = 0, method: str = "paper") -> pd.DataFrame:
+                     seed: int = 0, method: str = "paper", canopy_base: float = 8.0
+                     ) -> pd.DataFrame:
     """Ground error against canopy cover (the dual-wavelength paper's figure 8: 100
     waveforms per cover on a 30 degree slope with 5 % noise): dual-wavelength centre and
     the lowest-mode ground of the near-infrared waveform (L2A-style, setting a1).
@@ -191,14 +192,16 @@ def dual_cover_study(covers: tuple[float, ...] = (0.1, 0.3, 0.5, 0.7, 0.9), *,
     ``dual_sd``, ``dual_rmse``, ``mode_bias``, ``mode_sd``, ``mode_rmse`` (m, estimate
     minus the ground elevation at the footprint centre), and ``height_bias``,
     ``height_rmse`` (m, the dual-wavelength tree height, first return to ground start,
-    minus the trees' height ``canopy_top`` of the scene).
+    minus the trees' height ``canopy_top`` of the scene; NaN at cover 0, which has no
+    trees). ``canopy_base``: the crowns' lowest height above the ground (m; low crowns
+    blur the ground return as understory does).
     """
     from ..waveforms.dual_wavelength import DualParams, dual_wavelength_ground
 
     rows = []
     for i, cover in enumerate(covers):
-        d = simulate_dual_pairs(n, DualSimParams(slope=slope, cover=cover, noise=noise),
-                                seed=seed + i)
+        d = simulate_dual_pairs(n, DualSimParams(slope=slope, cover=cover, noise=noise,
+                                                 canopy_base=canopy_base), seed=seed + i)
         g = dual_wavelength_ground(d.visible, d.nir, noise_mean=d.noise_mean,
                                    noise_sd=d.noise_sd, params=DualParams(method=method))
         err = d.position_to_elevation(g.centre) - d.ground_centre
@@ -210,7 +213,7 @@ def dual_cover_study(covers: tuple[float, ...] = (0.1, 0.3, 0.5, 0.7, 0.9), *,
             row[f"{name}_sd"] = float(e.std(ddof=1)) if e.size > 1 else float("nan")
             row[f"{name}_rmse"] = float(np.sqrt(np.mean(e ** 2))) if e.size else float("nan")
         he = g.tree_height(d.bin_size) - DualSimParams().canopy_top
-        he = he[np.isfinite(he)]
+        he = he[np.isfinite(he)] if cover > 0 else he[:0]
         row["height_bias"] = float(he.mean()) if he.size else float("nan")
         row["height_rmse"] = float(np.sqrt(np.mean(he ** 2))) if he.size else float("nan")
         rows.append(row)

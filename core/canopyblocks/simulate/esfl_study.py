@@ -35,17 +35,22 @@ def _r2(a: np.ndarray, b: np.ndarray) -> float:
 def esfl_compare(res: pd.DataFrame, ref: pd.DataFrame) -> dict[str, float]:
     """Accuracy of one chain result against its reference (rows aligned).
 
-    Returns ``n``, ``outliers_pct`` and terrain/height ``r2``, ``rmse``, ``bias``, ``sd``
-    (m; estimate minus reference).
+    Returns ``n``, ``outliers_pct`` and, for ``terrain``, ``height`` (against the
+    highest point in the pixels) and ``height_chm`` (against the mean of the 1 m
+    maximum-elevation canopy height model over the pixels, the paper's kind of
+    reference): ``r2``, ``rmse``, ``bias``, ``sd`` and the robust ``nmad`` (1.4826 x the
+    median absolute deviation from the median: the spread without the tails), m,
+    estimate minus reference.
     """
     out = res["outlier"].to_numpy(bool)
     t = res["terrain"].to_numpy(float)
     h = res["height"].to_numpy(float)
     rg = ref["ref_ground"].to_numpy(float)
     rh = ref["ref_height"].to_numpy(float)
+    rc = ref["ref_height_chm"].to_numpy(float)
     row: dict[str, float] = {"n": int(len(res)), "outliers_pct": 100.0 * float(out.mean())
                              if len(res) else float("nan")}
-    for name, est, want in (("terrain", t, rg), ("height", h, rh)):
+    for name, est, want in (("terrain", t, rg), ("height", h, rh), ("height_chm", h, rc)):
         ok = ~out & np.isfinite(est) & np.isfinite(want)
         e = est[ok] - want[ok]
         row[f"{name}_n"] = int(ok.sum())
@@ -53,6 +58,10 @@ def esfl_compare(res: pd.DataFrame, ref: pd.DataFrame) -> dict[str, float]:
         row[f"{name}_rmse"] = float(np.sqrt(np.mean(e * e))) if e.size else float("nan")
         row[f"{name}_bias"] = float(e.mean()) if e.size else float("nan")
         row[f"{name}_sd"] = float(e.std(ddof=1)) if e.size > 1 else float("nan")
+        if name == "height":
+            row["ref_height_sd"] = float(want[ok].std(ddof=1)) if e.size > 1 else float("nan")
+        row[f"{name}_nmad"] = (1.4826 * float(np.median(np.abs(e - np.median(e))))
+                               if e.size else float("nan"))
     return row
 
 

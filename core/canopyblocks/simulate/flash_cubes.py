@@ -24,6 +24,7 @@ import pandas as pd
 
 from ..errors import InputError, NoUsableDataError
 from ..readers.las import LasPoints
+from .footprint_returns import footprint_index
 from .footprints import CloudIndex
 from .tracks import SimTrack, shots_along
 from .waveform_binning import bin_returns
@@ -54,9 +55,16 @@ class FlashSimParams:
     pulse_ns : float
         Pulse duration (FWHM, ns).
     spacing : float
-        Footprint spacing along the track.
+        Footprint spacing along the track (8.4 m: footprints side by side; the paper's
+        pulses were 1.7 m apart, 51.4 m/s at 30 Hz).
     noise_sd : float
         Sensor noise sd per pixel and bin, as a share of the mean brightest-pixel peak.
+    gate_cycle : bool
+        False: every footprint records all the range gates its scene needs (as if the
+        gates were taken in one place). True: as the paper flew, successive pulses record
+        one gate each in turn (pulse i gate ``i mod G``, G the most gates any footprint of
+        the line needs, stacked down from each footprint's highest point), so a cube holds
+        ``gate_bins`` bins and waveforms are whole only once the grid merges pulses.
     """
 
     footprint: float = 8.4
@@ -67,6 +75,7 @@ class FlashSimParams:
     pulse_ns: float = 4.0
     spacing: float = 8.4
     noise_sd: float = 0.05
+    gate_cycle: bool = False
 
     def __post_init__(self) -> None:
         for name in ("footprint", "pixel_size", "bin_size", "pulse_ns", "spacing"):
@@ -120,9 +129,7 @@ def simulate_flash_cubes(points: LasPoints, track: SimTrack,
     if sx.size > max_footprints:
         raise InputError(f"{sx.size} footprints exceed max_footprints={max_footprints}; use a "
                          "shorter track or a larger spacing")
-    ok = np.isfinite(points.x) & np.isfinite(points.y) & np.isfinite(points.z)
-    ids = np.flatnonzero(ok)
-    index = CloudIndex(points.x[ids], points.y[ids], points.z[ids])
+    index, ids = footprint_index(points)   # noise points (7, 18) are no surface
     half = p.pixels * p.pixel_size / 2
     pairs = index.pairs(sx, sy, half * math.sqrt(2.0))
     shot, pt = pairs.shot, pairs.point
@@ -170,12 +177,26 @@ def simulate_flash_cubes(points: LasPoints, track: SimTrack,
     peak = cubes.reshape(n, -1).max(axis=1)
     scale = float(np.mean(peak[peak > 0])) if (peak > 0).any() else 1.0
     cubes /= scale
+    if p.gate_cycle:
+        cubes, top = _cycle_gates(cubes, top, int(gates.max()), p)
     rng = np.random.default_rng(seed)
     if p.noise_sd > 0:
         cubes += rng.normal(0.0, p.noise_sd, cubes.shape)
     truth = _truth(index, points, ids, sx, sy, radius)
     return FlashSimulation(cubes, top, p.bin_size, sx, sy, truth, p.noise_sd,
                            (float(ux), float(uy)), p.pixel_size)
+
+
+def _cycle_gates(cubes: np.ndarray, top: np.ndarray, n_gates: int, p: FlashSimParams
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Pulse i keeps gate ``i mod n_gates`` of its stack (bins ``g * gate_bins`` on):
+    cubes (n, rows, cols, gate_bins) and the centre of their bin 0 (m)."""
+    n, rows, cols, m = cubes.shape
+    g = np.arange(n) % n_gates
+    j = g[:, None] * p.gate_bins + np.arange(p.gate_bins)[None, :]
+    sel = np.take_along_axis(cubes.reshape(n, rows * cols, m), j[:, None, :], axis=2)
+    return (np.ascontiguousarray(sel.reshape(n, rows, cols, p.gate_bins)),
+            top - g * p.gate_bins * p.bin_size)
 
 
 def _truth(index: CloudIndex, points: LasPoints, ids: np.ndarray, sx: np.ndarray,

@@ -37,6 +37,10 @@ from ..errors import InputError
 from ..progress import Progress, as_progress
 from .batch import WaveformBatch
 from .gauss_lm import _model_and_jacobian, fit_many
+from .gauss_start import MARGIN as _MARGIN
+from .gauss_start import MAX_SIGMA as _MAX_SIGMA
+from .gauss_start import MIN_SIGMA as _MIN_SIGMA
+from .gauss_start import FitStarts, fit_starts
 from .gauss_trf import trf_many
 
 __all__ = ["decompose_waveforms", "fit_gaussians"]
@@ -44,9 +48,6 @@ __all__ = ["decompose_waveforms", "fit_gaussians"]
 log = logging.getLogger(__name__)
 
 _SMOOTH = 3.0         # samples, the smoothing of the initial-peak search
-_MARGIN = 15          # samples added on both sides of the signal window
-_MIN_SIGMA = 2.0      # samples (GEDI's pulse sd is about 6.6 ns = 6.6 samples)
-_MAX_SIGMA = 60.0
 _FIT_ROWS = 2048     # shots fitted together at most
 
 
@@ -125,47 +126,37 @@ def _fit_one(prob: _Problem) -> np.ndarray:
         return prob.p0
 
 
-def _fit_all(problems: list[_Problem | None]) -> list[np.ndarray]:
-    """Gaussians (g, 3) of every problem, sorted by centre; the shots with the same
-    number of Gaussians are fitted together (:func:`.gauss_lm.fit_many`)."""
-    out: list[np.ndarray] = [np.zeros((0, 3)) for _ in problems]
-    by_count: dict[int, list[int]] = {}
-    for i, prob in enumerate(problems):
-        if prob is not None:
-            by_count.setdefault(len(prob.p0), []).append(i)
-    for n_par, idx in by_count.items():
-        for a in range(0, len(idx), _FIT_ROWS):
-            rows = idx[a:a + _FIT_ROWS]
-            probs = [problems[i] for i in rows]
-            width = max(pr.hi - pr.lo for pr in probs if pr is not None)
-            x = np.zeros((len(rows), width))
-            y = np.zeros((len(rows), width))
-            wt = np.zeros((len(rows), width))
-            p0 = np.empty((len(rows), n_par))
-            lower = np.empty_like(p0)
-            upper = np.empty_like(p0)
-            for k, pr in enumerate(probs):
-                assert pr is not None
-                length = pr.hi - pr.lo
-                x[k] = pr.lo + np.arange(width)
-                y[k, :length] = pr.y
-                wt[k, :length] = 1.0
-                p0[k], lower[k], upper[k] = pr.p0, pr.lower, pr.upper
-            if n_par > 3:
-                # Several Gaussians: several local minima, the path decides which one is
-                # reached: scipy's reflective trust region, step for step, on the batch
-                # (a plain Levenberg-Marquardt reached another minimum in 6 of the 64
-                # such bundled shots)
-                params = trf_many(x, y, wt, p0, lower, upper, 200 * (n_par // 3))
-                settled = np.isfinite(params).all(axis=1)
-            else:
-                params, settled = fit_many(x, y, wt, p0, lower, upper)
-            for k, i in enumerate(rows):
-                pr = problems[i]
-                assert pr is not None
-                p = params[k] if settled[k] else _fit_one(pr)
-                g = p.reshape(-1, 3)
-                out[i] = g[np.argsort(g[:, 1])]
+def _fit_group(resid: np.ndarray, st: FitStarts, rows: np.ndarray, n_gauss: int
+               ) -> np.ndarray:
+    """Gaussians (len(rows), n_gauss, 3) of the shots ``rows``, which all have
+    ``n_gauss``, each sorted by centre; fitted together, ``_FIT_ROWS`` at a time."""
+    n_par = 3 * n_gauss
+    out = np.empty((len(rows), n_gauss, 3))
+    for a in range(0, len(rows), _FIT_ROWS):
+        r = rows[a:a + _FIT_ROWS]
+        length = st.hi[r] - st.lo[r]
+        k = np.arange(int(length.max()))
+        x = (st.lo[r][:, None] + k).astype(np.float64)
+        wt = (k[None, :] < length[:, None]).astype(np.float64)
+        cols = np.minimum(st.lo[r][:, None] + k, resid.shape[1] - 1)
+        y = np.where(wt > 0, resid[r[:, None], cols], 0.0)
+        p0, lower, upper = st.p0[r, :n_par], st.lower[r, :n_par], st.upper[r, :n_par]
+        if n_par > 3:
+            # Several Gaussians: several local minima, the path decides which one is
+            # reached: scipy's reflective trust region, step for step, on the batch
+            # (a plain Levenberg-Marquardt reached another minimum in 6 of the 64
+            # such bundled shots)
+            params = trf_many(x, y, wt, p0, lower, upper, 200 * n_gauss)
+            settled = np.isfinite(params).all(axis=1)
+        else:
+            params, settled = fit_many(x, y, wt, p0, lower, upper)
+        for j in np.flatnonzero(~settled):
+            n = int(length[j])
+            params[j] = _fit_one(_Problem(y[j, :n], int(st.lo[r[j]]), int(st.hi[r[j]]),
+                                          p0[j], lower[j], upper[j]))
+        g = params.reshape(len(r), n_gauss, 3)
+        order = np.argsort(g[:, :, 1], axis=1)
+        out[a:a + len(r)] = np.take_along_axis(g, order[:, :, None], axis=1)
     return out
 
 
@@ -189,34 +180,57 @@ def fit_gaussians(y: npt.ArrayLike, threshold: float, *, max_gaussians: int = 10
         Amplitude (counts), centre and sigma (samples), sorted by centre; empty when
         nothing exceeds the threshold.
     """
-    y = np.asarray(y, dtype=np.float64)
-    s = gaussian_filter1d(y, smooth, mode="nearest")
-    return _fit_all([_problem(y, s, threshold, max_gaussians)])[0]
+    y = np.asarray(y, dtype=np.float64).reshape(1, -1)
+    s = gaussian_filter1d(y, smooth, axis=1, mode="nearest")
+    thr = np.array([float(threshold)])
+    st = fit_starts(y, s, np.array([y.shape[1]]), thr, np.array([y.shape[1] >= 3]),
+                    max_gaussians)
+    if not st.count[0]:
+        return np.zeros((0, 3))
+    return _fit_group(y, st, np.array([0]), int(st.count[0]))[0]
 
 
-def _lowest_peak(g: np.ndarray, m: int) -> float:
-    """Position (samples) of the lowest local maximum of the fitted model made by one of
-    the Gaussians ``g``: a Gaussian fitted to the trailing edge of a return (GEDI's pulse
-    is not symmetric) adds no peak of its own and so is not a ground."""
-    if not g.size:
-        return float("nan")
-    # only the grid points within reach of a centre (and one either side) can be such a
-    # peak: the model there, on the same grid, is the whole model's
-    reach = np.maximum(g[:, 2], 1.0)
-    n_grid = len(np.arange(0.0, m, 0.25))
-    i0 = max(0, int(np.floor(float((g[:, 1] - reach).min()) / 0.25)) - 1)
-    i1 = min(n_grid, int(np.ceil(float((g[:, 1] + reach).max()) / 0.25)) + 2)
-    x = np.arange(i0, max(i0, i1), dtype=np.float64) * 0.25
-    if x.size < 3:
-        return float("nan")
-    y = _model(x, g.reshape(-1))
-    peaks = np.flatnonzero((y[1:-1] > y[:-2]) & (y[1:-1] >= y[2:])) + 1
-    if peaks.size == 0:
-        return float("nan")
-    xp = x[peaks]
-    near = np.abs(xp[:, None] - g[None, :, 1]) <= np.maximum(g[None, :, 2], 1.0)
-    made = xp[near.any(axis=1)]
-    return float(made.max()) if made.size else float("nan")
+def _lowest_peaks(g: np.ndarray, good: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """Per shot, the position (samples) of the lowest local maximum of the model of its
+    ``good`` Gaussians ``g`` (R, k, 3) that one of them makes (NaN: none), on a grid of
+    0.25 samples over ``0 .. m``: a Gaussian fitted to the trailing edge of a return
+    (GEDI's pulse is not symmetric) adds no peak of its own and so is not a ground.
+
+    Only the grid points within reach of a centre (and one either side) can be such a
+    peak, and the model there, on the same grid, is the whole model's; the grids of all
+    shots are laid end to end and the model summed Gaussian by Gaussian in centre order
+    (the others weighted 0), as the per-shot sum."""
+    n_rows, k = good.shape
+    out = np.full(n_rows, np.nan)
+    a = np.where(good, g[:, :, 0], 0.0)
+    c, w = g[:, :, 1], g[:, :, 2]
+    reach = np.maximum(w, 1.0)
+    with np.errstate(invalid="ignore"):
+        lo = np.floor(np.where(good, c - reach, np.inf).min(axis=1) / 0.25) - 1
+        hi = np.ceil(np.where(good, c + reach, -np.inf).max(axis=1) / 0.25) + 2
+    has = good.any(axis=1)
+    i0 = np.where(has, np.maximum(0, lo), 0).astype(np.int64)
+    i1 = np.where(has, np.minimum(4 * m, hi), 0).astype(np.int64)
+    length = np.maximum(i1 - i0, 0)
+    length[length < 3] = 0
+    if not length.any():
+        return out
+    row = np.repeat(np.arange(n_rows), length)
+    first = np.cumsum(length) - length
+    step = np.arange(len(row)) - first[row]
+    x = (i0[row] + step).astype(np.float64) * 0.25
+    y = a[row, 0] * np.exp(-0.5 * ((x - c[row, 0]) / w[row, 0]) ** 2)
+    for j in range(1, k):
+        y = y + a[row, j] * np.exp(-0.5 * ((x - c[row, j]) / w[row, j]) ** 2)
+    inner = np.flatnonzero((step >= 1) & (step <= length[row] - 2))
+    pk = inner[(y[inner] > y[inner - 1]) & (y[inner] >= y[inner + 1])]
+    rp, xp = row[pk], x[pk]
+    made = ((np.abs(xp[:, None] - c[rp]) <= reach[rp]) & good[rp]).any(axis=1)
+    rp, xp = rp[made], xp[made]
+    if len(rp):   # the grid is ascending within a shot: its last peak is the highest
+        last = np.append(rp[1:] != rp[:-1], True)
+        out[rp[last]] = xp[last]
+    return out
 
 
 def _smooth_by_length(resid: np.ndarray, n_samples: np.ndarray, rows: np.ndarray,
@@ -263,41 +277,45 @@ def decompose_waveforms(batch: WaveformBatch, *, max_gaussians: int = 10,
     n = len(batch)
     ground = np.full(n, np.nan)
     top = np.full(n, np.nan)
-    count = np.zeros(n, dtype=np.int64)
-    gaussians: list[np.ndarray] = []
     resid = batch.waveforms.astype(np.float64) - batch.noise_mean[:, None]
     resid[~batch.sample_mask()] = 0.0
     thr = k * np.asarray(batch.noise_sd, dtype=np.float64)
     step = np.where(batch.n_samples > 1, (batch.elev_lastbin - batch.elev_bin0)
                     / np.maximum(batch.n_samples - 1, 1), np.nan)
-    usable = (batch.n_samples >= 3) & np.isfinite(thr) & (thr > 0)
-    smoothed = _smooth_by_length(resid, batch.n_samples, usable, "nearest")
-    problems = [_problem(resid[i, :int(batch.n_samples[i])],
-                         smoothed[i, :int(batch.n_samples[i])], float(thr[i]), max_gaussians)
-                if usable[i] else None for i in range(n)]
+    n_samples = np.asarray(batch.n_samples, dtype=np.int64)
+    usable = (n_samples >= 3) & np.isfinite(thr) & (thr > 0)
+    smoothed = _smooth_by_length(resid, n_samples, usable, "nearest")
+    st = fit_starts(resid, smoothed, n_samples, thr, usable, max_gaussians)
+    count = st.count
     prog.update(0.1, f"decomposition {batch.beam}: fitting {n} shots")
-    fits = _fit_all(problems)
-    prog.update(0.9, f"decomposition {batch.beam}: {n} shots fitted")
-    top_smooth = _smooth_by_length(resid, batch.n_samples, usable, "reflect")
-    for i in range(n):   # per shot: a few Gaussians each
-        m = int(batch.n_samples[i])
-        g = fits[i]
-        if g.size:
-            energy = g[:, 0] * g[:, 2]
-            share = energy / energy.sum() if energy.sum() > 0 else np.zeros(len(g))
-            good = (g[:, 0] >= thr[i]) & (share >= min_share)
-            count[i] = len(g)
-            pos = _lowest_peak(g[good], m)
-            if np.isfinite(pos):
-                ground[i] = batch.elev_bin0[i] + pos * step[i]
-            first = np.flatnonzero(top_smooth[i, :m] > thr[i])
-            if first.size:
-                top[i] = batch.elev_bin0[i] + first[0] * step[i]
-        gaussians.append(np.column_stack([g[:, 0], batch.elev_bin0[i] + g[:, 1] * step[i],
-                                          np.abs(g[:, 2] * step[i])]) if g.size else g)
+    # the top: the first sample of the (reflect-)smoothed waveform above the threshold
+    top_smooth = _smooth_by_length(resid, n_samples, count > 0, "reflect")
+    above = (top_smooth > thr[:, None]) & (np.arange(resid.shape[1]) < n_samples[:, None]) \
+        & (count > 0)[:, None]
+    first = np.argmax(above, axis=1)
+    top = np.where(above.any(axis=1), batch.elev_bin0 + first * step, top)
+    ends = np.cumsum(count)
+    table = np.empty((int(ends[-1]) if n else 0, 3))
+    for n_gauss in np.unique(count[count > 0]).tolist():
+        rows = np.flatnonzero(count == n_gauss)
+        g = _fit_group(resid, st, rows, n_gauss)
+        energy = g[:, :, 0] * g[:, :, 2]
+        total = energy.sum(axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            share = np.where(total[:, None] > 0, energy / total[:, None], 0.0)
+        good = (g[:, :, 0] >= thr[rows, None]) & (share >= min_share)
+        pos = np.concatenate([_lowest_peaks(g[a:a + _FIT_ROWS], good[a:a + _FIT_ROWS],
+                                            n_samples[rows[a:a + _FIT_ROWS]])
+                              for a in range(0, len(rows), _FIT_ROWS)])
+        ground[rows] = np.where(np.isfinite(pos), batch.elev_bin0[rows] + pos * step[rows],
+                                np.nan)
+        at = (ends[rows] - n_gauss)[:, None] + np.arange(n_gauss)
+        table[at, 0] = g[:, :, 0]
+        table[at, 1] = batch.elev_bin0[rows, None] + g[:, :, 1] * step[rows, None]
+        table[at, 2] = np.abs(g[:, :, 2] * step[rows, None])
     prog.update(1.0, f"decomposition {batch.beam}: {n} shots")
     out = pd.DataFrame({"shot_number": np.asarray(batch.shot_number).astype(np.int64),
                         "ground_gauss": ground, "top_gauss": top,
                         "height_gauss": top - ground, "n_gaussians": count})
-    out.attrs["gaussians"] = gaussians
+    out.attrs["gaussians"] = np.split(table, ends[:-1]) if n else []
     return out

@@ -8,7 +8,9 @@ Steps (all footprints of one flight line at once):
 2. waveforms: the selected pixels, geolocated, are merged on a regular grid (5 m): all
    pixels in one cell, from any footprint (and so any range gate), make one waveform,
    aligned by elevation (``cell = 0``: one waveform per footprint instead);
-3. noise: a Gaussian fitted to each waveform's value histogram; threshold mean + 4 sd;
+3. noise: a Gaussian fitted to each waveform's value histogram; threshold mean + 4 sd
+   (by default the maximum-likelihood fit to the histogram's half below its mode, where
+   no signal reaches; ``noise_fit="lsq"``: least squares to the counts around the mode);
 4. Gaussian decomposition (:func:`~canopyblocks.waveforms.decompose.fit_gaussians`);
    preliminary terrain = the centre of the lowest Gaussian whose amplitude reaches the
    threshold; top = the highest sample above the threshold;
@@ -34,7 +36,7 @@ from ..errors import InputError, NoUsableDataError
 from .decompose import fit_gaussians
 from .flash import footprint_mask
 from .mcc import MccParams, mcc_ground, terrain_surface
-from .noise import fit_histogram_noise
+from .noise import estimate_noise, fit_histogram_noise
 from .terrain_filter import terrain_outliers
 
 __all__ = ["EsflCubes", "EsflParams", "EsflWaveforms", "esfl_waveforms", "esfl_process",
@@ -115,6 +117,15 @@ class EsflParams:
         footprint.
     k : float
         Noise threshold in sd above the noise mean (4).
+    noise_fit : str
+        How the Gaussian is fitted to a waveform's value histogram: ``"ml"`` (maximum
+        likelihood: mean at the mode, refined by truncated means, sd from the values
+        below it; :func:`~canopyblocks.waveforms.noise.estimate_noise`) or ``"lsq"``
+        (least squares to the counts from 3 sd below the mode to 1 sd above;
+        :func:`~canopyblocks.waveforms.noise.fit_histogram_noise`). On 82 samples of pure
+        noise: sd 0.97 +- 0.13 and 1.00 +- 0.24 of the truth; the wider spread of
+        ``"lsq"`` lets noise peaks through as low Gaussians (tuning tiles, 5 % noise:
+        terrain SD 0.37 m against 1.20 m).
     max_gaussians : int
         Gaussians per waveform at most.
     smooth : float
@@ -132,6 +143,7 @@ class EsflParams:
     region: int = 4
     cell: float = 5.0
     k: float = 4.0
+    noise_fit: str = "ml"
     max_gaussians: int = 10
     smooth: float = 1.0
     mcc: MccParams | None = field(default_factory=lambda: MccParams(scale=5.0,
@@ -150,6 +162,8 @@ class EsflParams:
                              f"{self.cell!r}")
         if not (math.isfinite(self.k) and self.k > 0):
             raise InputError(f"k must be a positive number of sd; got {self.k!r}")
+        if self.noise_fit not in ("ml", "lsq"):
+            raise InputError(f"noise_fit must be 'ml' or 'lsq'; got {self.noise_fit!r}")
         if isinstance(self.max_gaussians, bool) or not isinstance(self.max_gaussians, int) \
                 or self.max_gaussians < 1:
             raise InputError(f"max_gaussians must be a positive integer; got "
@@ -253,7 +267,8 @@ def esfl_process(wf: EsflWaveforms, params: EsflParams | None = None) -> pd.Data
     w = np.asarray(wf.waveforms, float)
     nw, width = w.shape
     valid = np.isfinite(w)
-    noise = fit_histogram_noise(w, k=p.k, valid=valid)
+    fit = estimate_noise if p.noise_fit == "ml" else fit_histogram_noise
+    noise = fit(w, k=p.k, valid=valid)
     ground = np.full(nw, np.nan)
     top = np.full(nw, np.nan)
     count = np.zeros(nw, np.int64)

@@ -59,11 +59,11 @@ def _step_to_bound(x: FloatArray, s: FloatArray, lb: FloatArray, ub: FloatArray
     return m, hits
 
 
-def _quadratic(jh: FloatArray, gh: FloatArray, s: FloatArray, diag: FloatArray) -> FloatArray:
-    """scipy's ``evaluate_quadratic`` per row."""
-    js = np.einsum("bij,bj->bi", jh, s)
-    return 0.5 * (np.einsum("bi,bi->b", js, js) + np.einsum("bi,bi->b", s * diag, s)) \
-        + np.einsum("bi,bi->b", s, gh)
+def _quadratic(r: FloatArray, gh: FloatArray, s: FloatArray) -> FloatArray:
+    """scipy's ``evaluate_quadratic`` per row, ``0.5 s (J_h^T J_h + diag_h) s + g_h s``,
+    from the R factor of ``[J_h; diag_h^1/2]`` (``R^T R = J_h^T J_h + diag_h``)."""
+    rs = np.einsum("bij,bj->bi", r, s)
+    return 0.5 * np.einsum("bi,bi->b", rs, rs) + np.einsum("bi,bi->b", s, gh)
 
 
 def _min_quad_1d(a: FloatArray, b: FloatArray, lo: FloatArray, hi: FloatArray, c: FloatArray
@@ -120,18 +120,19 @@ def _solve_tr(m: FloatArray, uf: FloatArray, s: FloatArray, V: FloatArray, Delta
     return p, np.where(gn, 0.0, alpha)
 
 
-def _select_step(x: FloatArray, jh: FloatArray, diag: FloatArray, gh: FloatArray,
+def _select_step(x: FloatArray, rf: FloatArray, gh: FloatArray,
                  p: FloatArray, ph: FloatArray, d: FloatArray, Delta: FloatArray,
                  lb: FloatArray, ub: FloatArray, theta: FloatArray
                  ) -> tuple[FloatArray, FloatArray, FloatArray]:
-    """scipy's ``select_step`` per row: (step, step_h, predicted reduction)."""
+    """scipy's ``select_step`` per row: (step, step_h, predicted reduction); its
+    quadratic forms in ``J_h`` and ``diag_h`` taken with the R factor ``rf``."""
     inside = ((x + p >= lb) & (x + p <= ub)).all(axis=1)
     step, step_h = p.copy(), ph.copy()
-    pred = -_quadratic(jh, gh, ph, diag)
+    pred = -_quadratic(rf, gh, ph)
     out = np.nonzero(~inside)[0]
     if not len(out):
         return step, step_h, pred
-    x, jh, diag, gh = x[out], jh[out], diag[out], gh[out]
+    x, rf, gh = x[out], rf[out], gh[out]
     p, ph, d, Delta, lb, ub, theta = p[out], ph[out], d[out], Delta[out], lb[out], ub[out], \
         theta[out]
     p_stride, hits = _step_to_bound(x, p, lb, ub)
@@ -155,27 +156,25 @@ def _select_step(x: FloatArray, jh: FloatArray, diag: FloatArray, gh: FloatArray
     r_hi = np.where(r_stride > 0, np.where(r_stride == to_bound, theta * to_bound, to_tr), -1.0)
     can = r_lo <= r_hi
     # build_quadratic_1d(J_h, g_h, r_h, s0=p_h, diag)
-    v = np.einsum("bij,bj->bi", jh, r_h)
-    a1 = 0.5 * (np.einsum("bi,bi->b", v, v) + np.einsum("bi,bi->b", r_h * diag, r_h))
-    u = np.einsum("bij,bj->bi", jh, ph)
-    b1 = np.einsum("bi,bi->b", gh, r_h) + np.einsum("bi,bi->b", u, v) \
-        + np.einsum("bi,bi->b", ph * diag, r_h)
-    c1 = 0.5 * np.einsum("bi,bi->b", u, u) + np.einsum("bi,bi->b", gh, ph) \
-        + 0.5 * np.einsum("bi,bi->b", ph * diag, ph)
+    v = np.einsum("bij,bj->bi", rf, r_h)
+    a1 = 0.5 * np.einsum("bi,bi->b", v, v)
+    u = np.einsum("bij,bj->bi", rf, ph)
+    b1 = np.einsum("bi,bi->b", gh, r_h) + np.einsum("bi,bi->b", u, v)
+    c1 = 0.5 * np.einsum("bi,bi->b", u, u) + np.einsum("bi,bi->b", gh, ph)
     rs, r_value = _min_quad_1d(a1, b1, r_lo, r_hi, c1)
     r_h = r_h * rs[:, None] + ph
     r = r_h * d
     r_value = np.where(can, r_value, np.inf)
     p = p * theta[:, None]
     ph = ph * theta[:, None]
-    p_value = _quadratic(jh, gh, ph, diag)
+    p_value = _quadratic(rf, gh, ph)
     ag_h = -gh
     ag = d * ag_h
     to_tr2 = Delta / _norm(ag_h)
     to_b2, _ = _step_to_bound(x, ag, lb, ub)
     ag_stride = np.where(to_b2 < to_tr2, theta * to_b2, to_tr2)
-    va = np.einsum("bij,bj->bi", jh, ag_h)
-    a2 = 0.5 * (np.einsum("bi,bi->b", va, va) + np.einsum("bi,bi->b", ag_h * diag, ag_h))
+    va = np.einsum("bij,bj->bi", rf, ag_h)
+    a2 = 0.5 * np.einsum("bi,bi->b", va, va)
     b2 = np.einsum("bi,bi->b", gh, ag_h)
     ag_stride, ag_value = _min_quad_1d(a2, b2, np.zeros(len(a2)), ag_stride, np.zeros(len(a2)))
     ag_h = ag_h * ag_stride[:, None]
@@ -220,54 +219,60 @@ def trf_many(x: FloatArray, y: FloatArray, weight: FloatArray, p0: FloatArray,
     alpha = np.zeros(len(xk))
     nfev = np.ones(len(xk), dtype=np.int64)
     running = np.ones(len(xk), dtype=bool)
-    fresh = np.ones(len(xk), dtype=bool)
     n_par = xk.shape[1]
     width = x.shape[1]
     d = np.zeros_like(xk)
-    diag_h = np.zeros_like(xk)
     g_h = np.zeros_like(xk)
-    J_h = np.zeros_like(J)
     uf = np.zeros_like(xk)
     sv = np.zeros_like(xk)
     V = np.zeros((len(xk), n_par, n_par))
+    R = np.zeros((len(xk), n_par, n_par))
     theta = np.zeros(len(xk))
+    idx = np.arange(n_par)
+
+    def refresh(new: npt.NDArray[np.intp], jac: FloatArray) -> None:
+        """The start of scipy's outer iteration for the rows ``new`` (Jacobian ``jac``),
+        at a new point: the stopping test on the gradient, the scaling, and the SVD of
+        the augmented Jacobian [J_h; diag_h^1/2] by way of its R factor: R = U_r S V^T,
+        U^T f = U_r^T Q^T f, and Q^T f is the last column of the R factor of [J_h f]
+        (LAPACK's SVD of a tall matrix starts with the same QR). R also gives the
+        quadratic forms of the step selection (R^T R = J_h^T J_h + diag_h)."""
+        xr, gr = xk[new], g[new]
+        v = np.where(gr < 0, ub[new] - xr, np.where(gr > 0, xr - lb[new], 1.0))
+        dv = np.where(gr < 0, -1.0, np.where(gr > 0, 1.0, 0.0))
+        g_norm = np.abs(gr * v).max(axis=1)
+        stop = (g_norm < gtol) | (nfev[new] >= max_nfev)
+        running[new[stop]] = False
+        keep = ~stop
+        new, v, dv, gr, g_norm = new[keep], v[keep], dv[keep], gr[keep], g_norm[keep]
+        if not len(new):
+            return
+        v = np.where(dv != 0, v * scale_inv[new], v)
+        dn = v ** 0.5 * scale[new]
+        d[new] = dn
+        g_h[new] = dn * gr
+        aug = np.zeros((len(new), width + n_par, n_par + 1))
+        aug[:, :width, :n_par] = jac[keep] * dn[:, None, :]
+        aug[:, width + idx, idx] = (gr * dv * scale[new]) ** 0.5
+        aug[:, :width, n_par] = f[new]
+        r_ext: FloatArray = np.asarray(np.linalg.qr(aug, mode="r"))
+        R[new] = r_ext[:, :n_par, :n_par]
+        U, s_, Vt = np.linalg.svd(R[new])
+        sv[new] = s_
+        V[new] = np.swapaxes(Vt, 1, 2)
+        uf[new] = np.einsum("bki,bk->bi", U, r_ext[:, :n_par, n_par])
+        theta[new] = np.maximum(0.995, 1 - g_norm)
+
+    refresh(all_rows, J)
+    del J
     for _ in range(100 * max_nfev):
-        new = np.nonzero(running & fresh)[0]
-        if len(new):
-            xr, gr = xk[new], g[new]
-            v = np.where(gr < 0, ub[new] - xr, np.where(gr > 0, xr - lb[new], 1.0))
-            dv = np.where(gr < 0, -1.0, np.where(gr > 0, 1.0, 0.0))
-            g_norm = np.abs(gr * v).max(axis=1)
-            stop = (g_norm < gtol) | (nfev[new] >= max_nfev)
-            running[new[stop]] = False
-            keep = ~stop
-            new, v, dv, gr, g_norm = new[keep], v[keep], dv[keep], gr[keep], g_norm[keep]
-            if len(new):
-                v = np.where(dv != 0, v * scale_inv[new], v)
-                d[new] = v ** 0.5 * scale[new]
-                diag_h[new] = gr * dv * scale[new]
-                g_h[new] = d[new] * gr
-                jh = J[new] * d[new][:, None, :]
-                J_h[new] = jh
-                aug = np.zeros((len(new), width + n_par, n_par))
-                aug[:, :width] = jh
-                idx = np.arange(n_par)
-                aug[:, width + idx, idx] = diag_h[new] ** 0.5
-                f_aug = np.zeros((len(new), width + n_par))
-                f_aug[:, :width] = f[new]
-                U, s_, Vt = np.linalg.svd(aug, full_matrices=False)
-                sv[new] = s_
-                V[new] = np.swapaxes(Vt, 1, 2)
-                uf[new] = np.einsum("bki,bk->bi", U, f_aug)
-                theta[new] = np.maximum(0.995, 1 - g_norm)
-                fresh[new] = False
         act = np.nonzero(running)[0]
         if not len(act):
             break
         p_h, alpha_new = _solve_tr(m[act], uf[act], sv[act], V[act], Delta[act], alpha[act])
         alpha[act] = alpha_new
         p = d[act] * p_h
-        step, step_h, pred = _select_step(xk[act], J_h[act], diag_h[act], g_h[act], p, p_h,
+        step, step_h, pred = _select_step(xk[act], R[act], g_h[act], p, p_h,
                                           d[act], Delta[act], lb[act], ub[act], theta[act])
         x_new = _strictly_feasible(xk[act] + step, lb[act], ub[act], 0.0)
         f_new, J_new = evaluate(act, x_new)
@@ -292,16 +297,17 @@ def trf_many(x: FloatArray, y: FloatArray, weight: FloatArray, p0: FloatArray,
         Delta[act] = np.where(upd, D_new, np.where(finite, D_old, 0.25 * step_h_norm))
         accept = finite & (red > 0)
         acc = act[accept]
+        J_acc = J_new[accept]
         xk[acc] = x_new[accept]
         f[acc] = f_new[accept]
         cost[acc] = cost_new[accept]
-        J[acc] = J_new[accept]
-        g[acc] = np.einsum("bij,bi->bj", J_new[accept], f_new[accept])
-        si = np.sqrt(np.einsum("bij,bij->bj", J_new[accept], J_new[accept]))
+        g[acc] = np.einsum("bij,bi->bj", J_acc, f_new[accept])
+        si = np.sqrt(np.einsum("bij,bij->bj", J_acc, J_acc))
         scale_inv[acc] = np.maximum(si, scale_inv[acc])
         scale[acc] = 1 / scale_inv[acc]
-        fresh[acc] = True
         running[act[done]] = False
         # the inner loop also ends at max_nfev without a reduction
         running[act[~accept & (nfev[act] >= max_nfev)]] = False
+        go_on = running[acc]
+        refresh(acc[go_on], J_acc[go_on])
     return xk

@@ -24,12 +24,15 @@ from __future__ import annotations
 import logging
 import warnings
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import numpy.typing as npt
 import pandas as pd
+import pyproj
 
 from ..errors import CanopyBlocksWarning, DependencyError, InputError
+from ..geo import require_metric_crs, to_metric
 from ..progress import Progress, as_progress
 from ..schema import FOOTPRINT_COLUMNS
 from .arguments import check_waveform_args
@@ -44,6 +47,10 @@ from .scan import Scan, scan_shots
 from .settings import WaveformParams
 from .smoothing import smooth_subsampled
 from .terrain_filter import terrain_outliers
+
+if TYPE_CHECKING:
+    import geopandas as gpd
+    from geopandas.array import GeometryArray
 
 __all__ = ["process_waveforms", "shot_details", "RH_TABLE", "FLAG_CODES", "CHUNK_SHOTS",
            "UnusableWaveformWarning"]
@@ -223,7 +230,7 @@ def _ground_gauss(batch: WaveformBatch, progress: Progress) -> npt.NDArray[np.fl
 
 
 def process_waveforms(batch: WaveformBatch, params: WaveformParams | None = None, *,
-                      progress: Progress | None = None) -> pd.DataFrame:
+                      crs: Any = None, progress: Progress | None = None) -> gpd.GeoDataFrame:
     """Ground, top, RH, cover and flags of every shot of a batch (one beam).
 
     Parameters
@@ -232,21 +239,69 @@ def process_waveforms(batch: WaveformBatch, params: WaveformParams | None = None
         Waveforms of one beam (GEDI L1B or the simulator), with noise statistics.
     params : WaveformParams, optional
         Setting group and options (default: a1).
+    crs : CRS-like, optional
+        Metric projected CRS of the geometry (EPSG code, ``"EPSG:32618"``, WKT or
+        ``pyproj.CRS``). Default: the WGS84 UTM zone of the batch's footprints (the
+        zone of their centre), as the photon readers and ``canopyblocks waveforms``.
     progress : Progress, optional
         Progress and cancellation.
 
     Returns
     -------
-    pandas.DataFrame
+    geopandas.GeoDataFrame
         One row per shot in the batch's order, the columns of
-        :data:`canopyblocks.schema.FOOTPRINT_COLUMNS` (without geometry): ``lon``/``lat``
-        (degrees WGS84) of the footprint at the ground elevation (at the last bin where
-        there is no ground), ``ground``/``top`` (m, the batch's vertical datum),
-        ``rh*`` (m above ground, truncated to cm as L2A), ``cover``, ``penetration``
-        (0..1), ``n_modes``, ``setting``, ``flag``; ``rh0`` .. ``rh100`` with
+        :data:`canopyblocks.schema.FOOTPRINT_COLUMNS`: ``lon``/``lat`` (degrees WGS84) of
+        the footprint at the ground elevation (at the last bin where there is no
+        ground), ``ground``/``top`` (m, the batch's vertical datum), ``rh*`` (m above
+        ground, truncated to cm as L2A), ``cover``, ``penetration`` (0..1),
+        ``n_modes``, ``setting``, ``flag``; ``rh0`` .. ``rh100`` with
         ``params.all_rh``; ``ground_gauss`` (m) with ``params.decompose``. Values of
         ``no_signal`` shots are NaN; ``stale``/``degraded`` shots keep their values.
+        ``geometry``: PointZ at ``lon``/``lat`` projected to ``crs`` (x, y in metres)
+        with z = ``ground`` (NaN without a ground), as the ``footprints`` layer of
+        ``canopyblocks waveforms``; an empty point where ``lon``/``lat`` is not finite.
+        The GeoDataFrame's CRS is ``crs`` (None only when no shot has a position and
+        no ``crs`` is given).
+
+    Raises
+    ------
+    InputError, CRSError
+        A bad batch or parameters; a ``crs`` that is not metric and projected.
     """
+    import geopandas as gpd  # noqa: PLC0415 (workers read tables without geometry)
+
+    target = require_metric_crs(crs, "crs") if crs is not None else None
+    columns = _footprint_columns(batch, params, progress)
+    # one frame built from the columns (not a DataFrame wrapped again: half the cost)
+    columns["geometry"] = _points(columns, target)
+    return gpd.GeoDataFrame(columns, geometry="geometry")
+
+
+def _points(columns: dict[str, npt.NDArray[Any]], crs: pyproj.CRS | None) -> GeometryArray:
+    """PointZ at ``lon``/``lat`` in ``crs`` (default the UTM zone of the points),
+    z = ``ground``; empty points where the position is not finite."""
+    import shapely  # noqa: PLC0415
+    from geopandas.array import from_shapely  # noqa: PLC0415
+
+    lon, lat = columns["lon"], columns["lat"]
+    fin = np.isfinite(lon) & np.isfinite(lat)
+    geom = shapely.empty(len(lon), geom_type=shapely.GeometryType.POINT)
+    if fin.any():
+        x, y, crs = to_metric(lon[fin], lat[fin], crs)
+        geom[fin] = shapely.points(x, y, columns["ground"][fin])
+    return from_shapely(geom, crs=crs)
+
+
+def _footprint_table(batch: WaveformBatch, params: WaveformParams | None = None, *,
+                     progress: Progress | None = None) -> pd.DataFrame:
+    """:func:`process_waveforms`' columns without the geometry (for readers that add
+    their own over a whole beam: :mod:`canopyblocks.waveform_footprints`)."""
+    return pd.DataFrame(_footprint_columns(batch, params, progress))
+
+
+def _footprint_columns(batch: WaveformBatch, params: WaveformParams | None,
+                       progress: Progress | None) -> dict[str, npt.NDArray[Any]]:
+    """The footprint table's columns, in order (see :func:`process_waveforms`)."""
     check_waveform_args(batch, params, "process_waveforms")
     params = params if params is not None else WaveformParams()
     prog = as_progress(progress)
@@ -331,7 +386,7 @@ def process_waveforms(batch: WaveformBatch, params: WaveformParams | None = None
         columns.append("ground_gauss")
     columns.append("flag")
     prog.update(1.0, f"waveforms {batch.beam}: {n} shots")
-    return pd.DataFrame({c: table[c] for c in columns})
+    return {c: np.asarray(table[c]) for c in columns}
 
 
 def shot_details(batch: WaveformBatch, index: int, params: WaveformParams | None = None

@@ -83,7 +83,9 @@ def energy_positions(from_bottom: FloatArray, total: FloatArray, bottom: IntArra
     good = (total > 0) & (span >= 0)
     if not good.any() or w == 0:
         return out
-    share = from_bottom[good] / total[good][:, None]
+    # every row divided (no copy of the good ones); the others' shares are not used
+    with np.errstate(divide="ignore", invalid="ignore"):
+        share = from_bottom / total[:, None]
     b = bottom[good]
     top = b - span[good]
     for k, p in enumerate(pct):
@@ -93,7 +95,7 @@ def energy_positions(from_bottom: FloatArray, total: FloatArray, bottom: IntArra
             out[good, k] = top
         else:
             # the highest sub-sample reaching p % is bottom + 1 - j; RH is one below it
-            out[good, k] = b + 2 - _first_reaching(share, p / 100.0)
+            out[good, k] = b + 2 - _first_reaching(share, p / 100.0)[good]
     return out
 
 

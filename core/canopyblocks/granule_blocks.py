@@ -1,0 +1,170 @@
+"""Block heights over many granules at once: one table, with area and time filters.
+
+:func:`blocks_from_granules` runs :func:`~canopyblocks.track_blocks.blocks_from_file` on
+each granule, all in one metric CRS, and writes one block table with a ``granule``
+column (the file name).  Filters:
+
+* ``bbox`` (lon/lat degrees): photons read only inside it (as ``blocks --bbox``);
+* ``polygon`` (a vector file of polygons, any CRS): the blocks whose centre lies inside
+  the polygons are kept (the same blocks, edges and values as without it);
+* ``time_range`` (UTC): granules whose photons were all taken outside it are skipped
+  (ATL03: UTC from ``delta_time``, :mod:`canopyblocks.utc_time`).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from .errors import InputError, NoUsableDataError
+from .progress import Progress, as_progress
+
+__all__ = ["blocks_from_granules", "granule_time_span", "read_polygon", "parse_utc"]
+
+log = logging.getLogger(__name__)
+
+
+def parse_utc(text: str, what: str) -> np.datetime64:
+    """``2022-04-01`` or ``2022-04-01T22:00:00`` (UTC) as datetime64[ns]."""
+    try:
+        t = np.datetime64(str(text).strip().rstrip("Z"), "ns")
+    except ValueError:
+        raise InputError(f"{what} {text!r}: give a UTC date or date and time, e.g. "
+                         "2022-04-01 or 2022-04-01T22:00:00") from None
+    if np.isnat(t):
+        raise InputError(f"{what} {text!r}: not a date")
+    return t
+
+
+def granule_time_span(path: str | os.PathLike[str]) -> tuple[np.datetime64, np.datetime64]:
+    """First and last photon time (UTC) of an ATL03 granule, over all its beams."""
+    import h5py
+
+    from .utc_time import file_counts_from_sdp_epoch, utc_from_delta_time
+
+    if not file_counts_from_sdp_epoch(path):
+        raise InputError(f"{path}: written by canopyblocks (simulated), its delta_time "
+                         "counts from its first shot; leave --time out")
+
+    lo, hi = np.inf, -np.inf
+    try:
+        with h5py.File(path, "r") as f:
+            for beam in (k for k in f if k.startswith("gt")):
+                d = f.get(f"{beam}/heights/delta_time")
+                if d is not None and d.shape[0]:
+                    lo, hi = min(lo, float(d[0]), float(d[-1])), max(hi, float(d[0]),
+                                                                     float(d[-1]))
+    except OSError:
+        raise InputError(f"{path}: --time needs ATL03 granules (HDF5); this file is not "
+                         "one") from None
+    if not np.isfinite(lo):
+        raise InputError(f"{path}: no ATL03 photon times (gt*/heights/delta_time); "
+                         "--time needs ATL03 granules")
+    span = utc_from_delta_time([lo, hi])
+    if np.isnat(span).any():
+        raise InputError(f"{path}: its delta_time is not on the ICESat-2 clock (a simulated "
+                         "file?); leave --time out")
+    return span[0], span[1]
+
+
+def read_polygon(path: str | os.PathLike[str]) -> Any:
+    """The union of the polygons of a vector file, as a one-row GeoSeries with its CRS."""
+    import geopandas as gpd
+
+    try:
+        g = gpd.read_file(path)
+    except Exception as exc:  # pyogrio/fiona raise their own types
+        raise InputError(f"--polygon {path}: cannot read it as a vector file ({exc})") from None
+    poly = g[g.geometry.geom_type.isin(["Polygon", "MultiPolygon"])]
+    if not len(poly):
+        raise InputError(f"--polygon {path}: it holds no polygon")
+    if poly.crs is None:
+        raise InputError(f"--polygon {path}: it states no CRS; save it with one")
+    return gpd.GeoSeries([poly.geometry.union_all()], crs=poly.crs)
+
+
+def blocks_from_granules(paths: Sequence[str | os.PathLike[str]], params: Any, *,
+                         output: str | os.PathLike[str],
+                         bbox: tuple[float, float, float, float] | None = None,
+                         polygon: str | os.PathLike[str] | None = None,
+                         time_range: tuple[str, str] | None = None,
+                         crs: object = None, progress: Progress | None = None,
+                         **kwargs: Any) -> pd.DataFrame:
+    """One block table of several granules (column ``granule``), written to ``output``.
+
+    Parameters
+    ----------
+    paths : sequence of path
+        Photon files (ATL03 granules for ``time_range``).
+    params : BlockParams
+    output : path
+        ``.gpkg`` (layer ``blocks``), ``.parquet`` or ``.csv``; written atomically.
+    bbox : (lon_min, lat_min, lon_max, lat_max), optional
+        Degrees WGS84.
+    polygon : path, optional
+        Vector file of polygons: blocks whose centre lies inside are kept.
+    time_range : (start, end), optional
+        UTC dates/times; granules with no photon inside are skipped.
+    crs : CRS-like, optional
+        Metric CRS of every granule's x/y (default: the UTM zone of the first one read).
+    **kwargs
+        Passed on to :func:`~canopyblocks.track_blocks.blocks_from_file` (estimators,
+        beams, channel, ...).
+
+    Returns
+    -------
+    GeoDataFrame
+        The block table written.
+    """
+    import geopandas as gpd
+
+    from .outputs.tables import check_output_path, write_table
+    from .track_blocks import blocks_from_file
+
+    check_output_path(output)
+    start = end = None
+    if time_range is not None:
+        start, end = (parse_utc(t, w) for t, w in zip(time_range, ("--time START",
+                                                                   "--time END")))
+        if end < start:
+            raise InputError(f"--time {time_range[0]} {time_range[1]}: the end comes "
+                             "before the start")
+    # the whole track is blocked and then filtered: a subset read would move the block
+    # origin (the track's first photon) and so every block edge
+    area = read_polygon(polygon) if polygon is not None else None
+    prog = as_progress(progress)
+    tables, skipped = [], []
+    for i, p in enumerate(paths):
+        part = prog.sub(i / len(paths), (i + 1) / len(paths))
+        if start is not None and end is not None:
+            t0, t1 = granule_time_span(p)
+            if t1 < start or t0 > end:
+                skipped.append(Path(p).name)
+                continue
+        try:
+            res = blocks_from_file(p, params, bbox=bbox, crs=crs, output=None,
+                                   progress=part, **kwargs)
+        except NoUsableDataError as exc:  # e.g. nothing inside the bbox: said, not fatal
+            log.warning("%s: no blocks (%s)", Path(p).name, exc)
+            continue
+        b = res.blocks
+        crs = crs if crs is not None else b.crs
+        if area is not None and len(b):
+            b = b[b.geometry.within(area.to_crs(b.crs).iloc[0])]
+        tables.append(b.assign(granule=Path(p).name))
+    if skipped:
+        log.warning("%d of %d granules taken outside the time range, skipped: %s",
+                    len(skipped), len(paths), ", ".join(skipped))
+    if not tables or not sum(len(t) for t in tables):
+        raise NoUsableDataError("no block in the granules, area and time range given")
+    table = gpd.GeoDataFrame(pd.concat(tables, ignore_index=True), geometry="geometry",
+                             crs=tables[0].crs)
+    write_table(table, output)
+    prog.update(1.0, f"{len(table)} blocks from {len(tables)} granules")
+    return table
