@@ -27,7 +27,7 @@ def register(group: click.Group) -> None:
               "smoothing).")
 @click.option("--decompose", is_flag=True,
               help="Also fit a sum of Gaussians to each waveform and add ground_gauss "
-                   "(30-100x slower).")
+                   "(15-25x slower).")
 @click.option("--all-rh", is_flag=True, help="Write rh0 .. rh100 (every percent).")
 @click.option("--bbox", default=None, help="lon_min,lat_min,lon_max,lat_max (degrees) subset.")
 @click.option("--crs", default=None, help="Metric CRS of the layer (default: UTM zone).")
