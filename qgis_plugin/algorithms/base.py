@@ -211,12 +211,12 @@ class CanopyBlocksAlgorithm(QgsProcessingAlgorithm):
         return self.tr(plain_help(self.HELP))
 
     def helpUrl(self) -> str:  # noqa: N802 - QGIS API
-        from ..resources import help_url
+        from ..help_pages import help_url
 
         return help_url(self.ALG_ID) if self.ALG_ID else HELP_URL
 
     def icon(self) -> QIcon:
-        from ..resources import ICON
+        from ..provider import ICON
 
         return QIcon(str(ICON))
 

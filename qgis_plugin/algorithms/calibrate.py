@@ -109,7 +109,7 @@ class CalibrateAlgorithm(CanopyBlocksAlgorithm):
               feedback: QgsProcessingFeedback, progress: Any, params: Any,
               track: dict[str, Any], offset: float | None) -> dict[str, Any]:
         """The bias method: one core call, the table as a layer, the JSON as a file."""
-        files = import_core("canopyblocks.workflows.calibrate")
+        files = import_core("canopyblocks.validation.bias_calibration_files")
         bias = import_core("canopyblocks.validation.bias_calibration")
         est_mod = import_core("canopyblocks.blocks.estimators")
         name = PRESET_OPTIONS[self.parameterAsEnum(parameters, self.PRESET, context)][1]

@@ -15,8 +15,8 @@ from .common import (
     min_signal_conf_option,
     parse_channel,
     parse_floats,
+    progress_bar,
 )
-from .progress_bars import progress_bar
 
 if TYPE_CHECKING:
     from ..blocks.estimators import Estimators
@@ -101,7 +101,7 @@ def blocks_cmd(ctx: click.Context, path: str, output: str, beams: tuple[str, ...
     """Canopy top, mean ground, Hmax and H90 per along-track block (seed 001 method,
     or the estimators of --preset)."""
     from ..blocks import BlockParams
-    from ..workflows.blocks import blocks_from_file
+    from ..track_blocks import blocks_from_file
 
     estimators = estimators_from_options(preset, noise, ground_estimator, top_estimator,
                                          min_signal_conf)

@@ -57,10 +57,14 @@ def coregister(ctx: click.Context, source: str, dtm: str, dsm_max: str | None,
     otherwise it is 'undetermined' (a warning says why) and must not be applied. Rasters
     that cover too little of the track are refused.
     """
-    from ..atomic import check_writable
+    from ..outputs.atomic import check_writable
     from ..validation.coregistration import CoregParams
-    from ..workflows.coregister import coregister_file, offset_to_apply, write_offsets
-    from .progress_bars import progress_bar
+    from ..validation.coregistration_files import (
+        coregister_file,
+        offset_to_apply,
+        write_offsets,
+    )
+    from .common import progress_bar
 
     if not output.lower().endswith(".json"):
         raise InputError(f"-o {output}: the offsets are written as JSON; name it *.json")

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..reference.footprint_index import FootprintPairs
+from .footprints import FootprintPairs
 
 __all__ = ["pick_sources", "draw_noise"]
 

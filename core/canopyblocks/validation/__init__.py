@@ -1,7 +1,5 @@
 """canopyblocks.validation: residuals photon minus reference, statistics, co-registration,
-bias calibration.
-
-Reading tracks and writing result files is the workflows' job (:mod:`canopyblocks.workflows`)."""
+bias calibration and the file-level orchestration of validation."""
 
 from __future__ import annotations
 
@@ -13,9 +11,10 @@ from .bias_calibration import (
     read_bias_calibration,
     write_bias_calibration,
 )
+from .bias_calibration_files import calibrate_bias_file
 from .block_validation import ValidationResult, validate_atl08, validate_blocks
-from .coregistration import CoregParams, CoregResult, coregister
-from .coregistration_offset import CoregOffset
+from .coregistration import CoregOffset, CoregParams, CoregResult, coregister
+from .coregistration_files import coregister_file, write_offsets
 from .coregistration_targets import (
     CoregTargets,
     apply_offset,
@@ -27,9 +26,11 @@ from .footprints import (
     FootprintValidation,
     validate_blocks_footprint,
     validate_footprints,
+    validate_footprints_file,
 )
 from .residuals import compute_residuals
 from .stats import block_stats, error_stats
+from .validation_files import FileValidation, validate_file
 
 __all__ = [
     "ValidationResult",
@@ -38,15 +39,20 @@ __all__ = [
     "compute_residuals",
     "block_stats",
     "error_stats",
+    "FileValidation",
+    "validate_file",
     "FootprintValidation",
     "FootprintOutsideWarning",
     "validate_footprints",
+    "validate_footprints_file",
     "validate_blocks_footprint",
     "CoregParams",
     "CoregOffset",
     "CoregResult",
     "CoregTargets",
     "coregister",
+    "coregister_file",
+    "write_offsets",
     "apply_offset",
     "targets_from_photons",
     "targets_from_table",
@@ -56,11 +62,5 @@ __all__ = [
     "apply_bias_calibration",
     "read_bias_calibration",
     "write_bias_calibration",
+    "calibrate_bias_file",
 ]
-
-
-def __getattr__(name: str) -> object:
-    """Names that moved up to a workflow keep working here (see canopyblocks._aliases)."""
-    from .._aliases import moved_name
-
-    return moved_name(__name__, name)

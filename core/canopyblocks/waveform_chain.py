@@ -11,8 +11,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from ..atomic import check_writable, new_files_removed_on_failure
-from ..progress import Progress, as_progress
+from .outputs.atomic import check_writable, new_files_removed_on_failure
+from .progress import Progress, as_progress
 
 __all__ = ["run_waveform_chain"]
 
@@ -50,16 +50,16 @@ def run_waveform_chain(
     -------
     ChainResult
     """
-    from ..outputs.footprint_maps import write_footprint_plots
-    from ..outputs.report import ReportSection, footprint_stats_table, write_report
-    from ..outputs.tables import write_layers, write_table
-    from ..validation.footprints import (
+    from .outputs.footprint_maps import write_footprint_plots
+    from .outputs.report import ReportSection, footprint_stats_table, write_report
+    from .outputs.tables import write_layers, write_table
+    from .validation.footprints import (
         LAYER_RESIDUALS_FOOTPRINTS,
         LAYER_STATS_FOOTPRINTS,
         validate_footprints,
     )
-    from .chain_result import ChainResult
-    from .waveforms import footprints_from_l1b
+    from .waveform_footprints import footprints_from_l1b
+    from .whole_chain import ChainResult
 
     prog = as_progress(progress)
     out = check_writable(out_dir, folder=True)
@@ -68,7 +68,7 @@ def run_waveform_chain(
         out.mkdir(parents=True, exist_ok=True)
         plots_dir = out / "plots"
         plots_dir.mkdir(exist_ok=True)
-        from ..readers.las import las_crs
+        from .readers.las import las_crs
 
         crs = las_crs(tiles[0])
         fp, wave_plots = footprints_from_l1b(l1b, beams=beams or None, params=params, crs=crs,
