@@ -156,21 +156,17 @@ def place(module: str) -> tuple[int, str] | None:
 
 
 def upward(graph: dict[str, dict[str, int]]) -> list[str]:
-    """Arrows into a higher layer, or between two rooms of one layer; and modules that
-    stand in no layer."""
-    bad = []
+    """Modules that stand in no layer; arrows into a higher layer, or between two rooms of
+    a layer whose rooms stay apart."""
+    places = {m: place(m) for m in graph}
+    bad = [f"{m} stands in no layer: add its room to LAYERS"
+           for m, p in sorted(places.items()) if p is None and m not in OUTSIDE]
     for module, arrows in sorted(graph.items()):
-        here = place(module)
-        if here is None:
-            if module not in OUTSIDE:
-                bad.append(f"{module} stands in no layer: add its room to LAYERS")
-            continue
+        here = places[module]
         for target, line in sorted(arrows.items()):
-            there = place(target)
-            if there is None:
-                if target not in OUTSIDE:
-                    bad.append(f"{module} -> {target}: {target} stands in no layer")
-                continue
+            there = places[target] if target in places else place(target)
+            if here is None or there is None:
+                continue  # outside the layers, or told above
             if there[0] > here[0]:
                 bad.append(f"{module}:{line} imports {target}: {LAYERS[there[0]][0]} stands "
                            f"above {LAYERS[here[0]][0]}")
@@ -236,8 +232,8 @@ def test_a_made_up_upward_import_is_found():
          "canopyblocks.loose": {}}
     bad = upward(g)
     assert len(bad) == 3
-    assert bad[0].startswith("canopyblocks.blocks.e:3 imports canopyblocks.waveforms.p")
-    assert "stands in no layer" in bad[1]
+    assert bad[0] == "canopyblocks.loose stands in no layer: add its room to LAYERS"
+    assert bad[1].startswith("canopyblocks.blocks.e:3 imports canopyblocks.waveforms.p")
     assert bad[2].startswith("canopyblocks.readers.x:7 imports canopyblocks.workflows.y")
 
 
