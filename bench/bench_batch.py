@@ -55,7 +55,7 @@ def main() -> None:
     ap.add_argument("--workdir", default=str(Path(tempfile.gettempdir()) / "cb_bench_batch"))
     args = ap.parse_args()
     warnings.simplefilter("ignore")
-    from canopyblocks.batch import BatchConfig, run_batch
+    from canopyblocks.workflows.batch import BatchConfig, run_batch
 
     work = Path(args.workdir)
     granules = make_granules(work / "granules")

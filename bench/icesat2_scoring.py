@@ -58,18 +58,15 @@ from canopyblocks.errors import CanopyBlocksError
 from canopyblocks.photons import PhotonTrack
 from canopyblocks.readers import read_atl03
 from canopyblocks.readers.las import LasPoints, read_las
-from canopyblocks.reference.footprint import (
-    FootprintCloud,
-    FootprintReferenceParams,
-    block_footprint_reference,
-)
+from canopyblocks.reference.footprint import FootprintCloud, block_footprint_reference
+from canopyblocks.reference.footprint_params import FootprintReferenceParams
 from canopyblocks.simulate import SimParams, line_through, simulate_photons
 from canopyblocks.simulate.writers import write_simulation_atl03
-from canopyblocks.track_blocks import run_blocks
 from canopyblocks.validation.bias_calibration import (
     apply_bias_calibration,
     fit_bias_calibration,
 )
+from canopyblocks.workflows.blocks import run_blocks
 
 __all__ = ["LIGHTS", "BEAMS", "GOALS", "CAL_TILES", "TEST_SITES", "available_presets",
            "site_data", "preset_blocks", "score_preset", "score_blocks"]

@@ -9,13 +9,14 @@ from __future__ import annotations
 
 import logging
 import re
-import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
 from types import ModuleType
 from typing import Any
 
 from qgis.core import Qgis, QgsMessageLog, QgsProcessingException, QgsProcessingFeedback
+
+from .dependencies import install_hint
 
 __all__ = [
     "MESSAGE_TAG",
@@ -34,24 +35,6 @@ __all__ = [
 ]
 
 MESSAGE_TAG = "canopyblocks"
-
-
-def install_hint() -> str:
-    """How to install the core into the Python that runs QGIS (platform-specific)."""
-    if sys.platform.startswith("linux"):
-        cmd = (
-            "/usr/bin/python3 -m pip install --user --break-system-packages --no-deps "
-            "canopyblocks (or a source checkout), with Debian's python3-h5py python3-pyproj "
-            "python3-rasterio python3-scipy python3-pandas python3-matplotlib and pip's "
-            "'shapely>=2.0,<2.1' 'geopandas>=1.0,<1.1' (scripts/install_qgis.sh sets this up in "
-            "/opt/canopyblocks-qgis-python: start QGIS with PYTHONPATH=/opt/canopyblocks-qgis-"
-            "python:<checkout>/core)"
-        )
-    elif sys.platform == "darwin":
-        cmd = "the QGIS app's python3 -m pip install 'canopyblocks[all]'"
-    else:
-        cmd = "python3 -m pip install canopyblocks[all]  (in the OSGeo4W shell)"
-    return "install canopyblocks into QGIS's Python: " + cmd + ", then restart QGIS"
 
 
 #: Messages of PyPI wheels that bundle GEOS/HDF5/GDAL and meet QGIS's own copies in the
@@ -256,5 +239,3 @@ def feedback_logging(feedback: QgsProcessingFeedback | None) -> Iterator[None]:
                 feedback.pushWarning(text)
     finally:
         handler.feedback = previous
-
-

@@ -97,7 +97,6 @@ def dependency_problem(alg_id: str, display_name: str) -> str | None:
     env_note = ("(A package installed elsewhere can be made visible with Settings > Options > "
                 "System > Environment: PYTHONPATH, 'Append', its folder.)")
     if "canopyblocks" in missing:  # the core itself: its own, fuller instructions
-        from .core_bridge import install_hint
 
         return (f"{display_name} needs the canopyblocks library, which the Python that runs "
                 f"QGIS cannot import; {install_hint()}. {env_note}")
@@ -128,3 +127,21 @@ def apply_pdal_setting() -> None:
     value = pdal_setting()
     if value:
         os.environ["CANOPYBLOCKS_PDAL"] = value
+
+
+def install_hint() -> str:
+    """How to install the core into the Python that runs QGIS (platform-specific)."""
+    if sys.platform.startswith("linux"):
+        cmd = (
+            "/usr/bin/python3 -m pip install --user --break-system-packages --no-deps "
+            "canopyblocks (or a source checkout), with Debian's python3-h5py python3-pyproj "
+            "python3-rasterio python3-scipy python3-pandas python3-matplotlib and pip's "
+            "'shapely>=2.0,<2.1' 'geopandas>=1.0,<1.1' (scripts/install_qgis.sh sets this up in "
+            "/opt/canopyblocks-qgis-python: start QGIS with PYTHONPATH=/opt/canopyblocks-qgis-"
+            "python:<checkout>/core)"
+        )
+    elif sys.platform == "darwin":
+        cmd = "the QGIS app's python3 -m pip install 'canopyblocks[all]'"
+    else:
+        cmd = "python3 -m pip install canopyblocks[all]  (in the OSGeo4W shell)"
+    return "install canopyblocks into QGIS's Python: " + cmd + ", then restart QGIS"

@@ -14,14 +14,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from .resources import DOCS_URL, help_url
+
 __all__ = ["help_url", "help_page", "write_help_pages", "DOCS_URL"]
-
-DOCS_URL = "https://github.com/canopyblocks/canopyblocks/blob/main/docs/qgis"
-
-
-def help_url(alg_id: str) -> str:
-    """The web address of algorithm ``alg_id``'s help page."""
-    return f"{DOCS_URL}/{alg_id}.md"
 
 
 def _default(param: Any) -> str:

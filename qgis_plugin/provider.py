@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
-
 from qgis.core import QgsProcessingProvider
 from qgis.PyQt.QtGui import QIcon
 
@@ -19,10 +17,10 @@ from .algorithms.simulate import SimulateAlgorithm
 from .algorithms.simulatewaveforms import SimulateWaveformsAlgorithm
 from .algorithms.validate import ValidateAlgorithm
 from .algorithms.waveformplot import WaveformPlotAlgorithm
+from .resources import ICON
 
 __all__ = ["CanopyBlocksProvider", "ALGORITHMS", "ICON"]
 
-ICON = Path(__file__).resolve().parent / "icons" / "canopyblocks.svg"
 
 #: Every algorithm of the provider, in menu order.  Their ids are stable.
 ALGORITHMS = (

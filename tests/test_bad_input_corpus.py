@@ -423,8 +423,8 @@ def run_param(i: dict[str, Any], folder: Path) -> Any:
     import geopandas as gpd
 
     from canopyblocks import BlockParams, compute_blocks, read_atl03, read_las
-    from canopyblocks.track_blocks import blocks_from_file
     from canopyblocks.validation.stats import error_stats
+    from canopyblocks.workflows.blocks import blocks_from_file
 
     name = i["call"]
     vegr, conifer = i["vegr"], i["conifer"]

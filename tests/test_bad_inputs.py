@@ -538,7 +538,7 @@ def test_simulated_gedi_states_and_keeps_its_tiles_datum(sample, gedi_l1b, tmp_p
     from canopyblocks.simulate.sensor_files import simulate_gedi_to_file
     from canopyblocks.simulate.tracks import line_through
     from canopyblocks.validation.footprints import validate_footprints
-    from canopyblocks.waveform_footprints import footprints_from_l1b
+    from canopyblocks.workflows.waveforms import footprints_from_l1b
 
     tile = sample("als/lasR_bcts_1.laz")   # GeoTIFF keys: NAD83 / BC Albers + CGVD28
     pts = read_las([tile])

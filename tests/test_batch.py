@@ -10,11 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from canopyblocks.batch import BatchConfig, find_units, run_batch, tile_index
 from canopyblocks.errors import InputError, NoUsableDataError
 from canopyblocks.readers.las import read_las
 from canopyblocks.simulate import SimParams, line_through, simulate_photons
 from canopyblocks.simulate.writers import write_simulation_atl03
+from canopyblocks.workflows.batch import BatchConfig, find_units, run_batch, tile_index
 
 pytestmark = [pytest.mark.pdal, pytest.mark.slow,
               pytest.mark.filterwarnings("ignore::canopyblocks.errors.CanopyBlocksWarning")]

@@ -111,7 +111,7 @@ def test_batch_interrupted(batch_inputs, tmp_path, backend, stage, how) -> None:
 @pytest.mark.filterwarnings("ignore::canopyblocks.errors.CanopyBlocksWarning")
 def test_rerun_removes_partial_files_a_killed_batch_left(batch_inputs, tmp_path) -> None:
     """A batch killed with SIGKILL cannot clean up; the next run removes its parts."""
-    from canopyblocks.batch import BatchConfig, run_batch
+    from canopyblocks.workflows.batch import BatchConfig, run_batch
 
     granules, tiles = batch_inputs
     out = tmp_path / "out"

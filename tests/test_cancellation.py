@@ -91,7 +91,7 @@ def test_compute_blocks_cancels(track, tmp_path) -> None:
 
 
 def test_blocks_from_file_cancels_without_output(sample, tmp_path) -> None:
-    from canopyblocks.track_blocks import blocks_from_file
+    from canopyblocks.workflows.blocks import blocks_from_file
 
     out = tmp_path / "out"
     out.mkdir()
@@ -123,7 +123,7 @@ def test_simulate_photons_cancels(sample, tmp_path) -> None:
 @pytest.fixture(scope="module")
 def chain_out(sample, tmp_path_factory):
     """A simulated chain over the Topography tile (photons, blocks, rasters)."""
-    from canopyblocks.whole_chain import run_chain
+    from canopyblocks.workflows.chain import run_chain
 
     out = tmp_path_factory.mktemp("chain") / "run"
     run_chain([sample(TOPO)], out, params=BlockParams(lengths=(25.0,)), realisations=0)
@@ -158,7 +158,7 @@ def test_make_reference_rasters_cancelled_at_the_very_end(sample, tmp_path) -> N
 
 def test_blocks_from_file_cancelled_at_the_very_end(sample, tmp_path) -> None:
     """A check after the outputs are written would leave them: there is none (or it cleans)."""
-    from canopyblocks.track_blocks import blocks_from_file
+    from canopyblocks.workflows.blocks import blocks_from_file
 
     out = tmp_path / "out"
     out.mkdir()
@@ -173,7 +173,7 @@ def test_blocks_from_file_cancelled_at_the_very_end(sample, tmp_path) -> None:
 
 
 def test_run_chain_cancelled_at_the_very_end(sample, tmp_path) -> None:
-    from canopyblocks.whole_chain import run_chain
+    from canopyblocks.workflows.chain import run_chain
 
     out = tmp_path / "run"
     with pytest.raises(CancelledError):
@@ -197,7 +197,7 @@ def test_validate_blocks_cancels(chain_out, tmp_path) -> None:
 
 @pytest.mark.parametrize("existing", [False, True], ids=["new-folder", "existing-folder"])
 def test_run_chain_cancels_without_output(sample, tmp_path, existing) -> None:
-    from canopyblocks.whole_chain import run_chain
+    from canopyblocks.workflows.chain import run_chain
 
     root = tmp_path / "parent"
     root.mkdir()

@@ -167,7 +167,7 @@ def test_block_table_offset_round_trip_through_lonlat():
     """Shifting a table by east/north in a projected CRS survives lon/lat and back."""
     import geopandas as gpd
 
-    from canopyblocks.validation.coregistration import CoregOffset
+    from canopyblocks.validation.coregistration_offset import CoregOffset
 
     crs = pyproj.CRS(3005)
     x = np.array([885100.0, 885110.0, 885120.0])
@@ -301,7 +301,7 @@ def test_validate_coregister_reports_before_and_after(scene, tmp_path):
 
     from canopyblocks.blocks import BlockParams
     from canopyblocks.outputs.tables import write_layers
-    from canopyblocks.track_blocks import run_blocks
+    from canopyblocks.workflows.blocks import run_blocks
 
     moved = [_shifted(t, -4.0, 6.0, 0.8) for t in scene["tracks"]]
     blocks, _ = run_blocks(moved, BlockParams(lengths=(10.0,)))

@@ -213,7 +213,7 @@ def files(sample, tmp_path_factory):
     from canopyblocks.blocks import BlockParams
     from canopyblocks.outputs.tables import write_layers
     from canopyblocks.simulate.writers import write_simulation_atl03
-    from canopyblocks.track_blocks import run_blocks
+    from canopyblocks.workflows.blocks import run_blocks
 
     d = tmp_path_factory.mktemp("coreg_cli")
     sc = _scene(sample, "lasR_bcts_1.laz")
@@ -396,7 +396,7 @@ def test_apply_offset_refuses_an_undetermined_offset():
     import geopandas as gpd
 
     from canopyblocks.errors import InputError
-    from canopyblocks.validation.coregistration import CoregOffset
+    from canopyblocks.validation.coregistration_offset import CoregOffset
     from canopyblocks.validation.coregistration_targets import apply_offset
 
     crs = pyproj.CRS(3005)

@@ -13,10 +13,10 @@ from canopyblocks.errors import InputError
 from canopyblocks.readers.las import LasPoints, read_las
 from canopyblocks.reference.footprint import (
     FootprintCloud,
-    FootprintReferenceParams,
     block_footprint_reference,
     footprint_reference,
 )
+from canopyblocks.reference.footprint_params import FootprintReferenceParams
 from canopyblocks.reference.terrain import horn_slope_aspect
 
 LEVELS = (50, 75, 90, 95, 98, 100)

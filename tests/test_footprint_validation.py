@@ -14,13 +14,13 @@ import pytest
 
 from canopyblocks.errors import DatumError, InputError, NoUsableDataError
 from canopyblocks.readers.las import LasPoints, read_las
-from canopyblocks.reference.footprint import FootprintReferenceParams
+from canopyblocks.reference.footprint_params import FootprintReferenceParams
 from canopyblocks.validation.footprints import (
     FootprintOutsideWarning,
     validate_blocks_footprint,
     validate_footprints,
-    validate_footprints_file,
 )
+from canopyblocks.workflows.validate import validate_footprints_file
 
 N_GEOID = 17.25  # a constant "geoid height": ellipsoidal = orthometric + N
 OFFSETS = {"ground": 0.3, "rh98": 1.0, "rh50": -0.5, "cover": 0.05}

@@ -13,9 +13,9 @@ import pytest
 import shapely
 
 import canopyblocks as cb
+from canopyblocks.atomic import atomic_output
 from canopyblocks.errors import CancelledError, CRSError, FileFormatError, InputError
 from canopyblocks.geo import as_crs, from_metric, require_metric_crs, to_metric, utm_crs_for
-from canopyblocks.outputs.atomic import atomic_output
 from canopyblocks.photons import PhotonTrack, along_track_distance
 from canopyblocks.progress import Progress
 
@@ -181,7 +181,7 @@ def test_bad_table_paths(tmp_path) -> None:
 # ------------------------------------------------------------------------- package
 def test_core_imports_no_qgis_and_logs_silently() -> None:
     code = (
-        "import sys, canopyblocks, canopyblocks.track_blocks, canopyblocks.cli;"
+        "import sys, canopyblocks, canopyblocks.workflows.blocks, canopyblocks.cli;"
         "bad=[m for m in sys.modules if m == 'qgis' or m.startswith('qgis.')];"
         "assert not bad, bad"
     )

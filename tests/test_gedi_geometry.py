@@ -35,7 +35,7 @@ from canopyblocks.readers.gedi_geometry import (  # noqa: E402
     amplitude_problems,
     geometry_problems,
 )
-from canopyblocks.waveform_footprints import compare_with_l2a, footprints_from_l1b  # noqa: E402
+from canopyblocks.workflows.waveforms import compare_with_l2a, footprints_from_l1b  # noqa: E402
 
 
 @pytest.fixture(scope="module")

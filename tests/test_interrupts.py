@@ -264,8 +264,8 @@ def test_simulate_interrupted(sample, tmp_path, stage, how) -> None:
 
 
 def test_atomic_outputs_all_or_none(tmp_path) -> None:
+    from canopyblocks.atomic import atomic_output, atomic_outputs
     from canopyblocks.errors import CancelledError
-    from canopyblocks.outputs.atomic import atomic_output, atomic_outputs
     from canopyblocks.progress import Progress
 
     a, b = tmp_path / "a.txt", tmp_path / "new" / "deep" / "b.txt"
@@ -295,7 +295,7 @@ def test_atomic_outputs_all_or_none(tmp_path) -> None:
 
 def test_interrupt_while_writing_leaves_nothing(tmp_path) -> None:
     """KeyboardInterrupt (Ctrl-C or SIGTERM in the CLI) in the middle of the second file."""
-    from canopyblocks.outputs.atomic import atomic_outputs
+    from canopyblocks.atomic import atomic_outputs
     from canopyblocks.outputs.tables import write_table
 
     df = pd.DataFrame({"x": np.arange(5.0)})
@@ -416,7 +416,7 @@ def test_cli_unwritable_report_is_one_line(sample, tmp_path) -> None:
 def test_numpy_nan_warnings_do_not_reach_the_user(capsys) -> None:
     import warnings
 
-    from canopyblocks.cli.common import setup_logging
+    from canopyblocks.cli.log_setup import setup_logging
 
     with warnings.catch_warnings():
         warnings.simplefilter("default")

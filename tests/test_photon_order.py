@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from canopyblocks.photon_order import order_windows, sort_columns_in_windows
+from canopyblocks.readers.photon_order import order_windows, sort_columns_in_windows
 
 
 def _shots(rng: np.random.Generator, n: int) -> np.ndarray:

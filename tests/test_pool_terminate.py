@@ -17,7 +17,7 @@ import pytest
 
 SCRIPT = textwrap.dedent('''
     import sys, time
-    from canopyblocks.batch import backends
+    from canopyblocks.workflows import backends
     from canopyblocks.errors import InputError
 
     MODE = sys.argv[1]

@@ -108,8 +108,8 @@ def _page(tmp_path: Path, sections) -> str:
 
 
 def test_no_bias_calibration_says_why_instead_of_an_empty_table(tmp_path) -> None:
-    from canopyblocks.chain_report import bias_calibration_part
     from canopyblocks.outputs.report import ReportSection
+    from canopyblocks.workflows.chain_report import bias_calibration_part
 
     empty = pd.DataFrame()
     empty.attrs["why"] = "5 usable 50 m blocks of strong beams; at least 6 are needed"
@@ -121,8 +121,8 @@ def test_no_bias_calibration_says_why_instead_of_an_empty_table(tmp_path) -> Non
 
 
 def test_calibration_tables_have_words_and_units_and_keep_the_correction(tmp_path) -> None:
-    from canopyblocks.chain_report import bias_calibration_part
     from canopyblocks.outputs.report import ReportSection, calibration_table
+    from canopyblocks.workflows.chain_report import bias_calibration_part
 
     bias = pd.DataFrame({"metric": ["hmax"], "length": [25.0], "strength": ["strong"],
                          "slope": [1.0], "intercept": [7.18], "n": [9.0],
@@ -145,7 +145,7 @@ def test_calibration_tables_have_words_and_units_and_keep_the_correction(tmp_pat
 
 
 def test_datum_sentence_names_the_conversion() -> None:
-    from canopyblocks.chain_report import datum_sentence
+    from canopyblocks.workflows.chain_report import datum_sentence
 
     s = datum_sentence("differ", offset=0.0, tiles="CGVD28 height")
     assert s == ("the photons' heights were converted to the tiles' (CGVD28 height) datum "

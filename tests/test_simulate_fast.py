@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from canopyblocks.readers.las import LasPoints
+from canopyblocks.reference import footprint_index as footprints
 from canopyblocks.simulate import (
     RH_LEVELS,
     CloudIndex,
@@ -22,7 +23,6 @@ from canopyblocks.simulate import (
     TruthParams,
     engine,
     footprint_truth,
-    footprints,
     shots_along,
     simulate_photons,
 )

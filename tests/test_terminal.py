@@ -55,7 +55,7 @@ def test_a_warning_is_said_once(capsys) -> None:
     """The CLI's log handler drops a warning it has already shown in this run."""
     import logging
 
-    from canopyblocks.cli.common import setup_logging
+    from canopyblocks.cli.log_setup import setup_logging
 
     setup_logging(0, False)
     log = logging.getLogger("canopyblocks.test_terminal")

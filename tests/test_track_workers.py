@@ -16,8 +16,8 @@ from canopyblocks.blocks import BlockParams
 from canopyblocks.blocks.estimators import preset
 from canopyblocks.cli import cli
 from canopyblocks.outputs.h5_layouts import Atl03BeamData, write_atl03
-from canopyblocks.track_blocks import blocks_from_file
-from canopyblocks.track_workers import track_workers_for
+from canopyblocks.workflows.blocks import blocks_from_file
+from canopyblocks.workflows.blocks_tracks import track_workers_for
 
 pytestmark = pytest.mark.filterwarnings("ignore::canopyblocks.errors.CanopyBlocksWarning")
 
@@ -159,7 +159,7 @@ def test_small_pages_is_scoped() -> None:
     back afterwards, also after an error."""
     import numpy as np
 
-    from canopyblocks.track_blocks import small_pages
+    from canopyblocks.workflows.blocks import small_pages
 
     setter = np.core.multiarray._set_madvise_hugepage
     before = setter(True)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import h5py
 import numpy as np
 
-from canopyblocks.utc_time import utc_from_delta_time
+from canopyblocks.readers.utc_time import utc_from_delta_time
 
 
 def test_atl03_photons_fall_in_the_granule_time_range_its_metadata_states(sample) -> None:
@@ -32,7 +32,7 @@ def test_the_missions_epoch_and_out_of_era_times() -> None:
 def test_gedi_footprints_have_utc_inside_their_orbit(gedi_l1b, tmp_path) -> None:
     """The granule name GEDI01_B_2019108080338_O01964 says the orbit started on
     2019-04-18 (day 108) at 08:03:38 UTC; an orbit lasts about 92 minutes."""
-    from canopyblocks.waveform_footprints import footprints_from_l1b
+    from canopyblocks.workflows.waveforms import footprints_from_l1b
 
     fp, _ = footprints_from_l1b(gedi_l1b, beams=["BEAM0101"], workers=1)
     utc = fp["time_utc"].to_numpy("datetime64[ns]")
@@ -53,7 +53,7 @@ def test_gedi_footprints_have_utc_inside_their_orbit(gedi_l1b, tmp_path) -> None
 
 
 def test_a_simulated_file_has_no_utc(tmp_path) -> None:
-    from canopyblocks.utc_time import file_counts_from_sdp_epoch
+    from canopyblocks.readers.utc_time import file_counts_from_sdp_epoch
 
     with h5py.File(tmp_path / "s.h5", "w") as f:
         f.attrs["simulated"] = "canopyblocks GEDI waveform simulation"
@@ -91,8 +91,8 @@ def test_files_canopyblocks_wrote_have_no_utc(tmp_path) -> None:
     import pytest
 
     from canopyblocks.errors import InputError
-    from canopyblocks.granule_blocks import granule_time_span
-    from canopyblocks.utc_time import file_counts_from_sdp_epoch
+    from canopyblocks.readers.utc_time import file_counts_from_sdp_epoch
+    from canopyblocks.workflows.blocks_granules import granule_time_span
 
     p = tmp_path / "sim.h5"
     with h5py.File(p, "w") as f:

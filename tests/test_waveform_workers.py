@@ -7,7 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from canopyblocks.waveform_workers import beams_for_workers
+from canopyblocks.workflows.waveforms_beams import beams_for_workers
 
 
 def _run(l1b: Path, out: Path, workers: int, plots: Path | None = None) -> None:

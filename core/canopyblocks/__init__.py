@@ -1,6 +1,7 @@
 """canopyblocks: canopy height and ground per along-track block from lidar profiles.
 
-Data flow: readers -> photons -> blocks -> reference -> validation -> outputs.
+Data flow: readers -> photons -> blocks|waveforms -> reference -> validation -> outputs
+-> workflows (one module per command) -> cli|qgis_plugin.
 Public functions are re-exported here; see ``docs/ARCHITECTURE.md``.
 """
 
@@ -10,6 +11,7 @@ import importlib
 import logging
 from typing import TYPE_CHECKING, Any
 
+from . import _aliases
 from .errors import (
     CancelledError,
     CanopyBlocksError,
@@ -25,8 +27,10 @@ from .errors import (
     SparseBlockWarning,
 )
 
+_aliases.install()  # old module paths (canopyblocks.track_blocks, ...) keep working
+
 if TYPE_CHECKING:  # loaded on first use, see __getattr__
-    from .batch import BatchConfig, BatchResult, run_batch
+    from .atomic import atomic_output
     from .blocks import (
         BlockParams,
         CalibrationResult,
@@ -44,7 +48,6 @@ if TYPE_CHECKING:  # loaded on first use, see __getattr__
         preset,
     )
     from .geo import utm_crs_for
-    from .outputs.atomic import atomic_output
     from .outputs.h5_layouts import Atl03BeamData, MabelChannelData, write_atl03, write_mabel
     from .outputs.tables import read_blocks, read_layer, write_layers, write_table
     from .photons import PhotonTrack, along_track_distance
@@ -85,36 +88,36 @@ if TYPE_CHECKING:  # loaded on first use, see __getattr__
         seed002_experiment,
         simulate_photons,
     )
-    from .track_blocks import BlocksResult, blocks_from_file, read_tracks
-    from .track_segments import segments_from_file
     from .validation import (
         BiasCalibration,
         CoregParams,
         CoregResult,
-        FileValidation,
         FootprintValidation,
         ValidationResult,
         apply_bias_calibration,
         apply_offset,
         block_stats,
-        calibrate_bias_file,
         compute_residuals,
         coregister,
-        coregister_file,
         error_stats,
         fit_bias_calibration,
         read_bias_calibration,
         validate_atl08,
         validate_blocks,
-        validate_file,
         validate_footprints,
         write_bias_calibration,
-        write_offsets,
     )
     from .waveforms import WaveformBatch, WaveformParams, process_waveforms
     from .waveforms.dual_wavelength import DualParams, dual_wavelength_ground
     from .waveforms.esfl import EsflCubes, EsflParams, esfl_chain
-    from .whole_chain import ChainResult, run_chain
+    from .workflows.batch import BatchConfig, BatchResult, run_batch
+    from .workflows.blocks import BlocksResult, blocks_from_file, read_tracks
+    from .workflows.calibrate import calibrate_bias_file
+    from .workflows.chain import run_chain
+    from .workflows.chain_result import ChainResult
+    from .workflows.coregister import coregister_file, write_offsets
+    from .workflows.segments import segments_from_file
+    from .workflows.validate import FileValidation, validate_file
 
 __version__ = "0.1.0"
 
@@ -130,7 +133,7 @@ _LAZY: dict[str, str] = {
     "compute_blocks": ".blocks",
     "default_cutoffs": ".blocks",
     "utm_crs_for": ".geo",
-    "atomic_output": ".outputs.atomic",
+    "atomic_output": ".atomic",
     "Atl03BeamData": ".outputs.h5_layouts",
     "MabelChannelData": ".outputs.h5_layouts",
     "write_atl03": ".outputs.h5_layouts",
@@ -172,33 +175,33 @@ _LAZY: dict[str, str] = {
     "line_through": ".simulate",
     "seed002_experiment": ".simulate",
     "simulate_photons": ".simulate",
-    "BlocksResult": ".track_blocks",
-    "blocks_from_file": ".track_blocks",
-    "read_tracks": ".track_blocks",
+    "BlocksResult": ".workflows.blocks",
+    "blocks_from_file": ".workflows.blocks",
+    "read_tracks": ".workflows.blocks",
     "BiasCalibration": ".validation",
     "CoregParams": ".validation",
     "CoregResult": ".validation",
-    "FileValidation": ".validation",
+    "FileValidation": ".workflows.validate",
     "FootprintValidation": ".validation",
     "ValidationResult": ".validation",
     "apply_bias_calibration": ".validation",
     "apply_offset": ".validation",
     "block_stats": ".validation",
-    "calibrate_bias_file": ".validation",
+    "calibrate_bias_file": ".workflows.calibrate",
     "compute_residuals": ".validation",
     "coregister": ".validation",
-    "coregister_file": ".validation",
+    "coregister_file": ".workflows.coregister",
     "error_stats": ".validation",
     "fit_bias_calibration": ".validation",
     "read_bias_calibration": ".validation",
     "validate_atl08": ".validation",
     "validate_blocks": ".validation",
-    "validate_file": ".validation",
+    "validate_file": ".workflows.validate",
     "validate_footprints": ".validation",
     "write_bias_calibration": ".validation",
-    "write_offsets": ".validation",
-    "ChainResult": ".whole_chain",
-    "run_chain": ".whole_chain",
+    "write_offsets": ".workflows.coregister",
+    "ChainResult": ".workflows.chain_result",
+    "run_chain": ".workflows.chain",
     "Estimators": ".blocks.estimators",
     "PRESETS": ".blocks.estimators",
     "preset": ".blocks.estimators",
@@ -206,10 +209,10 @@ _LAZY: dict[str, str] = {
     "RECOMMENDED_PRESET": ".blocks.estimators",
     "classify_photons": ".blocks.atl08_classify",
     "atl08_segments": ".blocks.atl08_segments",
-    "segments_from_file": ".track_segments",
-    "BatchConfig": ".batch",
-    "BatchResult": ".batch",
-    "run_batch": ".batch",
+    "segments_from_file": ".workflows.segments",
+    "BatchConfig": ".workflows.batch",
+    "BatchResult": ".workflows.batch",
+    "run_batch": ".workflows.batch",
     "WaveformBatch": ".waveforms",
     "WaveformParams": ".waveforms",
     "process_waveforms": ".waveforms",

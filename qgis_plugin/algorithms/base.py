@@ -211,12 +211,12 @@ class CanopyBlocksAlgorithm(QgsProcessingAlgorithm):
         return self.tr(plain_help(self.HELP))
 
     def helpUrl(self) -> str:  # noqa: N802 - QGIS API
-        from ..help_pages import help_url
+        from ..resources import help_url
 
         return help_url(self.ALG_ID) if self.ALG_ID else HELP_URL
 
     def icon(self) -> QIcon:
-        from ..provider import ICON
+        from ..resources import ICON
 
         return QIcon(str(ICON))
 

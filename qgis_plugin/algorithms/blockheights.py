@@ -190,7 +190,7 @@ class BlockHeightsAlgorithm(CanopyBlocksAlgorithm):
                                                progress=progress.sub(0.2, 0.85))
             blocks, labels = result if want_labels else (result, None)
         else:
-            track_mod = import_core("canopyblocks.track_blocks")
+            track_mod = import_core("canopyblocks.workflows.blocks")
             est = import_core("canopyblocks.blocks.estimators").preset(preset or "paper")
             blocks, all_labels = track_mod.run_blocks([track], params, labels=want_labels,
                                                       estimators=est,
@@ -208,7 +208,7 @@ class BlockHeightsAlgorithm(CanopyBlocksAlgorithm):
         source = input_label(path, str(track.track), lengths_text)
         style_on_load(context, dest, "height", "hmax", name=f"Blocks - {source}")
         if want_photons and labels is not None:
-            pipeline = import_core("canopyblocks.track_blocks")
+            pipeline = import_core("canopyblocks.workflows.blocks")
             photons = pipeline.photon_layer([track], {track.track: labels})
             pdest = write_frame(self, parameters, self.PHOTONS, context, photons, feedback)
             results[self.PHOTONS] = pdest

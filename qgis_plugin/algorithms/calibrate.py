@@ -81,7 +81,7 @@ class CalibrateAlgorithm(CanopyBlocksAlgorithm):
     def execute(self, parameters: dict[str, Any], context: QgsProcessingContext,
                 feedback: QgsProcessingFeedback, progress: Any) -> dict[str, Any]:
         blocks_mod = import_core("canopyblocks.blocks")
-        calibration = import_core("canopyblocks.validation.calibration")
+        calibration = import_core("canopyblocks.workflows.calibrate")
         params = blocks_mod.BlockParams(
             lengths=parse_lengths(self.parameterAsString(parameters, self.LENGTHS, context)),
             min_signal_conf=self.min_signal_conf(parameters, context))
@@ -109,7 +109,7 @@ class CalibrateAlgorithm(CanopyBlocksAlgorithm):
               feedback: QgsProcessingFeedback, progress: Any, params: Any,
               track: dict[str, Any], offset: float | None) -> dict[str, Any]:
         """The bias method: one core call, the table as a layer, the JSON as a file."""
-        files = import_core("canopyblocks.validation.bias_calibration_files")
+        files = import_core("canopyblocks.workflows.calibrate")
         bias = import_core("canopyblocks.validation.bias_calibration")
         est_mod = import_core("canopyblocks.blocks.estimators")
         name = PRESET_OPTIONS[self.parameterAsEnum(parameters, self.PRESET, context)][1]

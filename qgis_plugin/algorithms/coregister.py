@@ -103,7 +103,7 @@ class CoregisterAlgorithm(CanopyBlocksAlgorithm):
 
     def execute(self, parameters: dict[str, Any], context: QgsProcessingContext,
                 feedback: QgsProcessingFeedback, progress: Any) -> dict[str, Any]:
-        files = import_core("canopyblocks.validation.coregistration_files")
+        files = import_core("canopyblocks.workflows.coregister")
         coreg = import_core("canopyblocks.validation.coregistration")
         kwargs: dict[str, Any] = {}
         offset = optional_number(self, parameters, self.OFFSET, context)

@@ -108,7 +108,7 @@ class GediFootprintsAlgorithm(CanopyBlocksAlgorithm):
 
     def execute(self, parameters: dict[str, Any], context: QgsProcessingContext,
                 feedback: QgsProcessingFeedback, progress: Any) -> dict[str, Any]:
-        wf = import_core("canopyblocks.waveform_footprints")
+        wf = import_core("canopyblocks.workflows.waveforms")
         settings = import_core("canopyblocks.waveforms.settings")
         path = gedi_file(self.parameterAsFile(parameters, self.INPUT, context))
         text = self.parameterAsString(parameters, self.BEAMS, context)

@@ -146,7 +146,7 @@ def _make_blocks(tile: Path, folder: Path) -> Path:
     from canopyblocks import BlockParams, read_las
     from canopyblocks.simulate import SimParams, line_through, simulate_photons
     from canopyblocks.simulate.writers import write_simulation_atl03
-    from canopyblocks.track_blocks import blocks_from_file
+    from canopyblocks.workflows.blocks import blocks_from_file
 
     folder.mkdir(parents=True, exist_ok=True)
     out = folder / "blocks.gpkg"

@@ -55,7 +55,7 @@ def _make_cli(d: GediDamage) -> Callable[[Path, Any], dict[str, Any]]:
 
 
 def run_gedi(i: dict[str, Any], folder: Path) -> Any:
-    from canopyblocks.waveform_footprints import footprints_from_l1b
+    from canopyblocks.workflows.waveforms import footprints_from_l1b
 
     return footprints_from_l1b(i["path"], beams=i["beams"])[0]
 

@@ -13,7 +13,8 @@ pytestmark = [pytest.mark.qgis]
 
 def test_missing_core_module_names_the_install_command(qgis_session):
     from qgis.core import QgsProcessingException
-    from qgis_plugin.core_bridge import import_core, install_hint
+    from qgis_plugin.core_bridge import import_core
+    from qgis_plugin.dependencies import install_hint
 
     with pytest.raises(QgsProcessingException) as exc:
         import_core("canopyblocks.no_such_module")

@@ -181,7 +181,7 @@ def test_calibrate_matches_core(chain):
     import pandas as pd
 
     from canopyblocks import BlockParams
-    from canopyblocks.validation.calibration import calibrate_reference_rasters
+    from canopyblocks.workflows.calibrate import calibrate_reference_rasters
 
     r = chain["rasters"]
     with warnings.catch_warnings():

@@ -9,7 +9,6 @@ from __future__ import annotations
 import logging
 import os
 import warnings
-from dataclasses import dataclass
 from typing import TYPE_CHECKING, Literal, overload
 
 import numpy as np
@@ -32,6 +31,7 @@ from ..schema import (
 from .histogram import BlockHistograms, segment_starts, sigma_filter
 from .params import BlockParams
 from .plausibility import background_fraction, flag_implausible_blocks
+from .prepared import LengthResult, PreparedTrack
 from .windows import DEFAULT_WINDOW_PHOTONS, concat_length_results, window_cuts, window_of
 
 if TYPE_CHECKING:
@@ -49,25 +49,6 @@ log = logging.getLogger(__name__)
 LABEL_OUTSIDE = -1
 
 _FLAG_CODES = np.array([FLAG_OK, FLAG_SPARSE, FLAG_INVERTED], dtype=object)
-
-
-@dataclass
-class PreparedTrack:
-    """The photons the engine uses, sorted by ``s``, with ``s >= s0`` and finite values.
-
-    ``index`` maps them back to the track's photon positions (None: they are the
-    track's photons ``first:`` in order, ``first`` given).
-    """
-
-    s: np.ndarray
-    z: np.ndarray
-    x: np.ndarray
-    y: np.ndarray
-    conf_mask: np.ndarray | None
-    s0: float
-    index: np.ndarray | None
-    first: int
-    n_track: int
 
 
 def prepare_track(track: PhotonTrack, params: BlockParams) -> PreparedTrack:
@@ -155,24 +136,6 @@ def _none_after(track: PhotonTrack, s0: float, params: BlockParams) -> NoUsableD
         f"{float(np.nanmin(track.s)):.1f}..{float(np.nanmax(track.s)):.1f} m); set s0 "
         "within the track or leave it None"
     )
-
-
-@dataclass
-class LengthResult:
-    """Engine output for one block length (arrays per block with >= 1 photon)."""
-
-    length: float
-    block: np.ndarray
-    n_photons: np.ndarray
-    n_kept: np.ndarray
-    n_between: np.ndarray
-    top: np.ndarray
-    ground: np.ndarray
-    z90: np.ndarray
-    flag: np.ndarray          # codes into ("ok", "sparse", "inverted")
-    x: np.ndarray
-    y: np.ndarray
-    labels: np.ndarray | None  # per prepared photon
 
 
 def blocks_for_length(pt: PreparedTrack, params: BlockParams, length: float, *,

@@ -5,7 +5,7 @@ ICESat-2 photons it sits about 1.5 m above the terrain by construction. This est
 fits a surface to the ground photons instead:
 
 1. start: seed 002's ground candidates, the photons below ``min20 + 3 PSF`` in each
-   along-track step of 20 photons (:func:`canopyblocks.simulate.classify.classify_seed002`);
+   along-track step of 20 photons (:func:`canopyblocks.blocks.step_classify.classify_seed002`);
 2. fit: a local linear regression of height on along-track distance, Gaussian kernel of
    ``bandwidth`` metres, on binned sums (1 m bins along the track, convolved with the
    kernel), so the cost is linear in photons and track length;
@@ -161,7 +161,7 @@ def fit_ground_surface(s: np.ndarray, z: np.ndarray,
     NoUsableDataError
         Fewer than 2 finite photons.
     """
-    from ..simulate.classify import classify_seed002
+    from .step_classify import classify_seed002
 
     p = params or GroundSurfaceParams()
     s = np.asarray(s, float)

@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from .engine import LengthResult, PreparedTrack
+    from .prepared import LengthResult, PreparedTrack
 
 __all__ = ["DEFAULT_WINDOW_PHOTONS", "window_cuts", "window_of", "concat_length_results"]
 
@@ -86,7 +86,7 @@ def window_of(pt: PreparedTrack, a: int, b: int) -> PreparedTrack:
 
 def concat_length_results(parts: Sequence[LengthResult]) -> LengthResult:
     """The results of consecutive windows for one length as one."""
-    from .engine import LengthResult
+    from .prepared import LengthResult
 
     if len(parts) == 1:
         return parts[0]

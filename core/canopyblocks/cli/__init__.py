@@ -33,7 +33,7 @@ def cli(ctx: click.Context, verbose: int, quiet: bool) -> None:
     """Canopy height and ground from lidar profiles -- per along-track block from
     photon-counting lidar (ICESat-2 ATL03, MABEL), per footprint from full-waveform lidar
     (GEDI L1B) -- validated against airborne lidar."""
-    from .common import setup_logging
+    from .log_setup import setup_logging
 
     ctx.ensure_object(dict)
     ctx.obj["quiet"] = quiet

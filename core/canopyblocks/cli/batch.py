@@ -53,8 +53,8 @@ def batch(ctx: click.Context, granules: tuple[str, ...], tiles: tuple[str, ...],
     One unit of work per (granule, beam, tiles it crosses); a rerun skips finished
     units; a failed unit is reported and the others complete.
     """
-    from ..batch import BatchConfig, run_batch
-    from .common import progress_bar
+    from ..workflows.batch import BatchConfig, run_batch
+    from .progress_bars import progress_bar
 
     if scheduler is not None and backend != "dask":
         backend = "dask"

@@ -15,8 +15,8 @@ from .common import (
     min_signal_conf_option,
     parse_channel,
     parse_floats,
-    progress_bar,
 )
+from .progress_bars import progress_bar
 from .vocabulary import deprecated_option, take_alias
 
 if TYPE_CHECKING:
@@ -117,7 +117,7 @@ def blocks_cmd(ctx: click.Context, paths: tuple[str, ...], output: str,
     --bbox, --polygon and --time.
     """
     from ..blocks import BlockParams
-    from ..track_blocks import blocks_from_file
+    from ..workflows.blocks import blocks_from_file
 
     with_photons = take_alias(with_photons, old_photons, old="--photons", new="--photon-layer")
     estimators = estimators_from_options(preset, noise, ground_estimator, top_estimator,
@@ -136,7 +136,7 @@ def blocks_cmd(ctx: click.Context, paths: tuple[str, ...], output: str,
         if many:
             raise click.UsageError(f"{', '.join(many)}: one PATH at a time (not with "
                                    "several granules, --polygon or --time)")
-        from ..granule_blocks import blocks_from_granules
+        from ..workflows.blocks_granules import blocks_from_granules
 
         with progress_bar("blocks", quiet=quiet) as progress:
             table = blocks_from_granules(

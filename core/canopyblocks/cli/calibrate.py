@@ -11,9 +11,9 @@ from .common import (
     lengths_option,
     min_signal_conf_option,
     parse_channel,
-    progress_bar,
     vertical_options,
 )
+from .progress_bars import progress_bar
 
 
 @click.command("calibrate")
@@ -85,7 +85,7 @@ def calibrate_cmd(ctx: click.Context, photons: str, method: str, dtm: str | None
             if not output.lower().endswith(".json"):
                 raise InputError(f"-o {output}: a bias calibration is written as JSON; "
                                  "name it *.json")
-            from ..outputs.atomic import check_writable
+            from ..atomic import check_writable
 
             check_writable(output)
         else:
@@ -109,7 +109,7 @@ def calibrate_cmd(ctx: click.Context, photons: str, method: str, dtm: str | None
             ground_estimator not in (None, "paper") or top_estimator not in (None, "paper"):
         raise InputError("--method cutoffs calibrates the paper's cut-offs; other estimators "
                          "are calibrated with --method bias")
-    from ..validation.calibration import calibrate_reference_rasters
+    from ..workflows.calibrate import calibrate_reference_rasters
 
     with progress_bar("calibrate", quiet=quiet) as progress:
         cal = calibrate_reference_rasters(
@@ -141,7 +141,7 @@ def _bias(photons: str, params: object, *, quiet: bool, output: str | None,
           photon_vcrs: str | None, **kw: Any) -> None:
     from ..blocks.estimators import preset as named_preset
     from ..validation.bias_calibration import write_bias_calibration
-    from ..validation.bias_calibration_files import calibrate_bias_file
+    from ..workflows.calibrate import calibrate_bias_file
     from .blocks import estimators_from_options
 
     est = estimators_from_options(preset, noise, ground_estimator, top_estimator,

@@ -10,9 +10,9 @@ from .common import (
     lengths_option,
     min_signal_conf_option,
     parse_channel,
-    progress_bar,
     vertical_options,
 )
+from .progress_bars import progress_bar
 from .vocabulary import deprecated_option, say_deprecated, take_alias
 
 
@@ -86,7 +86,7 @@ def run_cmd(ctx: click.Context, tiles: tuple[str, ...], out_dir: str, photons: s
     from ..blocks import BlockParams
     from ..blocks.estimators import RECOMMENDED_PRESET
     from ..blocks.estimators import preset as named_preset
-    from ..whole_chain import run_chain
+    from ..workflows.chain import run_chain
 
     if simulate and photons:
         raise click.UsageError("give either --photons or --simulate, not both")

@@ -60,14 +60,10 @@ def coregister(ctx: click.Context, source: str, dtm: str, dsm_max: str | None,
     otherwise it is 'undetermined' (a warning says why) and must not be applied. Rasters
     that cover too little of the track are refused.
     """
-    from ..outputs.atomic import check_writable
+    from ..atomic import check_writable
     from ..validation.coregistration import CoregParams
-    from ..validation.coregistration_files import (
-        coregister_file,
-        offset_to_apply,
-        write_offsets,
-    )
-    from .common import progress_bar
+    from ..workflows.coregister import coregister_file, offset_to_apply, write_offsets
+    from .progress_bars import progress_bar
 
     search_range = take_alias(search_range, old_range, old="--range", new="--search-range",
                               default=15.0)

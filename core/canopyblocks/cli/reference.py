@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from .common import progress_bar, summary
+from .progress_bars import progress_bar, summary
 
 log = logging.getLogger(__name__)
 
@@ -41,7 +41,7 @@ def rasters_cmd(ctx: click.Context, las: tuple[str, ...], out_dir: str, resoluti
     A cell's value uses the points within resolution*sqrt(2)/2 of its centre: mean of
     ground points (DTM), max and 90th percentile of all non-noise points (DSMs).
     """
-    from ..outputs.atomic import check_writable, new_files_removed_on_failure
+    from ..atomic import check_writable, new_files_removed_on_failure
     from ..reference.rasters import make_reference_rasters
 
     check_writable(out_dir, folder=True)

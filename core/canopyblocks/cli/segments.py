@@ -6,7 +6,8 @@ from pathlib import Path
 
 import click
 
-from .common import channel_option, parse_channel, parse_floats, progress_bar
+from .common import channel_option, parse_channel, parse_floats
+from .progress_bars import progress_bar
 from .vocabulary import deprecated_option, take_alias
 
 
@@ -34,7 +35,7 @@ def segments_cmd(ctx: click.Context, path: str, output: str, beams: tuple[str, .
     """Classify photons as ATL08 does (noise, ground, canopy, top of canopy) and summarise
     them in along-track segments with ATL08's column names (h_te_median, h_te_best_fit,
     h_canopy, canopy_h_metrics_NN, canopy_openness, photon counts)."""
-    from ..track_segments import segments_from_file
+    from ..workflows.segments import segments_from_file
 
     with_photons = take_alias(with_photons, old_photons, old="--photons", new="--photon-layer")
     quiet = bool(ctx.obj and ctx.obj.get("quiet"))

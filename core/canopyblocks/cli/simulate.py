@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, cast
 import click
 
 from .common import parse_floats as _floats
-from .common import progress_bar
+from .progress_bars import progress_bar
 from .vocabulary import deprecated_option, take_alias
 
 if TYPE_CHECKING:

@@ -91,10 +91,10 @@ def validate(ctx: click.Context, blocks_path: str, dtm: str | None, dsm_max: str
     Writes per-block residuals and statistics per block length, metric, aspect and slope
     class (footprints: per beam, aspect, slope and cover class).
     """
-    from ..reference.footprint import FootprintReferenceParams
+    from ..reference.footprint_params import FootprintReferenceParams
     from ..validation.coregistration import CoregParams
-    from ..validation.validation_files import is_footprint_table, validate_file
-    from .common import progress_bar
+    from ..workflows.validate import is_footprint_table, validate_file
+    from .progress_bars import progress_bar
 
     search_range = take_alias(search_range, old_range, old="--coregister-range",
                               new="--search-range", default=15.0)

@@ -6,7 +6,8 @@ import logging
 
 import click
 
-from .common import parse_floats, progress_bar
+from .common import parse_floats
+from .progress_bars import progress_bar
 
 log = logging.getLogger(__name__)
 
@@ -52,8 +53,8 @@ def waveforms_cmd(ctx: click.Context, path: str, output: str, beams: tuple[str, 
                   plots: str | None, shots: tuple[int, ...], workers: int | None) -> None:
     """Ground, canopy top, RH metrics and cover per GEDI footprint from L1B waveforms
     (GEDI L2A's algorithm, setting groups a1-a6)."""
-    from ..waveform_footprints import footprints_to_file
     from ..waveforms.settings import WaveformParams
+    from ..workflows.waveforms import footprints_to_file
 
     params = WaveformParams(setting=setting, decompose=decompose,  # type: ignore[arg-type]
                             all_rh=all_rh)

@@ -19,9 +19,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from ..atomic import atomic_output
 from ..errors import InputError
 from ..waveforms.batch import WaveformBatch
-from .atomic import atomic_output
 
 __all__ = ["write_gedi_l1b"]
 

@@ -46,8 +46,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import DTypeLike
 
+from ..atomic import atomic_output
 from ..errors import InputError
-from .atomic import atomic_output
 
 if TYPE_CHECKING:
     import h5py  # untyped: its classes are Any to mypy

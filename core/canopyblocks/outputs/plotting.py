@@ -6,8 +6,8 @@ import os
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from ..atomic import atomic_output
 from ..errors import DependencyError
-from .atomic import atomic_output
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure

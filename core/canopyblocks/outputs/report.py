@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pandas as pd
 
+from ..atomic import atomic_output, atomic_outputs, will_exist
 from ..progress import Progress
-from .atomic import atomic_output, atomic_outputs, will_exist
 
 __all__ = ["ReportSection", "write_report", "report_stats_table", "footprint_stats_table",
            "calibration_table", "STATS_HEADERS", "CALIBRATION_HEADERS"]
@@ -103,7 +103,7 @@ def write_report(path: str | os.PathLike[str], title: str, sections: Sequence[Re
     """Write an HTML report atomically; images are linked relative to the report's folder.
 
     An image that does not exist (and is not being written in the same
-    :func:`~canopyblocks.outputs.atomic.atomic_outputs` block) is left out with a logged
+    :func:`~canopyblocks.atomic.atomic_outputs` block) is left out with a logged
     warning rather than linked broken.  Called inside such a block, the report appears
     together with the block's other outputs, or not at all; ``progress`` is checked
     before anything is written.

@@ -10,9 +10,9 @@ from pathlib import Path
 import geopandas as gpd
 import pandas as pd
 
+from ..atomic import atomic_output, atomic_outputs, check_writable
 from ..errors import DependencyError, FileFormatError, InputError
 from ..schema import LAYER_BLOCKS
-from .atomic import atomic_output, atomic_outputs, check_writable
 
 __all__ = ["check_output_path", "write_table", "write_layers", "layer_files", "read_layer",
            "read_blocks", "SUFFIXES"]

@@ -18,8 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..atomic import atomic_output
 from ..waveforms.details import ShotDetails
-from .atomic import atomic_output
 from .plotting import new_figure, save_figure
 
 __all__ = ["plot_waveform", "waveform_html", "plots_index", "WaveformMarkers", "waveform_markers",

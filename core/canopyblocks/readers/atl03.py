@@ -524,10 +524,10 @@ def _sort_by_s(cols: dict[str, np.ndarray], extra: dict[str, np.ndarray]) -> Non
     """Sort every column by ``cols["s"]`` in place in the dicts (stable: ties keep file
     order).  Real ATL03 photons are only locally out of order (``dist_ph_along`` scatters
     by ~1 m), so they are sorted window by window, in place
-    (:func:`~canopyblocks.photon_order.sort_columns_in_windows`: the same order as a
+    (:func:`~canopyblocks.readers.photon_order.sort_columns_in_windows`: the same order as a
     global stable sort, scratch memory of a few windows); synthetic ones often are in
     order already (one cheap comparison pass)."""
-    from ..photon_order import sort_columns_in_windows
+    from .photon_order import sort_columns_in_windows
 
     s = cols["s"]
     arrays = [*cols.values(), *extra.values()]

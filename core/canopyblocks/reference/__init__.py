@@ -13,11 +13,11 @@ from .corridor import block_corridors
 from .datum import apply_vertical_offset, check_vertical_datums, vertical_part
 from .footprint import (
     FootprintCloud,
-    FootprintReferenceParams,
     block_footprint_reference,
     density_weights,
     footprint_reference,
 )
+from .footprint_params import FootprintReferenceParams
 from .lidar_points import cell_percentile, crop_corridor
 from .pdal import PIPELINES, TileInfo, find_pdal, pdal_version, run_pipeline, tile_info
 from .raster_sampling import RasterSurface, read_surface

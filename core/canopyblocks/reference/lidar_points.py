@@ -15,8 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..atomic import atomic_output
 from ..errors import FileFormatError, InputError, NoUsableDataError
-from ..outputs.atomic import atomic_output
 from ..progress import Progress
 from .pdal import expand_readers, load_pipeline, run_pipeline, tile_info, write_pipeline
 

@@ -45,6 +45,7 @@ from typing import Any, cast
 import numpy as np
 import pyproj
 
+from ..atomic import atomic_output
 from ..errors import (
     CanopyBlocksWarning,
     CoverageError,
@@ -55,7 +56,6 @@ from ..errors import (
     PdalError,
 )
 from ..geo import as_crs, require_metric_crs
-from ..outputs.atomic import atomic_output
 from ..progress import Progress, as_progress
 from ..readers.cloud_checks import NormalisedCloudWarning, warn_if_normalised
 from ..readers.las import read_las

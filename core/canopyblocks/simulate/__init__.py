@@ -19,6 +19,8 @@ Typical use::
 
 from __future__ import annotations
 
+from ..blocks.step_classify import classify_seed002, seed002_labels
+from ..reference.footprint_index import CloudIndex, FootprintPairs, footprint_weights
 from .analysis import (
     COVER_COLUMNS,
     TABLE_COLUMNS,
@@ -28,7 +30,6 @@ from .analysis import (
     residual_stats,
     seed002_experiment,
 )
-from .classify import classify_seed002, seed002_labels
 from .engine import (
     PHOTON_TRUTH_COLUMNS,
     TRUTH_COLUMNS,
@@ -36,7 +37,6 @@ from .engine import (
     cloud_index,
     simulate_photons,
 )
-from .footprints import CloudIndex, FootprintPairs, footprint_weights
 from .params import INSTRUMENTS, POISSON_MEANS, SimParams, TruthParams
 from .tracks import SimTrack, line_through, polyline_from_points, shots_along
 from .truth import RH_LEVELS, footprint_truth

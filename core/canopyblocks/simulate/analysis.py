@@ -21,10 +21,10 @@ from typing import cast
 import numpy as np
 import pandas as pd
 
+from ..blocks.step_classify import classify_seed002
 from ..errors import InputError
 from ..progress import Progress, as_progress
 from ..readers.las import LasPoints
-from .classify import classify_seed002
 from .engine import Simulation, cloud_index, simulate_photons
 from .params import SimParams
 from .tracks import SimTrack

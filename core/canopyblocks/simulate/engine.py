@@ -22,7 +22,7 @@ from ..photons import BackgroundRate, PhotonTrack
 from ..progress import Progress, as_progress
 from ..readers.cloud_checks import refuse_all_noise
 from ..readers.las import LasPoints
-from .footprints import CloudIndex, _ranges
+from ..reference.footprint_index import CloudIndex, _ranges
 from .params import SimParams
 from .sampling import draw_noise, pick_sources
 from .telemetry import telemetry_window

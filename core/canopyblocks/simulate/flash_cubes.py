@@ -24,8 +24,8 @@ import pandas as pd
 
 from ..errors import InputError, NoUsableDataError
 from ..readers.las import LasPoints
+from ..reference.footprint_index import CloudIndex
 from .footprint_returns import footprint_index
-from .footprints import CloudIndex
 from .tracks import SimTrack, shots_along
 from .waveform_binning import bin_returns
 

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..errors import NoUsableDataError
 from ..readers.las import LasPoints
-from .footprints import CloudIndex
+from ..reference.footprint_index import CloudIndex
 
 __all__ = ["FootprintReturns", "footprint_returns", "footprint_index", "EXCLUDED_CLASSES"]
 

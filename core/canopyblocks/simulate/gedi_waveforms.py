@@ -39,9 +39,9 @@ from scipy.ndimage import gaussian_filter1d
 
 from ..errors import InputError, NoUsableDataError
 from ..readers.las import LasPoints
+from ..reference.footprint_index import CloudIndex
 from ..waveforms.batch import WaveformBatch
 from .footprint_returns import footprint_returns
-from .footprints import CloudIndex
 from .tracks import SimTrack, shots_along
 from .waveform_binning import bin_returns
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .footprints import FootprintPairs
+from ..reference.footprint_index import FootprintPairs
 
 __all__ = ["pick_sources", "draw_noise"]
 

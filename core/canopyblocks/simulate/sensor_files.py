@@ -31,8 +31,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from ..atomic import atomic_output
 from ..errors import InputError
-from ..outputs.atomic import atomic_output
 from ..progress import Progress, as_progress
 from ..readers.las import LasPoints
 from .dual_pairs import NOISE_FREE_FLOOR, PAPER_NOISE, DualPairs

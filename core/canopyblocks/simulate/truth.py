@@ -36,7 +36,7 @@ import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
 from ..errors import InputError
-from .footprints import FootprintPairs, _ranges
+from ..reference.footprint_index import FootprintPairs, _ranges
 from .params import TruthParams
 
 __all__ = ["RH_LEVELS", "footprint_truth", "MAX_BINS"]

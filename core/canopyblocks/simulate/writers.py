@@ -25,9 +25,9 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..atomic import atomic_outputs, check_writable
 from ..errors import InputError
 from ..geo import from_metric
-from ..outputs.atomic import atomic_outputs, check_writable
 from ..outputs.h5_layouts import (
     Atl03Background,
     Atl03BeamData,

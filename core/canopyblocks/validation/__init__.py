@@ -1,5 +1,7 @@
 """canopyblocks.validation: residuals photon minus reference, statistics, co-registration,
-bias calibration and the file-level orchestration of validation."""
+bias calibration.
+
+Reading tracks and writing result files is the workflows' job (:mod:`canopyblocks.workflows`)."""
 
 from __future__ import annotations
 
@@ -11,10 +13,9 @@ from .bias_calibration import (
     read_bias_calibration,
     write_bias_calibration,
 )
-from .bias_calibration_files import calibrate_bias_file
 from .block_validation import ValidationResult, validate_atl08, validate_blocks
-from .coregistration import CoregOffset, CoregParams, CoregResult, coregister
-from .coregistration_files import coregister_file, write_offsets
+from .coregistration import CoregParams, CoregResult, coregister
+from .coregistration_offset import CoregOffset
 from .coregistration_targets import (
     CoregTargets,
     apply_offset,
@@ -26,11 +27,9 @@ from .footprints import (
     FootprintValidation,
     validate_blocks_footprint,
     validate_footprints,
-    validate_footprints_file,
 )
 from .residuals import compute_residuals
 from .stats import block_stats, error_stats
-from .validation_files import FileValidation, validate_file
 
 __all__ = [
     "ValidationResult",
@@ -39,20 +38,15 @@ __all__ = [
     "compute_residuals",
     "block_stats",
     "error_stats",
-    "FileValidation",
-    "validate_file",
     "FootprintValidation",
     "FootprintOutsideWarning",
     "validate_footprints",
-    "validate_footprints_file",
     "validate_blocks_footprint",
     "CoregParams",
     "CoregOffset",
     "CoregResult",
     "CoregTargets",
     "coregister",
-    "coregister_file",
-    "write_offsets",
     "apply_offset",
     "targets_from_photons",
     "targets_from_table",
@@ -62,5 +56,11 @@ __all__ = [
     "apply_bias_calibration",
     "read_bias_calibration",
     "write_bias_calibration",
-    "calibrate_bias_file",
 ]
+
+
+def __getattr__(name: str) -> object:
+    """Names that moved up to a workflow keep working here (see canopyblocks._aliases)."""
+    from .._aliases import moved_name
+
+    return moved_name(__name__, name)

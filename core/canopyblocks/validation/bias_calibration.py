@@ -34,8 +34,8 @@ from typing import Literal
 import numpy as np
 import pandas as pd
 
+from ..atomic import atomic_output
 from ..errors import CanopyBlocksWarning, FileFormatError, InputError, NoUsableDataError
-from ..outputs.atomic import atomic_output
 
 __all__ = ["BiasModel", "BiasCalibration", "fit_bias_calibration", "apply_bias_calibration",
            "read_bias_calibration", "write_bias_calibration", "CALIBRATED_METRICS"]

@@ -23,7 +23,7 @@ from ..photons import PhotonTrack
 from ..progress import Progress, as_progress
 from ..schema import FLAG_OK
 
-__all__ = ["CutoffCalibration", "calibrate_against_reference", "calibrate_reference_rasters",
+__all__ = ["CutoffCalibration", "calibrate_against_reference",
            "HOLDOUT_COLUMNS"]
 
 log = logging.getLogger(__name__)
@@ -161,48 +161,8 @@ def calibrate_against_reference(
     return CutoffCalibration(calibrated, fits, table)
 
 
-def calibrate_reference_rasters(
-    photons: str,
-    params: BlockParams,
-    *,
-    dtm: str,
-    dsm_max: str,
-    dsm_p90: str,
-    width: float = 2.0,
-    beam: str | None = None,
-    channel: int | str | None = None,
-    crs: object = None,
-    geoid: str | None = None,
-    offset: float | None = None,
-    progress: Progress | None = None,
-) -> CutoffCalibration:
-    """Read one track, compute blocks, take reference values from the rasters, calibrate.
+def __getattr__(name: str) -> object:
+    """Names that moved up to a workflow keep working here (see canopyblocks._aliases)."""
+    from .._aliases import moved_name
 
-    Parameters
-    ----------
-    photons : path
-        ATL03 / MABEL / table photon file; one track (``beam`` / ``channel``).
-    params : BlockParams
-        Lengths and everything but the cut-offs.
-    dtm, dsm_max, dsm_p90 : path
-        Reference GeoTIFFs on one grid (metres).
-    width : float
-        Corridor width, metres.
-    crs : CRS-like, optional
-        Metric CRS for the photons; default the DTM's horizontal CRS.
-    """
-    from ..track_blocks import read_tracks, run_blocks
-    from .block_validation import raster_horizontal_crs, validate_blocks
-
-    prog = as_progress(progress)
-    if crs is None:  # the DTM's (refused with a clear message when missing or unreadable)
-        horizontal = raster_horizontal_crs(dtm)
-        crs = None if horizontal is None else horizontal.to_wkt()
-    tracks = read_tracks(photons, beams=() if beam is None else (beam,), channel=channel,
-                         crs=crs, min_signal_conf=params.min_signal_conf,
-                         progress=prog.sub(0.0, 0.1))
-    track = tracks[0]
-    blocks, _ = run_blocks([track], params, progress=prog.sub(0.1, 0.2))
-    val = validate_blocks(blocks, dtm=dtm, dsm_max=dsm_max, dsm_p90=dsm_p90, width=width,
-                          geoid=geoid, offset=offset, progress=prog.sub(0.2, 0.5))
-    return calibrate_against_reference(track, val.residuals, params, progress=prog.sub(0.5, 1.0))
+    return moved_name(__name__, name)

@@ -26,7 +26,7 @@ from ..geo import as_crs, from_metric
 from ..photons import PhotonTrack
 
 if TYPE_CHECKING:
-    from .coregistration import CoregOffset
+    from .coregistration_offset import CoregOffset
 
 __all__ = ["KIND_GROUND", "KIND_TOP", "CoregTargets", "targets_from_photons",
            "targets_from_table", "apply_offset"]
@@ -241,7 +241,7 @@ def apply_offset(obj: Any, offset: CoregOffset, *, crs: Any = None,
         The offset is undetermined (and ``force`` is False).
     """
     from ..arguments import check_instance
-    from .coregistration import CoregOffset as _CoregOffset
+    from .coregistration_offset import CoregOffset as _CoregOffset
     check_instance(offset, _CoregOffset, "apply_offset: offset", "a CoregOffset (an item of CoregResult.offsets from coregister)")
     if not offset.determined and not force:
         raise InputError(f"apply_offset: the offset of {offset.name} is undetermined "

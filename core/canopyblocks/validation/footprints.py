@@ -33,7 +33,6 @@ import os
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
-from pathlib import Path
 
 import geopandas as gpd
 import numpy as np
@@ -46,16 +45,14 @@ from ..geo import as_crs
 from ..progress import Progress, as_progress
 from ..readers.las import LasPoints, las_crs, read_las
 from ..reference.datum import apply_vertical_offset, check_vertical_datums
-from ..reference.footprint import (
+from ..reference.footprint import FootprintCloud, block_footprint_reference, footprint_reference
+from ..reference.footprint_params import (
     REFERENCE_FLAG_OK,
     REFERENCE_FLAG_OUTSIDE,
-    FootprintCloud,
     FootprintReferenceParams,
-    block_footprint_reference,
-    footprint_reference,
 )
 from ..reference.terrain import aspect_class, slope_class
-from ..schema import FLAG_OK, LAYER_FOOTPRINTS, STATS_COLUMNS
+from ..schema import FLAG_OK, STATS_COLUMNS
 from .block_validation import ValidationResult
 from .residuals import compute_residuals
 from .stats import GROUP_ALL, _sorted_classes, block_stats, error_stats
@@ -64,7 +61,6 @@ __all__ = [
     "FootprintValidation",
     "FootprintOutsideWarning",
     "validate_footprints",
-    "validate_footprints_file",
     "validate_blocks_footprint",
     "footprint_stats",
     "cover_class",
@@ -327,63 +323,6 @@ def footprint_stats(residuals: pd.DataFrame, *, length: float,
     return out
 
 
-def validate_footprints_file(
-    footprints_path: str | os.PathLike[str],
-    las_paths: Sequence[str | os.PathLike[str]],
-    output: str | os.PathLike[str],
-    *,
-    layer: str = LAYER_FOOTPRINTS,
-    plots: str | os.PathLike[str] | None = None,
-    dtm: str | os.PathLike[str] | None = None,
-    progress: Progress | None = None,
-    **kwargs: object,
-) -> FootprintValidation:
-    """Read a footprints layer, validate it, write ``residuals_footprints`` and
-    ``stats_footprints`` to ``output`` (a new file; atomically), optionally plots.
-
-    Parameters
-    ----------
-    footprints_path : path
-        GeoPackage (layer ``layer``), GeoParquet or CSV footprint table.
-    las_paths : sequence of path
-        Airborne LAS/LAZ tiles.
-    output : path
-        .gpkg (two layers), or .csv/.parquet (``<stem>_<layer><suffix>`` each).  Must
-        differ from ``footprints_path``.
-    plots : folder, optional
-        Scatter (footprint vs reference, ground and RH98) and maps (RH98, residuals).
-    dtm : path, optional
-        DTM GeoTIFF for the maps' hillshade.
-    **kwargs
-        Passed to :func:`validate_footprints` (params, geoid, offset, ...).
-    """
-    from ..outputs.atomic import check_writable, new_files_removed_on_failure
-    from ..outputs.tables import check_output_path, read_layer, write_layers
-
-    src, dst = Path(footprints_path), Path(output)
-    if dst.exists() and src.exists() and dst.resolve() == src.resolve():
-        raise InputError(f"-o {dst} is the footprints file itself; write the validation to "
-                         "a new file")
-    check_output_path(dst)
-    if plots is not None:
-        check_writable(plots, folder=True)
-    table = read_layer(src, layer if src.suffix.lower() == ".gpkg" else None)
-    result = validate_footprints(table, las_paths, progress=progress, **kwargs)  # type: ignore[arg-type]
-    ctx = new_files_removed_on_failure(plots) if plots is not None else None
-    if ctx is not None:
-        with ctx:
-            from ..outputs.footprint_maps import write_footprint_plots
-
-            write_footprint_plots(result.residuals, Path(plots),  # type: ignore[arg-type]
-                                  dtm=dtm)
-            write_layers({LAYER_RESIDUALS_FOOTPRINTS: result.residuals,
-                          LAYER_STATS_FOOTPRINTS: result.stats}, dst)
-    else:
-        write_layers({LAYER_RESIDUALS_FOOTPRINTS: result.residuals,
-                      LAYER_STATS_FOOTPRINTS: result.stats}, dst)
-    return result
-
-
 def validate_blocks_footprint(
     blocks: gpd.GeoDataFrame,
     points: LasPoints | str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
@@ -453,3 +392,10 @@ def validate_blocks_footprint(
     stats = block_stats(residuals)
     prog.update(1.0, "validation done")
     return ValidationResult(residuals, stats, decision)
+
+
+def __getattr__(name: str) -> object:
+    """Names that moved up to a workflow keep working here (see canopyblocks._aliases)."""
+    from .._aliases import moved_name
+
+    return moved_name(__name__, name)

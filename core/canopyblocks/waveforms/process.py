@@ -295,7 +295,7 @@ def _points(columns: dict[str, npt.NDArray[Any]], crs: pyproj.CRS | None) -> Geo
 def _footprint_table(batch: WaveformBatch, params: WaveformParams | None = None, *,
                      progress: Progress | None = None) -> pd.DataFrame:
     """:func:`process_waveforms`' columns without the geometry (for readers that add
-    their own over a whole beam: :mod:`canopyblocks.waveform_footprints`)."""
+    their own over a whole beam: :mod:`canopyblocks.workflows.waveforms`)."""
     return pd.DataFrame(_footprint_columns(batch, params, progress))
 
 

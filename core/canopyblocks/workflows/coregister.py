@@ -15,15 +15,20 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from ..atomic import atomic_output
 from ..errors import CoverageError, CRSError, FileFormatError, InputError
 from ..geo import as_crs
-from ..outputs.atomic import atomic_output
 from ..progress import Progress, as_progress
 from ..reference.datum import check_vertical_datums, sample_geoid
 from ..reference.raster_sampling import read_surface
 from ..schema import LAYER_BLOCKS, LAYER_FOOTPRINTS
-from .coregistration import CoregOffset, CoregParams, CoregResult, coregister
-from .coregistration_targets import CoregTargets, targets_from_photons, targets_from_table
+from ..validation.coregistration import CoregParams, CoregResult, coregister
+from ..validation.coregistration_offset import CoregOffset
+from ..validation.coregistration_targets import (
+    CoregTargets,
+    targets_from_photons,
+    targets_from_table,
+)
 
 __all__ = ["coregister_file", "table_targets", "write_offsets",
            "vertical_shift", "offset_to_apply",
@@ -127,7 +132,7 @@ def coregister_file(
                                 offset=offset,
                                 source="table" if isinstance(path, pd.DataFrame) else path)
     else:
-        from ..track_blocks import read_tracks
+        from .blocks import read_tracks
 
         tracks = read_tracks(path, beams=beams, crs=crs, min_signal_conf=min_signal_conf,
                              progress=prog.sub(0.02, 0.2))

@@ -26,10 +26,10 @@ from pathlib import Path
 
 import pandas as pd
 
-from ..errors import CanopyBlocksWarning, InputError, NoUsableDataError
-from ..outputs.atomic import atomic_output, check_writable, record_written
-from ..progress import Progress, as_progress
-from .backends import BACKENDS, Backend, run_items
+from ...atomic import atomic_output, check_writable, record_written
+from ...errors import CanopyBlocksWarning, InputError, NoUsableDataError
+from ...progress import Progress, as_progress
+from ..backends import BACKENDS, Backend, run_items
 from .cleanup import (
     complete_outputs,
     private_tempdir,
@@ -157,7 +157,7 @@ def run_batch(granules: Sequence[str | os.PathLike[str]],
     recorded for the command line's message; a rerun first removes partial files a
     killed batch left.
     """
-    from ..arguments import check_path, check_paths
+    from ...arguments import check_path, check_paths
     check_paths(granules, "run_batch: granules")
     check_paths(tiles, "run_batch: tiles")
     check_path(out_dir, "run_batch: out_dir", "a folder path")
@@ -189,9 +189,9 @@ def run_batch(granules: Sequence[str | os.PathLike[str]],
 
 def _check_datums(cfg: BatchConfig, tile: str) -> None:
     """The one datum rule, before any work (each unit's validation applies it again)."""
-    from ..errors import DatumError
-    from ..readers.las_crs import las_file_crs
-    from ..reference.datum import check_vertical_datums
+    from ...errors import DatumError
+    from ...readers.las_crs import las_file_crs
+    from ...reference.datum import check_vertical_datums
 
     ref = cfg.reference_vcrs if cfg.reference_vcrs is not None else las_file_crs(tile).crs
     with warnings.catch_warnings():
@@ -269,9 +269,9 @@ def _cancel_requested(prog: Progress) -> bool:
 
 def _reduce(out: Path, units: list[Unit], manifest: dict[str, dict], cfg: BatchConfig
             ) -> pd.DataFrame:
-    from ..outputs.report import ReportSection, write_report
-    from ..outputs.tables import read_layer
-    from ..validation.stats import block_stats
+    from ...outputs.report import ReportSection, write_report
+    from ...outputs.tables import read_layer
+    from ...validation.stats import block_stats
 
     frames = []
     for u in units:

@@ -1,6 +1,6 @@
 """Block heights over many granules at once: one table, with area and time filters.
 
-:func:`blocks_from_granules` runs :func:`~canopyblocks.track_blocks.blocks_from_file` on
+:func:`blocks_from_granules` runs :func:`~canopyblocks.workflows.blocks.blocks_from_file` on
 each granule, all in one metric CRS, and writes one block table with a ``granule``
 column (the file name).  Filters:
 
@@ -8,7 +8,7 @@ column (the file name).  Filters:
 * ``polygon`` (a vector file of polygons, any CRS): the blocks whose centre lies inside
   the polygons are kept (the same blocks, edges and values as without it);
 * ``time_range`` (UTC): granules whose photons were all taken outside it are skipped
-  (ATL03: UTC from ``delta_time``, :mod:`canopyblocks.utc_time`).
+  (ATL03: UTC from ``delta_time``, :mod:`canopyblocks.readers.utc_time`).
 """
 
 from __future__ import annotations
@@ -22,8 +22,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from .errors import InputError, NoUsableDataError
-from .progress import Progress, as_progress
+from ..errors import InputError, NoUsableDataError
+from ..progress import Progress, as_progress
 
 __all__ = ["blocks_from_granules", "granule_time_span", "read_polygon", "parse_utc"]
 
@@ -46,7 +46,7 @@ def granule_time_span(path: str | os.PathLike[str]) -> tuple[np.datetime64, np.d
     """First and last photon time (UTC) of an ATL03 granule, over all its beams."""
     import h5py
 
-    from .utc_time import file_counts_from_sdp_epoch, utc_from_delta_time
+    from ..readers.utc_time import file_counts_from_sdp_epoch, utc_from_delta_time
 
     if not file_counts_from_sdp_epoch(path):
         raise InputError(f"{path}: written by canopyblocks (simulated), its delta_time "
@@ -114,7 +114,7 @@ def blocks_from_granules(paths: Sequence[str | os.PathLike[str]], params: Any, *
     crs : CRS-like, optional
         Metric CRS of every granule's x/y (default: the UTM zone of the first one read).
     **kwargs
-        Passed on to :func:`~canopyblocks.track_blocks.blocks_from_file` (estimators,
+        Passed on to :func:`~canopyblocks.workflows.blocks.blocks_from_file` (estimators,
         beams, channel, ...).
 
     Returns
@@ -124,8 +124,8 @@ def blocks_from_granules(paths: Sequence[str | os.PathLike[str]], params: Any, *
     """
     import geopandas as gpd
 
-    from .outputs.tables import check_output_path, write_table
-    from .track_blocks import blocks_from_file
+    from ..outputs.tables import check_output_path, write_table
+    from .blocks import blocks_from_file
 
     check_output_path(output)
     start = end = None

@@ -18,7 +18,7 @@ import numpy as np
 import pyproj
 import shapely
 
-from ..errors import CRSError, FileFormatError, InputError
+from ...errors import CRSError, FileFormatError, InputError
 
 __all__ = ["Tile", "Unit", "tile_index", "track_line", "find_units", "list_inputs"]
 
@@ -80,7 +80,7 @@ def list_inputs(items: Sequence[str | os.PathLike[str]], suffixes: tuple[str, ..
 
 def tile_index(paths: Sequence[str | os.PathLike[str]]) -> list[Tile]:
     """Header extents and CRSs of the tiles (all must share one CRS)."""
-    from ..readers.las import las_bounds, las_crs
+    from ...readers.las import las_bounds, las_crs
 
     tiles = []
     crs0: pyproj.CRS | None = None
@@ -100,7 +100,7 @@ def tile_index(paths: Sequence[str | os.PathLike[str]]) -> list[Tile]:
 
 def track_line(granule: str, beam: str) -> tuple[np.ndarray, np.ndarray]:
     """Longitude and latitude (degrees) of a beam's geolocation segments (ATL03)."""
-    from ..readers._h5 import open_h5
+    from ...readers._h5 import open_h5
 
     with open_h5(granule, product="ATL03") as f:
         lat = np.asarray(f.read(f"{beam}/geolocation/reference_photon_lat"), float)
@@ -121,8 +121,8 @@ def find_units(granules: Sequence[str], tiles: Sequence[Tile], *,
     beams passes a tile is left out too; with ``missed`` given, the reason is recorded
     there (how far its nearest beam passes from the nearest tile).
     """
-    from ..errors import CanopyBlocksError
-    from ..readers.atl03 import atl03_beams
+    from ...errors import CanopyBlocksError
+    from ...readers.atl03 import atl03_beams
 
     if not tiles:
         raise InputError("no airborne tiles given")

@@ -23,10 +23,11 @@ import geopandas as gpd
 import numpy as np
 import pandas as pd
 
-from .errors import CanopyBlocksWarning, InputError, NoUsableDataError
-from .progress import Progress, as_progress
-from .readers.gedi import gedi_vertical_datum
-from .schema import LAYER_FOOTPRINTS
+from ..errors import CanopyBlocksWarning, InputError, NoUsableDataError
+from ..progress import Progress, as_progress
+from ..readers.gedi import gedi_vertical_datum
+from ..schema import LAYER_FOOTPRINTS
+from .waveforms_beams import _plot, flag_invalid_shots
 
 __all__ = ["FootprintRunSummary", "footprints_from_l1b", "footprints_to_file",
            "compare_with_l2a", "flag_invalid_shots", "GEDI_VERTICAL_DATUM"]
@@ -35,7 +36,6 @@ log = logging.getLogger(__name__)
 
 #: GEDI elevations are heights above the WGS84 ellipsoid.
 GEDI_VERTICAL_DATUM = "EPSG:4979"
-_PLOT_DEFAULT = 3      # waveform plots per beam when no shots are named
 
 
 @dataclass
@@ -49,34 +49,9 @@ class FootprintRunSummary:
     plots: list[Path] = field(default_factory=list)
 
 
-#: Columns of an ``invalid_shot`` footprint that are not given (NaN).
-_NOT_GIVEN = ("lon", "lat", "ground", "top", "cover", "penetration", "ground_gauss")
-
-
-def flag_invalid_shots(table: pd.DataFrame, batch: Any) -> pd.DataFrame:
-    """Flag ``invalid_shot`` the shots whose L1B values are impossible (the reader's
-    ``extra["invalid_shot"]`` bits) and the shots processing called ``ok`` whose ground,
-    top or position came out non-finite; their heights and position are set to NaN."""
-    from .readers.gedi_geometry import INVALID_SHOT
-
-    bits = batch.extra.get(INVALID_SHOT) if hasattr(batch, "extra") else None
-    bad = np.zeros(len(table), dtype=bool) if bits is None else np.asarray(bits) != 0
-    flag = table["flag"].to_numpy(object).copy()
-    vals = table[["ground", "top", "lon", "lat"]].to_numpy(float)
-    bad |= (flag == "ok") & ~np.isfinite(vals).all(axis=1)
-    if not bad.any():
-        return table
-    flag[bad] = INVALID_SHOT
-    out = table.assign(flag=flag)
-    cols = [c for c in out.columns if c in _NOT_GIVEN or (c.startswith("rh") and
-                                                          c[2:].isdigit())]
-    out.loc[bad, cols] = np.nan
-    return out
-
-
 def _refuse_if_all_invalid(path: Any, table: pd.DataFrame, problems: int) -> None:
-    from .errors import FileFormatError
-    from .readers.gedi_geometry import INVALID_SHOT, PROBLEM_NAMES
+    from ..errors import FileFormatError
+    from ..readers.gedi_geometry import INVALID_SHOT, PROBLEM_NAMES
 
     if len(table) and (table["flag"].to_numpy(object) == INVALID_SHOT).all():
         kinds = [name for bit, name in PROBLEM_NAMES.items() if problems & bit] or \
@@ -88,7 +63,7 @@ def _refuse_if_all_invalid(path: Any, table: pd.DataFrame, problems: int) -> Non
 
 def _terrain_filter(table: pd.DataFrame) -> pd.DataFrame:
     """Seed-003 terrain outliers along one whole beam (time order), flagged."""
-    from .waveforms.terrain_filter import terrain_outliers
+    from ..waveforms.terrain_filter import terrain_outliers
 
     if table.empty:
         return table
@@ -142,7 +117,7 @@ def footprints_from_l1b(
         each beam) into ``plots_dir``.
     workers : int or None
         Processes reading and processing the beams in parallel
-        (:mod:`canopyblocks.waveform_workers`; the same table as one process); None: the
+        (:mod:`canopyblocks.workflows.waveforms_beams`; the same table as one process); None: the
         machine's cores.
 
     Returns
@@ -154,10 +129,10 @@ def footprints_from_l1b(
     ------
     FileFormatError, InputError, NoUsableDataError
     """
-    from .geo import as_crs, to_metric
-    from .readers.gedi import iter_gedi_l1b
-    from .waveforms.process import _footprint_table, shot_details
-    from .waveforms.settings import WaveformParams
+    from ..geo import as_crs, to_metric
+    from ..readers.gedi import iter_gedi_l1b
+    from ..waveforms.process import _footprint_table, shot_details
+    from ..waveforms.settings import WaveformParams
 
     base = params if params is not None else WaveformParams()
     if not isinstance(base, WaveformParams):
@@ -170,7 +145,7 @@ def footprints_from_l1b(
     plotted: dict[str, int] = {}
     problems = 0
     reading = prog.sub(0.0, 0.9)
-    from .waveform_workers import BeamJob, beams_for_workers, beams_in_workers
+    from .waveforms_beams import BeamJob, beams_for_workers, beams_in_workers
 
     in_workers = beams_for_workers(path, beams, workers)
     if in_workers:
@@ -220,32 +195,11 @@ def _utc(path: str | os.PathLike[str], delta_time: np.ndarray) -> np.ndarray:
     """UTC of the shots (``time_utc``, beside ``time`` = delta_time), to the millisecond
     (a GeoPackage's precision: finer times were written as '08:21:60' by GDAL); NaT for a
     simulated file, whose clock starts at its first shot."""
-    from .utc_time import file_counts_from_sdp_epoch, utc_from_delta_time
+    from ..readers.utc_time import file_counts_from_sdp_epoch, utc_from_delta_time
 
     if not file_counts_from_sdp_epoch(path):
         return np.full(len(delta_time), np.datetime64("NaT"), dtype="datetime64[ns]")
     return utc_from_delta_time(delta_time).astype("datetime64[ms]").astype("datetime64[ns]")
-
-
-def _plot(batch: Any, table: pd.DataFrame, wanted: set[int] | None, plotted: dict[str, int],
-          folder: Path, params: Any, shot_details: Any) -> list[Path]:
-    from .outputs.waveform_plot import elevation_datum, plot_waveform
-
-    sn = table["shot_number"].to_numpy(np.int64)
-    if wanted is not None:
-        idx = np.flatnonzero(np.isin(sn, list(wanted)))
-    else:
-        done = plotted.get(batch.beam, 0)
-        ok = np.flatnonzero(table["flag"].to_numpy(object) == "ok")
-        idx = ok[:max(0, _PLOT_DEFAULT - done)]
-        plotted[batch.beam] = done + len(idx)
-    out = []
-    datum = elevation_datum(batch.source) if len(idx) else ""
-    for i in idx:
-        details = shot_details(batch, int(i), params)
-        out.append(plot_waveform(details, folder / f"waveform_{batch.beam}_{sn[i]}.png",
-                                 vertical_datum=datum))
-    return out
 
 
 class UnmatchedShotsWarning(CanopyBlocksWarning):
@@ -285,7 +239,7 @@ def compare_with_l2a(footprints: pd.DataFrame, l2a: str | os.PathLike[str] | Non
         The joined table, and per beam and metric ``n``, ``bias``, ``rmse``,
         ``within_0.10`` (share of valid ok shots within 0.10 m).
     """
-    from .readers.gedi_l2 import read_gedi_l2a, read_gedi_l2b
+    from ..readers.gedi_l2 import read_gedi_l2a, read_gedi_l2b
 
     out = footprints.copy()
     metrics = ["ground", "rh50", "rh98", "top"]
@@ -348,8 +302,8 @@ def footprints_to_file(
     ``output``: ``.gpkg`` (layer ``footprints``, plus ``l2a_comparison`` with ``l2a``),
     ``.parquet`` or ``.csv``. See :func:`footprints_from_l1b` and :func:`compare_with_l2a`.
     """
-    from .outputs.atomic import check_writable, new_files_removed_on_failure
-    from .outputs.tables import check_output_path, write_layers
+    from ..atomic import check_writable, new_files_removed_on_failure
+    from ..outputs.tables import check_output_path, write_layers
 
     check_output_path(output)
     if plots_dir is not None:
@@ -372,7 +326,7 @@ def footprints_to_file(
             gdf = gpd.GeoDataFrame(joined, geometry="geometry", crs=gdf.crs)
             gdf.attrs["vertical_datum"] = datum
         if plots:
-            from .outputs.waveform_plot import plots_index
+            from ..outputs.waveform_plot import plots_index
 
             plots.append(plots_index(plots, Path(plots_dir) / "waveforms.html"))  # type: ignore[arg-type]
         prog.update(0.95, "writing")

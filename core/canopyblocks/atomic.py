@@ -18,8 +18,8 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..errors import FileFormatError
-from ..progress import Progress
+from .errors import FileFormatError
+from .progress import Progress
 
 __all__ = ["atomic_output", "atomic_outputs", "check_writable", "new_files_removed_on_failure",
            "committing", "journal_mark", "written_since", "will_exist", "record_written"]
@@ -218,7 +218,7 @@ def atomic_output(path: str | os.PathLike[str], *, keep_existing: bool = False) 
     KeyboardInterrupt, the temporary file is removed and ``path`` is unchanged.
     Inside :func:`atomic_outputs` the rename waits for the whole transaction.
     """
-    from ..arguments import check_path
+    from .arguments import check_path
     check_path(path, "atomic_output: path")
     final = Path(path)
     check_writable(final)

@@ -20,14 +20,15 @@ import geopandas as gpd
 import numpy as np
 import pandas as pd
 
-from .blocks import BlockParams, compute_blocks
-from .errors import CanopyBlocksWarning, NoUsableDataError
-from .photons import PhotonTrack
-from .progress import Progress, as_progress
-from .schema import BLOCK_COLUMNS, LABEL_NAMES, LAYER_BLOCKS, LAYER_PHOTONS
+from ..blocks import BlockParams
+from ..errors import CanopyBlocksWarning, NoUsableDataError
+from ..photons import PhotonTrack
+from ..progress import Progress, as_progress
+from ..schema import LABEL_NAMES, LAYER_BLOCKS, LAYER_PHOTONS
+from .blocks_tracks import blocks_of_track, concat_blocks, read_track
 
 if TYPE_CHECKING:
-    from .blocks.estimators import Estimators
+    from ..blocks.estimators import Estimators
 
 __all__ = ["BlocksResult", "select_tracks", "read_tracks", "run_blocks", "blocks_from_file",
            "photon_layer", "track_strengths", "calibrate_blocks"]
@@ -71,7 +72,7 @@ def select_tracks(path: str, beams: tuple[str, ...], channel: int | str | None) 
     ATL03 without ``--beam``: every beam that holds photons.  MABEL without
     ``--channel``: the channel with the most photons (as seed 001 picked channel 49).
     """
-    from .readers import atl03_beams, detect_product
+    from ..readers import atl03_beams, detect_product
 
     # only the product and the beam list: reading the tracks is open_track's job
     product = detect_product(path)
@@ -81,7 +82,6 @@ def select_tracks(path: str, beams: tuple[str, ...], channel: int | str | None) 
     if product == "MABEL":
         return [{"channel": channel if channel is not None else "most"}]
     return [{}]
-
 
 
 def read_tracks(
@@ -107,7 +107,7 @@ def read_tracks(
         When no requested beam/channel holds usable photons (e.g. a sea-ice granule
         with ``min_signal_conf`` set: its land confidence is -1 everywhere).
     """
-    from .arguments import check_path
+    from ..arguments import check_path
     check_path(path, "read_tracks: path", "a photon file path")
     prog = as_progress(progress)
     selections = select_tracks(str(path), tuple(beams), channel)
@@ -130,40 +130,6 @@ def read_tracks(
         warnings.warn(f"skipped: {msg}", CanopyBlocksWarning, stacklevel=2)
     prog.update(1.0)
     return tracks
-
-
-def read_track(path: str | os.PathLike[str], selection: dict, *,
-               atl08: str | os.PathLike[str] | None = None,
-               bbox: tuple[float, float, float, float] | None = None, crs: Any = None,
-               min_signal_conf: int | None = None) -> PhotonTrack:
-    """One track of a photon file (``selection``: an item of :func:`select_tracks`).
-
-    Raises
-    ------
-    NoUsableDataError
-        When it holds no photons, or none at ``min_signal_conf``.
-    """
-    from .readers import open_track
-
-    t = open_track(path, bbox=bbox, atl08=atl08, crs=crs, **selection)
-    if min_signal_conf is not None:
-        _require_signal(t, min_signal_conf)
-    if len(t) == 0:
-        raise NoUsableDataError(f"{t.track} of {path}: no photons")
-    return t
-
-
-def _require_signal(track: PhotonTrack, level: int) -> None:
-    if track.signal_conf is None:
-        return  # BlockParams validation reports a missing signal_conf column
-    good = int(np.count_nonzero(track.signal_conf >= level))
-    if good == 0:
-        values = np.unique(track.signal_conf)
-        raise NoUsableDataError(
-            f"{track.track} of {track.source}: no photon has land signal confidence >= {level} "
-            f"(values present: {', '.join(map(str, values[:8]))}); the surface is not land "
-            "(e.g. sea ice or ocean) or the level is too strict"
-        )
 
 
 def run_blocks(
@@ -192,35 +158,12 @@ def run_blocks(
     return concat_blocks(frames, tracks[0].crs if tracks else None), all_labels
 
 
-def blocks_of_track(track: PhotonTrack, params: BlockParams, *, labels: bool = False,
-                    estimators: Estimators | None = None, progress: Progress | None = None
-                    ) -> tuple[gpd.GeoDataFrame, dict[float, np.ndarray] | None]:
-    """The block table of one track and, with ``labels``, its per-photon labels."""
-    if estimators is not None:
-        from .blocks.estimators import estimate_blocks
-
-        if labels:
-            return estimate_blocks(track, params, estimators, labels=True, progress=progress)
-        return estimate_blocks(track, params, estimators, progress=progress), None
-    if labels:
-        return compute_blocks(track, params, labels=True, progress=progress)
-    return compute_blocks(track, params, progress=progress), None
-
-
-def concat_blocks(frames: Sequence[pd.DataFrame], crs: Any) -> gpd.GeoDataFrame:
-    """The block tables of several tracks as one (an empty table with the columns when none)."""
-    if not frames:
-        return gpd.GeoDataFrame(columns=[*BLOCK_COLUMNS, "geometry"], geometry="geometry",
-                                crs=crs)
-    return gpd.GeoDataFrame(pd.concat(frames, ignore_index=True), geometry="geometry", crs=crs)
-
-
 def photon_layer(tracks: Sequence[PhotonTrack],
                  labels: dict[str, dict[float, np.ndarray]]) -> gpd.GeoDataFrame:
     """Photons of all tracks as points, with a ``label_<L>m`` column per block length
     (and ``time_utc`` beside ``time`` for ATL03 granules)."""
-    from .readers import detect_product
-    from .utc_time import file_counts_from_sdp_epoch, utc_from_delta_time
+    from ..readers import detect_product
+    from ..readers.utc_time import file_counts_from_sdp_epoch, utc_from_delta_time
 
     frames = []
     for t in tracks:
@@ -241,7 +184,7 @@ def track_strengths(path: str | os.PathLike[str], tracks: Sequence[PhotonTrack |
                     ) -> dict[str, str]:
     """Beam strength (``strong``/``weak``) of each ATL03 track (tracks or their ids);
     ``{}`` for other files (one calibration model for all their tracks)."""
-    from .readers import atl03_beams, detect_product
+    from ..readers import atl03_beams, detect_product
 
     if detect_product(str(path)) != "ATL03":
         return {}
@@ -254,8 +197,8 @@ def _workers_for(path: str | os.PathLike[str], selections: Sequence[dict],
                  workers: int | None) -> tuple[int, list[int]]:
     """Processes for the beams ``selections`` of an ATL03 granule (1 for other files), and
     the photons of each beam."""
-    from .readers import atl03_beams, detect_product
-    from .track_workers import track_workers_for
+    from ..readers import atl03_beams, detect_product
+    from .blocks_tracks import track_workers_for
 
     if workers == 1 or detect_product(str(path)) != "ATL03":
         return 1, []
@@ -267,7 +210,7 @@ def _workers_for(path: str | os.PathLike[str], selections: Sequence[dict],
 def calibrate_blocks(blocks: gpd.GeoDataFrame, calibration: Any,
                      strengths: dict[str, str]) -> gpd.GeoDataFrame:
     """Blocks with a bias calibration (a BiasCalibration or its JSON file) applied."""
-    from .validation.bias_calibration import (
+    from ..validation.bias_calibration import (
         BiasCalibration,
         apply_bias_calibration,
         read_bias_calibration,
@@ -343,7 +286,7 @@ def blocks_from_file(
         PNG profile plot of the first track (smallest block length).
     workers : int or None
         Processes reading and blocking the beams of an ATL03 granule in parallel
-        (:mod:`canopyblocks.track_workers`; same table as one process); None: the
+        (:mod:`canopyblocks.workflows.blocks_tracks`; same table as one process); None: the
         machine's cores, capped by the memory available.  ``tracks`` of the result are
         then kept only when the photon layer or the profile needs them.
 
@@ -351,10 +294,10 @@ def blocks_from_file(
     -------
     BlocksResult
     """
-    from .arguments import check_path
+    from ..arguments import check_path
     check_path(path, "blocks_from_file: path", "a photon file path")
-    from .outputs.atomic import check_writable
-    from .outputs.tables import check_output_path, write_layers
+    from ..atomic import check_writable
+    from ..outputs.tables import check_output_path, write_layers
 
     if output is not None:
         check_output_path(output)  # fail before reading, not after an hour of work
@@ -367,7 +310,7 @@ def blocks_from_file(
                                                                        workers)
     with small_pages():   # the workers are forked inside: they inherit it
         if n_workers > 1:
-            from .track_workers import blocks_in_workers
+            from .blocks_tracks import blocks_in_workers
 
             blocks, ids, tracks, labels = blocks_in_workers(
                 path, selections, params, workers=n_workers, sizes=sizes,
@@ -398,7 +341,7 @@ def blocks_from_file(
         if output is not None:
             result.outputs.append(write_layers(layers, output))
         if profile is not None:
-            from .outputs.profile_plot import plot_profile
+            from ..outputs.profile_plot import plot_profile
 
             t = tracks[0]
             result.outputs.append(plot_profile(t, blocks, profile, labels=labels.get(t.track)))

@@ -11,8 +11,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from .outputs.atomic import check_writable, new_files_removed_on_failure
-from .progress import Progress, as_progress
+from ..atomic import check_writable, new_files_removed_on_failure
+from ..progress import Progress, as_progress
 
 __all__ = ["run_waveform_chain"]
 
@@ -50,17 +50,17 @@ def run_waveform_chain(
     -------
     ChainResult
     """
-    from .chain_report import datum_sentence
-    from .outputs.footprint_maps import write_footprint_plots
-    from .outputs.report import ReportSection, footprint_stats_table, write_report
-    from .outputs.tables import write_layers, write_table
-    from .validation.footprints import (
+    from ..outputs.footprint_maps import write_footprint_plots
+    from ..outputs.report import ReportSection, footprint_stats_table, write_report
+    from ..outputs.tables import write_layers, write_table
+    from ..validation.footprints import (
         LAYER_RESIDUALS_FOOTPRINTS,
         LAYER_STATS_FOOTPRINTS,
         validate_footprints,
     )
-    from .waveform_footprints import footprints_from_l1b
-    from .whole_chain import ChainResult
+    from .chain_report import datum_sentence
+    from .chain_result import ChainResult
+    from .waveforms import footprints_from_l1b
 
     prog = as_progress(progress)
     out = check_writable(out_dir, folder=True)
@@ -69,7 +69,7 @@ def run_waveform_chain(
         out.mkdir(parents=True, exist_ok=True)
         plots_dir = out / "plots"
         plots_dir.mkdir(exist_ok=True)
-        from .readers.las import las_crs
+        from ..readers.las import las_crs
 
         crs = las_crs(tiles[0])
         fp, wave_plots = footprints_from_l1b(l1b, beams=beams or None, params=params, crs=crs,
@@ -84,7 +84,7 @@ def run_waveform_chain(
                                    LAYER_STATS_FOOTPRINTS: val.stats},
                                   out / "validation.gpkg")
         write_table(val.stats, out / "stats.csv", layer="stats")
-        from .whole_chain import _tiles_crs, _vertical_name
+        from .chain_tiles import _tiles_crs, _vertical_name
 
         tiles_datum = _vertical_name(_tiles_crs(tiles))
         maps = write_footprint_plots(val.residuals, plots_dir, datum=tiles_datum)

@@ -11,12 +11,12 @@ import importlib
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from .backends import BACKENDS, run_items
+    from ..backends import BACKENDS, run_items
     from .runner import BatchResult, run_batch
     from .units import Tile, Unit, find_units, tile_index
     from .work import BatchConfig, run_unit
 
-_WHERE = {"BACKENDS": ".backends", "run_items": ".backends", "BatchResult": ".runner",
+_WHERE = {"BACKENDS": "..backends", "run_items": "..backends", "BatchResult": ".runner",
           "run_batch": ".runner", "Tile": ".units", "Unit": ".units", "find_units": ".units",
           "tile_index": ".units", "BatchConfig": ".work", "run_unit": ".work"}
 

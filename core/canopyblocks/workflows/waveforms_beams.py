@@ -1,11 +1,12 @@
-"""The beams of one GEDI L1B file read and processed in a pool of worker processes.
+"""The beams of one GEDI L1B file read and processed in a pool of worker processes,
+and what one beam's job needs: invalid shots flagged, its waveform plots drawn.
 
 One unit of work is one beam: its shots are read in chunks, processed
 (:func:`~canopyblocks.waveforms.process.process_waveforms`) and flagged inside a worker,
 and only its footprint tables (and the paths of the waveform plots it drew) come back.
 h5py serialises every HDF5 call inside one process, so reading and inflating beams in
 parallel needs processes. The tables are those of the one-process loop of
-:func:`~canopyblocks.waveform_footprints.footprints_from_l1b`, value for value, in the
+:func:`~canopyblocks.workflows.waveforms.footprints_from_l1b`, value for value, in the
 same beam order; warnings raised in the workers are raised again here, in beam order.
 """
 
@@ -21,8 +22,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from .batch.backends import default_workers, run_items
-from .progress import Progress, as_progress
+from ..progress import Progress, as_progress
+from .backends import default_workers, run_items
 
 __all__ = ["BeamJob", "BeamOutcome", "beams_for_workers", "beams_in_workers"]
 
@@ -55,9 +56,8 @@ class BeamOutcome:
 
 def run_beam_job(job: BeamJob) -> BeamOutcome:
     """Read, process and flag the shots of one beam (runs in a worker)."""
-    from .readers.gedi import iter_gedi_l1b
-    from .waveform_footprints import _plot, flag_invalid_shots
-    from .waveforms.process import _footprint_table, shot_details
+    from ..readers.gedi import iter_gedi_l1b
+    from ..waveforms.process import _footprint_table, shot_details
 
     out = BeamOutcome(job)
     wanted = None if job.plot_shots is None else set(job.plot_shots)
@@ -85,8 +85,8 @@ def beams_for_workers(path: str | os.PathLike[str], beams: Sequence[str] | str |
     n = workers if workers is not None else default_workers()
     if n <= 1:
         return []
-    from .readers._h5 import open_h5
-    from .readers.gedi import gedi_beams
+    from ..readers._h5 import open_h5
+    from ..readers.gedi import gedi_beams
 
     if beams:
         wanted = [beams] if isinstance(beams, str) else list(beams)
@@ -138,3 +138,52 @@ def beams_in_workers(jobs: Sequence[BeamJob], workers: int | None, *,
         problems |= out.problems
         plots += out.plots
     return per_beam, problems, plots
+
+
+_PLOT_DEFAULT = 3      # waveform plots per beam when no shots are named
+
+
+#: Columns of an ``invalid_shot`` footprint that are not given (NaN).
+_NOT_GIVEN = ("lon", "lat", "ground", "top", "cover", "penetration", "ground_gauss")
+
+
+def flag_invalid_shots(table: pd.DataFrame, batch: Any) -> pd.DataFrame:
+    """Flag ``invalid_shot`` the shots whose L1B values are impossible (the reader's
+    ``extra["invalid_shot"]`` bits) and the shots processing called ``ok`` whose ground,
+    top or position came out non-finite; their heights and position are set to NaN."""
+    from ..readers.gedi_geometry import INVALID_SHOT
+
+    bits = batch.extra.get(INVALID_SHOT) if hasattr(batch, "extra") else None
+    bad = np.zeros(len(table), dtype=bool) if bits is None else np.asarray(bits) != 0
+    flag = table["flag"].to_numpy(object).copy()
+    vals = table[["ground", "top", "lon", "lat"]].to_numpy(float)
+    bad |= (flag == "ok") & ~np.isfinite(vals).all(axis=1)
+    if not bad.any():
+        return table
+    flag[bad] = INVALID_SHOT
+    out = table.assign(flag=flag)
+    cols = [c for c in out.columns if c in _NOT_GIVEN or (c.startswith("rh") and
+                                                          c[2:].isdigit())]
+    out.loc[bad, cols] = np.nan
+    return out
+
+
+def _plot(batch: Any, table: pd.DataFrame, wanted: set[int] | None, plotted: dict[str, int],
+          folder: Path, params: Any, shot_details: Any) -> list[Path]:
+    from ..outputs.waveform_plot import elevation_datum, plot_waveform
+
+    sn = table["shot_number"].to_numpy(np.int64)
+    if wanted is not None:
+        idx = np.flatnonzero(np.isin(sn, list(wanted)))
+    else:
+        done = plotted.get(batch.beam, 0)
+        ok = np.flatnonzero(table["flag"].to_numpy(object) == "ok")
+        idx = ok[:max(0, _PLOT_DEFAULT - done)]
+        plotted[batch.beam] = done + len(idx)
+    out = []
+    datum = elevation_datum(batch.source) if len(idx) else ""
+    for i in idx:
+        details = shot_details(batch, int(i), params)
+        out.append(plot_waveform(details, folder / f"waveform_{batch.beam}_{sn[i]}.png",
+                                 vertical_datum=datum))
+    return out

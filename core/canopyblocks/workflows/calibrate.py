@@ -19,7 +19,8 @@ import numpy as np
 from ..blocks import BlockParams
 from ..errors import InputError
 from ..progress import Progress, as_progress
-from .bias_calibration import BiasCalibration, BiasKind, fit_bias_calibration
+from ..validation.bias_calibration import BiasCalibration, BiasKind, fit_bias_calibration
+from ..validation.calibration import CutoffCalibration, calibrate_against_reference
 
 if TYPE_CHECKING:
     from ..blocks.estimators import Estimators
@@ -74,8 +75,8 @@ def calibrate_bias_file(
     BiasCalibration
         Write it with :func:`~canopyblocks.validation.bias_calibration.write_bias_calibration`.
     """
-    from ..track_blocks import read_tracks, run_blocks, track_strengths
-    from .block_validation import raster_horizontal_crs, validate_blocks
+    from ..validation.block_validation import raster_horizontal_crs, validate_blocks
+    from .blocks import read_tracks, run_blocks, track_strengths
 
     prog = as_progress(progress)
     if reference not in ("corridor", "footprint"):
@@ -91,8 +92,8 @@ def calibrate_bias_file(
                          min_signal_conf=params.min_signal_conf, progress=prog.sub(0.0, 0.2))
     blocks, _ = run_blocks(tracks, params, estimators=estimators, progress=prog.sub(0.2, 0.5))
     if reference == "footprint":
-        from ..reference.footprint import FootprintReferenceParams
-        from .footprints import validate_blocks_footprint
+        from ..reference.footprint_params import FootprintReferenceParams
+        from ..validation.footprints import validate_blocks_footprint
 
         val = validate_blocks_footprint(blocks, list(points),
                                         params=FootprintReferenceParams.icesat2(),
@@ -117,3 +118,50 @@ def calibrate_bias_file(
                                reference=reference, sources=(Path(photons).name,))
     prog.update(1.0, "calibrated")
     return cal
+
+
+def calibrate_reference_rasters(
+    photons: str,
+    params: BlockParams,
+    *,
+    dtm: str,
+    dsm_max: str,
+    dsm_p90: str,
+    width: float = 2.0,
+    beam: str | None = None,
+    channel: int | str | None = None,
+    crs: object = None,
+    geoid: str | None = None,
+    offset: float | None = None,
+    progress: Progress | None = None,
+) -> CutoffCalibration:
+    """Read one track, compute blocks, take reference values from the rasters, calibrate.
+
+    Parameters
+    ----------
+    photons : path
+        ATL03 / MABEL / table photon file; one track (``beam`` / ``channel``).
+    params : BlockParams
+        Lengths and everything but the cut-offs.
+    dtm, dsm_max, dsm_p90 : path
+        Reference GeoTIFFs on one grid (metres).
+    width : float
+        Corridor width, metres.
+    crs : CRS-like, optional
+        Metric CRS for the photons; default the DTM's horizontal CRS.
+    """
+    from ..validation.block_validation import raster_horizontal_crs, validate_blocks
+    from .blocks import read_tracks, run_blocks
+
+    prog = as_progress(progress)
+    if crs is None:  # the DTM's (refused with a clear message when missing or unreadable)
+        horizontal = raster_horizontal_crs(dtm)
+        crs = None if horizontal is None else horizontal.to_wkt()
+    tracks = read_tracks(photons, beams=() if beam is None else (beam,), channel=channel,
+                         crs=crs, min_signal_conf=params.min_signal_conf,
+                         progress=prog.sub(0.0, 0.1))
+    track = tracks[0]
+    blocks, _ = run_blocks([track], params, progress=prog.sub(0.1, 0.2))
+    val = validate_blocks(blocks, dtm=dtm, dsm_max=dsm_max, dsm_p90=dsm_p90, width=width,
+                          geoid=geoid, offset=offset, progress=prog.sub(0.2, 0.5))
+    return calibrate_against_reference(track, val.residuals, params, progress=prog.sub(0.5, 1.0))

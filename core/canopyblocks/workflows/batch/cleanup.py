@@ -19,7 +19,7 @@ import tempfile
 from collections.abc import Iterator, Sequence
 from pathlib import Path
 
-from ..errors import InputError
+from ...errors import InputError
 
 __all__ = ["refuse_output_in_inputs", "remove_partial_outputs", "complete_outputs",
            "private_tempdir"]

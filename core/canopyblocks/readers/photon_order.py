@@ -18,7 +18,7 @@ from collections.abc import MutableMapping
 
 import numpy as np
 
-from .photons import stable_order
+from ..photons import stable_order
 
 __all__ = ["order_windows", "sort_columns_in_windows", "DEFAULT_SORT_WINDOW"]
 

@@ -1,4 +1,4 @@
-"""The HTML report of :func:`~canopyblocks.whole_chain.run_chain`, leading with the answer.
+"""The HTML report of :func:`~canopyblocks.workflows.chain.run_chain`, leading with the answer.
 
 Order: a summary (what was computed, from what, the recommended estimators and their
 error against the like-with-like reference, a map); the paper's method with one
@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from .outputs.report import ReportSection, report_stats_table
+from ..outputs.report import ReportSection, report_stats_table
 
 __all__ = ["LeadResult", "estimators_sentence", "lead_numbers", "summary_section",
            "paper_section", "summary_lines", "datum_sentence", "bias_calibration_part",
@@ -133,7 +133,7 @@ def summary_section(lead: LeadResult, *, source: str, n_tracks: int, n_photons: 
 def paper_section(paper_stats: pd.DataFrame, *, reference: str, layer: str,
                   lead: LeadResult | None) -> ReportSection:
     """The paper's method with one paragraph on its known bias (numbers from its table)."""
-    from .blocks.estimators import preset
+    from ..blocks.estimators import preset
 
     table = lead_numbers(paper_stats)
     length = _headline_length(table)
@@ -182,7 +182,7 @@ def bias_calibration_part(table: pd.DataFrame, preset: str
                           ) -> tuple[str, dict[str, pd.DataFrame]]:
     """Words and tables of the bias calibration fitted in the chain: its table with the
     held-out error, or why there is none (``table.attrs['why']``)."""
-    from .outputs.report import calibration_table
+    from ..outputs.report import calibration_table
 
     if table is None or not len(table):
         why = getattr(table, "attrs", {}).get("why", "too few validated blocks")

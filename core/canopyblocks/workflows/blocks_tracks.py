@@ -1,4 +1,5 @@
-"""The tracks of one photon file read and blocked in a pool of worker processes.
+"""One track of a photon file read and blocked (:func:`read_track`,
+:func:`blocks_of_track`), and the tracks of a file so in a pool of worker processes.
 
 One unit of work is one track (an ATL03 beam): it is read, checked and blocked inside a
 worker, and only its block table (and, when asked for, its labels and photons) comes back.
@@ -18,19 +19,19 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+import geopandas as gpd
 import numpy as np
+import pandas as pd
 
-from .batch.backends import default_workers, run_items
-from .blocks import BlockParams
-from .errors import CanopyBlocksWarning, InputError, NoUsableDataError
-from .photons import PhotonTrack
-from .progress import Progress, as_progress
-from .track_blocks import blocks_of_track, concat_blocks, read_track
+from ..blocks import BlockParams, compute_blocks
+from ..errors import CanopyBlocksWarning, InputError, NoUsableDataError
+from ..photons import PhotonTrack
+from ..progress import Progress, as_progress
+from ..schema import BLOCK_COLUMNS
+from .backends import default_workers, run_items
 
 if TYPE_CHECKING:
-    import geopandas as gpd
-
-    from .blocks.estimators import Estimators
+    from ..blocks.estimators import Estimators
 
 __all__ = ["TrackJob", "TrackOutcome", "blocks_in_workers", "track_workers_for",
            "WORKER_BASE_BYTES", "WORKER_BYTES_PER_PHOTON"]
@@ -183,3 +184,60 @@ def blocks_in_workers(
     tracks = [o.track for o in good if o.track is not None]
     all_labels = {o.track_id: o.labels for o in good if o.labels is not None}
     return blocks, [o.track_id for o in good], tracks, all_labels
+
+
+def read_track(path: str | os.PathLike[str], selection: dict, *,
+               atl08: str | os.PathLike[str] | None = None,
+               bbox: tuple[float, float, float, float] | None = None, crs: Any = None,
+               min_signal_conf: int | None = None) -> PhotonTrack:
+    """One track of a photon file (``selection``: an item of :func:`select_tracks`).
+
+    Raises
+    ------
+    NoUsableDataError
+        When it holds no photons, or none at ``min_signal_conf``.
+    """
+    from ..readers import open_track
+
+    t = open_track(path, bbox=bbox, atl08=atl08, crs=crs, **selection)
+    if min_signal_conf is not None:
+        _require_signal(t, min_signal_conf)
+    if len(t) == 0:
+        raise NoUsableDataError(f"{t.track} of {path}: no photons")
+    return t
+
+
+def _require_signal(track: PhotonTrack, level: int) -> None:
+    if track.signal_conf is None:
+        return  # BlockParams validation reports a missing signal_conf column
+    good = int(np.count_nonzero(track.signal_conf >= level))
+    if good == 0:
+        values = np.unique(track.signal_conf)
+        raise NoUsableDataError(
+            f"{track.track} of {track.source}: no photon has land signal confidence >= {level} "
+            f"(values present: {', '.join(map(str, values[:8]))}); the surface is not land "
+            "(e.g. sea ice or ocean) or the level is too strict"
+        )
+
+
+def blocks_of_track(track: PhotonTrack, params: BlockParams, *, labels: bool = False,
+                    estimators: Estimators | None = None, progress: Progress | None = None
+                    ) -> tuple[gpd.GeoDataFrame, dict[float, np.ndarray] | None]:
+    """The block table of one track and, with ``labels``, its per-photon labels."""
+    if estimators is not None:
+        from ..blocks.estimators import estimate_blocks
+
+        if labels:
+            return estimate_blocks(track, params, estimators, labels=True, progress=progress)
+        return estimate_blocks(track, params, estimators, progress=progress), None
+    if labels:
+        return compute_blocks(track, params, labels=True, progress=progress)
+    return compute_blocks(track, params, progress=progress), None
+
+
+def concat_blocks(frames: Sequence[pd.DataFrame], crs: Any) -> gpd.GeoDataFrame:
+    """The block tables of several tracks as one (an empty table with the columns when none)."""
+    if not frames:
+        return gpd.GeoDataFrame(columns=[*BLOCK_COLUMNS, "geometry"], geometry="geometry",
+                                crs=crs)
+    return gpd.GeoDataFrame(pd.concat(frames, ignore_index=True), geometry="geometry", crs=crs)

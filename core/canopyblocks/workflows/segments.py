@@ -17,11 +17,11 @@ import geopandas as gpd
 import numpy as np
 import pandas as pd
 
-from .blocks.atl08_classify import CLASS_COLUMN, Atl08Params, classify_photons
-from .blocks.atl08_segments import atl08_segments
-from .errors import InputError
-from .progress import Progress, as_progress
-from .schema import LAYER_PHOTONS
+from ..blocks.atl08_classify import CLASS_COLUMN, Atl08Params, classify_photons
+from ..blocks.atl08_segments import atl08_segments
+from ..errors import InputError
+from ..progress import Progress, as_progress
+from ..schema import LAYER_PHOTONS
 
 __all__ = ["segments_from_file", "LAYER_SEGMENTS"]
 
@@ -55,7 +55,7 @@ def segments_from_file(
     s0 : float, optional
         Along-track origin of segment 0 (m); default the start of each track.
     beams, channel, bbox, crs
-        As for :func:`~canopyblocks.track_blocks.read_tracks`.
+        As for :func:`~canopyblocks.workflows.blocks.read_tracks`.
     params : Atl08Params, optional
         The classifier's parameters.
     output : path-like, optional
@@ -69,10 +69,10 @@ def segments_from_file(
     GeoDataFrame
         Columns :data:`~canopyblocks.blocks.atl08_segments.SEGMENT_COLUMNS` of all tracks.
     """
-    from .arguments import check_path
+    from ..arguments import check_path
     check_path(path, "segments_from_file: path", "a photon file path")
-    from .outputs.tables import check_output_path, write_layers
-    from .track_blocks import read_tracks
+    from ..outputs.tables import check_output_path, write_layers
+    from .blocks import read_tracks
 
     if not (isinstance(length, (int, float)) and np.isfinite(length) and length > 0):
         raise InputError(f"segment length must be a positive number of metres, got {length!r}")

@@ -24,6 +24,12 @@ import pandas as pd
 from ..errors import CRSError, InputError, NoUsableDataError
 from ..progress import Progress, as_progress
 from ..schema import LAYER_FOOTPRINTS, LAYER_RESIDUALS, LAYER_STATS
+from ..validation.footprints import (
+    LAYER_RESIDUALS_FOOTPRINTS,
+    LAYER_STATS_FOOTPRINTS,
+    FootprintValidation,
+    validate_footprints,
+)
 
 __all__ = ["FileValidation", "validate_file", "is_footprint_table", "REFERENCE_KINDS"]
 
@@ -190,7 +196,7 @@ def validate_file(
     from ..arguments import check_path
     check_path(path, "validate_file: path")
     check_path(output, "validate_file: output")
-    from ..outputs.atomic import check_writable, new_files_removed_on_failure
+    from ..atomic import check_writable, new_files_removed_on_failure
     from ..outputs.tables import check_output_path, layer_files, read_blocks, read_layer
 
     prog = as_progress(progress)
@@ -243,8 +249,8 @@ def validate_file(
     applied = ""
     stats_before = None
     if coregister:
-        from .coregistration_files import coregister_file, offset_to_apply
-        from .coregistration_targets import apply_offset
+        from ..validation.coregistration_targets import apply_offset
+        from .coregister import coregister_file, offset_to_apply
 
         prog.update(0.0, "co-registration")
         assert dtm is not None  # checked above
@@ -288,7 +294,7 @@ def validate_file(
         from ..outputs.tables import write_layers
 
         if coreg is not None:
-            from .coregistration_files import write_offsets
+            from .coregister import write_offsets
 
             offsets_path = write_offsets(coreg, out.with_name(out.stem + "_offsets.json"))
         try:
@@ -315,7 +321,7 @@ def _horizontal_crs_of(table: pd.DataFrame) -> Any:
 
 def _layer_names(kind: str) -> tuple[str, str]:
     if kind == "footprints":
-        from .footprints import LAYER_RESIDUALS_FOOTPRINTS, LAYER_STATS_FOOTPRINTS
+        from ..validation.footprints import LAYER_RESIDUALS_FOOTPRINTS, LAYER_STATS_FOOTPRINTS
 
         return LAYER_RESIDUALS_FOOTPRINTS, LAYER_STATS_FOOTPRINTS
     return LAYER_RESIDUALS, LAYER_STATS
@@ -344,7 +350,7 @@ def _validate(kind: str, table: pd.DataFrame, reference: str, dtm: Any, dsm_max:
               photon_vertical_crs: Any, slope_threshold: float, points_crs: Any,
               prog: Progress) -> tuple[pd.DataFrame, pd.DataFrame, str]:
     if kind == "footprints":
-        from .footprints import validate_footprints
+        from ..validation.footprints import validate_footprints
 
         v = validate_footprints(table, list(points), params=footprint_params,
                                 photon_vertical_crs=photon_vertical_crs,
@@ -353,12 +359,12 @@ def _validate(kind: str, table: pd.DataFrame, reference: str, dtm: Any, dsm_max:
                                 slope_threshold=slope_threshold, progress=prog)
         return v.residuals, v.stats, v.datum
     if reference == "atl08" or (atl08 is not None and reference != "footprint"):
-        from .block_validation import validate_atl08
+        from ..validation.block_validation import validate_atl08
 
         r = validate_atl08(table, atl08, width=width, progress=prog)
     elif reference == "footprint":
-        from ..reference.footprint import FootprintReferenceParams
-        from .footprints import validate_blocks_footprint
+        from ..reference.footprint_params import FootprintReferenceParams
+        from ..validation.footprints import validate_blocks_footprint
 
         r = validate_blocks_footprint(table, list(points),
                                       params=footprint_params or
@@ -369,7 +375,7 @@ def _validate(kind: str, table: pd.DataFrame, reference: str, dtm: Any, dsm_max:
                                       slope_threshold=slope_threshold, points_crs=points_crs,
                                       progress=prog)
     else:
-        from .block_validation import validate_blocks
+        from ..validation.block_validation import validate_blocks
 
         r = validate_blocks(table, dtm=dtm, dsm_max=dsm_max, dsm_p90=dsm_p90,
                             width=width, geoid=geoid, offset=offset,
@@ -389,3 +395,60 @@ def _write_plots(kind: str, residuals: pd.DataFrame, stats: pd.DataFrame, folder
     from ..outputs.validation_plots import write_validation_plots
 
     write_validation_plots(residuals, stats, folder)
+
+
+def validate_footprints_file(
+    footprints_path: str | os.PathLike[str],
+    las_paths: Sequence[str | os.PathLike[str]],
+    output: str | os.PathLike[str],
+    *,
+    layer: str = LAYER_FOOTPRINTS,
+    plots: str | os.PathLike[str] | None = None,
+    dtm: str | os.PathLike[str] | None = None,
+    progress: Progress | None = None,
+    **kwargs: object,
+) -> FootprintValidation:
+    """Read a footprints layer, validate it, write ``residuals_footprints`` and
+    ``stats_footprints`` to ``output`` (a new file; atomically), optionally plots.
+
+    Parameters
+    ----------
+    footprints_path : path
+        GeoPackage (layer ``layer``), GeoParquet or CSV footprint table.
+    las_paths : sequence of path
+        Airborne LAS/LAZ tiles.
+    output : path
+        .gpkg (two layers), or .csv/.parquet (``<stem>_<layer><suffix>`` each).  Must
+        differ from ``footprints_path``.
+    plots : folder, optional
+        Scatter (footprint vs reference, ground and RH98) and maps (RH98, residuals).
+    dtm : path, optional
+        DTM GeoTIFF for the maps' hillshade.
+    **kwargs
+        Passed to :func:`validate_footprints` (params, geoid, offset, ...).
+    """
+    from ..atomic import check_writable, new_files_removed_on_failure
+    from ..outputs.tables import check_output_path, read_layer, write_layers
+
+    src, dst = Path(footprints_path), Path(output)
+    if dst.exists() and src.exists() and dst.resolve() == src.resolve():
+        raise InputError(f"-o {dst} is the footprints file itself; write the validation to "
+                         "a new file")
+    check_output_path(dst)
+    if plots is not None:
+        check_writable(plots, folder=True)
+    table = read_layer(src, layer if src.suffix.lower() == ".gpkg" else None)
+    result = validate_footprints(table, las_paths, progress=progress, **kwargs)  # type: ignore[arg-type]
+    ctx = new_files_removed_on_failure(plots) if plots is not None else None
+    if ctx is not None:
+        with ctx:
+            from ..outputs.footprint_maps import write_footprint_plots
+
+            write_footprint_plots(result.residuals, Path(plots),  # type: ignore[arg-type]
+                                  dtm=dtm)
+            write_layers({LAYER_RESIDUALS_FOOTPRINTS: result.residuals,
+                          LAYER_STATS_FOOTPRINTS: result.stats}, dst)
+    else:
+        write_layers({LAYER_RESIDUALS_FOOTPRINTS: result.residuals,
+                      LAYER_STATS_FOOTPRINTS: result.stats}, dst)
+    return result

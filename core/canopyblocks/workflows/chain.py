@@ -10,43 +10,27 @@ import logging
 import math
 import os
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import pandas as pd
 
-from .blocks import BlockParams
-from .blocks.estimators import RECOMMENDED_PRESET
+from ..atomic import check_writable, new_files_removed_on_failure
+from ..blocks import BlockParams
+from ..blocks.estimators import RECOMMENDED_PRESET
+from ..errors import FileFormatError, InputError
+from ..outputs.report import ReportSection, write_report
+from ..outputs.tables import write_layers, write_table
+from ..progress import Progress, as_progress
+from ..schema import FLAG_OK, FLAGS, LAYER_BLOCKS, LAYER_RESIDUALS, LAYER_STATS
+from .blocks import blocks_from_file
 from .chain_report import datum_sentence
-from .errors import FileFormatError, InputError
-from .outputs.atomic import check_writable, new_files_removed_on_failure
-from .outputs.report import ReportSection, write_report
-from .outputs.tables import write_layers, write_table
-from .progress import Progress, as_progress
-from .schema import FLAG_OK, FLAGS, LAYER_BLOCKS, LAYER_RESIDUALS, LAYER_STATS
-from .track_blocks import blocks_from_file
+from .chain_result import ChainResult
+from .chain_tiles import _tiles_crs, _vertical_name
 
 __all__ = ["ChainResult", "run_chain"]
 
 log = logging.getLogger(__name__)
-
-
-@dataclass
-class ChainResult:
-    """Files and tables of one :func:`run_chain` run (all paths inside ``out_dir``)."""
-
-    out_dir: Path
-    photons: Path
-    blocks: Path
-    rasters: dict[str, Path]
-    validation: Path
-    report: Path
-    plots: list[Path] = field(default_factory=list)
-    stats: pd.DataFrame | None = None
-    simulated: bool = False
-    summary: list[str] = field(default_factory=list)
-    """The report summary's lines (the estimators it leads with, against its reference)."""
 
 
 def _simulate(las_paths: Sequence[Path], out: Path, *, azimuth: float, diameter: float,
@@ -54,10 +38,10 @@ def _simulate(las_paths: Sequence[Path], out: Path, *, azimuth: float, diameter:
               ) -> tuple[Path, Any, pd.DataFrame | None, Path | None]:
     """Simulate one beam over the tiles; with ``realisations`` > 0 also the seed-002
     experiment (13 and 17 m footprints) with its table and figure."""
-    from .readers.las import read_las
-    from .simulate import SimParams, line_through, seed002_experiment, simulate_photons
-    from .simulate.plots import plot_cover_residuals
-    from .simulate.writers import write_simulation_atl03
+    from ..readers.las import read_las
+    from ..simulate import SimParams, line_through, seed002_experiment, simulate_photons
+    from ..simulate.plots import plot_cover_residuals
+    from ..simulate.writers import write_simulation_atl03
 
     try:
         points = read_las(list(las_paths), progress=progress.sub(0.0, 0.2))
@@ -122,7 +106,7 @@ def run_chain(
         ``stats``), ``stats.csv``, ``plots/*.png``, ``report.html``.
     photons : path, optional
         ATL03 / MABEL / table photon file, or a GEDI L1B file (then the chain is
-        :func:`~canopyblocks.waveform_chain.run_waveform_chain`: footprints validated
+        :func:`~canopyblocks.workflows.chain_waveforms.run_waveform_chain`: footprints validated
         against the tiles).  When None, ICESat-2 photons are simulated
         over the tiles along a line at ``azimuth`` degrees through the survey centre,
         with ``diameter`` m footprints and the ``photon_rate`` (``boreal``, ``temperate``,
@@ -168,13 +152,13 @@ def run_chain(
         ``diameter`` m over the airborne points); layers ``residuals_footprint``,
         ``stats_footprint``.  False leads with the corridor maximum.
     """
-    from .arguments import check_path, check_paths
+    from ..arguments import check_path, check_paths
     check_paths(las_paths, "run_chain: las_paths", "a LAS/LAZ path or a non-empty list of them")
     check_path(out_dir, "run_chain: out_dir", "a folder path")
-    from .outputs.profile_plot import plot_profile  # noqa: F401  (fails early without matplotlib)
-    from .outputs.validation_plots import write_validation_plots
-    from .reference.rasters import make_reference_rasters
-    from .validation.block_validation import validate_atl08, validate_blocks
+    from ..outputs.profile_plot import plot_profile  # noqa: F401  (fails early without matplotlib)
+    from ..outputs.validation_plots import write_validation_plots
+    from ..reference.rasters import make_reference_rasters
+    from ..validation.block_validation import validate_atl08, validate_blocks
 
     if preset is not None:
         import warnings
@@ -184,10 +168,10 @@ def run_chain(
         photon_rate = preset
     prog = as_progress(progress)
     if photons is not None and str(photons).lower().endswith((".h5", ".hdf5")):
-        from .readers.gedi import is_gedi_l1b
+        from ..readers.gedi import is_gedi_l1b
 
         if is_gedi_l1b(photons):   # full-waveform lidar: footprints, not blocks
-            from .waveform_chain import run_waveform_chain
+            from .chain_waveforms import run_waveform_chain
 
             return run_waveform_chain(las_paths, out_dir, photons, beams=beams,
                                       geoid=geoid, offset=offset, progress=prog)
@@ -215,7 +199,7 @@ def run_chain(
         width = 2.0 if width is None else width
         ref_vcrs = _tiles_crs(tiles)
         if not simulated:  # the one datum rule, before minutes of work (validate applies it too)
-            from .reference.datum import check_vertical_datums
+            from ..reference.datum import check_vertical_datums
 
             check_vertical_datums("EPSG:4979", ref_vcrs, geoid=geoid, offset=offset)
         plots_dir = out / "plots"
@@ -247,7 +231,7 @@ def run_chain(
                               dsm_p90=rasters.dsm_p90, **vkw, progress=prog.sub(0.8, 0.85))
         layers = {LAYER_RESIDUALS: val.residuals, LAYER_STATS: val.stats, **layers}
         if footprint_reference:
-            from .validation.footprints import validate_blocks_footprint
+            from ..validation.footprints import validate_blocks_footprint
 
             fkw: dict[str, Any] = {"geoid": geoid, "offset": offset,
                                    "photon_vertical_crs": photon_vcrs,
@@ -269,7 +253,7 @@ def run_chain(
                                f"{LAYER_STATS}_footprint_{compare_preset}": compared_fp.stats})
         cutoffs = None
         if calibrate:
-            from .track_blocks import run_blocks
+            from .blocks import run_blocks
 
             prog.update(0.9, "calibrating cut-offs")
             cutoffs = _calibrated_cutoffs(res.tracks[0], val.residuals, params)
@@ -317,8 +301,8 @@ def _calibrated_cutoffs(track: Any, residuals: pd.DataFrame, params: BlockParams
     and cut-off)."""
     import warnings
 
-    from .blocks.calibration import CutoffEdgeWarning
-    from .validation.calibration import calibrate_against_reference
+    from ..blocks.calibration import CutoffEdgeWarning
+    from ..validation.calibration import calibrate_against_reference
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", CutoffEdgeWarning)
@@ -339,31 +323,6 @@ def _calibrated_cutoffs(track: Any, residuals: pd.DataFrame, params: BlockParams
     return result
 
 
-def _vertical_name(crs: Any) -> str | None:
-    """The vertical datum's name of a (compound) CRS, e.g. 'CGVD28 height'; None if none."""
-    try:
-        import pyproj
-
-        c = pyproj.CRS.from_user_input(crs) if crs is not None else None
-    except Exception:  # an unreadable CRS only loses the axis label's datum
-        return None
-    if c is None:
-        return None
-    for sub in (c.sub_crs_list if c.is_compound else [c]):
-        if sub.is_vertical:
-            return str(sub.name)
-    return None
-
-
-def _tiles_crs(tiles: Sequence[Path]) -> Any:
-    """The tiles' full (compound) CRS as their header states it (WKT or GeoTIFF keys,
-    read by the one LAS CRS reader): the vertical datum of every raster made from them,
-    also after reprojection; None when unstated."""
-    from .readers.las_crs import las_file_crs
-
-    return las_file_crs(tiles[0]).crs
-
-
 def _coregistered(blocks: Any, tracks: Any, rasters: Any, out: Path, vkw: dict[str, Any],
                   prog: Progress, source: str = "photons"
                   ) -> tuple[Any, dict[str, Any] | None, pd.DataFrame | None]:
@@ -373,12 +332,12 @@ def _coregistered(blocks: Any, tracks: Any, rasters: Any, out: Path, vkw: dict[s
     uncorrected statistics."""
     from dataclasses import replace
 
-    from .reference.datum import check_vertical_datums
-    from .reference.raster_sampling import read_surface
-    from .validation.block_validation import validate_blocks
-    from .validation.coregistration import coregister
-    from .validation.coregistration_files import offset_to_apply, vertical_shift, write_offsets
-    from .validation.coregistration_targets import CoregTargets, apply_offset, targets_from_photons
+    from ..reference.datum import check_vertical_datums
+    from ..reference.raster_sampling import read_surface
+    from ..validation.block_validation import validate_blocks
+    from ..validation.coregistration import coregister
+    from ..validation.coregistration_targets import CoregTargets, apply_offset, targets_from_photons
+    from .coregister import offset_to_apply, vertical_shift, write_offsets
 
     dtm = read_surface(rasters.dtm, what="DTM")
     dsm = read_surface(rasters.dsm_max, what="DSM")
@@ -405,11 +364,11 @@ def _compare_preset(name: str, tracks: Any, params: BlockParams, rasters: Any, o
                     ) -> tuple[tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame], Any]:
     """Residuals and stats of the blocks made with preset ``name``, and the table of a
     bias calibration fitted on them (with its parity hold-out error); the blocks."""
-    from .blocks.estimators import preset
-    from .errors import NoUsableDataError
-    from .track_blocks import run_blocks, track_strengths
-    from .validation.bias_calibration import fit_bias_calibration, write_bias_calibration
-    from .validation.block_validation import validate_blocks
+    from ..blocks.estimators import preset
+    from ..errors import NoUsableDataError
+    from ..validation.bias_calibration import fit_bias_calibration, write_bias_calibration
+    from ..validation.block_validation import validate_blocks
+    from .blocks import run_blocks, track_strengths
 
     est = preset(name)
     blocks, _ = run_blocks(tracks, params, estimators=est, progress=prog.sub(0.0, 0.6))
@@ -439,7 +398,7 @@ def _lead(estimators: Any, compare_preset: str | None, compared: Any, compared_f
           layers: dict[str, pd.DataFrame], val: Any) -> tuple[Any, pd.DataFrame]:
     """The estimators the report leads with (the recommended preset when it was computed,
     else the ones used) against the like-with-like reference when it was computed."""
-    from .blocks.estimators import Estimators, preset
+    from ..blocks.estimators import Estimators, preset
     from .chain_report import LeadResult
 
     if compared is not None and compare_preset:
@@ -472,7 +431,7 @@ def _summary_lines(lead: Any) -> list[str]:
 def _residual_map(residuals: Any, dtm: Path, folder: Path, lead: Any) -> Path:
     """Block corridors coloured by their Hmax residual (the lead estimators against the
     lead reference) over a hillshade of the DTM (25 m blocks, else the middle length)."""
-    from .outputs.footprint_maps import plot_footprint_map
+    from ..outputs.footprint_maps import plot_footprint_map
 
     lengths = sorted(float(v) for v in residuals["length"].unique())
     length = 25.0 if 25.0 in lengths else lengths[len(lengths) // 2]
@@ -492,8 +451,8 @@ def _report(out: Path, *, tiles: list[Path], photons: Path, simulated: bool,
             seed002_png: Path | None = None,
             compared: tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame] | None = None,
             compare_preset: str | None = None, offsets: dict[str, Any] | None = None) -> Path:
+    from ..outputs.report import calibration_table, report_stats_table
     from .chain_report import bias_calibration_part, details_stats, paper_section, summary_section
-    from .outputs.report import calibration_table, report_stats_table
 
     source = (f"ICESat-2 photons simulated over the airborne tiles: track azimuth "
               f"{azimuth:g} degrees, {diameter:g} m footprints, '{preset}' photon rate, "

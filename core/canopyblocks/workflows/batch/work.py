@@ -17,7 +17,7 @@ import numpy as np
 import pandas as pd
 import pyproj
 
-from ..errors import CanopyBlocksError, NoUsableDataError
+from ...errors import CanopyBlocksError, NoUsableDataError
 from .units import Tile, Unit
 
 __all__ = ["BatchConfig", "run_unit", "raster_paths", "build_tile_rasters"]
@@ -60,11 +60,11 @@ class BatchConfig:
     resolution: float = 2.0
 
     def __post_init__(self) -> None:
-        from ..arguments import check_fields
+        from ...arguments import check_fields
         check_fields(self)
-        from ..blocks import BlockParams
-        from ..blocks.estimators import preset
-        from ..errors import InputError
+        from ...blocks import BlockParams
+        from ...blocks.estimators import preset
+        from ...errors import InputError
 
         BlockParams(lengths=self.lengths)  # validates the lengths
         preset(self.preset)
@@ -83,7 +83,7 @@ def raster_paths(raster_root: Path, tile: Tile) -> dict[str, Path]:
 
 def build_tile_rasters(tile: Tile, raster_root: str, resolution: float) -> str:
     """Build a tile's rasters once (skipped when all three exist); returns the tile name."""
-    from ..reference.rasters import make_reference_rasters
+    from ...reference.rasters import make_reference_rasters
 
     paths = raster_paths(Path(raster_root), tile)
     if not all(p.exists() for p in paths.values()):
@@ -134,11 +134,11 @@ def run_unit(unit: Unit, config: BatchConfig, out_dir: str, raster_root: str) ->
 
 def _work(unit: Unit, config: BatchConfig, out_dir: Path, raster_root: Path,
           summary: dict) -> None:
-    from ..blocks import BlockParams
-    from ..blocks.estimators import estimate_blocks, preset
-    from ..outputs.tables import write_table
-    from ..track_blocks import read_tracks
-    from ..validation.block_validation import validate_blocks
+    from ...blocks import BlockParams
+    from ...blocks.estimators import estimate_blocks, preset
+    from ...outputs.tables import write_table
+    from ...validation.block_validation import validate_blocks
+    from ..blocks import read_tracks
 
     tcrs = pyproj.CRS.from_wkt(unit.tiles[0].crs_wkt)
     b = np.array([t.bounds for t in unit.tiles])

@@ -1,0 +1,32 @@
+"""The airborne tiles of a chain run: their CRS and the name of their vertical datum."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+
+def _vertical_name(crs: Any) -> str | None:
+    """The vertical datum's name of a (compound) CRS, e.g. 'CGVD28 height'; None if none."""
+    try:
+        import pyproj
+
+        c = pyproj.CRS.from_user_input(crs) if crs is not None else None
+    except Exception:  # an unreadable CRS only loses the axis label's datum
+        return None
+    if c is None:
+        return None
+    for sub in (c.sub_crs_list if c.is_compound else [c]):
+        if sub.is_vertical:
+            return str(sub.name)
+    return None
+
+
+def _tiles_crs(tiles: Sequence[Path]) -> Any:
+    """The tiles' full (compound) CRS as their header states it (WKT or GeoTIFF keys,
+    read by the one LAS CRS reader): the vertical datum of every raster made from them,
+    also after reprojection; None when unstated."""
+    from ..readers.las_crs import las_file_crs
+
+    return las_file_crs(tiles[0]).crs
