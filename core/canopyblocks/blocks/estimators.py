@@ -44,6 +44,7 @@ from ..schema import LABEL_BETWEEN, LABEL_CANOPY, LABEL_GROUND, LABEL_NOISE
 from .atl08_classify import CLASS_COLUMN, Atl08Params, classify_photons
 from .density_filter import DensityParams, density_filter
 from .ground_surface import GroundSurfaceParams, block_mean_ground, fit_ground_surface
+from .grouped import percentile_by_group
 from .params import BlockParams
 from .plausibility import ImplausibleBlockWarning, flag_implausible_blocks
 
@@ -157,20 +158,7 @@ def percentile_by_block(block: np.ndarray, z: np.ndarray, q: float,
 
     ``block`` holds integer indices 0..n_blocks-1; blocks without values give NaN.
     """
-    order = np.lexsort((z, block))
-    bs, zs = block[order], z[order]
-    counts = np.bincount(bs, minlength=n_blocks)
-    starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
-    out = np.full(n_blocks, np.nan)
-    has = counts > 0
-    pos = q / 100.0 * (counts[has] - 1)
-    lo = np.floor(pos).astype(np.int64)
-    hi = np.minimum(lo + 1, counts[has] - 1)
-    frac = pos - lo
-    a = zs[starts[has] + lo]
-    b = zs[starts[has] + hi]
-    out[has] = a + (b - a) * frac
-    return out
+    return percentile_by_group(block, z, q, n_blocks)
 
 
 def _paper_params(params: BlockParams, est: Estimators) -> BlockParams:

@@ -22,7 +22,6 @@ from ..errors import (
     CancelledError,
     CanopyBlocksWarning,
     CRSError,
-    DependencyError,
     FileFormatError,
     InputError,
     NoUsableDataError,
@@ -30,7 +29,7 @@ from ..errors import (
 from ..geo import as_crs, require_metre_units, require_metric_crs
 from ..progress import Progress, as_progress
 from .cloud_checks import HeightTally, warn_if_normalised
-from .las_crs import las_file_crs
+from .las_crs import _laspy, las_file_crs
 from .las_header import (
     MAX_OFFSET,
     check_header_extent,
@@ -132,16 +131,6 @@ class LasPoints:
         return cls(x_a, y_a, z_a, cls_a, one, one.copy(),
                    require_metric_crs(as_crs(crs, "point cloud CRS"), "point cloud CRS"),
                    vertical_datum, ())
-
-
-def _laspy():  # noqa: ANN202
-    try:
-        import laspy
-    except ImportError:
-        raise DependencyError(
-            "reading LAS/LAZ needs laspy with a LAZ backend: pip install 'canopyblocks[las]'"
-        ) from None
-    return laspy
 
 
 def las_crs(path: str | os.PathLike[str]) -> pyproj.CRS | None:
