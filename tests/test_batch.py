@@ -7,7 +7,9 @@ import json
 import shutil
 from pathlib import Path
 
+import geopandas as gpd
 import numpy as np
+import pandas as pd
 import pytest
 
 from canopyblocks.errors import InputError, NoUsableDataError
@@ -217,3 +219,49 @@ def test_rerun_with_other_settings_refused(inputs, tmp_path):
     assert (out / "stats.csv").read_text() == stats
     again = run_batch([g], [inputs["tiles"]], out, CONFIG, beams=["gt1r"])
     assert again.skipped == 1
+
+
+def test_one_merged_table_beside_the_partitions(inputs, tmp_path):
+    """residuals.parquet holds every unit's rows, in unit order, equal to the partitions."""
+    from canopyblocks.outputs.tables import read_layer
+
+    good = sorted(str(p) for p in inputs["granules"].iterdir() if "truncated" not in p.name)
+    out = tmp_path / "merged"
+    res = run_batch(good, [inputs["tiles"]], out, CONFIG)
+    ok = [u for u in res.units if u["status"] == "ok"]
+    parts = [read_layer(out / u["files"][1]) for u in ok]
+    merged = read_layer(out / "residuals.parquet")
+    assert len(merged) == sum(len(p) for p in parts) > 0
+    assert merged.crs == parts[0].crs
+    want = pd.concat([pd.DataFrame(p) for p in parts], ignore_index=True)
+    for c in ("granule", "track", "block", "res_ground", "res_hmax", "x", "y"):
+        np.testing.assert_array_equal(merged[c].to_numpy(), want[c].to_numpy())
+    assert merged.geometry.geom_equals(gpd.GeoSeries(want.geometry, crs=merged.crs)).all()
+
+
+def test_merged_table_in_one_crs_across_utm_zones():
+    """Units in two UTM zones: the second is reprojected into the first's CRS, its x/y
+    recomputed from lon/lat (checked against pyproj directly)."""
+    from pyproj import Transformer
+    from shapely.geometry import Point
+
+    from canopyblocks.workflows.batch.runner import merged_residuals
+
+    def unit(lon: float, epsg: int) -> gpd.GeoDataFrame:
+        lons, lats = np.array([lon, lon + 0.001]), np.array([45.0, 45.001])
+        x, y = Transformer.from_crs("EPSG:4326", epsg, always_xy=True).transform(lons, lats)
+        return gpd.GeoDataFrame({"lon": lons, "lat": lats, "x": x, "y": y,
+                                 "res_hmax": [1.0, 2.0]},
+                                geometry=[Point(a, b).buffer(5) for a, b in zip(x, y)],
+                                crs=f"EPSG:{epsg}")
+
+    a, b = unit(-122.9, 32610), unit(-117.1, 32611)
+    m = merged_residuals([a, b])
+    assert m.crs.to_epsg() == 32610 and len(m) == 4
+    x, y = Transformer.from_crs("EPSG:4326", 32610, always_xy=True).transform(
+        b["lon"].to_numpy(), b["lat"].to_numpy())
+    np.testing.assert_allclose(m["x"].to_numpy()[2:], x, atol=1e-6)
+    np.testing.assert_allclose(m["y"].to_numpy()[2:], y, atol=1e-6)
+    c = m.geometry.iloc[2:].centroid
+    np.testing.assert_allclose(c.x.to_numpy(), x, atol=0.05)  # the buffer's centre moved too
+    np.testing.assert_allclose(m["x"].to_numpy()[:2], a["x"].to_numpy())  # first unit as is

@@ -21,7 +21,9 @@ def register(group: click.Group) -> None:
 @click.option("--tiles", "tiles", multiple=True, required=True, type=click.Path(exists=True),
               help="LAS/LAZ tile, or a folder of tiles (repeatable); one CRS.")
 @click.option("-o", "--output", required=True, type=click.Path(file_okay=False),
-              help="Output folder: parts/, manifest.json, stats.csv, report.html.")
+              help="Output folder: parts/ (one folder per granule and beam), residuals.parquet "
+                   "(every unit's validated blocks in one table), manifest.json, stats.csv, "
+                   "report.html.")
 @click.option("--beam", "beams", multiple=True, help="Beams to use (default all).")
 @lengths_option("25")
 @click.option("--width", type=float, default=13.0, show_default=True,

@@ -9,8 +9,10 @@ batch``.
    ``out/manifest.json`` records every unit's status, counts, warnings and error.
    A rerun skips units whose partition is complete; a failed unit is reported and the
    others go on.
-4. A reduce reads the partitions in unit order and writes ``out/stats.csv`` and
-   ``out/report.html``. The same inputs give byte-identical outputs on every backend.
+4. A reduce reads the partitions in unit order and writes one merged table of every
+   unit's validated blocks, ``out/residuals.parquet`` (:func:`merged_residuals`),
+   ``out/stats.csv`` and ``out/report.html``. The same inputs give byte-identical outputs
+   on every backend.
 """
 
 from __future__ import annotations
@@ -270,20 +272,22 @@ def _cancel_requested(prog: Progress) -> bool:
 def _reduce(out: Path, units: list[Unit], manifest: dict[str, dict], cfg: BatchConfig
             ) -> pd.DataFrame:
     from ...outputs.report import ReportSection, write_report
-    from ...outputs.tables import read_layer
+    from ...outputs.tables import read_layer, write_table
+    from ...schema import LAYER_RESIDUALS
     from ...validation.stats import block_stats
 
     frames = []
     for u in units:
         e = manifest.get(u.key)
         if e and e["status"] == "ok":
-            frames.append(pd.DataFrame(read_layer(out / e["files"][1])))
+            frames.append(read_layer(out / e["files"][1]))
     if not frames:
         raise NoUsableDataError(
             "no unit produced validated blocks: " + "; ".join(
                 f"{k}: {v['error']}" for k, v in sorted(manifest.items()) if v.get("error")))
-    residuals = pd.concat(frames, ignore_index=True)
-    stats = block_stats(residuals)
+    residuals = merged_residuals(frames)
+    write_table(residuals, out / "residuals.parquet", layer=LAYER_RESIDUALS)
+    stats = block_stats(pd.DataFrame(residuals))
     with atomic_output(out / "stats.csv") as tmp:
         stats.to_csv(tmp, index=False, float_format="%.6f")
     table = pd.DataFrame([{k: e[k] for k in ("key", "status", "n_blocks", "n_validated",
@@ -300,3 +304,41 @@ def _reduce(out: Path, units: list[Unit], manifest: dict[str, dict], cfg: BatchC
                       {"all units pooled": stats}),
     ])
     return stats
+
+
+def merged_residuals(frames: Sequence[pd.DataFrame]) -> pd.DataFrame:
+    """Every unit's validated blocks in one table, in the order given.
+
+    Units of granules in other UTM zones have other CRSs: the merged table is in the first
+    unit's CRS, the other units' geometry reprojected and their ``x``/``y`` recomputed from
+    their ``lon``/``lat`` (degrees WGS84) in it, so every row's x/y/geometry share one CRS.
+    Tables without geometry or CRS are concatenated as they are.
+
+    Parameters
+    ----------
+    frames : sequence of DataFrame or GeoDataFrame
+        The units' residual tables (``parts/<granule>/<beam>/residuals.parquet``).
+
+    Returns
+    -------
+    DataFrame or GeoDataFrame
+        One row per block of every unit; a GeoDataFrame in the first unit's CRS when every
+        frame has a geometry and a CRS.
+    """
+    import geopandas as gpd
+
+    if not all(isinstance(f, gpd.GeoDataFrame) and f.crs is not None for f in frames):
+        return pd.concat([pd.DataFrame(f) for f in frames], ignore_index=True)
+    crs = frames[0].crs
+    same = []
+    for f in frames:
+        if f.crs != crs:
+            from pyproj import Transformer
+
+            f = f.to_crs(crs)
+            if {"lon", "lat", "x", "y"} <= set(f.columns):
+                to = Transformer.from_crs("EPSG:4326", crs, always_xy=True)
+                x, y = to.transform(f["lon"].to_numpy(float), f["lat"].to_numpy(float))
+                f = f.assign(x=x, y=y)
+        same.append(f)
+    return gpd.GeoDataFrame(pd.concat(same, ignore_index=True), crs=crs)
