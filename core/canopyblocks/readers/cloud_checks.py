@@ -50,39 +50,32 @@ class HeightTally:
 
     def add(self, z: np.ndarray, classification: np.ndarray) -> None:
         """Count one chunk: heights ``z`` (m) and their classes."""
-        z = np.asarray(z)
-        c = np.asarray(classification)
-        keep = ~np.isin(c, _NOISE)
-        out = ((z < PLAUSIBLE_HEIGHTS[0]) | (z > PLAUSIBLE_HEIGHTS[1])) & keep
-        ground = c == 2
-        self.n_ground += int(np.count_nonzero(ground))
-        self.n_ground_out += int(np.count_nonzero(out & ground))
-        self.n_other += int(np.count_nonzero(keep & ~ground))
-        self.n_other_out += int(np.count_nonzero(out & ~ground))
-        if keep.any():
-            zk = z[keep]
-            self.zmin = min(self.zmin, float(zk.min()))
-            self.zmax = max(self.zmax, float(zk.max()))
+        self._count(np.asarray(z), classification, PLAUSIBLE_HEIGHTS[0],
+                    PLAUSIBLE_HEIGHTS[1], 1.0, 0.0)
 
     def add_scaled(self, zi: np.ndarray, classification: np.ndarray, scale: float,
                    offset: float) -> None:
         """Count one chunk of integer LAS heights (``z = zi * scale + offset``, scale > 0)."""
-        zi = np.asarray(zi)
         lo = math.ceil((PLAUSIBLE_HEIGHTS[0] - offset) / scale)
         hi = math.floor((PLAUSIBLE_HEIGHTS[1] - offset) / scale)
         # the integer test equals the float one; extremes converted only for the message
+        self._count(np.asarray(zi), classification, lo, hi, scale, offset)
+
+    def _count(self, v: np.ndarray, classification: np.ndarray, lo: float, hi: float,
+               scale: float, offset: float) -> None:
+        """Tally values ``v`` (heights ``v * scale + offset``) outside ``[lo, hi]``."""
         c = np.asarray(classification)
         keep = ~np.isin(c, _NOISE)
-        out = ((zi < lo) | (zi > hi)) & keep
+        out = ((v < lo) | (v > hi)) & keep
         ground = c == 2
         self.n_ground += int(np.count_nonzero(ground))
         self.n_ground_out += int(np.count_nonzero(out & ground))
         self.n_other += int(np.count_nonzero(keep & ~ground))
         self.n_other_out += int(np.count_nonzero(out & ~ground))
         if keep.any():
-            zk = zi[keep]
-            self.zmin = min(self.zmin, float(zk.min()) * scale + offset)
-            self.zmax = max(self.zmax, float(zk.max()) * scale + offset)
+            vk = v[keep]
+            self.zmin = min(self.zmin, float(vk.min()) * scale + offset)
+            self.zmax = max(self.zmax, float(vk.max()) * scale + offset)
 
     def check(self, what: str) -> None:
         """Refuse terrain off the Earth; warn about a minority of points off it.
