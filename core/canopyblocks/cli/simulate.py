@@ -72,6 +72,10 @@ log = logging.getLogger(__name__)
 @click.option("--dual-noise", type=click.FloatRange(min=0.0, max=1.0), default=None,
               help="--sensor dual: noise sd as a share of each pair's near-infrared peak "
                    "(default 0.05, the dual-wavelength paper's; 0 = noise free).")
+@click.option("--esfl-noise", type=click.FloatRange(min=0.0, max=1.0), default=None,
+              help="--sensor esfl: noise sd per pixel and range bin as a share of the mean "
+                   "brightest-pixel peak (default 0.05; the flash-lidar paper does not "
+                   "state its level; 0 = noise free).")
 @click.option("--realisations", type=click.IntRange(min=1), default=100, show_default=True,
               help="Photon draws per diameter for the statistics (the file holds the first).")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Random seed.")
@@ -94,7 +98,7 @@ def simulate_cmd(ctx: click.Context, las: tuple[str, ...], sensor: str, azimuth:
                  old_preset: Ecosystem | None, beam: Beam, old_beam: Beam | None,
                  mean_photons: float | None, background_rate: float, light: str | None,
                  telemetry_window: float, noise_rate: float | None, geolocation_sigma: float,
-                 dual_noise: float | None, realisations: int, seed: int, crs: str | None, output: str, fmt: str | None,
+                 dual_noise: float | None, esfl_noise: float | None, realisations: int, seed: int, crs: str | None, output: str, fmt: str | None,
                  photon_table: str | None, report: str | None) -> None:
     """Simulate lidar along a track over airborne LAS/LAZ tiles: ICESat-2/MABEL photons
     (default), GEDI waveforms, flash-array cubes or dual-wavelength pairs.
@@ -114,10 +118,12 @@ def simulate_cmd(ctx: click.Context, las: tuple[str, ...], sensor: str, azimuth:
             "give exactly one of --azimuth DEG, --line x0,y0,x1,y1 or --polyline 'x,y;x,y;...'")
     if sensor != "icesat2":
         _waveform_sensor(ctx, las, sensor, azimuth, line, polyline, centre, seed, crs,
-                         output, report, shot_spacing, dual_noise)
+                         output, report, shot_spacing, dual_noise, esfl_noise)
         return
     if dual_noise is not None:
         raise click.BadParameter("applies to --sensor dual only", param_hint="--dual-noise")
+    if esfl_noise is not None:
+        raise click.BadParameter("applies to --sensor esfl only", param_hint="--esfl-noise")
     background_rate = _background_rate(background_rate, light, noise_rate, quiet=bool(
         ctx.obj and ctx.obj.get("quiet")))
     params = SimParams(instrument=instrument,
@@ -182,7 +188,8 @@ def _waveform_sensor(ctx: click.Context, las: tuple[str, ...], sensor: str,
                      azimuth: float | None, line: str | None, polyline: str | None,
                      centre: str | None, seed: int, crs: str | None, output: str,
                      report: str | None, shot_spacing: float | None = None,
-                     dual_noise: float | None = None) -> None:
+                     dual_noise: float | None = None,
+                     esfl_noise: float | None = None) -> None:
     """``--sensor gedi|esfl|dual``: one core call writing the HDF5 (and the report)."""
     from ..simulate import SimTrack
     from ..simulate.gedi_waveforms import GediSimParams
@@ -201,6 +208,13 @@ def _waveform_sensor(ctx: click.Context, las: tuple[str, ...], sensor: str,
         from ..simulate.sensor_files import DualAlsParams
 
         params = DualAlsParams(noise=dual_noise)
+    if esfl_noise is not None:
+        if sensor != "esfl":
+            raise click.BadParameter(f"applies to --sensor esfl only, not {sensor}",
+                                     param_hint="--esfl-noise")
+        from ..simulate.flash_cubes import FlashSimParams
+
+        params = FlashSimParams(noise_sd=esfl_noise)
 
     track = None
     if line is not None:

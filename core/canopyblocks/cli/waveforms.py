@@ -1,4 +1,5 @@
-"""CLI command ``waveforms``: GEDI L1B waveforms -> footprints layer (DESIGN section 4)."""
+"""CLI command ``waveforms``: GEDI L1B waveforms, flash-lidar (ESFL) cubes or
+dual-wavelength pairs -> footprints layer (DESIGN section 4)."""
 
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ def register(group: click.Group) -> None:
 
 
 @click.command("waveforms")
-@click.argument("path", metavar="L1B", type=click.Path(dir_okay=False))
+@click.argument("path", metavar="FILE", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Footprints: .gpkg (layer 'footprints'), .parquet or .csv.")
 @click.option("--beam", "beams", multiple=True,
@@ -46,15 +47,39 @@ def register(group: click.Group) -> None:
 @click.option("--workers", type=click.IntRange(1, 512), default=None,
               help="Processes reading and processing the beams of a granule in parallel "
                    "(default: the machine's cores; the table is the same as with 1).")
+@click.option("--fraction", type=click.FloatRange(0.0, 1.0, min_open=True), default=None,
+              help="Flash lidar (ESFL): energy fraction of the brightest pixel that makes a "
+                   "pixel of the 4 x 4 region part of the footprint (the paper's f; "
+                   "default 0.5).")
+@click.option("--cell", type=click.FloatRange(min=0.0), default=None,
+              help="Flash lidar (ESFL): grid cell, m, on which the footprints' pixels are "
+                   "merged into waveforms (the paper's 5 m; 0: one waveform per footprint).")
+@click.option("--noise-fit", type=click.Choice(["ml", "lsq"]), default=None,
+              help="Flash lidar (ESFL): the Gaussian fitted to each waveform's value "
+                   "histogram: ml (maximum likelihood below the mode, default) or lsq "
+                   "(least squares to the counts around the mode).")
+@click.option("--noise-threshold", type=click.FloatRange(min=0.0, min_open=True),
+              default=None,
+              help="Flash lidar and dual wavelength: signal threshold in noise standard "
+                   "deviations above the noise mean (the papers' 4).")
+@click.option("--dual-method", type=click.Choice(["paper", "refined"]), default=None,
+              help="Dual wavelength: the paper's steps (default) or refined (the search "
+                   "confined to the lowest return, the gap rule, weak edges ignored).")
 @click.pass_context
 def waveforms_cmd(ctx: click.Context, path: str, output: str, beams: tuple[str, ...],
                   setting: str, decompose: bool, all_rh: bool, bbox: str | None,
                   crs: str | None, quality: bool, l2a: str | None, l2b: str | None,
-                  plots: str | None, shots: tuple[int, ...], workers: int | None) -> None:
-    """Ground, canopy top, RH metrics and cover per GEDI footprint from L1B waveforms
-    (GEDI L2A's algorithm, setting groups a1-a6)."""
+                  plots: str | None, shots: tuple[int, ...], workers: int | None,
+                  fraction: float | None, cell: float | None, noise_fit: str | None,
+                  noise_threshold: float | None, dual_method: str | None) -> None:
+    """Footprints from waveforms: ground, canopy top, RH metrics and cover per GEDI
+    footprint from L1B (GEDI L2A's algorithm, setting groups a1-a6); terrain and canopy
+    height per 5 m cell from flash-lidar (ESFL) cubes (the flash-lidar paper's chain);
+    ground and tree height per footprint from dual-wavelength pairs (the
+    dual-wavelength paper's ground finder). The product is told from the file."""
     from ..waveforms.settings import WaveformParams
     from ..workflows.waveforms import footprints_to_file
+    from ..workflows.waveforms_flash_dual import SensorOptions
 
     params = WaveformParams(setting=setting, decompose=decompose,  # type: ignore[arg-type]
                             all_rh=all_rh)
@@ -64,7 +89,9 @@ def waveforms_cmd(ctx: click.Context, path: str, output: str, beams: tuple[str, 
             path, output, beams=beams or None, params=params,
             bbox=parse_floats(bbox, 4, "lon_min,lat_min,lon_max,lat_max", "--bbox"),  # type: ignore[arg-type]
             crs=crs, quality=quality, l2a=l2a, l2b=l2b, plots_dir=plots,
-            plot_shots=shots or None, workers=workers, progress=progress)
+            plot_shots=shots or None, workers=workers,
+            options=SensorOptions(fraction, cell, noise_fit, noise_threshold, dual_method),
+            progress=progress)
     if quiet:
         return
     if res.comparison is not None and len(res.comparison):

@@ -14,11 +14,12 @@ Layouts (HDF5, metres unless stated):
   elevation of bin 0's centre (bin k is centred k bins lower), ``x``/``y`` footprint
   centres (the tiles' CRS, attribute ``crs``; attribute ``along``: the track's unit vector),
   ``truth/ground``, ``truth/top``, ``truth/height``; attributes ``bin_size``,
-  ``pixel_size``, ``footprint``, ``sensor = "esfl"``.
+  ``pixel_size``, ``footprint``, ``noise`` (sd per pixel and bin as a share of the mean
+  brightest-pixel peak), ``vertical_datum`` (the tiles'), ``sensor = "esfl"``.
 - dual: ``visible``, ``nir`` (footprints, bins) float32, ``top``, ``x``/``y``,
   ``noise_mean_visible|nir``, ``noise_sd_visible|nir``, ``truth/ground``,
   ``truth/cover``; attributes ``bin_size``, ``noise`` (sd as a share of the near-infrared
-  peak), ``sensor = "dual"``.
+  peak), ``vertical_datum`` (the tiles'), ``sensor = "dual"``.
 """
 
 from __future__ import annotations
@@ -139,6 +140,7 @@ def simulate_esfl_to_file(points: LasPoints, track: SimTrack, path: str | os.Pat
     with atomic_output(out) as tmp, h5py.File(tmp, "w") as f:
         f.attrs.update({"sensor": "esfl", "bin_size": p.bin_size, "pixel_size": p.pixel_size,
                         "footprint": p.footprint, "crs": str(points.crs),
+                        "vertical_datum": str(points.vertical_datum), "noise": p.noise_sd,
                         "along": np.asarray(sim.along, float)})
         f.create_dataset("cubes", data=sim.cubes.astype(np.float32), compression="gzip")
         for k in ("top", "x", "y"):
@@ -170,6 +172,7 @@ def simulate_dual_to_file(points: LasPoints, track: SimTrack, path: str | os.Pat
     out = Path(path)
     with atomic_output(out) as tmp, h5py.File(tmp, "w") as f:
         f.attrs.update({"sensor": "dual", "bin_size": d.bin_size, "crs": str(points.crs),
+                        "vertical_datum": str(points.vertical_datum),
                         "noise": float((params or DualAlsParams()).noise)})
         f.create_dataset("visible", data=d.visible.astype(np.float32), compression="gzip")
         f.create_dataset("nir", data=d.nir.astype(np.float32), compression="gzip")

@@ -107,8 +107,26 @@ def is_footprint_table(path: str | os.PathLike[str]) -> bool:
                 cols = pq.read_schema(p).names
         except Exception:  # noqa: BLE001
             return False
-        return "shot_number" in cols and "rh98" in cols
+        return "shot_number" in cols and ("rh98" in cols or {"beam", "height"} <= set(cols))
     return False
+
+
+def _sensor_pixels(path: str | os.PathLike[str], table: pd.DataFrame) -> pd.DataFrame | None:
+    """The pixels layer of ESFL footprints (the GeoPackage's, or the table beside a
+    .parquet/.csv), None for other footprints or when there is none."""
+    from ..validation.flash_footprints import sensor_of
+
+    if sensor_of(table) != "ESFL":
+        return None
+    from ..outputs.tables import gpkg_layer_names, read_layer
+    from .waveforms import pixels_path
+    from .waveforms_flash_dual import LAYER_PIXELS
+
+    p = Path(path)
+    if p.suffix.lower() == ".gpkg":
+        return read_layer(p, LAYER_PIXELS) if LAYER_PIXELS in gpkg_layer_names(p) else None
+    side = pixels_path(p)
+    return read_layer(side) if side.exists() else None
 
 
 def _no_results(what: str, path: object, residuals: pd.DataFrame) -> NoUsableDataError:
@@ -230,7 +248,9 @@ def validate_file(
                              "airborne tiles with --points TILE.laz")
         if len(table) == 0:
             raise NoUsableDataError(f"{path} holds no footprints; nothing to validate")
+        pixels = _sensor_pixels(path, table)
     else:
+        pixels = None
         table = read_blocks(path)
         kind = "blocks"
         if len(table) == 0:
@@ -268,7 +288,7 @@ def validate_file(
             before = _validate(kind, table, reference, dtm, dsm_max, dsm_p90, atl08, points,
                                footprint_params, width, geoid, offset,
                                reference_vertical_crs, photon_vertical_crs,
-                               slope_threshold, points_crs, prog.sub(0.3, 0.6))
+                               slope_threshold, points_crs, prog.sub(0.3, 0.6), pixels)
             stats_before = before[1]
             shift = joint if coregister_vertical else replace(joint, vertical=0.0)
             table = apply_offset(table, shift, crs=table_crs)
@@ -277,7 +297,7 @@ def validate_file(
                                         points, footprint_params, width, geoid, offset,
                                         reference_vertical_crs, photon_vertical_crs,
                                         slope_threshold, points_crs,
-                                        prog.sub(0.6 if coregister else 0.0, 0.9))
+                                        prog.sub(0.6 if coregister else 0.0, 0.9), pixels)
     if "use" in residuals.columns and int(residuals["use"].sum()) == 0:
         raise _no_results(kind, path, residuals)
     prog.update(0.9, "writing")
@@ -348,7 +368,18 @@ def _validate(kind: str, table: pd.DataFrame, reference: str, dtm: Any, dsm_max:
               dsm_p90: Any, atl08: Any, points: Sequence[Any], footprint_params: Any,
               width: float, geoid: Any, offset: float | None, reference_vertical_crs: Any,
               photon_vertical_crs: Any, slope_threshold: float, points_crs: Any,
-              prog: Progress) -> tuple[pd.DataFrame, pd.DataFrame, str]:
+              prog: Progress, pixels: pd.DataFrame | None = None
+              ) -> tuple[pd.DataFrame, pd.DataFrame, str]:
+    from ..validation.flash_footprints import sensor_of
+
+    if kind == "footprints" and sensor_of(table) is not None:   # ESFL or dual rows
+        from ..validation.flash_footprints import validate_sensor_footprints
+
+        v = validate_sensor_footprints(table, list(points), pixels=pixels,
+                                       reference_vertical_crs=reference_vertical_crs,
+                                       geoid=geoid, offset=offset, points_crs=points_crs,
+                                       progress=prog)
+        return v.residuals, v.stats, v.datum
     if kind == "footprints":
         from ..validation.footprints import validate_footprints
 
@@ -387,6 +418,12 @@ def _validate(kind: str, table: pd.DataFrame, reference: str, dtm: Any, dsm_max:
 
 def _write_plots(kind: str, residuals: pd.DataFrame, stats: pd.DataFrame, folder: Path,
                  dtm: Any) -> None:
+    if kind == "footprints" and "res_rh98" not in residuals.columns:   # ESFL or dual
+        from ..outputs.footprint_maps import plot_footprint_map
+
+        for c in ("res_ground", "res_height"):
+            plot_footprint_map(residuals, c, folder / f"footprints_{c}.png", dtm=dtm)
+        return
     if kind == "footprints":
         from ..outputs.footprint_maps import write_footprint_plots
 

@@ -295,17 +295,38 @@ def footprints_to_file(
     plots_dir: str | os.PathLike[str] | None = None,
     plot_shots: Sequence[int] | None = None,
     workers: int | None = 1,
+    options: Any = None,
     progress: Progress | None = None,
 ) -> FootprintRunSummary:
-    """Process a GEDI L1B file and write the footprints layer (atomically).
+    """Process a GEDI L1B file, flash-lidar (ESFL) cubes or dual-wavelength pairs and
+    write the footprints layer (atomically).
 
-    ``output``: ``.gpkg`` (layer ``footprints``, plus ``l2a_comparison`` with ``l2a``),
-    ``.parquet`` or ``.csv``. See :func:`footprints_from_l1b` and :func:`compare_with_l2a`.
+    ``output``: ``.gpkg`` (layer ``footprints``, plus ``l2a_comparison`` with ``l2a``, and
+    for ESFL ``pixels``), ``.parquet`` or ``.csv``. See :func:`footprints_from_l1b` and
+    :func:`compare_with_l2a`; ESFL and dual files (told apart by
+    :func:`~canopyblocks.readers.flash_dual.waveform_product`) go through
+    :mod:`~canopyblocks.workflows.waveforms_flash_dual` with ``options``
+    (:class:`~canopyblocks.workflows.waveforms_flash_dual.SensorOptions`).
     """
     from ..atomic import check_writable, new_files_removed_on_failure
     from ..outputs.tables import check_output_path, write_layers
+    from ..readers.flash_dual import waveform_product
 
     check_output_path(output)
+    product = waveform_product(path)
+    if product != "GEDI L1B":
+        return _sensor_file(path, output, product, options=options, crs=crs,
+                            gedi_only={"--beam": bool(beams), "--l2a": l2a is not None,
+                                       "--l2b": l2b is not None, "--bbox": bbox is not None,
+                                       "--quality": quality, "--plots": plots_dir is not None,
+                                       "--shot": bool(plot_shots),
+                                       "--setting/--decompose/--all-rh":
+                                           _not_default_gedi(params)},
+                            progress=progress)
+    if options is not None and any(v is not None for v in vars(options).values()):
+        raise InputError(f"{path} is GEDI L1B: the flash-lidar and dual-wavelength options "
+                         "(--fraction, --cell, --noise-fit, --noise-threshold, --dual-method) "
+                         "do not apply")
     if plots_dir is not None:
         check_writable(plots_dir, folder=True)
         Path(plots_dir).mkdir(parents=True, exist_ok=True)
@@ -344,3 +365,45 @@ def footprints_to_file(
     prog.update(1.0, "done")
     return FootprintRunSummary(output=out, footprints=gdf, flags=flags,
                                comparison=comparison, plots=plots)
+
+
+def _not_default_gedi(params: Any) -> bool:
+    from ..waveforms.settings import WaveformParams
+
+    return params is not None and params != WaveformParams()
+
+
+def _sensor_file(path: Any, output: Any, product: str, *, options: Any, crs: Any,
+                 gedi_only: dict[str, bool], progress: Progress | None
+                 ) -> FootprintRunSummary:
+    """An ESFL or dual file -> its layers (footprints; pixels for ESFL), written."""
+    from ..outputs.tables import write_layers
+    from .waveforms_flash_dual import LAYER_PIXELS, sensor_footprints
+
+    given = [k for k, on in gedi_only.items() if on]
+    if given:
+        raise InputError(f"{path} holds {product} data, not GEDI L1B: {', '.join(given)} "
+                         "apply to GEDI only")
+    prog = as_progress(progress)
+    layers = sensor_footprints(path, product, options=options, crs=crs,
+                               progress=prog.sub(0.0, 0.9))
+    prog.update(0.95, "writing")
+    if Path(output).suffix.lower() == ".gpkg" or LAYER_PIXELS not in layers:
+        out = write_layers(layers, output)
+    else:   # a table format holds one layer: the pixels go beside it
+        from ..atomic import atomic_outputs
+
+        with atomic_outputs():
+            out = write_layers({LAYER_FOOTPRINTS: layers[LAYER_FOOTPRINTS]}, output)
+            write_layers({LAYER_PIXELS: layers[LAYER_PIXELS]}, pixels_path(output))
+    gdf = layers[LAYER_FOOTPRINTS]
+    flags = {str(k): int(v) for k, v in gdf["flag"].value_counts().items()}
+    prog.update(1.0, "done")
+    return FootprintRunSummary(output=out, footprints=gdf, flags=flags)  # type: ignore[arg-type]
+
+
+def pixels_path(output: str | os.PathLike[str]) -> Path:
+    """Where the ESFL pixels layer of a ``.parquet``/``.csv`` footprints table goes:
+    ``<stem>_pixels<suffix>`` beside it."""
+    p = Path(output)
+    return p.with_name(f"{p.stem}_{'pixels'}{p.suffix}")
