@@ -25,6 +25,19 @@ from .vocabulary import deprecated_option, say_deprecated, take_alias
                    "ICESat-2 photons are simulated over the tiles.")
 @click.option("--simulate", is_flag=True, help="Simulate the photons (the default without "
               "--photons).")
+@click.option("--sensor", type=click.Choice(["icesat2", "gedi", "esfl", "dual"]),
+              default="icesat2", show_default=True,
+              help="What to simulate without --photons: ICESat-2 photons, GEDI waveforms, "
+                   "flash-lidar (ESFL) cubes or dual-wavelength pairs (then footprints are "
+                   "validated against the tiles). A GEDI, ESFL or dual file given as "
+                   "--photons is told from its content.")
+@click.option("--esfl-noise", type=click.FloatRange(min=0.0, max=1.0), default=None,
+              help="--sensor esfl: noise sd per pixel and range bin as a share of the mean "
+                   "brightest-pixel peak (default 0.05; the flash-lidar paper does not "
+                   "state its level; 0 = noise free).")
+@click.option("--dual-noise", type=click.FloatRange(min=0.0, max=1.0), default=None,
+              help="--sensor dual: noise sd as a share of each pair's near-infrared peak "
+                   "(default 0.05, the dual-wavelength paper's; 0 = noise free).")
 @click.option("--beam", "beams", multiple=True, help="ATL03 beam(s) to use.")
 @channel_option
 @click.option("--atl08", type=click.Path(dir_okay=False), default=None,
@@ -81,7 +94,8 @@ def run_cmd(ctx: click.Context, tiles: tuple[str, ...], out_dir: str, photons: s
             calibrate: bool, realisations: int, estimator_preset: str | None,
             old_estimators: str | None,
             calibration: str | None, compare: bool, coregister: bool,
-            footprint_reference: bool) -> None:
+            footprint_reference: bool, sensor: str, esfl_noise: float | None,
+            dual_noise: float | None) -> None:
     """Photons + airborne TILES -> blocks, reference rasters, validation, plots, report."""
     from ..blocks import BlockParams
     from ..blocks.estimators import RECOMMENDED_PRESET
@@ -90,6 +104,13 @@ def run_cmd(ctx: click.Context, tiles: tuple[str, ...], out_dir: str, photons: s
 
     if simulate and photons:
         raise click.UsageError("give either --photons or --simulate, not both")
+    if sensor != "icesat2" and photons:
+        raise click.UsageError(f"--sensor {sensor} simulates; give either --photons or "
+                               "--sensor")
+    for name, value, want in (("--esfl-noise", esfl_noise, "esfl"),
+                              ("--dual-noise", dual_noise, "dual")):
+        if value is not None and sensor != want:
+            raise click.BadParameter(f"applies to --sensor {want} only", param_hint=name)
     estimator_preset = take_alias(estimator_preset, old_estimators, old="--estimators",
                                   new="--preset")
     if estimator_preset in ("boreal", "temperate", "tropical"):  # the old meaning of --preset
@@ -111,6 +132,7 @@ def run_cmd(ctx: click.Context, tiles: tuple[str, ...], out_dir: str, photons: s
                            calibration=calibration,
                            compare_preset=RECOMMENDED_PRESET if compare else None,
                            coregister=coregister, footprint_reference=footprint_reference,
+                           sensor=sensor, noise=esfl_noise if sensor == "esfl" else dual_noise,
                            progress=progress)
     if quiet:
         return

@@ -93,6 +93,9 @@ def run_chain(
     footprint_reference: bool = True,
     progress: Progress | None = None,
     preset: str | None = None,
+    sensor: str = "icesat2",
+    sensor_options: Any = None,
+    noise: float | None = None,
 ) -> ChainResult:
     """Run photons -> blocks -> reference rasters -> validation -> report.
 
@@ -151,6 +154,16 @@ def run_chain(
         (ground = mean footprint ground, top = ground + RH98 of footprints of
         ``diameter`` m over the airborne points); layers ``residuals_footprint``,
         ``stats_footprint``.  False leads with the corridor maximum.
+    sensor : {"icesat2", "gedi", "esfl", "dual"}
+        What to simulate without ``photons``: ICESat-2 photons (default), GEDI waveforms,
+        flash-lidar (ESFL) cubes or dual-wavelength pairs; the waveform sensors go
+        through :func:`~canopyblocks.workflows.chain_waveforms.run_waveform_chain` or
+        :func:`~canopyblocks.workflows.chain_flash_dual.run_sensor_chain` (as does an
+        ESFL or dual file given as ``photons``).
+    sensor_options : SensorOptions, optional
+        ESFL and dual: the chain's options (``canopyblocks waveforms``'s).
+    noise : float, optional
+        ESFL and dual simulations: noise sd as a share of the peak (default 0.05).
     """
     from ..arguments import check_path, check_paths
     check_paths(las_paths, "run_chain: las_paths", "a LAS/LAZ path or a non-empty list of them")
@@ -167,14 +180,13 @@ def run_chain(
                       stacklevel=2)
         photon_rate = preset
     prog = as_progress(progress)
-    if photons is not None and str(photons).lower().endswith((".h5", ".hdf5")):
-        from ..readers.gedi import is_gedi_l1b
+    from .chain_flash_dual import waveform_chain
 
-        if is_gedi_l1b(photons):   # full-waveform lidar: footprints, not blocks
-            from .chain_waveforms import run_waveform_chain
-
-            return run_waveform_chain(las_paths, out_dir, photons, beams=beams,
-                                      geoid=geoid, offset=offset, progress=prog)
+    waveform = waveform_chain(las_paths, out_dir, photons, sensor, beams=beams,
+                               azimuth=azimuth, seed=seed, geoid=geoid, offset=offset,
+                               options=sensor_options, noise=noise, progress=prog)
+    if waveform is not None:
+        return waveform
     out = check_writable(out_dir, folder=True)
     for name, value in (("width", width), ("resolution", resolution),
                         ("diameter", diameter)):

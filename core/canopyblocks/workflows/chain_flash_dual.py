@@ -1,0 +1,222 @@
+"""The whole chain for flash-lidar (ESFL) cubes and dual-wavelength pairs: simulated (or
+given) file and airborne tiles -> footprints -> validation against the airborne points ->
+layers, maps and an HTML report that leads with the answer (what ``canopyblocks run
+--sensor esfl|dual`` does, and ``run --photons FILE`` with such a file).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from ..atomic import check_writable, new_files_removed_on_failure
+from ..errors import FileFormatError, InputError
+from ..progress import Progress, as_progress
+
+__all__ = ["run_sensor_chain", "waveform_chain", "SENSOR_NAMES", "sensor_summary_lines"]
+
+log = logging.getLogger(__name__)
+
+#: ``run --sensor`` value -> (product, words for a user).
+SENSOR_NAMES = {"esfl": ("ESFL", "flash-lidar (ESFL) cubes"),
+                "dual": ("dual", "dual-wavelength waveform pairs")}
+
+
+def _fmt(v: float, signed: bool = False) -> str:
+    if not np.isfinite(v):
+        return "n/a"
+    return f"{v:+.2f}" if signed else f"{v:.2f}"
+
+
+def sensor_summary_lines(stats: pd.DataFrame, product: str) -> list[str]:
+    """The answer first: height and ground against the reference, one line each."""
+    ref = ("the airborne points under each 5 m cell's pixels" if product == "ESFL" else
+           "the footprint-matched airborne points (22 m Gaussian footprint; height "
+           "against its RH98)")
+    lines = []
+    for metric, words in (("height", "canopy height"), ("ground", "ground elevation")):
+        row = stats[stats["metric"] == metric]
+        if row.empty:
+            continue
+        r = row.iloc[0]
+        lines.append(f"{words}: RMSE {_fmt(r['rmse'])} m, bias {_fmt(r['bias'], True)} m, "
+                     f"SD {_fmt(r.get('sd', np.nan))} m, r2 {_fmt(r['r2'])} "
+                     f"(n = {int(r['n'])}), against {ref}")
+    return lines
+
+
+def run_sensor_chain(
+    las_paths: Sequence[str | os.PathLike[str]],
+    out_dir: str | os.PathLike[str],
+    *,
+    path: str | os.PathLike[str] | None = None,
+    sensor: str | None = None,
+    azimuth: float = 0.0,
+    seed: int = 0,
+    noise: float | None = None,
+    options: Any = None,
+    geoid: str | os.PathLike[str] | None = None,
+    offset: float | None = None,
+    progress: Progress | None = None,
+) -> Any:
+    """ESFL or dual file (simulated over the tiles when ``path`` is None) -> footprints
+    -> validation -> report.
+
+    Parameters
+    ----------
+    las_paths : sequence of path
+        Airborne LAS/LAZ tiles (metric CRS; class 2 = ground).
+    out_dir : path
+        Output folder: ``<sensor>.h5`` (when simulated), ``footprints.gpkg`` (layers
+        ``footprints``, and ``pixels`` for ESFL), ``validation.gpkg`` (layers
+        ``residuals_footprints``, ``stats_footprints``), ``stats.csv``, ``plots/`` and
+        ``report.html``.
+    path : path, optional
+        An ESFL or dual file; None simulates one with ``sensor``.
+    sensor : {"esfl", "dual"}, optional
+        What to simulate (``path`` None).
+    azimuth : float
+        Simulated track direction, degrees clockwise from north, through the tiles' centre.
+    seed : int
+        Simulation seed.
+    noise : float, optional
+        Simulated noise sd as a share of the peak (ESFL: per pixel and bin, of the mean
+        brightest-pixel peak; dual: of each pair's near-infrared peak); default the
+        simulator's (0.05).
+    options : SensorOptions, optional
+        The chain's options (:class:`~canopyblocks.workflows.waveforms_flash_dual.SensorOptions`).
+    geoid, offset
+        Vertical conversion of the footprint heights to the tiles' datum (a simulated file
+        keeps the tiles' own: none needed).
+
+    Returns
+    -------
+    ChainResult
+    """
+    from ..arguments import check_paths
+    from ..outputs.footprint_maps import plot_footprint_map
+    from ..outputs.report import ReportSection, write_report
+    from ..outputs.tables import write_layers, write_table
+    from ..readers.flash_dual import waveform_product
+    from ..readers.las import las_crs
+    from ..schema import LAYER_FOOTPRINTS
+    from ..validation.flash_footprints import validate_sensor_footprints
+    from ..validation.footprints import LAYER_RESIDUALS_FOOTPRINTS, LAYER_STATS_FOOTPRINTS
+    from .chain_result import ChainResult
+    from .waveforms_flash_dual import LAYER_PIXELS, sensor_footprints
+
+    check_paths(las_paths, "run_sensor_chain: las_paths", "a LAS/LAZ path or a list of them")
+    if path is None and sensor not in SENSOR_NAMES:
+        raise InputError(f"sensor must be one of {', '.join(SENSOR_NAMES)} to simulate; got "
+                         f"{sensor!r}")
+    prog = as_progress(progress)
+    out = check_writable(out_dir, folder=True)
+    tiles = [Path(p) for p in las_paths]
+    with new_files_removed_on_failure(out):
+        out.mkdir(parents=True, exist_ok=True)
+        simulated = path is None
+        if path is None:
+            from ..simulate.sensor_files import simulate_sensor_over_tiles
+
+            params: Any = None
+            if noise is not None:
+                if sensor == "esfl":
+                    from ..simulate.flash_cubes import FlashSimParams
+
+                    params = FlashSimParams(noise_sd=float(noise))
+                else:
+                    from ..simulate.sensor_files import DualAlsParams
+
+                    params = DualAlsParams(noise=float(noise))
+            path = out / f"{sensor}.h5"
+            simulate_sensor_over_tiles(tiles, str(sensor), path, azimuth=azimuth, seed=seed,
+                                       params=params, progress=prog.sub(0.0, 0.3))
+            if geoid is None and offset is None:
+                offset = 0.0   # simulated heights are the tiles' own: one datum by construction
+        elif noise is not None:
+            raise InputError("the noise level is a simulation's: give it without a file")
+        product = waveform_product(path)
+        if product not in ("ESFL", "dual"):
+            raise InputError(f"{path} is {product}: this chain takes ESFL cubes or "
+                             "dual-wavelength pairs")
+        prog.update(0.3, "footprints")
+        layers = sensor_footprints(path, product, options=options, crs=las_crs(tiles[0]),
+                                   progress=prog.sub(0.3, 0.55))
+        footprints = write_layers(layers, out / "footprints.gpkg")
+        fp = layers[LAYER_FOOTPRINTS]
+        prog.update(0.55, "validation")
+        val = validate_sensor_footprints(fp, tiles, pixels=layers.get(LAYER_PIXELS),
+                                         geoid=geoid, offset=offset,
+                                         progress=prog.sub(0.55, 0.9))
+        validation = write_layers({LAYER_RESIDUALS_FOOTPRINTS: val.residuals,
+                                   LAYER_STATS_FOOTPRINTS: val.stats},
+                                  out / "validation.gpkg")
+        write_table(val.stats, out / "stats.csv", layer="stats")
+        plots_dir = out / "plots"
+        plots_dir.mkdir(exist_ok=True)
+        maps = [plot_footprint_map(val.residuals, c, plots_dir / f"footprints_{c}.png")
+                for c in ("res_height", "res_ground")]
+        prog.update(0.95, "report")
+        lines = sensor_summary_lines(val.stats, product)
+        words = SENSOR_NAMES["esfl" if product == "ESFL" else "dual"][1]
+        from .waveform_report import sensor_report_sections
+
+        sections = [ReportSection("Summary", lines), *sensor_report_sections(
+            fp, val, product=product, source=Path(path).name, simulated=simulated,
+            tiles=[t.name for t in tiles], words=words, maps=maps)]
+        report = write_report(out / "report.html", f"canopyblocks: {words} and validation",
+                              sections)
+        prog.update(1.0, "done")
+        return ChainResult(out_dir=out, photons=Path(path), blocks=footprints, rasters={},
+                           validation=validation, report=report, plots=maps,
+                           stats=val.stats, simulated=simulated, summary=lines)
+
+
+def waveform_chain(las_paths: Sequence[Any], out_dir: Any, photons: Any, sensor: str, *,
+                   beams: Sequence[str], azimuth: float, seed: int, geoid: Any,
+                   offset: float | None, options: Any, noise: float | None,
+                   progress: Progress) -> Any:
+    """What ``run`` does with waveforms: the GEDI chain for a GEDI L1B file (or
+    ``sensor="gedi"``, simulated), :func:`run_sensor_chain` for an ESFL or dual file (or
+    ``sensor="esfl"|"dual"``); None for photons (the photon chain's)."""
+    if sensor not in ("icesat2", "gedi", "esfl", "dual"):
+        raise InputError(f"sensor must be icesat2, gedi, esfl or dual; got {sensor!r}")
+    if photons is not None and sensor != "icesat2":
+        raise InputError("give either a file to process or a sensor to simulate, not both")
+    if sensor in ("esfl", "dual"):
+        return run_sensor_chain(las_paths, out_dir, sensor=sensor, azimuth=azimuth,
+                                seed=seed, noise=noise, options=options, geoid=geoid,
+                                offset=offset, progress=progress)
+    if noise is not None or options is not None:
+        raise InputError("the noise level and the flash-lidar / dual-wavelength options "
+                         "apply to --sensor esfl and dual (or their files) only")
+    from .chain_waveforms import run_waveform_chain
+
+    if sensor == "gedi":
+        from ..simulate.sensor_files import simulate_sensor_over_tiles
+
+        out = check_writable(out_dir, folder=True)
+        out.mkdir(parents=True, exist_ok=True)
+        l1b = out / "gedi_l1b.h5"
+        simulate_sensor_over_tiles(list(las_paths), "gedi", l1b, azimuth=azimuth, seed=seed,
+                                   progress=progress.sub(0.0, 0.2))
+        return run_waveform_chain(las_paths, out_dir, l1b, progress=progress.sub(0.2, 1.0))
+    if photons is not None and str(photons).lower().endswith((".h5", ".hdf5")):
+        from ..readers.flash_dual import waveform_product
+
+        try:
+            product = waveform_product(photons)
+        except FileFormatError:
+            return None   # a photon file (or not one at all: the photon reader says why)
+        if product == "GEDI L1B":   # full-waveform lidar: footprints, not blocks
+            return run_waveform_chain(las_paths, out_dir, photons, beams=beams,
+                                      geoid=geoid, offset=offset, progress=progress)
+        return run_sensor_chain(las_paths, out_dir, path=photons, geoid=geoid,
+                                offset=offset, options=options, progress=progress)
+    return None

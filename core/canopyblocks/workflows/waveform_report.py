@@ -1,0 +1,59 @@
+"""The report sections of the flash-lidar (ESFL) and dual-wavelength chains, after the
+summary that leads with the answer (:mod:`canopyblocks.workflows.chain_flash_dual`):
+inputs and method, footprints per flag, the statistics and the maps."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+__all__ = ["sensor_report_sections", "METHOD_WORDS"]
+
+#: What each chain does, in the papers' terms (one paragraph each).
+METHOD_WORDS = {
+    "ESFL": ("The flash-lidar paper's chain: per footprint the pixels of the 4 x 4 region "
+             "whose energy reaches the fraction f of the brightest; the pixels merged into "
+             "one waveform per 5 m grid cell; noise from a Gaussian fitted to each "
+             "waveform's histogram, threshold mean + 4 sd; terrain = the lowest Gaussian "
+             "above it, top = the highest sample above it; outliers (terrain 10 m below its "
+             "neighbours, heights over 60 m) flagged; terrain filtered by multiscale "
+             "curvature classification; height = top - terrain."),
+    "dual": ("The dual-wavelength paper's ground finder: the visible / near-infrared ratio "
+             "of each pair, smoothed at decreasing widths; the single maximum of its "
+             "gradient is the ground start, the last sample above noise the ground end, "
+             "ground = their mean; tree height = first return above noise to the ground "
+             "start."),
+}
+
+
+def sensor_report_sections(fp: pd.DataFrame, val: Any, *, product: str, source: str,
+                           simulated: bool, tiles: Sequence[str], words: str,
+                           maps: Sequence[Path]) -> list[Any]:
+    """Inputs, footprints and validation sections (``val``: a FootprintValidation)."""
+    from ..outputs.report import ReportSection
+
+    flags = fp["flag"].value_counts().rename_axis("flag").reset_index(name="footprints")
+    kind = "simulated over the tiles" if simulated else "read"
+    ref = ("Reference: the airborne points under each row's pixels: ground = the class-2 "
+           "TIN averaged over the pixel centres, top = the highest point, height = top - "
+           "ground." if product == "ESFL" else
+           "Reference: the airborne points weighted by a Gaussian footprint of sigma 5.5 m "
+           "(22 m): ground = the weighted mean of the ground points, height = RH98 above "
+           "it, top = ground + height.")
+    stats = val.stats.copy()
+    return [
+        ReportSection("Inputs and method", [
+            f"{words.capitalize()} {kind}: {source}. Airborne tiles: {', '.join(tiles)}; "
+            f"vertical datums: {val.datum}.", METHOD_WORDS[product]]),
+        ReportSection("Footprints", [
+            f"{len(fp)} rows (layer 'footprints' of footprints.gpkg: ground, top, height, "
+            "flag" + ("; layer 'pixels': the pixels each row merges)." if product == "ESFL"
+                      else ").")], {"rows per flag": flags}),
+        ReportSection("Validation against the airborne lidar", [
+            ref, "Residual = estimate minus reference (m), over the rows flagged ok whose "
+            "reference is ok; SD = the residuals' standard deviation."],
+            {"statistics": stats}, list(maps)),
+    ]
