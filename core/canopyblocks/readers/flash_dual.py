@@ -103,7 +103,9 @@ def waveform_product(path: str | os.PathLike[str]) -> WaveformProduct:
     raise FileFormatError(
         f"{p}: HDF5 file but not GEDI L1B (BEAMxxxx/rxwaveform), flash-lidar cubes or "
         f"dual-wavelength pairs (root attribute sensor = esfl | dual, as `canopyblocks "
-        f"simulate --sensor esfl|dual` writes); top-level groups: {', '.join(keys) or 'none'}")
+        f"simulate --sensor esfl|dual` writes); top-level groups: {', '.join(keys) or 'none'}"
+        + ("; photons (ATL03, MABEL) go through `canopyblocks blocks`"
+           if any(k.startswith(("gt", "photon")) for k in keys) else ""))
 
 
 def _need(f: object, names: tuple[str, ...], path: Path, what: str) -> None:

@@ -382,8 +382,9 @@ def _sensor_file(path: Any, output: Any, product: str, *, options: Any, crs: Any
 
     given = [k for k, on in gedi_only.items() if on]
     if given:
+        verb = "applies" if len(given) == 1 else "apply"
         raise InputError(f"{path} holds {product} data, not GEDI L1B: {', '.join(given)} "
-                         "apply to GEDI only")
+                         f"{verb} to GEDI only; leave it out")
     prog = as_progress(progress)
     layers = sensor_footprints(path, product, options=options, crs=crs,
                                progress=prog.sub(0.0, 0.9))

@@ -241,8 +241,9 @@ class SensorOptions:
         given = [name for name, v in (("--fraction", self.fraction), ("--cell", self.cell),
                                       ("--noise-fit", self.noise_fit)) if v is not None]
         if given:
+            verb = "applies" if len(given) == 1 else "apply"
             raise InputError(f"{path} holds dual-wavelength pairs: {', '.join(given)} "
-                             "apply to flash-lidar (ESFL) cubes only")
+                             f"{verb} to flash-lidar (ESFL) cubes only; leave it out")
         kw = {k: v for k, v in (("method", self.dual_method), ("k", self.noise_threshold))
               if v is not None}
         return replace(DualParams(), **kw)
