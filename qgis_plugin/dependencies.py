@@ -32,6 +32,7 @@ NEEDS: dict[str, tuple[str, ...]] = {
     "simulate": _BASE + _HDF5 + _LAS + ("scipy",),
     "simulatewaveforms": _BASE + _HDF5 + _LAS + ("scipy",),
     "gedifootprints": _BASE + _HDF5 + ("scipy",),
+    "flashdualfootprints": _BASE + _HDF5 + ("scipy",),
     "footprintvalidation": _BASE + _LAS + ("scipy",),
     "waveformplot": _BASE + _HDF5 + ("scipy", "matplotlib"),
 }

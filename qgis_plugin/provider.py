@@ -9,6 +9,7 @@ from .algorithms.aspecterrors import AspectErrorsAlgorithm
 from .algorithms.blockheights import BlockHeightsAlgorithm
 from .algorithms.calibrate import CalibrateAlgorithm
 from .algorithms.coregister import CoregisterAlgorithm
+from .algorithms.flashdualfootprints import FlashDualFootprintsAlgorithm
 from .algorithms.corridor import CorridorAlgorithm
 from .algorithms.footprintvalidation import FootprintValidationAlgorithm
 from .algorithms.gedifootprints import GediFootprintsAlgorithm
@@ -34,6 +35,7 @@ ALGORITHMS = (
     SimulateAlgorithm,
     SimulateWaveformsAlgorithm,
     GediFootprintsAlgorithm,
+    FlashDualFootprintsAlgorithm,
     FootprintValidationAlgorithm,
     WaveformPlotAlgorithm,
 )

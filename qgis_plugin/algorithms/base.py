@@ -110,6 +110,8 @@ TAGS: dict[str, tuple[str, ...]] = {
                    "DTM", "alignment"),
     "gedifootprints": ("GEDI", "L1B", "L2A", "waveform", "full-waveform", "RH98", "RH",
                        "ground", "cover", "footprint"),
+    "flashdualfootprints": ("ESFL", "flash", "flash lidar", "dual-wavelength", "waveform",
+                            "full-waveform", "ground", "terrain", "footprint"),
     "footprintvalidation": ("GEDI", "footprint", "validation", "LAS", "LAZ", "ALS", "RH98",
                             "residual"),
     "waveformplot": ("GEDI", "L1B", "waveform", "plot", "RH", "shot"),

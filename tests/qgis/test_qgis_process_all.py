@@ -27,7 +27,8 @@ pytestmark = [pytest.mark.qgis, pytest.mark.pdal]
 ROOT = Path(__file__).resolve().parents[2]
 TILE = ROOT / "tests" / "data" / "als" / "lasR_bcts_1.laz"
 ALGORITHMS = ("aspecterrors", "blockheights", "calibrate", "coregister", "corridor",
-              "footprintvalidation", "gedifootprints", "referencerasters", "simulate",
+              "flashdualfootprints", "footprintvalidation", "gedifootprints",
+              "referencerasters", "simulate",
               "simulatewaveforms", "validate", "waveformplot")
 
 
@@ -331,6 +332,25 @@ def test_simulatewaveforms_writes_each_sensor_with_truth(qp, work, sensor, index
     ok = np.isfinite(truth)
     assert ground.min() - 1 <= truth[ok].min() and truth[ok].max() <= ground.max() + 1
 
+
+
+@pytest.mark.parametrize("sensor,index", [("esfl", 1), ("dual", 2)])
+def test_flashdualfootprints_on_simulated_files(qp, work, sensor, index) -> None:
+    """Issue 31: flash-lidar cubes and dual-wavelength pairs written by the simulate
+    algorithm, processed by the footprints algorithm in the real app: one row per
+    footprint (ESFL with a 0 m cell), ground within 1.5 m of the file's truth."""
+    h5 = work / f"fd_{sensor}.h5"
+    qp("simulatewaveforms", INPUT=TILE, SENSOR=index, AZIMUTH=0, SEED=4, OUTPUT=h5)
+    out = work / f"fd_{sensor}.gpkg"
+    qp("flashdualfootprints", INPUT=h5, CELL=0, OUTPUT=out)
+    fp = pyogrio.read_dataframe(out)
+    with h5py.File(h5) as f:
+        truth = f["truth/ground"][()]
+    assert len(fp) == truth.size
+    ok = (fp["flag"] == "ok").to_numpy()
+    assert ok.sum() >= 3
+    err = fp["ground"].to_numpy(float)[ok] - truth[fp["shot_number"].to_numpy()[ok]]
+    assert np.abs(err).max() < 1.5
 
 
 def test_validate_footprint_reference_equals_the_command_line(qp, blocks, work) -> None:
