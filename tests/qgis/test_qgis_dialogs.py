@@ -19,7 +19,7 @@ def _algorithms(qgis_session):  # noqa: ANN001, ANN202
 
     algs = [a for a in QgsApplication.processingRegistry().algorithms()
             if a.provider() is not None and a.provider().id() == "canopyblocks"]
-    assert len(algs) == 12
+    assert len(algs) == 13
     return algs
 
 
@@ -80,7 +80,7 @@ def test_each_algorithm_has_its_own_help_page(qgis_session) -> None:
 
     algs = _algorithms(qgis_session)
     urls = {a.helpUrl() for a in algs}
-    assert len(urls) == 12
+    assert len(urls) == 13
     for alg in algs:
         page = ROOT / "docs" / "qgis" / f"{alg.name()}.md"
         assert alg.helpUrl().endswith(f"docs/qgis/{alg.name()}.md")
