@@ -9,8 +9,8 @@ from .algorithms.aspecterrors import AspectErrorsAlgorithm
 from .algorithms.blockheights import BlockHeightsAlgorithm
 from .algorithms.calibrate import CalibrateAlgorithm
 from .algorithms.coregister import CoregisterAlgorithm
-from .algorithms.flashdualfootprints import FlashDualFootprintsAlgorithm
 from .algorithms.corridor import CorridorAlgorithm
+from .algorithms.flashdualfootprints import FlashDualFootprintsAlgorithm
 from .algorithms.footprintvalidation import FootprintValidationAlgorithm
 from .algorithms.gedifootprints import GediFootprintsAlgorithm
 from .algorithms.referencerasters import ReferenceRastersAlgorithm

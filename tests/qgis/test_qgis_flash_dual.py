@@ -66,7 +66,6 @@ def simulated(tmp_path_factory, sample) -> dict[str, Path]:
 def test_footprints_against_truth_and_rendered(run_alg, open_layer, layer_rows, simulated,
                                                tmp_path, sensor):
     from qgis.core import QgsWkbTypes
-
     from qgis_plugin.styles import height_renderer
 
     params = {"INPUT": str(simulated[sensor]), "OUTPUT": str(tmp_path / "fp.gpkg")}

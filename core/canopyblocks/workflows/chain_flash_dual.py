@@ -135,7 +135,7 @@ def run_sensor_chain(
 
                     params = DualAlsParams(noise=float(noise))
             path = out / f"{sensor}.h5"
-            simulate_sensor_over_tiles(tiles, str(sensor), path, azimuth=azimuth, seed=seed,
+            simulate_sensor_over_tiles(list(las_paths), str(sensor), path, azimuth=azimuth, seed=seed,
                                        params=params, progress=prog.sub(0.0, 0.3))
             if geoid is None and offset is None:
                 offset = 0.0   # simulated heights are the tiles' own: one datum by construction

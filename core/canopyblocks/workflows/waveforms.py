@@ -400,7 +400,7 @@ def _sensor_file(path: Any, output: Any, product: str, *, options: Any, crs: Any
     gdf = layers[LAYER_FOOTPRINTS]
     flags = {str(k): int(v) for k, v in gdf["flag"].value_counts().items()}
     prog.update(1.0, "done")
-    return FootprintRunSummary(output=out, footprints=gdf, flags=flags)  # type: ignore[arg-type]
+    return FootprintRunSummary(output=out, footprints=gdf, flags=flags)
 
 
 def pixels_path(output: str | os.PathLike[str]) -> Path:

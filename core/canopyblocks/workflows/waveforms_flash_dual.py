@@ -229,9 +229,9 @@ class SensorOptions:
         if self.dual_method is not None:
             raise InputError(f"{path} holds flash-lidar (ESFL) cubes: --dual-method applies "
                              "to dual-wavelength pairs only")
-        kw = {k: v for k, v in (("fraction", self.fraction), ("cell", self.cell),
-                                ("noise_fit", self.noise_fit), ("k", self.noise_threshold))
-              if v is not None}
+        kw: dict[str, Any] = {k: v for k, v in (
+            ("fraction", self.fraction), ("cell", self.cell), ("noise_fit", self.noise_fit),
+            ("k", self.noise_threshold)) if v is not None}
         return replace(EsflParams(), **kw)
 
     def dual_params(self, path: object) -> Any:
@@ -244,8 +244,8 @@ class SensorOptions:
             verb = "applies" if len(given) == 1 else "apply"
             raise InputError(f"{path} holds dual-wavelength pairs: {', '.join(given)} "
                              f"{verb} to flash-lidar (ESFL) cubes only; leave it out")
-        kw = {k: v for k, v in (("method", self.dual_method), ("k", self.noise_threshold))
-              if v is not None}
+        kw: dict[str, Any] = {k: v for k, v in (("method", self.dual_method),
+                                                ("k", self.noise_threshold)) if v is not None}
         return replace(DualParams(), **kw)
 
 
