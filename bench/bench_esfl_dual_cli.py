@@ -93,7 +93,9 @@ def _one_tile(tile: Path, sensor: str, noise: float | None, work: Path) -> pd.Da
 
 
 def _r2(a: np.ndarray, b: np.ndarray) -> float:
-    return float(np.corrcoef(a, b)[0, 1] ** 2) if a.size > 2 else float("nan")
+    if a.size < 3 or np.std(a) == 0 or np.std(b) == 0:   # e.g. a height-normalised tile
+        return float("nan")
+    return float(np.corrcoef(a, b)[0, 1] ** 2)
 
 
 def _score(res: pd.DataFrame, sensor: str) -> dict[str, float]:

@@ -189,3 +189,13 @@ def test_run_noise_option_belongs_to_its_sensor(files, tmp_path):
              "-o", tmp_path / "x")
     assert r.returncode == 2 and "--esfl-noise" in r.stderr
     assert not (tmp_path / "x").exists()
+
+
+def test_info_tells_the_products_apart(files):
+    for sensor, word in (("esfl", "ESFL flash-lidar cubes"),
+                         ("dual", "dual-wavelength waveform pairs")):
+        r = _cli("info", files[sensor])
+        assert r.returncode == 0, r.stderr
+        with h5py.File(files[sensor]) as f:
+            n = f["x"].shape[0]
+        assert word in r.stdout and f"shots: {n}" in r.stdout and "waveforms" in r.stdout

@@ -105,6 +105,7 @@ FOOTPRINT_FLAGS: tuple[str, ...] = (
     "ok", "no_signal", "too_many_modes", "degraded", "stale", "terrain_outlier",
     "invalid_shot",  # impossible L1B values (bin spacing, sample pool, amplitude, position):
                      # heights and position not given (readers/gedi_geometry.py)
+    "no_ground",     # dual-wavelength pairs: no single ground edge found
 )
 
 #: Per-photon labels (``compute_blocks(..., labels=True)``).

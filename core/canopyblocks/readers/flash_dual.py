@@ -23,7 +23,7 @@ from ..errors import FileFormatError
 from ._h5 import _looks_like_hdf5, open_h5
 
 __all__ = ["WaveformProduct", "EsflFile", "DualFile", "waveform_product", "read_esfl_file",
-           "read_dual_file"]
+           "read_dual_file", "flash_dual_sensor", "flash_dual_file_info"]
 
 WaveformProduct = Literal["GEDI L1B", "ESFL", "dual"]
 
@@ -192,3 +192,39 @@ def read_dual_file(path: str | os.PathLike[str]) -> DualFile:
                     (d["noise_mean_visible"], d["noise_mean_nir"]),
                     (d["noise_sd_visible"], d["noise_sd_nir"]), bin_size, noise, crs, vd,
                     truth)
+
+
+def flash_dual_sensor(path: str | os.PathLike[str]) -> str | None:
+    """``"esfl"`` or ``"dual"`` when ``path`` is such a file (its root attribute
+    ``sensor``), else None (never raises)."""
+    try:
+        p = Path(path)
+        if not (p.is_file() and _looks_like_hdf5(p)):
+            return None
+        with open_h5(p) as f:
+            sensor = str(f.attr("/", "sensor", "") or "").strip().lower()
+    except (FileFormatError, OSError):
+        return None
+    return sensor if sensor in ("esfl", "dual") else None
+
+
+def flash_dual_file_info(path: str | os.PathLike[str]) -> dict[str, object]:
+    """What ``canopyblocks info`` prints for ESFL cubes or dual-wavelength pairs."""
+    p = Path(path)
+    sensor = flash_dual_sensor(p)
+    name = "datasets"
+    with open_h5(p, "waveform file") as f:
+        crs, vd = _strings(f)
+        name = "cubes" if sensor == "esfl" else "visible"
+        shape = f.shape(name) if f.is_dataset(name) else ()
+        noise = f.attr("/", "noise")
+    product = ("ESFL flash-lidar cubes" if sensor == "esfl"
+               else "dual-wavelength waveform pairs")
+    info: dict[str, object] = {"path": str(p), "product": product,
+                               "n_shots": int(shape[0]) if shape else 0,
+                               "crs": crs or None, "vertical_datum": vd,
+                               "note": "process with `canopyblocks waveforms` (or `run "
+                                       "--photons`)"}
+    if noise is not None:
+        info["noise"] = noise
+    return info

@@ -197,6 +197,10 @@ def file_info(path: str | os.PathLike[str]) -> dict[str, Any]:
 
     if Path(path).suffix.lower() in (".h5", ".hdf5", ".he5") and is_gedi_l1b(path):
         return gedi_file_info(path)
+    from .flash_dual import flash_dual_file_info, flash_dual_sensor
+
+    if flash_dual_sensor(path) is not None:   # ESFL cubes or dual-wavelength pairs
+        return flash_dual_file_info(path)
     prod = detect_product(path)
     info: dict[str, Any] = {"path": str(path), "product": prod}
     if prod == "table":
