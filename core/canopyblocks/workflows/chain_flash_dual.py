@@ -16,7 +16,7 @@ import numpy as np
 import pandas as pd
 
 from ..atomic import check_writable, new_files_removed_on_failure
-from ..errors import FileFormatError, InputError
+from ..errors import InputError
 from ..progress import Progress, as_progress
 
 __all__ = ["run_sensor_chain", "waveform_chain", "SENSOR_NAMES", "sensor_summary_lines"]
@@ -208,15 +208,13 @@ def waveform_chain(las_paths: Sequence[Any], out_dir: Any, photons: Any, sensor:
                                    progress=progress.sub(0.0, 0.2))
         return run_waveform_chain(las_paths, out_dir, l1b, progress=progress.sub(0.2, 1.0))
     if photons is not None and str(photons).lower().endswith((".h5", ".hdf5")):
-        from ..readers.flash_dual import waveform_product
+        from ..readers.flash_dual import flash_dual_sensor
+        from ..readers.gedi import is_gedi_l1b
 
-        try:
-            product = waveform_product(photons)
-        except FileFormatError:
-            return None   # a photon file (or not one at all: the photon reader says why)
-        if product == "GEDI L1B":   # full-waveform lidar: footprints, not blocks
+        if flash_dual_sensor(photons) is not None:
+            return run_sensor_chain(las_paths, out_dir, path=photons, geoid=geoid,
+                                    offset=offset, options=options, progress=progress)
+        if is_gedi_l1b(photons):   # full-waveform lidar: footprints, not blocks
             return run_waveform_chain(las_paths, out_dir, photons, beams=beams,
                                       geoid=geoid, offset=offset, progress=progress)
-        return run_sensor_chain(las_paths, out_dir, path=photons, geoid=geoid,
-                                offset=offset, options=options, progress=progress)
-    return None
+    return None   # photons (or not a file at all: the photon reader says why)

@@ -310,11 +310,12 @@ def footprints_to_file(
     """
     from ..atomic import check_writable, new_files_removed_on_failure
     from ..outputs.tables import check_output_path, write_layers
-    from ..readers.flash_dual import waveform_product
+    from ..readers.flash_dual import flash_dual_sensor
 
     check_output_path(output)
-    product = waveform_product(path)
-    if product != "GEDI L1B":
+    sensor = flash_dual_sensor(path)   # anything else goes to the GEDI reader, which says why
+    if sensor is not None:
+        product = "ESFL" if sensor == "esfl" else "dual"
         return _sensor_file(path, output, product, options=options, crs=crs,
                             gedi_only={"--beam": bool(beams), "--l2a": l2a is not None,
                                        "--l2b": l2b is not None, "--bbox": bbox is not None,
