@@ -89,10 +89,10 @@ def plot_profile(
                    rasterized=True)
     else:
         sub = lab[idx]
-        for value, (name, colour) in _LABEL_STYLE.items():
+        for value, (what, colour) in _LABEL_STYLE.items():
             m = sub == value
             if m.any():
-                ax.scatter(s_plot[idx][m], track.h[idx][m], s=1.5, c=colour, lw=0, label=name,
+                ax.scatter(s_plot[idx][m], track.h[idx][m], s=1.5, c=colour, lw=0, label=what,
                            rasterized=True)
     styles = ("-", "--", ":", "-.")
     for i, ln in enumerate(lengths):  # every block length, thinner for longer blocks

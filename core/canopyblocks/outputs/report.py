@@ -35,8 +35,7 @@ _CSS = """
 body{font-family:system-ui,sans-serif;max-width:70rem;margin:2rem auto;padding:0 1rem;color:#222}
 h1{font-size:1.6rem}h2{font-size:1.25rem;border-bottom:1px solid #ccc;padding-bottom:.2rem}
 table{border-collapse:collapse;font-size:.8rem;margin:.5rem 0 1rem;display:block;
-overflow-x:auto;max-width:100%}th{white-space:normal;vertical-align:bottom;max-width:7rem;
-overflow-wrap:anywhere;font-weight:600}
+overflow-x:auto;max-width:100%}th{white-space:normal;vertical-align:bottom;font-weight:600}
 td,th{border:1px solid #ccc;padding:.15rem .4rem;text-align:right}th{background:#f3f3f3}
 tr.few td{color:#999}
 td:first-child,th:first-child{text-align:left}img{max-width:100%;border:1px solid #ddd;margin:.5rem 0}
@@ -76,6 +75,9 @@ def calibration_table(table: pd.DataFrame) -> pd.DataFrame:
     for c in ("length", "n", "n_holdout"):
         if c in df.columns:
             df[c] = pd.to_numeric(df[c], errors="coerce").round().astype("Int64")
+    for c in ("top_cutoff", "ground_cutoff", "default_top_cutoff", "default_ground_cutoff"):
+        if c in df.columns:  # fractions down to 0.001: three significant digits
+            df[c] = [f"{v:.3g}" if v == v else "" for v in pd.to_numeric(df[c], errors="coerce")]
     return df.rename(columns=CALIBRATION_HEADERS)
 
 
@@ -98,14 +100,12 @@ def footprint_stats_table(stats: pd.DataFrame) -> pd.DataFrame:
 
 def format_number(v: float) -> str:
     """A number as the report prints it: whole numbers without decimals (13, not
-    13.000), small fractions with two significant digits (0.001, 0.025), others with
-    two decimals (metres to the centimetre)."""
+    13.000), others with two decimals (metres to the centimetre; fractions such as the
+    cut-offs are formatted by their table, :func:`calibration_table`)."""
     if v != v:  # NaN
         return ""
     if float(v).is_integer() and abs(v) < 1e15:
         return f"{v:.0f}"
-    if abs(v) < 0.05:
-        return f"{v:.2g}"
     return f"{v:.2f}"
 
 

@@ -335,13 +335,17 @@ def _calibrated_cutoffs(track: Any, residuals: pd.DataFrame, params: BlockParams
             "searched grid, so the optimum may lie beyond it (at the low edge this is the "
             "window floor of the paper's method, which the recommended estimators avoid)",
             CutoffEdgeWarning, stacklevel=2)
+        found: dict[tuple[str, str], set[float]] = {}
         for w in edge:  # '25 m blocks of track gt1r: the best top cut-off 0.001 lies ...'
             msg = str(w.message)
-            length = msg.split(" m blocks")[0]
-            kind, value = msg.split("the best ")[1].split()[0], msg.split(" cut-off ")[1].split()[0]
-            words.append(f"{kind} {value} at {length} m")
+            kind = msg.split("the best ")[1].split()[0]
+            value = msg.split(" cut-off ")[1].split()[0]
+            found.setdefault((kind, value), set()).add(float(msg.split(" m blocks")[0]))
         lo, hi = min(DEFAULT_GRID), max(DEFAULT_GRID)
-        words.insert(0, f"{lo:g}..{hi:g}")
+        words = [f"{lo:g}..{hi:g}"] + [
+            f"the {kind} cut-off {value} of the "
+            f"{', '.join(f'{v:g}' for v in sorted(ls))} m blocks"
+            for (kind, value), ls in sorted(found.items())]
     return result, words
 
 
