@@ -30,7 +30,7 @@ def _table(stats: pd.DataFrame, cover: bool) -> pd.DataFrame:
     if cover:  # a fraction, not metres
         t = t.rename(columns={c: c.replace("(m)", "(fraction)") for c in t.columns
                               if c != "footprint diameter (m)"})
-        t = t.rename(columns={"slope (fraction)": "slope"})
+        t = t.rename(columns={"slope (m/m)": "slope"})
     return t
 
 
