@@ -134,9 +134,10 @@ def photon_report(out: Path, *, tiles: list[Path], photons: Path, simulated: boo
             "classified by the simulation study's step classifier (steps of 20 photons; "
             "ground below the lowest photon + 3 PSF widths, canopy top above the highest "
             "photon - 1 m) and compared with the truth, over many photon draws per footprint "
-            "diameter. Two diameters: 13 m (ICESat-2's footprint as measured in orbit, the "
-            "one simulated for the blocks above unless another was asked for) and 17 m (its "
-            "pre-launch specification), to show how the footprint size changes the errors. "
+            "diameter. The diameters: 13 m (ICESat-2's footprint at the start of the mission) "
+            "and 17 m (at its end, as the footprint grows), and the one simulated for the "
+            "blocks above when another was asked for: how the footprint size changes the "
+            "errors. "
             "Residual = photon minus truth, metres; cover as a fraction of the footprint."],
             {"residuals against truth per footprint diameter": truth_report_table(truth_table)},
             [truth_png] if truth_png is not None else []))
