@@ -209,3 +209,67 @@ def test_report_tables_have_integer_lengths_units_no_intercepts_no_tiny_groups(
     assert not re.search(r"<td>\d+\.0+</td>\s*<td>(ground|top|hmax|h90)</td>", html)
     ns = [int(n) for n in re.findall(r"<td>(?:aspect|slope):[^<]*</td>\s*<td>(\d+)</td>", html)]
     assert ns and min(ns) >= 3
+
+
+def test_no_internal_names_in_output_files(chain_out) -> None:
+    names = [p.relative_to(chain_out).as_posix() for p in chain_out.rglob("*")]
+    assert names and not [n for n in names if "seed0" in n.lower()], names
+    page = (chain_out / "report.html").read_text().lower()
+    assert "seed 00" not in page and "seed00" not in page
+
+
+def _sections(page: str) -> dict[str, str]:
+    return {s.split("</h2>")[0]: s for s in page.split("<h2>")[1:]}
+
+
+def test_report_figures_and_bias_offer_agree_with_the_headline(chain_out) -> None:
+    """The summary's estimators and reference are those of its map, profile and the
+    plain-named scatter plots; the paper's method against the corridor maximum is a
+    section of its own with its own figures; a bias correction is offered only when it was
+    fitted against the footprint reference the headline scores on and improved every
+    held-out error."""
+    import html as markup
+    import json
+
+    from canopyblocks.blocks.estimators import RECOMMENDED_PRESET
+
+    page = markup.unescape((chain_out / "report.html").read_text())
+    sec = _sections(page)
+    summary = sec["Summary"]
+    assert f"'{RECOMMENDED_PRESET}'" in summary and "footprint-matched" in summary
+    assert "<img src='plots/residual_map.png'" in summary
+    assert "<img src='plots/profile.png'" in summary
+    details = sec[f"The '{RECOMMENDED_PRESET}' estimator against the footprint-matched "
+                  "airborne reference (footprint RH98 and ground): details"]
+    assert "<img src='plots/validation_25m.png'" in details
+    paper = sec["The paper's method against the corridor maximum"]
+    assert "<img src='plots/paper_corridor_validation_25m.png'" in paper
+    assert "plots/validation_25m.png" not in paper
+    for other in (s for h, s in sec.items() if "corridor maximum" not in h):
+        assert "paper_corridor_" not in other
+    # bias: offered only with a footprint-fitted, held-out-improving calibration
+    files = sorted(chain_out.glob("bias_calibration_*.json"))
+    offered = "A bias correction for" in page
+    assert offered == bool(files)
+    for f in files:
+        doc = json.loads(f.read_text())
+        assert doc["reference"] == "footprint"
+        for m in doc["models"]:
+            assert m["holdout_rmse_after"] < m["holdout_rmse_before"]
+    if not offered:
+        assert f"No bias correction is offered for the '{RECOMMENDED_PRESET}' estimator" \
+            in summary
+    assert "corridor maximum it is scored on" not in page
+
+
+def test_cutoffs_on_the_grid_edge_are_named(chain_out) -> None:
+    from canopyblocks.blocks.calibration import DEFAULT_GRID
+
+    cal = pd.read_csv(chain_out / "calibration.csv")
+    edge = {min(DEFAULT_GRID), max(DEFAULT_GRID)}
+    on_edge = [(c, v) for c in ("top_cutoff", "ground_cutoff") for v in cal[c] if v in edge]
+    page = (chain_out / "report.html").read_text()
+    sec = _sections(page)["Calibrated cut-offs of the paper&#x27;s method"]
+    assert ("On the edge of the searched grid" in sec) == bool(on_edge)
+    for c, v in on_edge:
+        assert f"the {c.split('_')[0]} cut-off {v:g} of the" in sec
