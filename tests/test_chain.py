@@ -273,3 +273,32 @@ def test_cutoffs_on_the_grid_edge_are_named(chain_out) -> None:
     assert ("On the edge of the searched grid" in sec) == bool(on_edge)
     for c, v in on_edge:
         assert f"the {c.split('_')[0]} cut-off {v:g} of the" in sec
+
+
+def test_report_when_the_blocks_are_made_with_the_recommended_estimators(
+        sample, pdal_bin, tmp_path) -> None:
+    """``run --preset atl08``: the summary leads with the user's blocks (layer
+    ``stats_footprint``), and the paper's method is computed beside them for its own
+    sections (layers ``*_paper``), its corridor figures named as such."""
+    import html as markup
+
+    out = tmp_path / "atl08"
+    r = subprocess.run(
+        [sys.executable, "-m", "canopyblocks", "-q", "run", str(sample(TILE)), "--seed", "3",
+         "--azimuth", "15", "--length", "25", "--preset", "atl08", "--realisations", "0",
+         "-o", str(out)],
+        capture_output=True, text=True, timeout=600,
+        env={**__import__("os").environ, "CANOPYBLOCKS_PDAL": pdal_bin})
+    assert r.returncode == 0, r.stderr
+    page = markup.unescape((out / "report.html").read_text())
+    sec = _sections(page)
+    assert "layer 'stats_footprint' of validation.gpkg" in sec["Summary"]
+    assert "The recommended estimators, 'atl08'" in sec["Summary"]
+    assert "'stats_footprint_paper'" in sec["The paper's method and its known bias"]
+    assert "'stats_paper'" in sec["The paper's method against the corridor maximum"]
+    assert "Block heights written (the 'atl08' estimator)" in sec
+    assert (out / "plots" / "paper_corridor_validation_25m.png").exists()
+    import pyogrio
+
+    layers = {n for n, _ in pyogrio.list_layers(out / "validation.gpkg")}
+    assert {"stats_footprint", "stats_paper", "stats_footprint_paper"} <= layers
