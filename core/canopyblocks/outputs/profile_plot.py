@@ -89,7 +89,10 @@ def plot_profile(
                    rasterized=True)
     else:
         sub = lab[idx]
+        windows = name in (None, "paper")  # the paper's method labels windows of photons
         for value, (what, colour) in _LABEL_STYLE.items():
+            if not windows:
+                what = what.replace(" window", " photons")
             m = sub == value
             if m.any():
                 ax.scatter(s_plot[idx][m], track.h[idx][m], s=1.5, c=colour, lw=0, label=what,

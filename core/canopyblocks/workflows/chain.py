@@ -432,7 +432,8 @@ def _lead_bias_calibration(lead: EstimatorSet, photons: Any, tracks: Any, width:
     worse = table[~(table["holdout_rmse_after"] < table["holdout_rmse_before"])]
     if len(worse):
         r = worse.iloc[0]
-        why = (f"it does not improve the held-out error: {r['metric']} at {r['length']:g} m "
+        why = (f"it does not improve the held-out error everywhere: {r['metric']} at "
+               f"{r['length']:g} m "
                f"goes from {r['holdout_rmse_before']:.2f} m to {r['holdout_rmse_after']:.2f} m"
                + (f" ({len(worse)} of {len(table)} rows do not improve)" if len(worse) > 1
                   else ""))

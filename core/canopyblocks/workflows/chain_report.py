@@ -168,18 +168,18 @@ def summary_lines(lead: LeadResult) -> list[str]:
 
 
 def datum_sentence(decision: str, *, geoid: Any = None, offset: float | None = None,
-                   tiles: str | None = None) -> str:
+                   tiles: str | None = None, what: str = "photons") -> str:
     """The report's words for the vertical-datum decision of a validation ("same",
     "differ" with the conversion that was given, "unknown")."""
     theirs = f"the tiles' ({tiles})" if tiles else "the tiles'"
     if decision == "same":
-        return f"the photons' heights are in {theirs} datum."
+        return f"the {what}' heights are in {theirs} datum."
     if decision == "differ":
         how = (f"the geoid raster {Path(geoid).name}" if geoid is not None
                else f"a constant offset of {offset:+g} m" if offset is not None
                else "the conversion given")
-        return f"the photons' heights were converted to {theirs} datum with {how}."
-    return ("the datum of the photons or of the tiles is not stated; the heights were "
+        return f"the {what}' heights were converted to {theirs} datum with {how}."
+    return (f"the datum of the {what} or of the tiles is not stated; the heights were "
             "compared as they are.")
 
 
@@ -296,7 +296,7 @@ def bias_offer_part(offer: Any, short: bool = False) -> tuple[str, dict[str, pd.
         text = (f"No bias correction is offered for {who}: one fitted against the {ref} it "
                 f"is scored on {offer.why.removeprefix('it ')}.")
         cap = (f"bias correction of {who} against the {ref}: fitted, not offered (it does "
-               "not improve the held-out error)")
+               "not improve the held-out error of every length and metric)")
     if short:
         return text, {}
     return text, {cap: calibration_table(offer.table)}

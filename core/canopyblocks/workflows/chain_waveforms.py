@@ -104,7 +104,8 @@ def run_waveform_chain(
                 f"GEDI L1B waveforms from {Path(l1b).name}, processed with the GEDI L2A "
                 f"algorithm (setting {setting}).",
                 "Airborne tiles: " + ", ".join(t.name for t in tiles) + "; vertical datums: "
-                + datum_sentence(val.datum, geoid=geoid, offset=offset, tiles=tiles_datum)]),
+                + datum_sentence(val.datum, geoid=geoid, offset=offset, tiles=tiles_datum,
+                                 what="waveforms")]),
             ReportSection("Footprints", [
                 f"{len(fp)} footprints (layer 'footprints' of footprints.gpkg: ground, top, "
                 "RH25-RH100, cover (fraction), penetration, flags)."],
@@ -112,8 +113,8 @@ def run_waveform_chain(
             ReportSection("Validation against the airborne lidar", [
                 "Each footprint is compared with the airborne points weighted by a Gaussian "
                 "footprint: ground, RH98, RH50 (m) and cover (fraction). Residual = waveform "
-                "value minus reference value. Groups by beam, aspect, slope and reference "
-                f"cover class; groups of fewer than {MIN_GROUP} footprints are left out of "
+                "value minus reference value. Groups by beam, aspect, slope (degrees) and "
+                f"reference cover class (percent of the footprint); groups of fewer than {MIN_GROUP} footprints are left out of "
                 "the tables (the maps show every footprint)."],
                 waveform_stats_tables(val.stats), maps),
         ]
