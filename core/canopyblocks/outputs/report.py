@@ -37,7 +37,6 @@ h1{font-size:1.6rem}h2{font-size:1.25rem;border-bottom:1px solid #ccc;padding-bo
 table{border-collapse:collapse;font-size:.8rem;margin:.5rem 0 1rem;display:block;
 overflow-x:auto;max-width:100%}th{white-space:normal;vertical-align:bottom;font-weight:600}
 td,th{border:1px solid #ccc;padding:.15rem .4rem;text-align:right}th{background:#f3f3f3}
-tr.few td{color:#999}
 td:first-child,th:first-child{text-align:left}img{max-width:100%;border:1px solid #ddd;margin:.5rem 0}
 .cap{font-size:.85rem;color:#555}
 """
@@ -110,18 +109,8 @@ def format_number(v: float) -> str:
 
 
 def _table_html(df: pd.DataFrame) -> str:
-    out = df.to_html(index=False, na_rep="", float_format=format_number, border=0,
-                     escape=True)
-    if "few" in df.attrs:  # rows of groups too small to say anything: greyed
-        rows = out.split("<tr>")
-        body_start = next(i for i, r in enumerate(rows) if "<td>" in r)
-        for i in df.attrs["few"]:
-            k = body_start + int(i)
-            if k < len(rows):
-                rows[k] = " class='few'>" + rows[k]
-        out = "<tr".join([rows[0], *[r if r.startswith(" class") else ">" + r
-                                     for r in rows[1:]]])
-    return out
+    return df.to_html(index=False, na_rep="", float_format=format_number, border=0,
+                      escape=True)
 
 
 def write_report(path: str | os.PathLike[str], title: str, sections: Sequence[ReportSection],
