@@ -98,14 +98,14 @@ def photon_report(out: Path, *, tiles: list[Path], photons: Path, simulated: boo
     sections.append(ReportSection(f"Block heights written ({pwho})", [
         f"{len(blocks)} blocks of {pwho}, {int((blocks['flag'] == FLAG_OK).sum())} flagged "
         f"ok (layer '{LAYER_BLOCKS}' of blocks.gpkg)."
-        + ("" if primary is lead else f" The blocks of {who} are in the validation layers "
-           f"named after it ('{lead.lead_layer}')."
-           if lead.suffix else "")],
+        + ("" if primary is lead or not lead.suffix else
+           f" The blocks of {who} are in the validation layers named after it ("
+           + ", ".join(f"'{k}'" for k in lead.layers() if k.startswith("residuals"))
+           + ").")],
         {f"blocks per length and flag ({pwho})": counts}))
     if paper is not None:
         sections.append(ReportSection("The paper's method against the corridor maximum", [
-            "The paper's method (the seed paper's estimators) scored as the paper scored "
-            "it. Reference: the corridor maximum -- the highest DSM cell and the mean DTM of "
+            "The paper's method scored as the paper scored it. Reference: the corridor maximum -- the highest DSM cell and the mean DTM of "
             f"the cells a {width:g} m corridor touches. Sparse photons rarely hit the "
             "single highest crown of a corridor, so this reference sits above what photons "
             "can see: it is not the like-with-like reference of the summary. Residual = "
@@ -134,9 +134,9 @@ def photon_report(out: Path, *, tiles: list[Path], photons: Path, simulated: boo
             "classified by the simulation study's step classifier (steps of 20 photons; "
             "ground below the lowest photon + 3 PSF widths, canopy top above the highest "
             "photon - 1 m) and compared with the truth, over many photon draws per footprint "
-            "diameter. The diameters: 13 m (ICESat-2's footprint at the start of the mission) "
-            "and 17 m (at its end, as the footprint grows), and the one simulated for the "
-            "blocks above when another was asked for: how the footprint size changes the "
+            "diameter. Footprint diameters 13 m (ICESat-2 at the start of the mission) and "
+            "17 m (at its end, as the footprint grows), plus the diameter simulated for the "
+            "blocks above if it is another: the rows show how the footprint size changes the "
             "errors. "
             "Residual = photon minus truth, metres; cover as a fraction of the footprint."],
             {"residuals against truth per footprint diameter": truth_report_table(truth_table)},
