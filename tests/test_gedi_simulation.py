@@ -163,6 +163,30 @@ def test_run_with_gedi_waveforms(scenes: dict[str, Path], tmp_path: Path) -> Non
     stats = pd.read_csv(out / "stats.csv")
     g = stats[(stats["metric"] == "ground") & (stats["group"] == "all")].iloc[0]
     assert g["n"] >= 15 and abs(g["bias"]) < 0.1 and g["rmse"] < 0.15
+    # the report opens with a summary that counts footprints, cover as a fraction
+    import html
+    import re
+
+    page = html.unescape((out / "report.html").read_text())
+    first = page.split("<h2>")[1]
+    assert first.startswith("Summary") and "GEDI footprints" in first
+    assert re.search(r"ground bias [-+]\d+\.\d\d m, RMSE", first)
+    assert "<th>n (footprints)</th>" in page and "n (blocks)" not in page
+    assert "<th>bias (fraction)</th>" in page
+    groups = re.findall(r"<td>((?:beam|aspect|slope|cover):[^<]*)</td>\s*<td>(\d+)</td>",
+                        page)
+    assert groups and min(int(n) for _, n in groups) >= 3
+    # simulate's truth cover is the statistic run's reference states (flat ground: equal)
+    import geopandas as gpd
+
+    from canopyblocks.simulate.gedi_waveforms import simulate_gedi
+
+    truth = simulate_gedi(pts, TRACK, params=GediSimParams(spacing=10.0), seed=2).truth
+    res = gpd.read_file(out / "validation.gpkg", layer="residuals_footprints")
+    truth = truth.assign(shot_number=truth["shot_number"].astype(res["shot_number"].dtype))
+    both = res.merge(truth, on="shot_number")
+    assert len(both) >= 15
+    np.testing.assert_allclose(both["truth_cover"], both["ref_cover"], atol=0.03)
 
 
 def _shrub_scene(path: Path, shrub_height: float = 0.6, seed: int = 0) -> None:

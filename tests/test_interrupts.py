@@ -326,7 +326,7 @@ def test_simulation_outputs_all_or_none(sample, tmp_path) -> None:
     written = write_simulation_outputs(res, tmp_path / "sim.h5",
                                        photon_table=tmp_path / "p.parquet",
                                        report=tmp_path / "rep")
-    assert {p.name for p in written} >= {"sim.h5", "p.parquet", "seed002_table.csv",
+    assert {p.name for p in written} >= {"sim.h5", "p.parquet", "truth_residuals.csv",
                                          "residuals_by_cover.png", "truth_13m.csv"}
     assert all(p.exists() for p in written)
 
@@ -343,7 +343,7 @@ def test_simulation_outputs_removed_when_the_last_one_fails(sample, tmp_path,
                              diameters=(13.0,), realisations=2, seed=1)
 
     def failing_report(folder, result):  # noqa: ANN001, ANN202
-        write_table(result.table, Path(folder) / "seed002_table.csv")
+        write_table(result.table, Path(folder) / "truth_residuals.csv")
         raise OSError(28, "No space left on device", str(Path(folder) / "x.png"))
 
     monkeypatch.setattr(writers, "write_seed002_report", failing_report)

@@ -140,7 +140,7 @@ def test_calibration_tables_have_words_and_units_and_keep_the_correction(tmp_pat
     assert heads and not [h for h in heads if "_" in h], heads  # words wrap; names do not
     assert "correction added (m)" in heads and "held-out RMSE after (m)" in heads
     assert "hmax RMSE, fitted cut-offs (m)" in heads
-    assert "7.180" in page  # the correction is shown (a stats table drops intercepts)
+    assert "7.18" in page  # the correction is shown (a stats table drops intercepts)
     assert re.search(r"<td>25</td>", page)  # lengths as integers
 
 
@@ -184,3 +184,169 @@ def test_footprint_scatter_names_the_datum_on_the_ground_axes(tmp_path, monkeypa
     assert ground.get_ylabel() == "footprint ground (m, CGVD28 height)"
     assert rh98.get_xlabel() == "ALS reference RH98 (m)"  # a height above ground: no datum
 
+
+
+# ---- reports that agree with themselves: estimator and reference named, bias offers ----
+
+def _capture_figures(monkeypatch, module) -> list:
+    """Replace ``module.save_figure`` by one that keeps the figure (and writes nothing)."""
+    seen: list = []
+
+    def keep(fig, path, **_):
+        seen.append(fig)
+        return Path(path)
+
+    monkeypatch.setattr(module, "save_figure", keep)
+    return seen
+
+
+def _residuals(n: int = 40, *, offset: float = 0.0, sd: float = 1.0, seed: int = 0,
+               sigma: bool = False) -> pd.DataFrame:
+    """Validated 25 m blocks whose estimates are the reference plus ``offset`` plus
+    Gaussian noise of ``sd`` metres (the truth of the error is known)."""
+    rng = np.random.default_rng(seed)
+    ref_g = 300.0 + rng.uniform(0, 5, n)
+    ref_h = rng.uniform(5, 30, n)
+    hmax = ref_h + offset + rng.normal(0, sd, n)
+    df = pd.DataFrame({"track": "gt1r", "length": 25.0, "block": np.arange(n),
+                       "ground": ref_g + rng.normal(0, 0.1, n), "ref_ground": ref_g,
+                       "hmax": hmax, "ref_hmax": ref_h, "h90": hmax - 2, "ref_h90": ref_h - 2,
+                       "use": True, "flag": "ok", "estimators": "noise=atl08,ground=atl08,top=atl08"})
+    df["top"], df["ref_top"] = df["ground"] + df["hmax"], df["ref_ground"] + df["ref_hmax"]
+    df["z90"], df["ref_top90"] = df["ground"] + df["h90"], df["ref_ground"] + df["ref_h90"]
+    for m in ("ground", "top", "hmax", "h90"):
+        df[f"res_{m}"] = df[m] - df[f"ref_{m}"]
+    if sigma:
+        df["hmax_sigma"], df["ground_sigma"] = 1.5, 0.2
+    return df
+
+
+def test_scatter_and_aspect_titles_name_the_estimator_and_the_reference(monkeypatch,
+                                                                        tmp_path) -> None:
+    from canopyblocks.outputs import validation_plots as vp
+    from canopyblocks.validation.stats import error_stats
+
+    seen = _capture_figures(monkeypatch, vp)
+    res = _residuals(sigma=True)
+    row = error_stats(res["hmax"].to_numpy(), res["ref_hmax"].to_numpy())
+    stats = pd.DataFrame([{"length": 25.0, "metric": "hmax", "group": "aspect:N", **row}])
+    vp.write_validation_plots(res, stats, tmp_path, estimator="atl08",
+                              reference="footprint-matched reference (RH98 and ground)")
+    scatter, aspect = seen
+    assert scatter._suptitle.get_text() == ("The 'atl08' estimator vs the footprint-matched "
+                                            "reference (RH98 and ground), 25 m blocks")
+    assert aspect._suptitle.get_text().startswith("The 'atl08' estimator vs the footprint")
+    hmax_ax = scatter.axes[[a.get_title() for a in scatter.axes].index("hmax")]
+    assert hmax_ax.get_ylabel().startswith("atl08 Hmax")
+    # per-block sigmas drawn as error bars of exactly their length (hmax and ground panels)
+    bars = [c for c in hmax_ax.containers if c.get_label() == "1 sigma"]
+    assert len(bars) == 1
+    spans = [abs(seg[1][1] - seg[0][1]) for seg in bars[0].lines[2][0].get_segments()]
+    assert np.allclose(spans, 3.0)  # +-1.5 m
+    assert "1 sigma" in [t.get_text() for t in scatter.legends[0].get_texts()]
+    vp.write_validation_plots(res, stats, tmp_path, estimator="paper",
+                              reference="corridor maximum", prefix="paper_corridor_")
+    assert seen[2]._suptitle.get_text().startswith("The paper's method vs the corridor maximum")
+
+
+def test_profile_shows_the_lead_estimators_with_the_paper_overlaid(monkeypatch,
+                                                                   tmp_path) -> None:
+    from canopyblocks.outputs import profile_plot
+    from canopyblocks.photons import PhotonTrack
+
+    seen = _capture_figures(monkeypatch, profile_plot)
+    rng = np.random.default_rng(1)
+    s = np.sort(rng.uniform(0, 100, 500))
+    track = PhotonTrack(track="gt1r", s=s, h=300 + rng.uniform(0, 20, 500),
+                        x=s, y=np.zeros(500), lon=np.zeros(500), lat=np.zeros(500),
+                        time=np.zeros(500), crs="EPSG:32609")
+    blocks = pd.DataFrame({"track": "gt1r", "length": 25.0, "s_start": [0.0, 25.0],
+                           "s_end": [25.0, 50.0], "top": [318.0, 319.0],
+                           "ground": [300.5, 300.4], "flag": "ok"})
+    paper = blocks.assign(top=[312.0, 313.0], ground=[301.5, 301.4])
+    profile_plot.plot_profile(track, blocks, tmp_path / "p.png", name="atl08",
+                              overlay=paper, overlay_name="the paper's method")
+    legend = [t.get_text() for t in seen[0].axes[0].get_legend().get_texts()]
+    assert "canopy top (atl08, 25 m blocks)" in legend
+    assert "canopy top (the paper's method, 25 m)" in legend
+
+
+def _offer(tmp_path, monkeypatch, residuals: pd.DataFrame, reference: str = "footprint"):
+    from canopyblocks.workflows import blocks as wblocks
+    from canopyblocks.workflows.chain import _lead_bias_calibration
+    from canopyblocks.workflows.chain_figures import EstimatorSet
+
+    monkeypatch.setattr(wblocks, "track_strengths", lambda *a, **k: {})
+    corridor = residuals.assign(ref_hmax=residuals["ref_hmax"] + 6.0)  # a taller reference
+    s = EstimatorSet("atl08", residuals, {}, "_atl08", corridor, pd.DataFrame())
+    if reference == "footprint":
+        s = s.with_footprint(residuals, pd.DataFrame())
+    return _lead_bias_calibration(s, tmp_path / "photons.h5", [], 13.0, tmp_path)
+
+
+def test_bias_correction_offered_when_fitted_on_the_scored_reference_and_it_helps(
+        monkeypatch, tmp_path) -> None:
+    """A known +4 m bias against the footprint reference: the correction is fitted against
+    that reference (not the corridor maximum, 6 m taller), improves the held-out error,
+    is about -4 m, is written and offered."""
+    import json
+
+    from canopyblocks.workflows.chain_report import bias_offer_part
+
+    offer = _offer(tmp_path, monkeypatch, _residuals(offset=4.0, sd=0.5))
+    assert offer.offered and offer.reference == "footprint"
+    hm = offer.table[offer.table["metric"] == "hmax"].iloc[0]
+    assert hm["intercept"] == pytest.approx(-4.0, abs=0.3)
+    doc = json.loads((tmp_path / "bias_calibration_atl08.json").read_text())
+    assert doc["reference"] == "footprint"
+    words, tables = bias_offer_part(offer)
+    assert words.startswith("A bias correction for the 'atl08' estimator, fitted against "
+                            "the footprint-matched reference it is scored on")
+    assert "-4." in words
+
+
+def test_no_bias_correction_offered_when_it_does_not_improve_the_held_out_error(
+        monkeypatch, tmp_path) -> None:
+    """Unbiased blocks (noise only): a fitted correction cannot improve the held-out error,
+    so none is offered or written, and the report says why with the numbers."""
+    from canopyblocks.outputs.report import ReportSection
+    from canopyblocks.workflows.chain_report import bias_offer_part
+
+    offer = _offer(tmp_path, monkeypatch, _residuals(offset=0.0, sd=1.5, seed=3))
+    assert not offer.offered
+    assert not (tmp_path / "bias_calibration_atl08.json").exists()
+    words, tables = bias_offer_part(offer)
+    page = _page(tmp_path, [ReportSection("x", [words], tables)])
+    assert re.search(r"No bias correction is offered for the 'atl08' estimator: one fitted "
+                     r"against the footprint-matched reference it is scored on does not "
+                     r"improve the held-out error everywhere: (hmax|h90) at 25 m goes from [\d.]+ m to "
+                     r"[\d.]+ m", page), page
+    assert "fitted, not offered" in page
+    assert "A bias correction" not in page
+
+
+def test_low_confidence_blocks_are_counted_and_said() -> None:
+    from canopyblocks.workflows.chain_report import low_confidence_sentence
+
+    blocks = pd.DataFrame({"flag": ["ok", "ok", "low_confidence", "low_confidence", "sparse"],
+                           "hmax_sigma": [1.0, 2.0, 9.0, 12.0, np.nan]})
+    said = low_confidence_sentence(blocks, "atl08")
+    assert "2 of 5 blocks of 'atl08' are flagged low_confidence" in said
+    assert "left out of the headline" in said and "median 1.5 m" in said
+    assert low_confidence_sentence(pd.DataFrame({"flag": ["ok"]}), "atl08") == ""
+
+
+def test_numbers_and_simulation_headers_as_a_reader_reads_them(tmp_path) -> None:
+    from canopyblocks.outputs.report import ReportSection, format_number
+    from canopyblocks.workflows.chain_report import truth_report_table
+
+    assert [format_number(v) for v in (13.0, 1.23456, -0.039, 100.0)] == \
+        ["13", "1.23", "-0.04", "100"]
+    t = pd.DataFrame({"diameter": [13.0, 17.0], "realisations": [100, 100],
+                      "mean_cover": [0.54, 0.54], "ground_bias": [-0.116, -0.127],
+                      "n_top": [11661.0, 10981.0]})
+    page = _page(tmp_path, [ReportSection("x", [], {"t": truth_report_table(t)})])
+    heads = re.findall(r"<th>(.*?)</th>", page)
+    assert heads == ["footprint diameter (m)", "photon draws", "mean cover (fraction)",
+                     "ground bias (m)", "canopy-top photons"]
+    assert "<td>13</td>" in page and "13.000" not in page and "<td>-0.12</td>" in page

@@ -116,7 +116,7 @@ def test_cli_simulate(sample, tmp_path):
     t = read_atl03(out, "gt1r", crs=3005)
     assert len(t) > 50
     assert t.x.min() == pytest.approx(885080, abs=0.01) and t.s.max() <= 60.0
-    table = pd.read_csv(rep / "seed002_table.csv")
+    table = pd.read_csv(rep / "truth_residuals.csv")
     assert table["diameter"].tolist() == [13.0, 17.0]
     assert (table["realisations"] == 5).all()
     assert (rep / "residuals_by_cover.png").stat().st_size > 1000

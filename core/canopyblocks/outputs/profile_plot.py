@@ -41,6 +41,9 @@ def plot_profile(
     labels: Mapping[float, np.ndarray] | None = None,
     max_points: int = 200_000,
     title: str | None = None,
+    name: str | None = None,
+    overlay: pd.DataFrame | None = None,
+    overlay_name: str = "other estimators",
 ) -> Path:
     """Draw the photon profile (height against along-track distance) with block results.
 
@@ -62,6 +65,12 @@ def plot_profile(
         Photons beyond this are thinned by a fixed stride for drawing speed.
     title : str, optional
         Figure title (default: track id and file name).
+    name : str, optional
+        The estimators of ``blocks`` (a preset name; ``paper``: the paper's method),
+        named in the legend.
+    overlay : DataFrame, optional
+        Blocks of other estimators over the same photons, drawn as thin dashed lines
+        (the smallest block length) named ``overlay_name`` in the legend.
     """
     fig, ax = new_figure(figsize=(12.0, 4.5))
     tb = blocks[blocks["track"] == track.track] if "track" in blocks else blocks
@@ -80,10 +89,13 @@ def plot_profile(
                    rasterized=True)
     else:
         sub = lab[idx]
-        for value, (name, colour) in _LABEL_STYLE.items():
+        windows = name in (None, "paper")  # the paper's method labels windows of photons
+        for value, (what, colour) in _LABEL_STYLE.items():
+            if not windows:
+                what = what.replace(" window", " photons")
             m = sub == value
             if m.any():
-                ax.scatter(s_plot[idx][m], track.h[idx][m], s=1.5, c=colour, lw=0, label=name,
+                ax.scatter(s_plot[idx][m], track.h[idx][m], s=1.5, c=colour, lw=0, label=what,
                            rasterized=True)
     styles = ("-", "--", ":", "-.")
     for i, ln in enumerate(lengths):  # every block length, thinner for longer blocks
@@ -95,10 +107,22 @@ def plot_profile(
         top = np.repeat(bl["top"].to_numpy(), 3)
         gr = np.repeat(bl["ground"].to_numpy(), 3)
         lw = max(0.8, 2.0 - 0.4 * i)
+        who = "" if name is None else ("the paper's method, " if name == "paper"
+                                       else f"{name}, ")
         ax.plot(xs, top, color="#00a000", lw=lw, ls=styles[i % 4],
-                label=f"canopy top ({float(ln):g} m blocks)")
+                label=f"canopy top ({who}{float(ln):g} m blocks)")
         ax.plot(xs, gr, color="#8c510a", lw=lw, ls=styles[i % 4],
-                label=f"mean ground ({float(ln):g} m blocks)")
+                label=f"ground ({who}{float(ln):g} m blocks)")
+    if overlay is not None and len(overlay) and lengths:
+        ob = overlay[overlay["track"] == track.track] if "track" in overlay else overlay
+        ob = ob[(ob["length"] == lengths[0]) & (ob["flag"] == FLAG_OK)]
+        if len(ob):
+            xs = np.column_stack([ob["s_start"] - s_ref, ob["s_end"] - s_ref,
+                                  np.full(len(ob), np.nan)]).ravel()
+            ax.plot(xs, np.repeat(ob["top"].to_numpy(), 3), color="#d62728", lw=0.9,
+                    ls="--", label=f"canopy top ({overlay_name}, {float(lengths[0]):g} m)")
+            ax.plot(xs, np.repeat(ob["ground"].to_numpy(), 3), color="#9467bd", lw=0.9,
+                    ls="--", label=f"ground ({overlay_name}, {float(lengths[0]):g} m)")
     ax.set_xlabel("along-track distance s (m)" if s_ref == 0 else
                   f"along-track distance s - {s_ref:.0f} (m)")
     ax.set_ylabel(f"elevation (m, {track.vertical_datum})")

@@ -15,6 +15,7 @@ from ..atomic import atomic_output, atomic_outputs, will_exist
 from ..progress import Progress
 
 __all__ = ["ReportSection", "write_report", "report_stats_table", "footprint_stats_table",
+           "format_number",
            "calibration_table", "STATS_HEADERS", "CALIBRATION_HEADERS"]
 
 log = logging.getLogger(__name__)
@@ -33,9 +34,9 @@ class ReportSection:
 _CSS = """
 body{font-family:system-ui,sans-serif;max-width:70rem;margin:2rem auto;padding:0 1rem;color:#222}
 h1{font-size:1.6rem}h2{font-size:1.25rem;border-bottom:1px solid #ccc;padding-bottom:.2rem}
-table{border-collapse:collapse;font-size:.85rem;margin:.5rem 0 1rem;display:block;
-overflow-x:auto;max-width:100%}th{white-space:normal;vertical-align:bottom}
-td,th{border:1px solid #ccc;padding:.2rem .5rem;text-align:right}th{background:#f3f3f3}
+table{border-collapse:collapse;font-size:.8rem;margin:.5rem 0 1rem;display:block;
+overflow-x:auto;max-width:100%}th{white-space:normal;vertical-align:bottom;font-weight:600}
+td,th{border:1px solid #ccc;padding:.15rem .4rem;text-align:right}th{background:#f3f3f3}
 td:first-child,th:first-child{text-align:left}img{max-width:100%;border:1px solid #ddd;margin:.5rem 0}
 .cap{font-size:.85rem;color:#555}
 """
@@ -73,6 +74,9 @@ def calibration_table(table: pd.DataFrame) -> pd.DataFrame:
     for c in ("length", "n", "n_holdout"):
         if c in df.columns:
             df[c] = pd.to_numeric(df[c], errors="coerce").round().astype("Int64")
+    for c in ("top_cutoff", "ground_cutoff", "default_top_cutoff", "default_ground_cutoff"):
+        if c in df.columns:  # fractions down to 0.001: three significant digits
+            df[c] = [f"{v:.3g}" if v == v else "" for v in pd.to_numeric(df[c], errors="coerce")]
     return df.rename(columns=CALIBRATION_HEADERS)
 
 
@@ -93,8 +97,19 @@ def footprint_stats_table(stats: pd.DataFrame) -> pd.DataFrame:
     return report_stats_table(stats).rename(columns={"length (m)": "footprint diameter (m)"})
 
 
+def format_number(v: float) -> str:
+    """A number as the report prints it: whole numbers without decimals (13, not
+    13.000), others with two decimals (metres to the centimetre; fractions such as the
+    cut-offs are formatted by their table, :func:`calibration_table`)."""
+    if v != v:  # NaN
+        return ""
+    if float(v).is_integer() and abs(v) < 1e15:
+        return f"{v:.0f}"
+    return f"{v:.2f}"
+
+
 def _table_html(df: pd.DataFrame) -> str:
-    return df.to_html(index=False, na_rep="", float_format=lambda v: f"{v:.3f}", border=0,
+    return df.to_html(index=False, na_rep="", float_format=format_number, border=0,
                       escape=True)
 
 

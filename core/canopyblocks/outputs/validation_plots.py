@@ -51,7 +51,8 @@ def _length_rows(df: pd.DataFrame, length: float) -> pd.DataFrame:
 
 def plot_validation_scatter(residuals: pd.DataFrame, path: str | os.PathLike[str], *,
                             length: float, metrics: Sequence[str] = METRICS,
-                            datum: str | None = None) -> Path:
+                            datum: str | None = None, estimator: str | None = None,
+                            reference: str | None = None) -> Path:
     """Photon vs reference scatter for one block length, one panel per metric.
 
     Parameters
@@ -64,8 +65,13 @@ def plot_validation_scatter(residuals: pd.DataFrame, path: str | os.PathLike[str
         Block length, metres.
     datum : str, optional
         Vertical datum of the elevations (ground, top), named on their axes.
+    estimator, reference : str, optional
+        The estimators (preset name; ``paper``: the paper's method) and the reference
+        the figure shows, named in its title and axes.  Blocks with ``hmax_sigma`` /
+        ``ground_sigma`` columns get 1-sigma error bars on those panels.
     """
     sub = _length_rows(residuals, length)
+    who = _who(estimator)
     fig, axes = new_figure(figsize=(3.6 * len(metrics), 4.4), ncols=len(metrics), squeeze=False)
     for ax, m in zip(axes[0], metrics):
         if m not in RESIDUAL_PAIRS:
@@ -75,6 +81,11 @@ def plot_validation_scatter(residuals: pd.DataFrame, path: str | os.PathLike[str
         ok = np.isfinite(x) & np.isfinite(y)
         x, y = x[ok], y[ok]
         st = error_stats(y, x, allow_empty=True)
+        sig_col = {"hmax": "hmax_sigma", "ground": "ground_sigma"}.get(m)
+        if sig_col is not None and sig_col in sub.columns:
+            sig = sub[sig_col].to_numpy(float)[ok]
+            ax.errorbar(x, y, yerr=np.where(np.isfinite(sig), sig, 0.0), fmt="none",
+                        ecolor="0.6", elinewidth=0.7, capsize=0, label="1 sigma")
         ax.scatter(x, y, s=12, alpha=0.7, color="tab:green", edgecolor="none")
         if x.size:
             lo = float(min(x.min(), y.min()))
@@ -89,7 +100,7 @@ def plot_validation_scatter(residuals: pd.DataFrame, path: str | os.PathLike[str
             ax.set_ylim(lim)
             ax.set_aspect("equal")
         ax.set_xlabel(f"reference {_axis_title(m, datum)}", fontsize=8)
-        ax.set_ylabel(f"photon {_axis_title(m, datum)}", fontsize=8)
+        ax.set_ylabel(f"{estimator or 'photon'} {_axis_title(m, datum)}", fontsize=8)
         ax.set_title(m, fontsize=10)
         ax.text(0.03, 0.97,
                 f"n = {st['n']}\nr² = {st['r2']:.2f}\nRMSE = {st['rmse']:.2f} m\n"
@@ -100,12 +111,20 @@ def plot_validation_scatter(residuals: pd.DataFrame, path: str | os.PathLike[str
     if handles:  # one legend for all panels, below them (never over the data)
         fig.legend(handles, names, loc="outside lower center", ncols=len(handles),
                    fontsize=8)
-    fig.suptitle(f"Photon blocks vs reference, {length:g} m blocks")
+    fig.suptitle(f"{who} vs the {reference or 'reference'}, {length:g} m blocks"
+                 if estimator or reference else f"Photon blocks vs reference, {length:g} m blocks")
     return save_figure(fig, path)
 
 
+def _who(estimator: str | None) -> str:
+    if estimator is None:
+        return "Photon blocks"
+    return "The paper's method" if estimator == "paper" else f"The '{estimator}' estimator"
+
+
 def plot_aspect_errors(stats: pd.DataFrame, path: str | os.PathLike[str], *, length: float,
-                       value: str = "rmse", metrics: Sequence[str] = METRICS) -> Path:
+                       value: str = "rmse", metrics: Sequence[str] = METRICS,
+                       estimator: str | None = None, reference: str | None = None) -> Path:
     """Polar bars of ``value`` (``rmse``, ``bias`` or ``mae``) per aspect class.
 
     The bar length is the statistic (metres; negative biases are drawn in red by
@@ -140,26 +159,33 @@ def plot_aspect_errors(stats: pd.DataFrame, path: str | os.PathLike[str], *, len
                 ax.text(th, abs(v) + 0.08 * top, f"n={k}", ha="center", fontsize=6)
         ax.set_title(f"{m}: {value} by aspect (m)", fontsize=9, pad=16)
     note = "red: negative bias; " if value == "bias" else ""
-    fig.suptitle(f"Errors by aspect, {length:g} m blocks ({note}grey: fewer than 3 blocks)",
+    whose = (f"{_who(estimator)} vs the {reference or 'reference'}: "
+             if estimator or reference else "")
+    fig.suptitle(f"{whose}errors by aspect, {length:g} m blocks ({note}grey: fewer than "
+                 "3 blocks)",
                  fontsize=10, y=1.06)  # above the panel titles (saved with a tight box)
     return save_figure(fig, path)
 
 
 def write_validation_plots(residuals: pd.DataFrame, stats: pd.DataFrame,
                            folder: str | os.PathLike[str], *,
-                           datum: str | None = None) -> list[Path]:
+                           datum: str | None = None, estimator: str | None = None,
+                           reference: str | None = None, prefix: str = "") -> list[Path]:
     """Scatter and aspect figures for every block length into ``folder`` (``datum``:
-    the elevations' vertical datum, named on their axes).
+    the elevations' vertical datum, named on their axes; ``estimator`` and ``reference``
+    named in the titles).
 
-    Files: ``validation_<L>m.png`` and ``aspect_rmse_<L>m.png``.
+    Files: ``<prefix>validation_<L>m.png`` and ``<prefix>aspect_rmse_<L>m.png``.
     """
     out = Path(folder)
     paths = []
     for length in sorted(pd.unique(residuals["length"])):
         tag = f"{float(length):g}m"
-        paths.append(plot_validation_scatter(residuals, out / f"validation_{tag}.png",
-                                             length=float(length), datum=datum))
-        paths.append(plot_aspect_errors(stats, out / f"aspect_rmse_{tag}.png",
-                                        length=float(length)))
+        paths.append(plot_validation_scatter(residuals, out / f"{prefix}validation_{tag}.png",
+                                             length=float(length), datum=datum,
+                                             estimator=estimator, reference=reference))
+        paths.append(plot_aspect_errors(stats, out / f"{prefix}aspect_rmse_{tag}.png",
+                                        length=float(length), estimator=estimator,
+                                        reference=reference))
     log.info("wrote %d validation figures to %s", len(paths), out)
     return paths

@@ -24,7 +24,8 @@ where the noise-free waveform rises above the noise thresholds): ``truth_rh*`` a
 ``truth_ground``, ``truth_rh*_lowest_mode`` above ``truth_ground_lowest_mode`` (what the
 processing's RH, measured from its own lowest mode, should reproduce);
 ``truth_rh*_all_energy`` counts every return, however faint, above ``truth_ground``. And
-cover (canopy share of the footprint-weighted area). Everything is vectorised over
+cover (the footprint-weighted share of returns more than 2 m above the ground, the
+statistic of the footprint-matched reference). Everything is vectorised over
 footprints; a seed makes it deterministic.
 """
 
@@ -46,6 +47,10 @@ from .tracks import SimTrack, shots_along
 from .waveform_binning import bin_returns
 
 __all__ = ["GediSimParams", "GediSimulation", "simulate_gedi", "TRUTH_RH"]
+
+#: Height above the ground (m) above which a return counts as canopy in ``truth_cover``:
+#: the footprint-matched reference's ``cover_threshold`` (FootprintParams).
+_COVER_THRESHOLD = 2.0
 
 log = logging.getLogger(__name__)
 
@@ -262,8 +267,13 @@ def simulate_gedi(points: LasPoints, track: SimTrack | None = None, *,
     wt = ret.per_shot(ret.weight)
     with np.errstate(invalid="ignore", divide="ignore"):
         truth_ground = np.where(wg > 0, zg / wg, np.nan)
-        wv = wt - wg
-        cover = np.where(wt > 0, wv / wt, np.nan)   # share of the footprint's area
+        # cover as the footprint-matched reference of ``run`` states it (DESIGN 2.7): the
+        # weighted share of the returns more than 2 m above the ground (here the
+        # footprint's mean ground; the reference uses a ground plane, the same on flat
+        # ground), so that ``simulate`` and ``run`` report one statistic
+        hag = ret.z - truth_ground[ret.shot]
+        wv = ret.per_shot(ret.weight, np.isfinite(hag) & (hag > _COVER_THRESHOLD))
+        cover = np.where(wt > 0, wv / wt, np.nan)
     clean, top, m = _noise_free(ret, p, n)
     rh_all = _truth_rh(clean, np.nan_to_num(top), truth_ground)
     rng = np.random.default_rng(int(seed))

@@ -27,8 +27,8 @@ def plot_cover_residuals(result: Seed002Result, path: str | os.PathLike[str], *,
         ax_c, ax_h = axes[row][0], axes[row][1]
         for j, (d, res) in enumerate(sorted(result.residuals.items())):
             sub = cover[(cover["diameter"] == d) & (cover["kind"] == kind) & (cover["n"] > 0)]
-            centre = 100.0 * (sub["cover_lo"].to_numpy() + sub["cover_hi"].to_numpy()) / 2
-            ax_c.errorbar(centre + (j - 0.5) * 1.5, sub["mean"], yerr=sub["std"], fmt="o",
+            centre = (sub["cover_lo"].to_numpy() + sub["cover_hi"].to_numpy()) / 2
+            ax_c.errorbar(centre + (j - 0.5) * 0.015, sub["mean"], yerr=sub["std"], fmt="o",
                           capsize=3, label=f"{d:g} m footprint")
             r = res[f"{kind}_res"]
             r = r[np.isfinite(r)]
@@ -37,8 +37,8 @@ def plot_cover_residuals(result: Seed002Result, path: str | os.PathLike[str], *,
                 ax_h.hist(r, bins=np.linspace(lo, hi if hi > lo else lo + 1, 60),
                           histtype="step", label=f"{d:g} m (n={r.size:,})")
         ax_c.axhline(0.0, color="0.5", lw=0.8)
-        ax_c.set_xlim(0, 100)
-        ax_c.set_xlabel("canopy cover (%)")
+        ax_c.set_xlim(0, 1)
+        ax_c.set_xlabel("canopy cover (fraction of the footprint)")
         ax_c.set_ylabel(f"{'terrain' if kind == 'ground' else 'canopy top'} residual (m)")
         ax_c.set_title(f"{kind} residuals (photon - truth) by canopy cover")
         ax_c.legend(fontsize="small")

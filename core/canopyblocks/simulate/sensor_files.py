@@ -207,7 +207,7 @@ GEDI_ROUND_TRIP = (
     ("rh50", "rh50", "truth_rh50_lowest_mode", "lowest mode"),
     ("rh98", "rh98", "truth_rh98", "class-2 mean"),
     ("rh98", "rh98", "truth_rh98_lowest_mode", "lowest mode"),
-    ("cover", "cover", "truth_cover", "footprint area"),
+    ("cover", "cover", "truth_cover", "returns > 2 m above ground"),
 )
 
 
@@ -217,7 +217,9 @@ def gedi_round_trip(path: str | os.PathLike[str], truth: pd.DataFrame) -> pd.Dat
 
     ``truth`` says which truth a row uses: ``class-2 mean`` (the weighted mean of the
     ground points; RH above it), ``lowest mode`` (the lowest mode of the noise-free
-    waveform; RH above it) or ``footprint area`` (cover)."""
+    waveform; RH above it) or ``returns > 2 m above ground`` (cover as a fraction: the
+    weighted share of returns more than 2 m above the ground, as ``run``'s
+    footprint-matched reference states it)."""
     from ..readers.gedi import gedi_beams, read_gedi_l1b
     from ..waveforms.process import process_waveforms
 

@@ -196,7 +196,7 @@ def write_photon_table(sim: Simulation, path: str | os.PathLike[str], *,
 def write_seed002_report(folder: str | os.PathLike[str], result: Seed002Result) -> list[Path]:
     """The seed-002 report files in ``folder``, all or none.
 
-    ``seed002_table.csv`` (one row per footprint diameter), ``residuals_by_cover.csv``,
+    ``truth_residuals.csv`` (one row per footprint diameter), ``residuals_by_cover.csv``,
     ``residuals_by_cover.png`` and ``truth_<d>m.csv`` (per-footprint truth, metres in
     the cloud's CRS and vertical datum) per diameter.
     """
@@ -206,7 +206,7 @@ def write_seed002_report(folder: str | os.PathLike[str], result: Seed002Result) 
     check_writable(out, folder=True)
     written = []
     with atomic_outputs():
-        written.append(write_table(result.table, out / "seed002_table.csv"))
+        written.append(write_table(result.table, out / "truth_residuals.csv"))
         written.append(write_table(result.cover, out / "residuals_by_cover.csv"))
         written.append(plot_cover_residuals(result, out / "residuals_by_cover.png"))
         for d, sim in result.simulations.items():

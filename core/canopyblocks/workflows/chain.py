@@ -19,12 +19,13 @@ from ..atomic import check_writable, new_files_removed_on_failure
 from ..blocks import BlockParams
 from ..blocks.estimators import RECOMMENDED_PRESET
 from ..errors import FileFormatError, InputError
-from ..outputs.report import ReportSection, write_report
 from ..outputs.tables import write_layers, write_table
 from ..progress import Progress, as_progress
-from ..schema import FLAG_OK, FLAGS, LAYER_BLOCKS, LAYER_RESIDUALS, LAYER_STATS
+from ..schema import LAYER_RESIDUALS, LAYER_STATS
 from .blocks import blocks_from_file
-from .chain_report import datum_sentence
+from .chain_figures import BiasOffer, EstimatorSet, chain_figures
+from .chain_photon_report import photon_report
+from .chain_report import datum_sentence, lead_result, summary_lines
 from .chain_result import ChainResult
 from .chain_tiles import _tiles_crs, _vertical_name
 
@@ -36,8 +37,8 @@ log = logging.getLogger(__name__)
 def _simulate(las_paths: Sequence[Path], out: Path, *, azimuth: float, diameter: float,
               preset: str, seed: int, realisations: int, progress: Progress
               ) -> tuple[Path, Any, pd.DataFrame | None, Path | None]:
-    """Simulate one beam over the tiles; with ``realisations`` > 0 also the seed-002
-    experiment (13 and 17 m footprints) with its table and figure."""
+    """Simulate one beam over the tiles; with ``realisations`` > 0 also the study of the
+    simulated photons against truth (13 and 17 m footprints) with its table and figure."""
     from ..readers.las import read_las
     from ..simulate import SimParams, line_through, seed002_experiment, simulate_photons
     from ..simulate.plots import plot_cover_residuals
@@ -60,8 +61,8 @@ def _simulate(las_paths: Sequence[Path], out: Path, *, azimuth: float, diameter:
                                  realisations=realisations, seed=seed, keep_simulations=False,
                                  progress=progress.sub(0.4, 1.0))
         table = exp.table
-        write_table(table, out / "seed002_table.csv", layer="seed002")
-        figure = plot_cover_residuals(exp, out / "plots" / "seed002_residuals_by_cover.png")
+        write_table(table, out / "truth_residuals.csv", layer="truth_residuals")
+        figure = plot_cover_residuals(exp, out / "plots" / "truth_residuals_by_cover.png")
     progress.update(1.0, "photons simulated")
     return path, points.crs, table, figure
 
@@ -127,8 +128,8 @@ def run_chain(
         Vertical conversion of real photon heights (ellipsoidal) to the tiles' datum.
     realisations : int
         Simulated runs only: photon draws per footprint diameter (13 and 17 m) for the
-        seed 002 analysis of the photon classification against truth
-        (``seed002_table.csv``, ``plots/seed002_residuals_by_cover.png``); 0 skips it.
+        study of the photon classification against truth (``truth_residuals.csv``,
+        ``plots/truth_residuals_by_cover.png``); 0 skips it.
     calibrate : bool
         Also fit the cut-offs to the reference (DESIGN.md 1.7; first track), recompute the
         blocks with them and validate again: layers ``residuals_calibrated`` and
@@ -138,12 +139,16 @@ def run_chain(
     calibration : path or BiasCalibration, optional
         Bias calibration applied to the blocks.
     compare_preset : str, optional
-        With the paper's estimators: also compute the blocks with this preset (default
-        the recommended one, :data:`~canopyblocks.blocks.estimators.RECOMMENDED_PRESET`),
-        validate them, fit a bias calibration with its held-out error; the report leads
-        with them (layers ``residuals_<preset>``, ``stats_<preset>``, with the footprint
-        reference also ``residuals_footprint_<preset>``, ``stats_footprint_<preset>``;
-        ``bias_calibration_<preset>.json``). None skips it.
+        With other estimators than the recommended ones: also compute the blocks with this
+        preset (default the recommended one,
+        :data:`~canopyblocks.blocks.estimators.RECOMMENDED_PRESET`); with the recommended
+        ones: also the paper's method, for its own section. Validated like the user's
+        (layers ``residuals_<preset>``, ``stats_<preset>``, with the footprint reference
+        also ``residuals_footprint_<preset>``, ``stats_footprint_<preset>``). The report
+        leads with the recommended estimators against the footprint-matched reference;
+        their bias calibration, fitted against that reference, is written
+        (``bias_calibration_<preset>.json``) and offered only when it improves the
+        held-out error. None skips the second set.
     coregister : bool
         Search the joint geolocation offset of the blocks against the DTM/DSM and
         validate the horizontally shifted blocks (DESIGN 2.8); ``offsets.json``, layer
@@ -169,7 +174,6 @@ def run_chain(
     check_paths(las_paths, "run_chain: las_paths", "a LAS/LAZ path or a non-empty list of them")
     check_path(out_dir, "run_chain: out_dir", "a folder path")
     from ..outputs.profile_plot import plot_profile  # noqa: F401  (fails early without matplotlib)
-    from ..outputs.validation_plots import write_validation_plots
     from ..reference.rasters import make_reference_rasters
     from ..validation.block_validation import validate_atl08, validate_blocks
 
@@ -219,7 +223,7 @@ def run_chain(
         res = blocks_from_file(photons, params, estimators=estimators, calibration=calibration,
                                beams=beams, channel=channel, atl08=atl08,
                                crs=crs, output=out / "blocks.gpkg", with_photons=True,
-                               profile=plots_dir / "profile.png", progress=prog.sub(0.25, 0.4))
+                               progress=prog.sub(0.25, 0.4))
         blocks = res.blocks
         prog.update(0.4, "reference rasters (PDAL)")
         rasters = make_reference_rasters(tiles, out / "rasters", resolution=resolution,
@@ -242,33 +246,34 @@ def run_chain(
         val = validate_blocks(blocks, dtm=rasters.dtm, dsm_max=rasters.dsm_max,
                               dsm_p90=rasters.dsm_p90, **vkw, progress=prog.sub(0.8, 0.85))
         layers = {LAYER_RESIDUALS: val.residuals, LAYER_STATS: val.stats, **layers}
+        fkw: dict[str, Any] = {"geoid": geoid, "offset": offset,
+                               "photon_vertical_crs": photon_vcrs,
+                               "reference_vertical_crs": ref_vcrs}
+        primary = "paper" if estimators is None else (estimators.name or "custom")
+        sets = {primary: EstimatorSet(primary, blocks, res.labels, "",
+                                      val.residuals, val.stats)}
         if footprint_reference:
             from ..validation.footprints import validate_blocks_footprint
 
-            fkw: dict[str, Any] = {"geoid": geoid, "offset": offset,
-                                   "photon_vertical_crs": photon_vcrs,
-                                   "reference_vertical_crs": ref_vcrs}
             vf = validate_blocks_footprint(blocks, tiles, **fkw)
-            layers.update({f"{LAYER_RESIDUALS}_footprint": vf.residuals,
-                           f"{LAYER_STATS}_footprint": vf.stats})
-        compared = None
-        compared_fp = None
-        if compare_preset and estimators is None and calibration is None:
-            compared, cblocks = _compare_preset(compare_preset, res.tracks, params, rasters,
-                                                out, vkw, photons, prog.sub(0.85, 0.9))
-            layers.update({f"{LAYER_RESIDUALS}_{compare_preset}": compared[0],
-                           f"{LAYER_STATS}_{compare_preset}": compared[1]})
+            sets[primary] = sets[primary].with_footprint(vf.residuals, vf.stats)
+        other = _other_preset(primary, compare_preset, calibration)
+        if other is not None:
+            sets[other] = _compare_preset(other, res.tracks, params, rasters, vkw,
+                                          prog.sub(0.85, 0.9))
             if footprint_reference:
-                compared_fp = validate_blocks_footprint(cblocks, tiles, **fkw)
-                layers.update({f"{LAYER_RESIDUALS}_footprint_{compare_preset}":
-                               compared_fp.residuals,
-                               f"{LAYER_STATS}_footprint_{compare_preset}": compared_fp.stats})
-        cutoffs = None
+                vfo = validate_blocks_footprint(sets[other].blocks, tiles, **fkw)
+                sets[other] = sets[other].with_footprint(vfo.residuals, vfo.stats)
+        for s in sets.values():
+            layers.update(s.layers())
+        lead = sets.get(RECOMMENDED_PRESET) or sets[primary]
+        bias = _lead_bias_calibration(lead, photons, res.tracks, width, out)
+        cutoffs, edges = None, None
         if calibrate:
             from .blocks import run_blocks
 
             prog.update(0.9, "calibrating cut-offs")
-            cutoffs = _calibrated_cutoffs(res.tracks[0], val.residuals, params)
+            cutoffs, edges = _calibrated_cutoffs(res.tracks[0], val.residuals, params)
             blocks_c, _ = run_blocks(res.tracks, cutoffs.params)
             val_c = validate_blocks(blocks_c, dtm=rasters.dtm, dsm_max=rasters.dsm_max,
                                     dsm_p90=rasters.dsm_p90, **vkw)
@@ -281,39 +286,48 @@ def run_chain(
                            f"{LAYER_STATS}_atl08": v8.stats})
         validation = write_layers(layers, out / "validation.gpkg")
         write_table(val.stats, out / "stats.csv", layer=LAYER_STATS)
-        plots = [plots_dir / "profile.png",
-                 *write_validation_plots(val.residuals, val.stats, plots_dir,
-                                         datum=_vertical_name(ref_vcrs))]
-        lead, lead_res = _lead(estimators, compare_preset, compared, compared_fp,
-                               layers, val)
-        map_png = _residual_map(lead_res, rasters.dtm, plots_dir, lead)
-        plots.append(map_png)
+        datum = _vertical_name(ref_vcrs)
+        paper = sets.get("paper")
+        figures = chain_figures(lead, paper, res.tracks[0], plots_dir, dtm=rasters.dtm,
+                                datum=datum, lead_reference=_lead_reference(lead))
         prog.update(0.95, "report")
-        report = _report(out, tiles=tiles, photons=Path(photons), simulated=simulated,
-                         params=params, width=width, resolution=resolution, blocks=blocks,
-                         stats=val.stats, plots=plots, azimuth=azimuth,
-                         datum=datum_sentence(val.datum, geoid=geoid, offset=offset,
-                                              tiles=_vertical_name(ref_vcrs)),
-                         diameter=diameter, preset=photon_rate, seed=seed,
-                         calibration=None if cutoffs is None else cutoffs.table,
-                         seed002=seed002, seed002_png=seed002_png, compared=compared,
-                         compare_preset=compare_preset, offsets=offsets_doc, lead=lead,
-                         layers=layers, tracks=res.tracks, map_png=map_png)
+        report = photon_report(
+            out, tiles=tiles, photons=Path(photons), simulated=simulated, params=params,
+            width=width, resolution=resolution, primary=sets[primary], lead=lead,
+            paper=paper, figures=figures, azimuth=azimuth,
+            datum=datum_sentence(val.datum, geoid=geoid, offset=offset, tiles=datum),
+            diameter=diameter, photon_rate=photon_rate, seed=seed, bias=bias,
+            calibration=None if cutoffs is None else cutoffs.table, cutoff_edges=edges,
+            truth_table=seed002, truth_png=seed002_png, offsets=offsets_doc,
+            tracks=res.tracks)
         prog.update(1.0, "done")
         return ChainResult(out_dir=out, photons=Path(photons), blocks=out / "blocks.gpkg",
                            rasters={"dtm": rasters.dtm, "dsm_max": rasters.dsm_max,
                                     "dsm_p90": rasters.dsm_p90},
-                           validation=validation, report=report, plots=plots, stats=val.stats,
-                           simulated=simulated, summary=_summary_lines(lead))
+                           validation=validation, report=report, plots=figures.all(),
+                           stats=val.stats, simulated=simulated,
+                           summary=summary_lines(lead_result(lead)))
 
 
-def _calibrated_cutoffs(track: Any, residuals: pd.DataFrame, params: BlockParams) -> Any:
+def _other_preset(primary: str, compare_preset: str | None, calibration: Any) -> str | None:
+    """The estimators computed beside the user's: the recommended ones (when the user's
+    are others), or the paper's method for its own section (when the user's are the
+    recommended ones); none with ``compare_preset`` None or a bias calibration applied."""
+    if not compare_preset or calibration is not None:
+        return None
+    if primary != RECOMMENDED_PRESET:
+        return compare_preset if compare_preset != primary else None
+    return "paper"
+
+
+def _calibrated_cutoffs(track: Any, residuals: pd.DataFrame, params: BlockParams
+                        ) -> tuple[Any, list[str]]:
     """The paper's cut-offs fitted to the reference, with one warning for all lengths
     whose best cut-off lies on the edge of the searched grid (instead of one per length
-    and cut-off)."""
+    and cut-off); and the words naming those edge cut-offs for the report."""
     import warnings
 
-    from ..blocks.calibration import CutoffEdgeWarning
+    from ..blocks.calibration import DEFAULT_GRID, CutoffEdgeWarning
     from ..validation.calibration import calibrate_against_reference
 
     with warnings.catch_warnings(record=True) as caught:
@@ -323,6 +337,7 @@ def _calibrated_cutoffs(track: Any, residuals: pd.DataFrame, params: BlockParams
     for w in caught:
         if w not in edge:
             warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    words: list[str] = []
     if edge:
         which = sorted({" ".join(str(w.message).split(":")[1].split()[2:4]) for w in edge})
         lengths = sorted({float(str(w.message).split(" m blocks")[0]) for w in edge})
@@ -332,7 +347,18 @@ def _calibrated_cutoffs(track: Any, residuals: pd.DataFrame, params: BlockParams
             "searched grid, so the optimum may lie beyond it (at the low edge this is the "
             "window floor of the paper's method, which the recommended estimators avoid)",
             CutoffEdgeWarning, stacklevel=2)
-    return result
+        found: dict[tuple[str, str], set[float]] = {}
+        for w in edge:  # '25 m blocks of track gt1r: the best top cut-off 0.001 lies ...'
+            msg = str(w.message)
+            kind = msg.split("the best ")[1].split()[0]
+            value = msg.split(" cut-off ")[1].split()[0]
+            found.setdefault((kind, value), set()).add(float(msg.split(" m blocks")[0]))
+        lo, hi = min(DEFAULT_GRID), max(DEFAULT_GRID)
+        words = [f"{lo:g}..{hi:g}"] + [
+            f"the {kind} cut-off {value} of the "
+            f"{', '.join(f'{v:g}' for v in sorted(ls))} m blocks"
+            for (kind, value), ls in sorted(found.items())]
+    return result, words
 
 
 def _coregistered(blocks: Any, tracks: Any, rasters: Any, out: Path, vkw: dict[str, Any],
@@ -371,188 +397,58 @@ def _coregistered(blocks: Any, tracks: Any, rasters: Any, out: Path, vkw: dict[s
     return apply_offset(blocks, replace(joint, vertical=0.0)), doc, before
 
 
-def _compare_preset(name: str, tracks: Any, params: BlockParams, rasters: Any, out: Path,
-                    vkw: dict[str, Any], photons: Any, prog: Progress
-                    ) -> tuple[tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame], Any]:
-    """Residuals and stats of the blocks made with preset ``name``, and the table of a
-    bias calibration fitted on them (with its parity hold-out error); the blocks."""
+def _compare_preset(name: str, tracks: Any, params: BlockParams, rasters: Any,
+                    vkw: dict[str, Any], prog: Progress) -> EstimatorSet:
+    """The blocks made with preset ``name`` (with their photon labels), validated against
+    the corridor maximum."""
     from ..blocks.estimators import preset
-    from ..errors import NoUsableDataError
-    from ..validation.bias_calibration import fit_bias_calibration, write_bias_calibration
     from ..validation.block_validation import validate_blocks
-    from .blocks import run_blocks, track_strengths
+    from .blocks import run_blocks
 
     est = preset(name)
-    blocks, _ = run_blocks(tracks, params, estimators=est, progress=prog.sub(0.0, 0.6))
+    blocks, labels = run_blocks(tracks, params, estimators=est, labels=True,
+                                progress=prog.sub(0.0, 0.6))
     val = validate_blocks(blocks, dtm=rasters.dtm, dsm_max=rasters.dsm_max,
                           dsm_p90=rasters.dsm_p90, **vkw, progress=prog.sub(0.6, 0.9))
-    residuals = val.residuals.assign(estimators=est.label())
+    prog.update(1.0)
+    return EstimatorSet(name, blocks, labels, f"_{name}", val.residuals, val.stats,
+                        estimators=est)
+
+
+def _lead_reference(lead: EstimatorSet) -> str:
+    return "footprint" if lead.fp_stats is not None else "corridor"
+
+
+def _lead_bias_calibration(lead: EstimatorSet, photons: Any, tracks: Any, width: float,
+                           out: Path) -> BiasOffer:
+    """A bias calibration of the lead estimators fitted against the reference they are
+    scored on, with its held-out error; written (``bias_calibration_<name>.json``) and
+    offered only when it improves the held-out error of every length and metric."""
+    from ..errors import NoUsableDataError
+    from ..validation.bias_calibration import fit_bias_calibration, write_bias_calibration
+    from .blocks import track_strengths
+
+    residuals = lead.lead_residuals
+    if "estimators" not in residuals.columns:
+        label = lead.estimators.label() if lead.estimators is not None else "paper"
+        residuals = residuals.assign(estimators=label)
+    reference = _lead_reference(lead)
     try:
         cal = fit_bias_calibration(residuals, strengths=track_strengths(photons, tracks) or None,
-                                   preset=name, corridor_width=vkw["width"],
+                                   preset=lead.name, corridor_width=width, reference=reference,
                                    sources=(Path(photons).name,))
     except NoUsableDataError as exc:
-        log.warning("no bias calibration for the %s preset: %s", name, exc)
-        table = pd.DataFrame()
-        table.attrs["why"] = str(exc)  # said in the report instead of an empty table
-    else:
-        write_bias_calibration(cal, out / f"bias_calibration_{name}.json")
-        table = cal.table()
-    prog.update(1.0)
-    return (val.residuals, val.stats, table), blocks
-
-
-_FOOTPRINT_WORDS = "footprint-matched airborne reference (footprint RH98 and ground)"
-_CORRIDOR_WORDS = "corridor maximum (highest DSM cell and mean DTM of the corridor)"
-
-
-def _lead(estimators: Any, compare_preset: str | None, compared: Any, compared_fp: Any,
-          layers: dict[str, pd.DataFrame], val: Any) -> tuple[Any, pd.DataFrame]:
-    """The estimators the report leads with (the recommended preset when it was computed,
-    else the ones used) against the like-with-like reference when it was computed."""
-    from ..blocks.estimators import Estimators, preset
-    from .chain_report import LeadResult
-
-    if compared is not None and compare_preset:
-        name, est = compare_preset, preset(compare_preset)
-        fp_layer, co_layer = f"footprint_{compare_preset}", compare_preset
-        fp = compared_fp
-        corridor = (compared[0], compared[1])
-    else:
-        est = estimators if estimators is not None else Estimators(name="paper")
-        name = est.name or "custom"
-        fp_layer, co_layer = "footprint", ""
-        fp_res = layers.get(f"{LAYER_RESIDUALS}_footprint")
-        fp = None if fp_res is None else (fp_res, layers[f"{LAYER_STATS}_footprint"])
-        corridor = (val.residuals, val.stats)
-    recommended = name == RECOMMENDED_PRESET
-    if fp is not None:
-        res, st = (fp.residuals, fp.stats) if hasattr(fp, "stats") else fp
-        return LeadResult(name, est, st, _FOOTPRINT_WORDS, f"{LAYER_STATS}_{fp_layer}",
-                          recommended), res
-    layer = f"{LAYER_STATS}_{co_layer}" if co_layer else LAYER_STATS
-    return LeadResult(name, est, corridor[1], _CORRIDOR_WORDS, layer, recommended), corridor[0]
-
-
-def _summary_lines(lead: Any) -> list[str]:
-    from .chain_report import summary_lines
-
-    return summary_lines(lead)
-
-
-def _residual_map(residuals: Any, dtm: Path, folder: Path, lead: Any) -> Path:
-    """Block corridors coloured by their Hmax residual (the lead estimators against the
-    lead reference) over a hillshade of the DTM (25 m blocks, else the middle length)."""
-    from ..outputs.footprint_maps import plot_footprint_map
-
-    lengths = sorted(float(v) for v in residuals["length"].unique())
-    length = 25.0 if 25.0 in lengths else lengths[len(lengths) // 2]
-    sub = residuals[residuals["length"] == length]
-    ref = "footprint RH98" if lead.reference == _FOOTPRINT_WORDS else "corridor maximum"
-    return plot_footprint_map(sub, "res_hmax", folder / "residual_map.png", dtm=dtm,
-                              title=f"Hmax residual of '{lead.name}' against the {ref}, "
-                                    f"{length:g} m blocks")
-
-
-def _report(out: Path, *, tiles: list[Path], photons: Path, simulated: bool,
-            params: BlockParams, width: float, resolution: float, blocks: pd.DataFrame,
-            stats: pd.DataFrame, datum: str, plots: list[Path], azimuth: float,
-            diameter: float, preset: str, seed: int, lead: Any, layers: dict[str, Any],
-            tracks: Any, map_png: Path,
-            calibration: pd.DataFrame | None = None, seed002: pd.DataFrame | None = None,
-            seed002_png: Path | None = None,
-            compared: tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame] | None = None,
-            compare_preset: str | None = None, offsets: dict[str, Any] | None = None) -> Path:
-    from ..outputs.report import calibration_table, report_stats_table
-    from .chain_report import bias_calibration_part, details_stats, paper_section, summary_section
-
-    source = (f"ICESat-2 photons simulated over the airborne tiles: track azimuth "
-              f"{azimuth:g} degrees, {diameter:g} m footprints, '{preset}' photon rate, "
-              f"seed {seed}; written in the ATL03 layout to {photons.name} and read back."
-              if simulated else f"Photons read from {photons}.")
-    counts = (blocks.groupby(["length", "flag"]).size().unstack(fill_value=0).reset_index()
-              if len(blocks) else pd.DataFrame())
-    counts = (report_stats_table(counts.rename_axis(columns=None)).rename(
-        columns={f: f"{f} (blocks)" for f in FLAGS}) if len(counts) else counts)
-    beams = [str(t.track) for t in tracks]
-    sections = [summary_section(
-        lead, source=photons.name + (" (simulated)" if simulated else ""),
-        n_tracks=len(tracks), n_photons=int(sum(len(t) for t in tracks)), beams=beams,
-        lengths=params.lengths, tiles=tiles, n_blocks=len(blocks),
-        map_png=map_png)]
-    fp_paper = layers.get(f"{LAYER_STATS}_footprint")
-    if fp_paper is not None:
-        sections.append(paper_section(fp_paper, reference=_FOOTPRINT_WORDS,
-                                      layer=f"{LAYER_STATS}_footprint", lead=lead))
-    else:
-        sections.append(paper_section(stats, reference=_CORRIDOR_WORDS, layer=LAYER_STATS,
-                                      lead=lead))
-    sections += [
-        ReportSection("Inputs", [
-            source,
-            "Airborne tiles: " + ", ".join(t.name for t in tiles) + ".",
-            f"Block lengths {', '.join(f'{v:g}' for v in params.lengths)} m; corridor width "
-            f"{width:g} m; reference rasters at {resolution:g} m from PDAL; vertical datums: "
-            + ("the tiles' own (the photons were simulated from them)." if simulated
-               else datum),
-        ]),
-        ReportSection("Block heights (the paper's method)", [
-            f"{len(blocks)} blocks, {int((blocks['flag'] == FLAG_OK).sum())} flagged ok "
-            f"(layer '{LAYER_BLOCKS}' of blocks.gpkg; estimators "
-            f"{blocks['estimators'].iloc[0] if 'estimators' in blocks and len(blocks) else 'paper'})."],
-            {"blocks per length and flag": counts},
-            [p for p in plots if p.name == "profile.png"]),
-        ReportSection("The paper's method against the corridor maximum", [
-            "Reference: the corridor maximum -- the highest DSM cell and the mean DTM of the "
-            f"cells a {width:g} m corridor touches. Sparse photons rarely hit the single "
-            "highest crown of a corridor, so this reference sits above what photons can see; "
-            "the footprint-matched reference of the summary is the like-with-like one. "
-            "Residual = photon value minus reference value, per block, over blocks flagged ok "
-            "whose corridor lies inside the rasters. r2 and slope are of the OLS fit of the "
-            f"photon values on the reference values (layer '{LAYER_STATS}')."],
-            details_stats(stats),
-            [p for p in plots if p.name not in ("profile.png", map_png.name)]),
-    ]
-    if compared is not None and compare_preset:
-        _, pstats, ptable = compared
-        words, tables = bias_calibration_part(ptable, compare_preset)
-        sections.append(ReportSection(
-            f"The '{compare_preset}' estimators against the corridor maximum", [
-                f"Layer '{LAYER_STATS}_{compare_preset}'. {words}"],
-            {**details_stats(pstats), **tables}))
-    if seed002 is not None:
-        sections.append(ReportSection("Simulated photons against truth", [
-            "Each simulated footprint keeps its truth (ground = the lowest peak of the "
-            "pseudo-waveform, top = the highest return). The photons are classified by "
-            "steps of 20 photons (ground below min + 3 PSF, canopy top above max - 1 m) and "
-            "compared with the truth, over many realisations per footprint diameter. "
-            "Residual = photon minus truth, metres."],
-            {"residuals per footprint diameter (m)": seed002},
-            [seed002_png] if seed002_png is not None else []))
-    if calibration is not None:
-        sections.append(ReportSection("Calibrated cut-offs of the paper's method", [
-            "The canopy-top and ground fractions fitted to the corridor reference. The RMSE "
-            "columns are held out: cut-offs fitted on the even blocks are scored on the odd "
-            "blocks and vice versa. Layers residuals_calibrated and stats_calibrated of "
-            "validation.gpkg hold the validation with the cut-offs fitted on all blocks."],
-            {"calibrated cut-offs (fractions of the block's photons) and their held-out "
-             "RMSE (m)": calibration_table(calibration)}))
-    if offsets is not None:
-        rows = pd.DataFrame([{"track": k, **{c: v.get(c) for c in (
-            "along_track", "cross_track", "east", "north", "vertical", "rmse_before",
-            "rmse_after", "status", "reason")}} for k, v in offsets.items()])
-        joint = offsets.get("all") or next(iter(offsets.values()))
-        applied = (
-            "The joint offset 'all' was applied horizontally before validating; its "
-            "vertical part, which includes the ground estimator's bias, is reported only. "
-            "Layer stats_uncorrected holds the statistics without it."
-            if joint.get("determined") else
-            "The joint offset 'all' is undetermined (see its reason): it was not applied, "
-            "and the validation is of the blocks as reported.")
-        sections.append(ReportSection("Co-registration", [
-            "Offsets (m) that would align the blocks with the DTM: the shift to add to the "
-            "reported positions. An offset is 'ok' only when, fitted on some stretches of "
-            "the track, it also improves the held-out stretches significantly. " + applied],
-            {"offsets (m)": rows}))
-    return write_report(out / "report.html", "canopyblocks: block heights and validation",
-                        sections)
+        log.warning("no bias calibration for the %s estimators: %s", lead.name, exc)
+        return BiasOffer(lead.name, reference, pd.DataFrame(), False, str(exc))
+    table = cal.table()
+    worse = table[~(table["holdout_rmse_after"] < table["holdout_rmse_before"])]
+    if len(worse):
+        r = worse.iloc[0]
+        why = (f"it does not improve the held-out error everywhere: {r['metric']} at "
+               f"{r['length']:g} m "
+               f"goes from {r['holdout_rmse_before']:.2f} m to {r['holdout_rmse_after']:.2f} m"
+               + (f" ({len(worse)} of {len(table)} rows do not improve)" if len(worse) > 1
+                  else ""))
+        return BiasOffer(lead.name, reference, table, False, why)
+    write_bias_calibration(cal, out / f"bias_calibration_{lead.name}.json")
+    return BiasOffer(lead.name, reference, table, True, "")

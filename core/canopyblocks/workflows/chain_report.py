@@ -26,7 +26,12 @@ from ..outputs.report import ReportSection, report_stats_table
 
 __all__ = ["LeadResult", "estimators_sentence", "lead_numbers", "summary_section",
            "paper_section", "summary_lines", "datum_sentence", "bias_calibration_part",
-           "SUMMARY_METRICS"]
+           "SUMMARY_METRICS", "FOOTPRINT_WORDS", "CORRIDOR_WORDS", "lead_result",
+           "low_confidence_sentence", "bias_offer_part", "truth_report_table", "details_stats"]
+
+#: How the report names its two references.
+FOOTPRINT_WORDS = "footprint-matched airborne reference (footprint RH98 and ground)"
+CORRIDOR_WORDS = "corridor maximum (highest DSM cell and mean DTM of the corridor)"
 
 #: The metrics the summary states (metres): ground elevation and canopy height.
 SUMMARY_METRICS: tuple[str, ...] = ("ground", "hmax")
@@ -163,18 +168,18 @@ def summary_lines(lead: LeadResult) -> list[str]:
 
 
 def datum_sentence(decision: str, *, geoid: Any = None, offset: float | None = None,
-                   tiles: str | None = None) -> str:
+                   tiles: str | None = None, what: str = "photons") -> str:
     """The report's words for the vertical-datum decision of a validation ("same",
     "differ" with the conversion that was given, "unknown")."""
     theirs = f"the tiles' ({tiles})" if tiles else "the tiles'"
     if decision == "same":
-        return f"the photons' heights are in {theirs} datum."
+        return f"the {what}' heights are in {theirs} datum."
     if decision == "differ":
         how = (f"the geoid raster {Path(geoid).name}" if geoid is not None
                else f"a constant offset of {offset:+g} m" if offset is not None
                else "the conversion given")
-        return f"the photons' heights were converted to {theirs} datum with {how}."
-    return ("the datum of the photons or of the tiles is not stated; the heights were "
+        return f"the {what}' heights were converted to {theirs} datum with {how}."
+    return (f"the datum of the {what} or of the tiles is not stated; the heights were "
             "compared as they are.")
 
 
@@ -212,3 +217,108 @@ def details_stats(stats: pd.DataFrame) -> dict[str, pd.DataFrame]:
         cap += f"; {dropped} group rows with fewer blocks left out)" if dropped else ")"
         out[cap] = report_stats_table(keep)
     return out
+
+
+def lead_result(s: Any) -> LeadResult:
+    """The :class:`LeadResult` of an :class:`~canopyblocks.workflows.chain_figures.EstimatorSet`
+    (its statistics against the footprint-matched reference when computed)."""
+    from ..blocks.estimators import RECOMMENDED_PRESET
+
+    ref = FOOTPRINT_WORDS if s.fp_stats is not None else CORRIDOR_WORDS
+    return LeadResult(s.name, s.est(), s.lead_stats, ref, s.lead_layer,
+                      s.name == RECOMMENDED_PRESET)
+
+
+def _sigma_thresholds() -> tuple[float, float] | None:
+    """The per-block uncertainty model's ``low_confidence`` thresholds (Hmax, ground; m),
+    when the model is installed."""
+    import importlib
+
+    try:
+        mod = importlib.import_module("canopyblocks.blocks.uncertainty")
+        model = mod.sigma_model()
+        return float(model.hmax_max), float(model.ground_max)
+    except Exception:  # noqa: BLE001 -- no model: the sentence names no threshold
+        return None
+
+
+def low_confidence_sentence(blocks: pd.DataFrame, name: str) -> str:
+    """How many blocks the per-block uncertainty left out of the headline and why ("" when
+    the blocks carry no ``low_confidence`` flag)."""
+    if blocks is None or "flag" not in blocks.columns:
+        return ""
+    low = blocks["flag"].astype(str) == "low_confidence"
+    n_low = int(low.sum())
+    parts = []
+    if "hmax_sigma" in blocks.columns:
+        ok = blocks["flag"].astype(str) == "ok"
+        sig = pd.to_numeric(blocks.loc[ok, "hmax_sigma"], errors="coerce").dropna()
+        if len(sig):
+            parts.append(f"The blocks kept carry a predicted 1-sigma Hmax error (column "
+                         f"hmax_sigma; median {sig.median():.1f} m, ground_sigma for the "
+                         "ground).")
+    if n_low:
+        th = _sigma_thresholds()
+        why = (f"Hmax sigma wider than {th[0]:g} m or ground sigma wider than {th[1]:g} m"
+               if th else "their predicted sigma is too wide to be useful")
+        parts.append(f"{n_low} of {len(blocks)} blocks of '{name}' are flagged "
+                     f"low_confidence ({why}) and left out of the headline statistics "
+                     "(column use = false); they are still written.")
+    return " ".join(parts)
+
+
+def bias_offer_part(offer: Any, short: bool = False) -> tuple[str, dict[str, pd.DataFrame]]:
+    """Words (and the table) of the lead estimators' bias calibration: offered only when
+    fitted against the reference the estimators are scored on and improving every
+    held-out error; else why not.  ``short``: one sentence for the summary."""
+    from ..outputs.report import calibration_table
+
+    who = "the paper's method" if offer.name == "paper" else f"the '{offer.name}' estimator"
+    ref = ("footprint-matched reference" if offer.reference == "footprint"
+           else "corridor maximum")
+    if not len(offer.table):
+        text = (f"No bias correction is offered for {who}: none could be fitted against the "
+                f"{ref} ({offer.why.rstrip('.')}).")
+        return text, {}
+    if offer.offered:
+        hm = offer.table[offer.table["metric"] == "hmax"]
+        span = (f"{hm['intercept'].min():+.1f} to {hm['intercept'].max():+.1f} m"
+                if len(hm) else "see the table")
+        text = (f"A bias correction for {who}, fitted against the {ref} it is scored on, "
+                f"improves the held-out error (Hmax correction {span}); it is written to "
+                f"bias_calibration_{offer.name}.json. It was fitted on these blocks: fit "
+                "one on other sites before applying it (canopyblocks calibrate --method "
+                "bias).")
+        cap = (f"bias correction of {who} against the {ref}, per block length and beam "
+               "strength, with its held-out error (fitted on even blocks, scored on odd "
+               "ones and vice versa)")
+    else:
+        text = (f"No bias correction is offered for {who}: one fitted against the {ref} it "
+                f"is scored on {offer.why.removeprefix('it ')}.")
+        cap = (f"bias correction of {who} against the {ref}: fitted, not offered (it does "
+               "not improve the held-out error of every length and metric)")
+    if short:
+        return text, {}
+    return text, {cap: calibration_table(offer.table)}
+
+
+#: Report headers of the simulation-against-truth table.
+TRUTH_HEADERS: dict[str, str] = {
+    "diameter": "footprint diameter (m)", "realisations": "photon draws",
+    "n_shots": "footprints", "n_photons": "photons", "mean_cover": "mean cover (fraction)",
+    "n_ground": "ground photons", "ground_bias": "ground bias (m)",
+    "ground_std": "ground SD (m)", "ground_rms": "ground RMS (m)",
+    "n_top": "canopy-top photons", "top_bias": "canopy-top bias (m)",
+    "top_std": "canopy-top SD (m)", "top_rms": "canopy-top RMS (m)",
+}
+
+
+def truth_report_table(table: pd.DataFrame) -> pd.DataFrame:
+    """The simulation-against-truth table with words and units as headers, counts as
+    integers."""
+    df = pd.DataFrame(table).copy()
+    for c in df.columns:
+        if c in ("realisations", "n_shots", "n_photons", "n_ground", "n_top"):
+            df[c] = pd.to_numeric(df[c], errors="coerce").round().astype("Int64")
+    return df.rename(columns={c: TRUTH_HEADERS.get(c, c.replace("_", " "))
+                              for c in df.columns})

@@ -51,7 +51,7 @@ def run_waveform_chain(
     ChainResult
     """
     from ..outputs.footprint_maps import write_footprint_plots
-    from ..outputs.report import ReportSection, footprint_stats_table, write_report
+    from ..outputs.report import ReportSection, write_report
     from ..outputs.tables import write_layers, write_table
     from ..validation.footprints import (
         LAYER_RESIDUALS_FOOTPRINTS,
@@ -60,6 +60,11 @@ def run_waveform_chain(
     )
     from .chain_report import datum_sentence
     from .chain_result import ChainResult
+    from .chain_waveform_report import (
+        MIN_GROUP,
+        waveform_stats_tables,
+        waveform_summary_section,
+    )
     from .waveforms import footprints_from_l1b
 
     prog = as_progress(progress)
@@ -90,24 +95,28 @@ def run_waveform_chain(
         maps = write_footprint_plots(val.residuals, plots_dir, datum=tiles_datum)
         prog.update(0.95, "report")
         flags = fp["flag"].value_counts().rename_axis("flag").reset_index(name="footprints")
-        overall = val.stats[val.stats["group"] == "all"] if "group" in val.stats else val.stats
+        setting = getattr(params, "setting", "a1")
+        beams_used = sorted(str(b) for b in fp["beam"].unique()) if "beam" in fp else []
         sections = [
+            waveform_summary_section(val.stats, source=Path(l1b).name, n_footprints=len(fp),
+                                     beams=beams_used, tiles=tiles, setting=setting),
             ReportSection("Inputs", [
                 f"GEDI L1B waveforms from {Path(l1b).name}, processed with the GEDI L2A "
-                f"algorithm (setting {getattr(params, 'setting', 'a1')}).",
+                f"algorithm (setting {setting}).",
                 "Airborne tiles: " + ", ".join(t.name for t in tiles) + "; vertical datums: "
-                + datum_sentence(val.datum, geoid=geoid, offset=offset, tiles=tiles_datum)]),
+                + datum_sentence(val.datum, geoid=geoid, offset=offset, tiles=tiles_datum,
+                                 what="waveforms")]),
             ReportSection("Footprints", [
                 f"{len(fp)} footprints (layer 'footprints' of footprints.gpkg: ground, top, "
-                "RH25-RH100, cover, penetration, flags)."], {"footprints per flag": flags},
-                wave_plots[:6]),
+                "RH25-RH100, cover (fraction), penetration, flags)."],
+                {"footprints per flag": flags}, wave_plots[:6]),
             ReportSection("Validation against the airborne lidar", [
                 "Each footprint is compared with the airborne points weighted by a Gaussian "
-                "footprint: ground, RH98, RH50 and cover. Residual = waveform "
-                "value minus reference value (m)."],
-                {"statistics (all footprints)": footprint_stats_table(overall),
-                 "by group": footprint_stats_table(val.stats)},
-                maps),
+                "footprint: ground, RH98, RH50 (m) and cover (fraction). Residual = waveform "
+                "value minus reference value. Groups by beam, aspect, slope (degrees) and "
+                f"reference cover class (percent of the footprint); groups of fewer than {MIN_GROUP} footprints are left out of "
+                "the tables (the maps show every footprint)."],
+                waveform_stats_tables(val.stats), maps),
         ]
         report = write_report(out / "report.html", "canopyblocks: GEDI footprints and "
                               "validation", sections)

@@ -1,0 +1,183 @@
+"""The HTML report of a photon run of :func:`~canopyblocks.workflows.chain.run_chain`.
+
+Every number, table and figure names its estimators and its reference.  Order: the
+summary (the recommended estimators against the like-with-like reference, the map and
+the profile); the paper's method against the same reference; the inputs; the lead
+estimators in detail (figures, and a bias correction only when it was fitted against the
+reference they are scored on and improves the held-out error); the blocks written; the
+paper's method against the corridor maximum (a section of its own); the simulation
+against truth; the paper's calibrated cut-offs (naming those on the edge of the grid).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from ..blocks import BlockParams
+from ..outputs.report import ReportSection, calibration_table, report_stats_table, write_report
+from ..schema import FLAG_OK, FLAGS, LAYER_BLOCKS
+from .chain_figures import BiasOffer, EstimatorSet, Figures, estimator_words, reference_short
+from .chain_report import (
+    CORRIDOR_WORDS,
+    FOOTPRINT_WORDS,
+    bias_offer_part,
+    details_stats,
+    lead_result,
+    low_confidence_sentence,
+    paper_section,
+    summary_section,
+    truth_report_table,
+)
+
+__all__ = ["photon_report"]
+
+
+def _cap(words: str) -> str:
+    return words[:1].upper() + words[1:]
+
+
+def photon_report(out: Path, *, tiles: list[Path], photons: Path, simulated: bool,
+                  params: BlockParams, width: float, resolution: float,
+                  primary: EstimatorSet, lead: EstimatorSet, paper: EstimatorSet | None,
+                  figures: Figures, azimuth: float, datum: str, diameter: float,
+                  photon_rate: str, seed: int, bias: BiasOffer, tracks: Sequence[Any],
+                  calibration: pd.DataFrame | None = None,
+                  cutoff_edges: list[str] | None = None,
+                  truth_table: pd.DataFrame | None = None, truth_png: Path | None = None,
+                  offsets: dict[str, Any] | None = None) -> Path:
+    """Write ``report.html`` in ``out`` (see the module notes for its order)."""
+    lr = lead_result(lead)
+    blocks = primary.blocks
+    source = (f"ICESat-2 photons simulated over the airborne tiles: track azimuth "
+              f"{azimuth:g} degrees, {diameter:g} m footprints, '{photon_rate}' photon rate, "
+              f"seed {seed}; written in the ATL03 layout to {photons.name} and read back."
+              if simulated else f"Photons read from {photons}.")
+    beams = [str(t.track) for t in tracks]
+    summary = summary_section(
+        lr, source=photons.name + (" (simulated)" if simulated else ""),
+        n_tracks=len(tracks), n_photons=int(sum(len(t) for t in tracks)), beams=beams,
+        lengths=params.lengths, tiles=tiles, n_blocks=len(lead.blocks),
+        map_png=figures.residual_map)
+    extra = [low_confidence_sentence(lead.blocks, lead.name)]
+    extra.append(bias_offer_part(bias, short=True)[0])
+    summary.paragraphs = [*summary.paragraphs, *[e for e in extra if e]]
+    summary.images = [*summary.images, *([figures.profile] if figures.profile else [])]
+    sections = [summary]
+    if paper is not None and paper is not lead:
+        ref_kind = "footprint" if paper.fp_stats is not None else "corridor"
+        sections.append(paper_section(
+            paper.lead_stats, reference=FOOTPRINT_WORDS if ref_kind == "footprint"
+            else CORRIDOR_WORDS, layer=paper.lead_layer, lead=lr))
+    sections.append(ReportSection("Inputs", [
+        source,
+        "Airborne tiles: " + ", ".join(t.name for t in tiles) + ".",
+        f"Block lengths {', '.join(f'{v:g}' for v in params.lengths)} m; corridor width "
+        f"{width:g} m; reference rasters at {resolution:g} m from PDAL; vertical datums: "
+        + ("the tiles' own (the photons were simulated from them)." if simulated else datum),
+    ]))
+    who = estimator_words(lead.name)
+    words, tables = bias_offer_part(bias)
+    sections.append(ReportSection(
+        f"{_cap(who)} against the {lr.reference}: details", [
+            f"Layer '{lead.lead_layer}' of validation.gpkg. Residual = block value minus "
+            "reference value, metres, over the blocks used (flag ok, reference available). "
+            "The figures show the same blocks: photon value against reference value per "
+            "metric (1:1 line dashed, OLS fit red), and the RMSE per aspect class.",
+            words],
+        {**details_stats(lead.lead_stats), **tables},
+        [*figures.lead_scatter, *figures.lead_aspect]))
+    counts = (blocks.groupby(["length", "flag"]).size().unstack(fill_value=0).reset_index()
+              if len(blocks) else pd.DataFrame())
+    counts = (report_stats_table(counts.rename_axis(columns=None)).rename(
+        columns={f: f"{f} (blocks)" for f in FLAGS}) if len(counts) else counts)
+    pwho = estimator_words(primary.name)
+    sections.append(ReportSection(f"Block heights written ({pwho})", [
+        f"{len(blocks)} blocks of {pwho}, {int((blocks['flag'] == FLAG_OK).sum())} flagged "
+        f"ok (layer '{LAYER_BLOCKS}' of blocks.gpkg)."
+        + ("" if primary is lead or not lead.suffix else
+           f" The blocks of {who} are in the validation layers named after it ("
+           + ", ".join(f"'{k}'" for k in lead.layers() if k.startswith("residuals"))
+           + ").")],
+        {f"blocks per length and flag ({pwho})": counts}))
+    if paper is not None:
+        sections.append(ReportSection("The paper's method against the corridor maximum", [
+            "The paper's method scored as the paper scored it. Reference: the corridor maximum -- the highest DSM cell and the mean DTM of "
+            f"the cells a {width:g} m corridor touches. Sparse photons rarely hit the "
+            "single highest crown of a corridor, so this reference sits above what photons "
+            "can see: it is not the like-with-like reference of the summary. Residual = "
+            "photon value minus reference value, per block, over blocks flagged ok whose "
+            "corridor lies inside the rasters. r2 and slope are of the OLS fit of the "
+            f"photon values on the reference values (layer '{paper.corridor_layer}'). No "
+            "correction is fitted against this reference: the report scores heights "
+            "against the " + ("footprint-matched reference." if lead.fp_stats is not None
+                              else "corridor maximum only for comparison.")],
+            details_stats(paper.corridor_stats),
+            [*figures.paper_scatter, *figures.paper_aspect]))
+    if lead.name != "paper" and lead.fp_stats is not None:
+        sections.append(ReportSection(f"{_cap(who)} against the corridor maximum", [
+            f"Layer '{lead.corridor_layer}', for comparison with the paper's method on the "
+            "paper's reference. The corridor maximum sits above what photons can see, so "
+            f"{who} looks metres low against it while it is close to the footprint-matched "
+            "reference of the summary; no correction is fitted against it (one would make "
+            "the heights as much too tall against the like-with-like reference)."],
+            {f"{who} against the {reference_short('corridor')}, all blocks":
+             report_stats_table(lead.corridor_stats[lead.corridor_stats["group"] == "all"])}))
+    if truth_table is not None:
+        sections.append(ReportSection("Simulated photons against truth", [
+            "A study of the simulation itself, not of the block estimators above. Each "
+            "simulated footprint keeps its truth (ground = the lowest peak of the "
+            "pseudo-waveform, top = the highest return). The photons of each footprint are "
+            "classified by the simulation study's step classifier (steps of 20 photons; "
+            "ground below the lowest photon + 3 PSF widths, canopy top above the highest "
+            "photon - 1 m) and compared with the truth, over many photon draws per footprint "
+            "diameter. Footprint diameters 13 m (ICESat-2 at the start of the mission) and "
+            "17 m (at its end, as the footprint grows), plus the diameter simulated for the "
+            "blocks above if it is another: the rows show how the footprint size changes the "
+            "errors. "
+            "Residual = photon minus truth, metres; cover as a fraction of the footprint."],
+            {"residuals against truth per footprint diameter": truth_report_table(truth_table)},
+            [truth_png] if truth_png is not None else []))
+    if calibration is not None:
+        edge = ""
+        if cutoff_edges:
+            grid, *which = cutoff_edges
+            edge = (f" On the edge of the searched grid ({grid}): {', '.join(which)}. "
+                    "Such a cut-off is a bound, not an optimum: the best value may lie "
+                    "beyond the grid (at its low edge, the window floor of the paper's "
+                    "method, which the recommended estimators avoid).")
+        sections.append(ReportSection("Calibrated cut-offs of the paper's method", [
+            "The canopy-top and ground fractions of the paper's method fitted to the "
+            "corridor maximum. The RMSE columns are held out: cut-offs fitted on the even "
+            "blocks are scored on the odd blocks and vice versa. Layers "
+            "residuals_calibrated and stats_calibrated of validation.gpkg hold the "
+            "validation with the cut-offs fitted on all blocks." + edge],
+            {"the paper's method: calibrated cut-offs (fractions of the block's photons) "
+             "and their held-out RMSE against the corridor maximum":
+             calibration_table(calibration)}))
+    if offsets is not None:
+        sections.append(_offsets_section(offsets))
+    return write_report(out / "report.html", "canopyblocks: block heights and validation",
+                        sections)
+
+
+def _offsets_section(offsets: dict[str, Any]) -> ReportSection:
+    rows = pd.DataFrame([{"track": k, **{c: v.get(c) for c in (
+        "along_track", "cross_track", "east", "north", "vertical", "rmse_before",
+        "rmse_after", "status", "reason")}} for k, v in offsets.items()])
+    joint = offsets.get("all") or next(iter(offsets.values()))
+    applied = (
+        "The joint offset 'all' was applied horizontally before validating; its "
+        "vertical part, which includes the ground estimator's bias, is reported only. "
+        "Layer stats_uncorrected holds the statistics without it."
+        if joint.get("determined") else
+        "The joint offset 'all' is undetermined (see its reason): it was not applied, "
+        "and the validation is of the blocks as reported.")
+    return ReportSection("Co-registration", [
+        "Offsets (m) that would align the blocks with the DTM: the shift to add to the "
+        "reported positions. An offset is 'ok' only when, fitted on some stretches of "
+        "the track, it also improves the held-out stretches significantly. " + applied],
+        {"offsets (m)": rows.rename(columns=lambda c: c.replace("_", " "))})
