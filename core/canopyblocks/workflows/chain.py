@@ -18,10 +18,12 @@ import pandas as pd
 from ..atomic import check_writable, new_files_removed_on_failure
 from ..blocks import BlockParams
 from ..blocks.estimators import RECOMMENDED_PRESET
+from ..blocks.estimators import preset as named_preset
 from ..errors import FileFormatError, InputError
 from ..outputs.report import ReportSection, write_report
 from ..outputs.tables import write_layers, write_table
 from ..progress import Progress, as_progress
+from ..reference.sensor_width import corridor_width
 from ..schema import FLAG_OK, FLAGS, LAYER_BLOCKS, LAYER_RESIDUALS, LAYER_STATS
 from .blocks import blocks_from_file
 from .chain_report import datum_sentence
@@ -116,8 +118,9 @@ def run_chain(
     params : BlockParams, optional
         Default: lengths 10, 25 and 50 m (seed 001).
     width : float, optional
-        Corridor width, m; default 2 m for real photons and the footprint diameter for
-        simulated ones (an ICESat-2 footprint is 13-17 m wide).
+        Corridor width, m; default the footprint of the photons' sensor (ICESat-2 13 m,
+        MABEL 2 m: :mod:`canopyblocks.reference.sensor_width`; a photon table of no known
+        sensor needs it) and ``diameter`` for simulated photons.
     resolution : float
         Reference raster cell size, m.
     geoid, offset
@@ -131,12 +134,14 @@ def run_chain(
         blocks with them and validate again: layers ``residuals_calibrated`` and
         ``stats_calibrated``, table ``calibration.csv`` with held-out RMSEs.
     estimators : Estimators, optional
-        Block estimators (DESIGN 1.10; default the paper's).
+        Block estimators (DESIGN 1.10); default the recommended ones (the ``atl08``
+        preset); ``preset("paper")`` for the paper's method.
     calibration : path or BiasCalibration, optional
         Bias calibration applied to the blocks.
     compare_preset : str, optional
-        With the paper's estimators: also compute the blocks with this preset (default
-        the recommended one, :data:`~canopyblocks.blocks.estimators.RECOMMENDED_PRESET`),
+        With other estimators than this preset's: also compute the blocks with this
+        preset (default the recommended one,
+        :data:`~canopyblocks.blocks.estimators.RECOMMENDED_PRESET`),
         validate them, fit a bias calibration with its held-out error; the report leads
         with them (layers ``residuals_<preset>``, ``stats_<preset>``, with the footprint
         reference also ``residuals_footprint_<preset>``, ``stats_footprint_<preset>``;
@@ -196,7 +201,6 @@ def run_chain(
             # simulated heights are the tiles' own heights: same vertical datum by construction
             offset, geoid, photon_vcrs = 0.0, None, _tiles_crs(tiles) or crs
             width = diameter if width is None else width
-        width = 2.0 if width is None else width
         ref_vcrs = _tiles_crs(tiles)
         if not simulated:  # the one datum rule, before minutes of work (validate applies it too)
             from ..reference.datum import check_vertical_datums
@@ -209,6 +213,7 @@ def run_chain(
                                crs=crs, output=out / "blocks.gpkg", with_photons=True,
                                profile=plots_dir / "profile.png", progress=prog.sub(0.25, 0.4))
         blocks = res.blocks
+        width = corridor_width(width, res.track_ids, source=str(photons))
         prog.update(0.4, "reference rasters (PDAL)")
         rasters = make_reference_rasters(tiles, out / "rasters", resolution=resolution,
                                          crs=blocks.crs, ground=ground,  # type: ignore[arg-type]
@@ -241,7 +246,7 @@ def run_chain(
                            f"{LAYER_STATS}_footprint": vf.stats})
         compared = None
         compared_fp = None
-        if compare_preset and estimators is None and calibration is None:
+        if compare_preset and _name(estimators) != compare_preset and calibration is None:
             compared, cblocks = _compare_preset(compare_preset, res.tracks, params, rasters,
                                                 out, vkw, photons, prog.sub(0.85, 0.9))
             layers.update({f"{LAYER_RESIDUALS}_{compare_preset}": compared[0],
@@ -257,7 +262,7 @@ def run_chain(
 
             prog.update(0.9, "calibrating cut-offs")
             cutoffs = _calibrated_cutoffs(res.tracks[0], val.residuals, params)
-            blocks_c, _ = run_blocks(res.tracks, cutoffs.params)
+            blocks_c, _ = run_blocks(res.tracks, cutoffs.params, estimators=named_preset("paper"))
             val_c = validate_blocks(blocks_c, dtm=rasters.dtm, dsm_max=rasters.dsm_max,
                                     dsm_p90=rasters.dsm_p90, **vkw)
             layers.update({f"{LAYER_RESIDUALS}_calibrated": val_c.residuals,
@@ -364,13 +369,12 @@ def _compare_preset(name: str, tracks: Any, params: BlockParams, rasters: Any, o
                     ) -> tuple[tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame], Any]:
     """Residuals and stats of the blocks made with preset ``name``, and the table of a
     bias calibration fitted on them (with its parity hold-out error); the blocks."""
-    from ..blocks.estimators import preset
     from ..errors import NoUsableDataError
     from ..validation.bias_calibration import fit_bias_calibration, write_bias_calibration
     from ..validation.block_validation import validate_blocks
     from .blocks import run_blocks, track_strengths
 
-    est = preset(name)
+    est = named_preset(name)
     blocks, _ = run_blocks(tracks, params, estimators=est, progress=prog.sub(0.0, 0.6))
     val = validate_blocks(blocks, dtm=rasters.dtm, dsm_max=rasters.dsm_max,
                           dsm_p90=rasters.dsm_p90, **vkw, progress=prog.sub(0.6, 0.9))
@@ -398,16 +402,16 @@ def _lead(estimators: Any, compare_preset: str | None, compared: Any, compared_f
           layers: dict[str, pd.DataFrame], val: Any) -> tuple[Any, pd.DataFrame]:
     """The estimators the report leads with (the recommended preset when it was computed,
     else the ones used) against the like-with-like reference when it was computed."""
-    from ..blocks.estimators import Estimators, preset
+    from ..blocks.estimators import default_estimators
     from .chain_report import LeadResult
 
     if compared is not None and compare_preset:
-        name, est = compare_preset, preset(compare_preset)
+        name, est = compare_preset, named_preset(compare_preset)
         fp_layer, co_layer = f"footprint_{compare_preset}", compare_preset
         fp = compared_fp
         corridor = (compared[0], compared[1])
     else:
-        est = estimators if estimators is not None else Estimators(name="paper")
+        est = estimators if estimators is not None else default_estimators()
         name = est.name or "custom"
         fp_layer, co_layer = "footprint", ""
         fp_res = layers.get(f"{LAYER_RESIDUALS}_footprint")
@@ -420,6 +424,11 @@ def _lead(estimators: Any, compare_preset: str | None, compared: Any, compared_f
                           recommended), res
     layer = f"{LAYER_STATS}_{co_layer}" if co_layer else LAYER_STATS
     return LeadResult(name, est, corridor[1], _CORRIDOR_WORDS, layer, recommended), corridor[0]
+
+
+def _name(estimators: Any) -> str:
+    """The preset name of ``estimators`` (None: the default, the recommended preset)."""
+    return RECOMMENDED_PRESET if estimators is None else str(estimators.name)
 
 
 def _summary_lines(lead: Any) -> list[str]:
