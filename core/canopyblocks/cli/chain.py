@@ -61,9 +61,9 @@ from .vocabulary import deprecated_option, say_deprecated, take_alias
 @click.option("--calibration", type=click.Path(dir_okay=False), default=None,
               help="Bias calibration JSON to apply to the blocks (fitted for --preset).")
 @click.option("--compare/--no-compare", default=True, show_default=True,
-              help="With another --preset than atl08, also validate the recommended "
-                   "estimators (atl08) and fit their bias calibration; the report leads with "
-                   "them.")
+              help="Also validate the paper's method beside the recommended estimators "
+                   "(atl08), in a section of its own; with another --preset, the recommended "
+                   "estimators beside it (the report leads with them).")
 @click.option("--coregister", is_flag=True,
               help="Find the track's geolocation offset against the DTM/DSM and validate the "
                    "shifted blocks (offsets.json, layer stats_uncorrected).")

@@ -139,9 +139,9 @@ def run_chain(
     calibration : path or BiasCalibration, optional
         Bias calibration applied to the blocks.
     compare_preset : str, optional
-        With other estimators than this preset's: also compute the blocks with this
-        preset (default the recommended one,
-        :data:`~canopyblocks.blocks.estimators.RECOMMENDED_PRESET`),
+        Also compute the blocks with this preset (default the recommended one,
+        :data:`~canopyblocks.blocks.estimators.RECOMMENDED_PRESET`; when the chosen
+        estimators are that preset, the paper's method is computed beside them instead),
         validate them, fit a bias calibration with its held-out error; the report leads
         with them (layers ``residuals_<preset>``, ``stats_<preset>``, with the footprint
         reference also ``residuals_footprint_<preset>``, ``stats_footprint_<preset>``;
@@ -246,7 +246,10 @@ def run_chain(
                            f"{LAYER_STATS}_footprint": vf.stats})
         compared = None
         compared_fp = None
-        if compare_preset and _name(estimators) != compare_preset and calibration is None:
+        main_name = _name(estimators)
+        if compare_preset == main_name:  # the recommended ones lead: the paper's beside them
+            compare_preset = "paper" if main_name != "paper" else None
+        if compare_preset and calibration is None:
             compared, cblocks = _compare_preset(compare_preset, res.tracks, params, rasters,
                                                 out, vkw, photons, prog.sub(0.85, 0.9))
             layers.update({f"{LAYER_RESIDUALS}_{compare_preset}": compared[0],
@@ -279,6 +282,7 @@ def run_chain(
                                          datum=_vertical_name(ref_vcrs))]
         lead, lead_res = _lead(estimators, compare_preset, compared, compared_fp,
                                layers, val)
+        paper_layers = _paper_layers(main_name, compare_preset, compared, layers, val)
         map_png = _residual_map(lead_res, rasters.dtm, plots_dir, lead)
         plots.append(map_png)
         prog.update(0.95, "report")
@@ -291,7 +295,8 @@ def run_chain(
                          calibration=None if cutoffs is None else cutoffs.table,
                          seed002=seed002, seed002_png=seed002_png, compared=compared,
                          compare_preset=compare_preset, offsets=offsets_doc, lead=lead,
-                         layers=layers, tracks=res.tracks, map_png=map_png)
+                         layers=layers, tracks=res.tracks, map_png=map_png,
+                         main_name=main_name, paper=paper_layers)
         prog.update(1.0, "done")
         return ChainResult(out_dir=out, photons=Path(photons), blocks=out / "blocks.gpkg",
                            rasters={"dtm": rasters.dtm, "dsm_max": rasters.dsm_max,
@@ -405,7 +410,7 @@ def _lead(estimators: Any, compare_preset: str | None, compared: Any, compared_f
     from ..blocks.estimators import default_estimators
     from .chain_report import LeadResult
 
-    if compared is not None and compare_preset:
+    if compared is not None and compare_preset == RECOMMENDED_PRESET:
         name, est = compare_preset, named_preset(compare_preset)
         fp_layer, co_layer = f"footprint_{compare_preset}", compare_preset
         fp = compared_fp
@@ -424,6 +429,20 @@ def _lead(estimators: Any, compare_preset: str | None, compared: Any, compared_f
                           recommended), res
     layer = f"{LAYER_STATS}_{co_layer}" if co_layer else LAYER_STATS
     return LeadResult(name, est, corridor[1], _CORRIDOR_WORDS, layer, recommended), corridor[0]
+
+
+def _paper_layers(main_name: str, compare_preset: str | None, compared: Any,
+                  layers: dict[str, pd.DataFrame], val: Any
+                  ) -> tuple[pd.DataFrame, str, pd.DataFrame | None, str] | None:
+    """The paper's method's corridor stats and their layer name, and its footprint stats and
+    their layer name (None when not computed); None when the paper's method was not run."""
+    if main_name == "paper":
+        return (val.stats, LAYER_STATS, layers.get(f"{LAYER_STATS}_footprint"),
+                f"{LAYER_STATS}_footprint")
+    if compare_preset == "paper" and compared is not None:
+        return (compared[1], f"{LAYER_STATS}_paper",
+                layers.get(f"{LAYER_STATS}_footprint_paper"), f"{LAYER_STATS}_footprint_paper")
+    return None
 
 
 def _name(estimators: Any) -> str:
@@ -459,7 +478,9 @@ def _report(out: Path, *, tiles: list[Path], photons: Path, simulated: bool,
             calibration: pd.DataFrame | None = None, seed002: pd.DataFrame | None = None,
             seed002_png: Path | None = None,
             compared: tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame] | None = None,
-            compare_preset: str | None = None, offsets: dict[str, Any] | None = None) -> Path:
+            compare_preset: str | None = None, offsets: dict[str, Any] | None = None,
+            main_name: str = "paper",
+            paper: tuple[pd.DataFrame, str, pd.DataFrame | None, str] | None = None) -> Path:
     from ..outputs.report import calibration_table, report_stats_table
     from .chain_report import bias_calibration_part, details_stats, paper_section, summary_section
 
@@ -477,13 +498,16 @@ def _report(out: Path, *, tiles: list[Path], photons: Path, simulated: bool,
         n_tracks=len(tracks), n_photons=int(sum(len(t) for t in tracks)), beams=beams,
         lengths=params.lengths, tiles=tiles, n_blocks=len(blocks),
         map_png=map_png)]
-    fp_paper = layers.get(f"{LAYER_STATS}_footprint")
-    if fp_paper is not None:
-        sections.append(paper_section(fp_paper, reference=_FOOTPRINT_WORDS,
-                                      layer=f"{LAYER_STATS}_footprint", lead=lead))
-    else:
-        sections.append(paper_section(stats, reference=_CORRIDOR_WORDS, layer=LAYER_STATS,
-                                      lead=lead))
+    if paper is not None:
+        p_stats, p_layer, p_fp, p_fp_layer = paper
+        if p_fp is not None:
+            sections.append(paper_section(p_fp, reference=_FOOTPRINT_WORDS, layer=p_fp_layer,
+                                          lead=lead))
+        else:
+            sections.append(paper_section(p_stats, reference=_CORRIDOR_WORDS, layer=p_layer,
+                                          lead=lead))
+    main_words = "the paper's method" if main_name == "paper" else \
+        f"the '{main_name}' estimators"
     sections += [
         ReportSection("Inputs", [
             source,
@@ -493,13 +517,13 @@ def _report(out: Path, *, tiles: list[Path], photons: Path, simulated: bool,
             + ("the tiles' own (the photons were simulated from them)." if simulated
                else datum),
         ]),
-        ReportSection("Block heights (the paper's method)", [
+        ReportSection(f"Block heights ({main_words})", [
             f"{len(blocks)} blocks, {int((blocks['flag'] == FLAG_OK).sum())} flagged ok "
             f"(layer '{LAYER_BLOCKS}' of blocks.gpkg; estimators "
             f"{blocks['estimators'].iloc[0] if 'estimators' in blocks and len(blocks) else 'paper'})."],
             {"blocks per length and flag": counts},
             [p for p in plots if p.name == "profile.png"]),
-        ReportSection("The paper's method against the corridor maximum", [
+        ReportSection(f"{main_words[0].upper()}{main_words[1:]} against the corridor maximum", [
             "Reference: the corridor maximum -- the highest DSM cell and the mean DTM of the "
             f"cells a {width:g} m corridor touches. Sparse photons rarely hit the single "
             "highest crown of a corridor, so this reference sits above what photons can see; "
@@ -513,8 +537,10 @@ def _report(out: Path, *, tiles: list[Path], photons: Path, simulated: bool,
     if compared is not None and compare_preset:
         _, pstats, ptable = compared
         words, tables = bias_calibration_part(ptable, compare_preset)
+        other = "The paper's method" if compare_preset == "paper" else \
+            f"The '{compare_preset}' estimators"
         sections.append(ReportSection(
-            f"The '{compare_preset}' estimators against the corridor maximum", [
+            f"{other} against the corridor maximum", [
                 f"Layer '{LAYER_STATS}_{compare_preset}'. {words}"],
             {**details_stats(pstats), **tables}))
     if seed002 is not None:
