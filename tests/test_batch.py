@@ -21,7 +21,9 @@ from canopyblocks.workflows.batch import BatchConfig, find_units, run_batch, til
 pytestmark = [pytest.mark.pdal, pytest.mark.slow,
               pytest.mark.filterwarnings("ignore::canopyblocks.errors.CanopyBlocksWarning")]
 
-CONFIG = BatchConfig(lengths=(25.0,), width=13.0, offset=0.0)
+# the paper's method: its blocks do not depend on the photons outside them, so a unit (the
+# photons over its tiles) equals the whole track blocked directly, block for block
+CONFIG = BatchConfig(lengths=(25.0,), width=13.0, offset=0.0, preset="paper")
 
 
 @pytest.fixture(scope="module")

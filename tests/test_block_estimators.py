@@ -64,7 +64,7 @@ def test_percentile_top_and_h90_brute_force(top):
     s, z, _ = _forest(rng, n=3000, length=300.0)
     track = _track(s, z)
     params = BlockParams(lengths=(25.0,))
-    est = Estimators(noise="none", top=top)  # type: ignore[arg-type]
+    est = Estimators(noise="none", ground="paper", top=top)  # type: ignore[arg-type]
     got = estimate_blocks(track, params, est)
     paper = compute_blocks(track, BlockParams(lengths=(25.0,), noise="none"))
     q = float(top[1:])
@@ -136,7 +136,7 @@ def test_surface_ground_beats_paper_ground():
     track = _track(s, z)
     params = BlockParams(lengths=(25.0,))
     paper = compute_blocks(track, params)
-    surf = estimate_blocks(track, params, Estimators(noise="none", ground="surface"))
+    surf = estimate_blocks(track, params, Estimators(noise="none", ground="surface", top="paper"))
     truth = g(paper["s_start"].to_numpy() + 12.5)
     e_paper = paper["ground"].to_numpy() - truth
     e_surf = surf["ground"].to_numpy() - truth
@@ -190,7 +190,7 @@ def test_estimator_validation_messages():
     rng = np.random.default_rng(8)
     s, z, _ = _forest(rng, n=500, length=100.0)
     with pytest.raises(InputError, match="signal_conf"):
-        estimate_blocks(_track(s, z), BlockParams(), Estimators(noise="conf"))
+        estimate_blocks(_track(s, z), BlockParams(), Estimators(noise="conf", ground="paper", top="paper"))
 
 
 def test_poisson_quantile_equals_scipy_stats():

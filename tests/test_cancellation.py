@@ -90,6 +90,7 @@ def test_compute_blocks_cancels(track, tmp_path) -> None:
     assert_cancels_everywhere(lambda p: compute_blocks(track, params, progress=p), tmp_path)
 
 
+@pytest.mark.filterwarnings("ignore::canopyblocks.errors.SparseBlockWarning")  # the clip's
 def test_blocks_from_file_cancels_without_output(sample, tmp_path) -> None:
     from canopyblocks.workflows.blocks import blocks_from_file
 

@@ -165,10 +165,11 @@ def test_report_opens_with_the_recommended_estimators_like_with_like(chain_out) 
     assert f"The recommended estimators, '{RECOMMENDED_PRESET}'" in first
     assert "footprint-matched" in first and "<img src='plots/residual_map.png'" in first
     layer = re.search(r"layer '([a-z0-9_]+)' of validation.gpkg", first).group(1)
-    # the recommended blocks' layer: '_atl08' when another preset made blocks.gpkg
-    assert layer in ("stats_footprint", f"stats_footprint_{RECOMMENDED_PRESET}")
-    res = gpd.read_file(chain_out / "validation.gpkg",
-                        layer=layer.replace("stats_", "residuals_", 1))
+    # the recommended estimators are the default: the run's own layers hold them
+    assert layer == "stats_footprint"
+    res = gpd.read_file(chain_out / "validation.gpkg", layer="residuals_footprint")
+    blocks = gpd.read_file(chain_out / "blocks.gpkg", layer="blocks")
+    assert set(blocks["estimators"]) == {"noise=atl08,ground=atl08,top=atl08"}
     used = res[res["use"].astype(bool)]
     truth = {}
     for length in (25.0, 50.0):

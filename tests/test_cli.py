@@ -50,12 +50,13 @@ def check_against_oracle(track, blocks: gpd.GeoDataFrame, params: BlockParams) -
 def test_blocks_on_the_real_atl03_clip_matches_the_oracle(sample, tmp_path) -> None:
     out = tmp_path / "out.gpkg"
     png = tmp_path / "profile.png"
-    r = run_cli("blocks", str(sample(ATL03)), "--length", "10", "--length", "25",
-                "--length", "50", "-o", str(out), "--profile", str(png), "--photon-layer")
+    r = run_cli("blocks", str(sample(ATL03)), "--preset", "paper", "--length", "10",
+                "--length", "25", "--length", "50", "-o", str(out), "--profile", str(png), "--photon-layer")
     assert r.returncode == 0, r.stderr
     assert {n for n, _ in pyogrio.list_layers(out)} == {"blocks", "photons"}
     blocks = gpd.read_file(out, layer="blocks")
-    assert list(blocks.columns) == [*BLOCK_COLUMNS, "geometry"]
+    assert list(blocks.columns) == [*BLOCK_COLUMNS, "estimators", "geometry"]
+    assert set(blocks["estimators"]) == {"noise=sigma,ground=paper,top=paper"}
     assert blocks.crs.to_epsg() == 32613
     track = read_atl03(sample(ATL03), "gt1r")
     assert check_against_oracle(track, blocks, BlockParams(lengths=LENGTHS)) == len(blocks)
@@ -70,7 +71,8 @@ def test_blocks_on_the_real_atl03_clip_matches_the_oracle(sample, tmp_path) -> N
 
 def test_blocks_with_signal_confidence_matches_the_oracle(sample, tmp_path) -> None:
     out = tmp_path / "conf.parquet"
-    r = run_cli("blocks", str(sample(ATL03)), "--length", "25", "--min-signal-conf", "2",
+    r = run_cli("blocks", str(sample(ATL03)), "--preset", "paper", "--length", "25",
+                "--min-signal-conf", "2",
                 "-o", str(out))
     assert r.returncode == 0, r.stderr
     blocks = gpd.read_parquet(out)
@@ -100,8 +102,8 @@ def test_blocks_on_simulated_atl03_and_mabel_files(sample, tmp_path) -> None:
     for path, read in ((h5, lambda p: read_atl03(p, "gt1r")),
                        (mabel, lambda p: read_mabel(p, "most"))):
         out = tmp_path / f"{path.stem}.gpkg"
-        r = run_cli("blocks", str(path), "--length", "10", "--length", "25", "--length", "50",
-                    "-o", str(out))
+        r = run_cli("blocks", str(path), "--preset", "paper", "--length", "10", "--length",
+                    "25", "--length", "50", "-o", str(out))
         assert r.returncode == 0, r.stderr
         blocks = gpd.read_file(out, layer="blocks")
         n = check_against_oracle(read(path), blocks, BlockParams(lengths=LENGTHS))

@@ -112,8 +112,11 @@ def test_groups_per_track_and_length() -> None:
     a = line_blocks(4, 25.0, 0.0, track="gt1r")
     b = line_blocks(10, 10.0, 90.0, track="gt1r", x0=600_000.0)
     blocks = pd.concat([a, b], ignore_index=True)
-    cor = block_corridors(blocks)
+    cor = block_corridors(blocks, width=2.0)
     np.testing.assert_allclose(cor.area, 2.0 * blocks["length"], rtol=1e-9)
+    # without a width: the footprint of the ICESat-2 beam gt1r, 13 m
+    np.testing.assert_allclose(block_corridors(blocks).area, 13.0 * blocks["length"],
+                               rtol=1e-9)
     # the 10 m blocks run north: their bounds are 2 m wide in x
     w = cor.bounds["maxx"] - cor.bounds["minx"]
     np.testing.assert_allclose(w[blocks["length"] == 10.0], 2.0, atol=1e-9)

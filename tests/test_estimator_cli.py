@@ -118,12 +118,42 @@ def test_bias_calibration_from_the_command_line(site):
     assert "fitted on blocks made with" in r.stderr and not bad.exists()
 
 
+def test_bias_calibration_of_the_default_estimators(site):
+    """``calibrate --preset atl08 --method bias`` end to end: the calibration is for the
+    recommended estimators, and ``blocks`` without --preset (the same default) applies it:
+    every calibrated Hmax is the raw one moved by the fitted line."""
+    tmp = site["tmp"]
+    refs = ["--dtm", site["dtm"], "--dsm-max", site["dsm_max"], "--dsm-p90", site["dsm_p90"]]
+    cal = tmp / "cal_atl08.json"
+    r = _cli("calibrate", site["h5"], "--method", "bias", "--preset", "atl08",
+             "--length", "25", *refs, "--offset", "0", "--photon-vcrs", "EPSG:3005",
+             "-o", cal)
+    assert r.returncode == 0, r.stderr
+    doc = json.loads(cal.read_text())
+    assert doc["preset"] == "atl08"
+    assert doc["estimators"] == "noise=atl08,ground=atl08,top=atl08"
+    assert doc["corridor_width"] == 13.0   # the ICESat-2 footprint: the default width
+    raw, fixed = tmp / "raw_atl08.gpkg", tmp / "fixed_atl08.gpkg"
+    assert _cli("blocks", site["h5"], "--length", "25", "-o", raw).returncode == 0
+    r = _cli("blocks", site["h5"], "--length", "25", "--calibration", cal, "-o", fixed)
+    assert r.returncode == 0, r.stderr
+    a, b = gpd.read_file(raw), gpd.read_file(fixed)
+    assert (a["estimators"] == doc["estimators"]).all()
+    m = [m for m in doc["models"] if m["metric"] == "hmax"][0]
+    ok = np.isfinite(a["hmax"].to_numpy(float))
+    assert ok.sum() >= 5
+    np.testing.assert_allclose(b["hmax"].to_numpy(float)[ok],
+                               m["slope"] * a["hmax"].to_numpy(float)[ok] + m["intercept"],
+                               atol=1e-6)
+
+
 def test_footprint_reference_in_validate(site, sample):
     """``validate --reference footprint --points``: the blocks' ground against the
     Gaussian-weighted ALS ground is close (simulated photons keep the tile's heights)."""
     tmp = site["tmp"]
     blocks = tmp / "paper.gpkg"
-    assert _cli("blocks", site["h5"], "--length", "25", "-o", blocks).returncode == 0
+    assert _cli("blocks", site["h5"], "--preset", "paper", "--length", "25",
+                "-o", blocks).returncode == 0
     out = tmp / "val_fp.gpkg"
     r = _cli("validate", blocks, "--reference", "footprint", "--points",
              sample("als/lasR_bcts_1.laz"), "--offset", "0", "-o", out)

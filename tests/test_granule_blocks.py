@@ -26,6 +26,9 @@ def granules(sample, tmp_path_factory):
     with h5py.File(b, "r+") as f:
         for beam in (k for k in f if k.startswith("gt")):
             f[f"{beam}/heights/delta_time"][...] = f[f"{beam}/heights/delta_time"][:] + YEAR
+            if f"{beam}/bckgrd_atlas/delta_time" in f:  # the background rate too: a whole copy
+                t = f[f"{beam}/bckgrd_atlas/delta_time"]
+                t[...] = t[:] + YEAR
     return a, b
 
 

@@ -53,7 +53,7 @@ def scene(tmp_path: Path) -> dict:
 
 
 def test_known_residuals_and_stats(scene: dict) -> None:
-    res = validate_blocks(scene["blocks"], **scene["paths"], reference_vertical_crs="EPSG:4979")
+    res = validate_blocks(scene["blocks"], **scene["paths"], width=2.0, reference_vertical_crs="EPSG:4979")
     r = res.residuals
     assert list(r.columns[:len(BLOCK_COLUMNS)]) == list(BLOCK_COLUMNS)
     assert set(RESIDUAL_COLUMNS) <= set(r.columns)
@@ -82,16 +82,16 @@ def test_known_residuals_and_stats(scene: dict) -> None:
 
 def test_datum_refusal_and_offset(scene: dict) -> None:
     with pytest.raises(DatumError, match="NAVD88"):
-        validate_blocks(scene["blocks"], **scene["paths"],
+        validate_blocks(scene["blocks"], **scene["paths"], width=2.0,
                         reference_vertical_crs="EPSG:32612+5703")
-    res = validate_blocks(scene["blocks"], **scene["paths"],
+    res = validate_blocks(scene["blocks"], **scene["paths"], width=2.0,
                           reference_vertical_crs="EPSG:32612+5703", offset=-17.0)
     ok = res.residuals["ref_flag"] == "ok"
     np.testing.assert_allclose(res.residuals["res_ground"][ok], 17.5, atol=1e-4)
     np.testing.assert_allclose(res.residuals["res_hmax"][ok], -1.5, atol=1e-4)
     assert res.datum == "differ"
     with pytest.warns(CanopyBlocksWarning, match="vertical datum unknown"):
-        validate_blocks(scene["blocks"], **scene["paths"])  # horizontal-only GeoTIFF CRS
+        validate_blocks(scene["blocks"], **scene["paths"], width=2.0)  # horizontal-only GeoTIFF CRS
 
 
 def test_compound_crs_rasters_refused_without_conversion(scene: dict, tmp_path: Path) -> None:
@@ -106,8 +106,8 @@ def test_compound_crs_rasters_refused_without_conversion(scene: dict, tmp_path: 
         crs = rasterio.crs.CRS.from_wkt(pyproj.CRS("EPSG:32612+5703").to_wkt())
         paths[k] = write_tif(tmp_path / f"c_{k}.tif", arr, crs=crs)
     with pytest.raises(DatumError, match="NAVD88"):
-        validate_blocks(scene["blocks"], **paths)
-    res = validate_blocks(scene["blocks"], **paths, offset=0.0)
+        validate_blocks(scene["blocks"], **paths, width=2.0)
+    res = validate_blocks(scene["blocks"], **paths, offset=0.0, width=2.0)
     ok = res.residuals["ref_flag"] == "ok"
     np.testing.assert_allclose(res.residuals["res_ground"][ok], 0.5, atol=1e-4)
 
@@ -117,7 +117,7 @@ def test_not_covering(scene: dict) -> None:
     far["x"] += 5000.0
     far = far.set_geometry(gpd.points_from_xy(far["x"], far["y"]), crs=far.crs)
     with pytest.raises(CoverageError):
-        validate_blocks(far, **scene["paths"], reference_vertical_crs="EPSG:4979")
+        validate_blocks(far, **scene["paths"], width=2.0, reference_vertical_crs="EPSG:4979")
 
 
 def _cli_args(scene: dict, out: Path) -> list[str]:
@@ -126,7 +126,8 @@ def _cli_args(scene: dict, out: Path) -> list[str]:
         write_table(scene["blocks"], bp, layer="blocks")
     p = scene["paths"]
     return ["-q", "validate", str(bp), "--dtm", str(p["dtm"]), "--dsm-max", str(p["dsm_max"]),
-            "--dsm-p90", str(p["dsm_p90"]), "-o", str(out), "--reference-vcrs", "EPSG:4979"]
+            "--dsm-p90", str(p["dsm_p90"]), "-o", str(out), "--reference-vcrs", "EPSG:4979",
+            "--width", "2"]
 
 
 def test_cli(scene: dict, capsys: pytest.CaptureFixture[str]) -> None:
@@ -174,6 +175,6 @@ def test_cli_not_covering(scene: dict, capsys: pytest.CaptureFixture[str]) -> No
 
 
 def test_plots_written(scene: dict) -> None:
-    res = validate_blocks(scene["blocks"], **scene["paths"], reference_vertical_crs="EPSG:4979")
+    res = validate_blocks(scene["blocks"], **scene["paths"], width=2.0, reference_vertical_crs="EPSG:4979")
     paths = write_validation_plots(res.residuals, res.stats, scene["tmp"] / "figs")
     assert len(paths) == 2 and all(p.stat().st_size > 10_000 for p in paths)

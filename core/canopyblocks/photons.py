@@ -21,7 +21,8 @@ from .geo import WGS84, from_metric, require_metric_crs, to_metric
 if TYPE_CHECKING:
     import geopandas as gpd
 
-__all__ = ["PhotonTrack", "BackgroundRate", "along_track_distance", "SPEED_OF_LIGHT"]
+__all__ = ["PhotonTrack", "BackgroundRate", "along_track_distance", "SPEED_OF_LIGHT",
+           "sensor_of_track", "SENSORS"]
 
 log = logging.getLogger(__name__)
 
@@ -117,6 +118,24 @@ def along_track_distance(x: np.ndarray, y: np.ndarray, time: np.ndarray | None =
             ux, uy = -ux, -uy
     offset = -dx * uy + dy * ux
     return s - s.min(), offset
+
+
+#: The photon-counting sensors the project knows, as users read their names.
+SENSORS: tuple[str, ...] = ("ICESat-2", "MABEL")
+
+_ICESAT2_BEAMS = frozenset(f"gt{i}{side}" for i in (1, 2, 3) for side in "lr")
+
+
+def sensor_of_track(track: str) -> str | None:
+    """The sensor a track id belongs to: ``"ICESat-2"`` for an ATL03 beam (``gt1l`` ..
+    ``gt3r``), ``"MABEL"`` for a MABEL channel (``channelNNN``), None when the id names
+    neither (e.g. a photon table's file name)."""
+    name = str(track).strip().lower()
+    if name in _ICESAT2_BEAMS:
+        return "ICESat-2"
+    if name.startswith("channel") and name[7:].isdigit():
+        return "MABEL"
+    return None
 
 
 def stable_order(s: np.ndarray) -> np.ndarray:

@@ -310,8 +310,9 @@ class CanopyBlocksAlgorithm(QgsProcessingAlgorithm):
         self.addParameter(QgsProcessingParameterRasterLayer("DSM_P90", "DSM (90th percentile)",
                                                             optional=optional))
         self.addParameter(QgsProcessingParameterNumber(
-            "WIDTH", "Corridor width (m)", type=QgsProcessingParameterNumber.Double,
-            defaultValue=2.0, minValue=0.001))
+            "WIDTH", "Corridor width (m; empty = the footprint of the photons' sensor: "
+            "ICESat-2 13, MABEL 2)", type=QgsProcessingParameterNumber.Double,
+            optional=True, minValue=0.001))
         self.addParameter(QgsProcessingParameterNumber(
             "OFFSET", "Vertical offset N = h_photon - H_reference (m; empty = none)",
             type=QgsProcessingParameterNumber.Double, optional=True))

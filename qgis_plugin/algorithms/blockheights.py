@@ -25,15 +25,17 @@ from .base import SEED_001, CanopyBlocksAlgorithm, input_label, optional_number,
 __all__ = ["BlockHeightsAlgorithm"]
 
 NOISE_OPTIONS = ("sigma", "none")
-#: (menu label, preset name or None for the paper's engine as it is)
+#: (menu label, preset name): the presets of the CLI's --preset, in its order, the
+#: default (the recommended atl08) first
 PRESET_OPTIONS = (
-    ("paper: k-sigma noise filter, the paper's top and ground windows", None),
+    ("atl08 (recommended): photons classified as ATL08 does, its ground surface, 98th "
+     "percentile of the canopy heights", "atl08"),
+    ("paper: the paper's method (k-sigma noise filter, top and ground windows)", "paper"),
     ("icesat2: density noise filter, the paper's ground window, 98th-percentile top",
      "icesat2"),
     ("mabel: density noise filter, ground surface, 98th-percentile top", "mabel"),
-    ("atl08: photons classified as ATL08 does, its ground surface, 98th percentile of the "
-     "canopy heights", "atl08"),
 )
+DEFAULT_PRESET_INDEX = 0
 
 
 def parse_track(text: str) -> dict[str, Any]:
@@ -56,10 +58,13 @@ class BlockHeightsAlgorithm(CanopyBlocksAlgorithm):
     HELP = (
         "Cuts one photon track (an ATL03 beam, a MABEL channel, or a photon table) into "
         "along-track blocks of the given lengths and computes per block the canopy top, the "
-        "mean ground, Hmax = top - ground and H90, with the expansion-window method on 0.5 m "
-        "height histograms after a per-block k-sigma noise filter.<br><br>"
-        "Method: " + SEED_001 + ". Default cut-offs by block length (top/ground): 50 m "
-        "10 %/25 %, 25 m 10 %/20 %, 10 m 5 %/7.5 %; other lengths interpolated.<br><br>"
+        "mean ground, Hmax = top - ground and H90. <b>Estimators</b>: by default (atl08, "
+        "recommended) the photons are classified as ATL08 does; ground = its ground surface, "
+        "Hmax = 98th percentile of the canopy heights above it. 'paper' is the paper's "
+        "method: the expansion-window method on 0.5 m height histograms after a per-block "
+        "k-sigma noise filter (" + SEED_001 + "; cut-offs by block length, top/ground: 50 m "
+        "10 %/25 %, 25 m 10 %/20 %, 10 m 5 %/7.5 %; other lengths interpolated; the noise "
+        "filter and cut-off settings below apply to it).<br><br>"
         "<b>Photon file</b>: ATL03 HDF5, MABEL HDF5 or a table (CSV/Parquet).<br>"
         "<b>Beam or channel</b>: gt1l..gt3r for ATL03, a channel number or 'most' for MABEL; "
         "empty = the reader's default.<br>"
@@ -129,7 +134,7 @@ class BlockHeightsAlgorithm(CanopyBlocksAlgorithm):
             fileFilter="HDF5 (*.h5 *.hdf5);;All files (*.*)"))
         self.addParameter(QgsProcessingParameterEnum(
             self.PRESET, "Estimators", options=[label for label, _ in PRESET_OPTIONS],
-            defaultValue=0))
+            defaultValue=DEFAULT_PRESET_INDEX))
         self.addParameter(QgsProcessingParameterFile(
             self.CALIBRATION, "Bias calibration (JSON from Calibrate, bias method)",
             behavior=QgsProcessingParameterFile.File, fileFilter="Calibration (*.json)",
@@ -185,20 +190,15 @@ class BlockHeightsAlgorithm(CanopyBlocksAlgorithm):
         progress.update(0.2, f"{len(track)} photons read")
         preset = PRESET_OPTIONS[self.parameterAsEnum(parameters, self.PRESET, context)][1]
         calibration = self.parameterAsFile(parameters, self.CALIBRATION, context) or None
-        if preset is None and calibration is None:  # the paper's engine as it is
-            result = blocks_mod.compute_blocks(track, params, labels=want_labels,
-                                               progress=progress.sub(0.2, 0.85))
-            blocks, labels = result if want_labels else (result, None)
-        else:
-            track_mod = import_core("canopyblocks.workflows.blocks")
-            est = import_core("canopyblocks.blocks.estimators").preset(preset or "paper")
-            blocks, all_labels = track_mod.run_blocks([track], params, labels=want_labels,
-                                                      estimators=est,
-                                                      progress=progress.sub(0.2, 0.85))
-            labels = all_labels.get(track.track) if want_labels else None
-            if calibration:
-                blocks = track_mod.calibrate_blocks(
-                    blocks, calibration, track_mod.track_strengths(path, [track]))
+        track_mod = import_core("canopyblocks.workflows.blocks")
+        est = import_core("canopyblocks.blocks.estimators").preset(preset)
+        blocks, all_labels = track_mod.run_blocks([track], params, labels=want_labels,
+                                                  estimators=est,
+                                                  progress=progress.sub(0.2, 0.85))
+        labels = all_labels.get(track.track) if want_labels else None
+        if calibration:
+            blocks = track_mod.calibrate_blocks(
+                blocks, calibration, track_mod.track_strengths(path, [track]))
         feedback.pushInfo(
             f"{len(blocks)} blocks, {int((blocks['flag'] == 'ok').sum())} flagged ok")
         results: dict[str, Any] = {}

@@ -18,7 +18,7 @@ from qgis.core import (
 from ..core_bridge import import_core
 from ..layers import write_frame
 from .base import SEED_001, CanopyBlocksAlgorithm, optional_number, parse_lengths
-from .blockheights import PRESET_OPTIONS, parse_track
+from .blockheights import DEFAULT_PRESET_INDEX, PRESET_OPTIONS, parse_track
 from .validate import raster_path
 
 __all__ = ["CalibrateAlgorithm"]
@@ -37,7 +37,10 @@ class CalibrateAlgorithm(CanopyBlocksAlgorithm):
         "corridor, and searches the canopy-top and ground fractions (2.5 % to 50 %) that "
         "reproduce them best, per block length. The table's RMSE columns are held out: "
         "cut-offs fitted on the even blocks are scored on the odd blocks and vice versa. "
-        "Use the fitted fractions in <i>Block canopy heights</i>.<br><br>"
+        "Use the fitted fractions in <i>Block canopy heights</i> with the paper's method. "
+        "The bias method instead fits a correction of Hmax and H90 for the chosen estimators "
+        "(default atl08, the recommended ones). The corridor width defaults to the footprint "
+        "of the photons' sensor (ICESat-2 13 m, MABEL 2 m).<br><br>"
         "Method: " + SEED_001 + " (the authors chose their cut-offs by matching clear "
         "blocks to the airborne lidar). Photon and reference heights must share a vertical "
         "datum: give the offset N = h_photon - H_reference when they do not."
@@ -69,7 +72,8 @@ class CalibrateAlgorithm(CanopyBlocksAlgorithm):
                 "chosen estimators (applied by Block canopy heights)"], defaultValue=0))
         self.addParameter(QgsProcessingParameterEnum(
             self.PRESET, "Estimators (bias method)",
-            options=[label for label, _ in PRESET_OPTIONS], defaultValue=1))
+            options=[label for label, _ in PRESET_OPTIONS],
+            defaultValue=DEFAULT_PRESET_INDEX))
         self.addParameter(QgsProcessingParameterFeatureSink(
             self.OUTPUT, "Calibration table", type=QgsProcessing.TypeVector))
         self.addParameter(QgsProcessingParameterFileDestination(
@@ -94,7 +98,7 @@ class CalibrateAlgorithm(CanopyBlocksAlgorithm):
             dtm=raster_path(self, parameters, self.DTM, context),
             dsm_max=raster_path(self, parameters, self.DSM_MAX, context),
             dsm_p90=raster_path(self, parameters, self.DSM_P90, context),
-            width=self.parameterAsDouble(parameters, self.WIDTH, context),
+            width=optional_number(self, parameters, self.WIDTH, context),
             beam=track.get("beam"), channel=track.get("channel"), offset=offset,
             progress=progress.sub(0.0, 0.95))
         for row in cal.table.itertuples():
@@ -115,11 +119,11 @@ class CalibrateAlgorithm(CanopyBlocksAlgorithm):
         name = PRESET_OPTIONS[self.parameterAsEnum(parameters, self.PRESET, context)][1]
         cal = files.calibrate_bias_file(
             self.parameterAsFile(parameters, self.INPUT, context), params,
-            est_mod.preset(name or "paper"),
+            est_mod.preset(name),
             dtm=raster_path(self, parameters, self.DTM, context),
             dsm_max=raster_path(self, parameters, self.DSM_MAX, context),
             dsm_p90=raster_path(self, parameters, self.DSM_P90, context),
-            width=self.parameterAsDouble(parameters, self.WIDTH, context),
+            width=optional_number(self, parameters, self.WIDTH, context),
             beams=[track["beam"]] if track.get("beam") else (),
             channel=track.get("channel"), offset=offset, progress=progress.sub(0.0, 0.95))
         table = cal.table()

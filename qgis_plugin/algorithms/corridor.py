@@ -15,7 +15,7 @@ from qgis.core import (
 
 from ..core_bridge import import_core
 from ..layers import write_frame
-from .base import SEED_001, CanopyBlocksAlgorithm
+from .base import SEED_001, CanopyBlocksAlgorithm, optional_number
 
 __all__ = ["CorridorAlgorithm"]
 
@@ -32,8 +32,9 @@ class CorridorAlgorithm(CanopyBlocksAlgorithm):
         "centres, per track and block length) and cuts it at the blocks' edges "
         "(s_start, s_end): one polygon per block, carrying track, length, block, s_start, "
         "s_end. These are the areas over which reference rasters are summarised.<br><br>"
-        "Method: " + SEED_001 + " (2 m corridor: MABEL's footprint). For ICESat-2 widen it "
-        "to the footprint (13-17 m).<br>"
+        "Method: " + SEED_001 + " (2 m corridor: MABEL's footprint). Empty width: the "
+        "footprint of the photons' sensor, known from the track ids (ICESat-2 beams 13 m, "
+        "MABEL channels 2 m).<br>"
         "<b>Blocks</b>: output of 'Block canopy heights from photons' (metric CRS)."
     )
 
@@ -45,8 +46,9 @@ class CorridorAlgorithm(CanopyBlocksAlgorithm):
         self.addParameter(QgsProcessingParameterFeatureSource(
             self.INPUT, "Blocks", [QgsProcessing.TypeVectorPoint]))
         self.addParameter(QgsProcessingParameterNumber(
-            self.WIDTH, "Corridor width (m, full width)",
-            type=QgsProcessingParameterNumber.Double, defaultValue=2.0, minValue=0.001))
+            self.WIDTH, "Corridor width (m, full width; empty = the footprint of the photons' "
+            "sensor: ICESat-2 13, MABEL 2)",
+            type=QgsProcessingParameterNumber.Double, optional=True, minValue=0.001))
         self.addParameter(QgsProcessingParameterFeatureSink(
             self.OUTPUT, "Corridors", type=QgsProcessing.TypeVectorPolygon))
 
@@ -55,7 +57,7 @@ class CorridorAlgorithm(CanopyBlocksAlgorithm):
         corridor = import_core("canopyblocks.reference.corridor")
         blocks = self.source_frame(parameters, self.INPUT, context, feedback)
         progress.update(0.3, f"{len(blocks)} blocks read")
-        width = self.parameterAsDouble(parameters, self.WIDTH, context)
+        width = optional_number(self, parameters, self.WIDTH, context)
         polys = corridor.block_corridors(blocks, width=width)
         progress.update(0.7, "corridors drawn")
         dest = write_frame(self, parameters, self.OUTPUT, context, polys, feedback)

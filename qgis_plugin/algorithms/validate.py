@@ -139,7 +139,7 @@ class ValidateAlgorithm(CanopyBlocksAlgorithm):
                 dtm=raster_path(self, parameters, self.DTM, context),
                 dsm_max=raster_path(self, parameters, self.DSM_MAX, context),
                 dsm_p90=raster_path(self, parameters, self.DSM_P90, context),
-                width=self.parameterAsDouble(parameters, self.WIDTH, context),
+                width=optional_number(self, parameters, self.WIDTH, context),
                 slope_threshold=slope, progress=progress.sub(0.1, 0.9), **kwargs)
         residuals, stats = result.residuals, result.stats
         dest = write_frame(self, parameters, self.OUTPUT, context, residuals, feedback)

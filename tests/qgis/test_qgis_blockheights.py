@@ -29,8 +29,12 @@ def direct_blocks(atl03_sample: Path):
 
 
 def _run_blocks(run_alg, src: Path, out: Path, **extra):
+    from qgis_plugin.algorithms.blockheights import PRESET_OPTIONS
+
+    # the paper's method, which the core's compute_blocks above computes
+    paper = [name for _, name in PRESET_OPTIONS].index("paper")
     params = {"INPUT": str(src), "TRACK": "gt1r", "LENGTHS": "25, 10", "MIN_PHOTONS": 5,
-              "OUTPUT": str(out)}
+              "PRESET": paper, "OUTPUT": str(out)}
     params.update(extra)
     return run_alg("canopyblocks:blockheights", params)
 

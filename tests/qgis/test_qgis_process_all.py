@@ -283,6 +283,13 @@ def test_validate_photon_vertical_crs_applies_the_datum_rule(qgis_profile, qgis_
     assert r.returncode == 0, r.stdout + r.stderr
 
 
+def _preset_index(name: str) -> int:
+    """The QGIS enum index of a preset (the options follow the CLI's --preset order)."""
+    from qgis_plugin.algorithms.blockheights import PRESET_OPTIONS
+
+    return [n for _, n in PRESET_OPTIONS].index(name)
+
+
 def test_blockheights_preset_and_calibration_equal_the_command_line(qp, simulated, rasters,
                                                                     work) -> None:
     """Issue 12 item 11 / issue 11: the icesat2 preset and a bias calibration in QGIS give
@@ -301,7 +308,7 @@ def test_blockheights_preset_and_calibration_equal_the_command_line(qp, simulate
                        capture_output=True, text=True, timeout=300)
     assert r.returncode == 0, r.stderr
     out = work / "qgis_blocks_cal.gpkg"
-    qp("blockheights", INPUT=simulated, TRACK="gt1r", LENGTHS="25", PRESET=1,
+    qp("blockheights", INPUT=simulated, TRACK="gt1r", LENGTHS="25", PRESET=_preset_index("icesat2"),
        CALIBRATION=cal, OUTPUT=out)
     got = pyogrio.read_dataframe(out).sort_values("block")
     want = pyogrio.read_dataframe(ref, layer="blocks").sort_values("block")
@@ -386,7 +393,7 @@ def test_calibrate_bias_method_writes_the_command_lines_calibration(qp, simulate
     out = work / "qgis_bias.json"
     qp("calibrate", INPUT=simulated, TRACK="gt1r", LENGTHS="25", DTM=rasters["DTM"],
        DSM_MAX=rasters["DSM_MAX"], DSM_P90=rasters["DSM_P90"], WIDTH=13, OFFSET=0, METHOD=1,
-       PRESET=1, OUTPUT=work / "qgis_bias.csv", CALIBRATION=out)
+       PRESET=_preset_index("icesat2"), OUTPUT=work / "qgis_bias.csv", CALIBRATION=out)
     got, want = json.loads(out.read_text()), json.loads(cli.read_text())
     assert got["estimators"] == want["estimators"]
     assert len(got["models"]) == len(want["models"])

@@ -1,7 +1,9 @@
 """Block estimators beyond the paper (DESIGN 1.10): named options and presets.
 
-The paper's method (seed 001, DESIGN 1.1-1.8) stays the default, bit for bit. These
-options replace its parts where sparse ICESat-2 photons defeat it:
+The default is the ATL08-style classifier (the preset ``atl08``, :data:`RECOMMENDED_PRESET`):
+``Estimators()``, ``preset()`` and every function taking ``estimators=None`` use it. The
+paper's method (DESIGN 1.1-1.8) stays, bit for bit, as the preset ``paper``. These options
+name the parts of a block's computation (a custom set names all three):
 
 - ``noise``: ``sigma`` (the paper's per-block 2.5-sigma filter), ``conf`` (ATL03
   ``signal_conf_ph >= min_signal_conf``), ``density`` (DRAGANN-like,
@@ -27,7 +29,7 @@ a bias calibration, ground 1.4 m; the fitted ground surface, better without nois
 background photons below the ground there: Hmax 6.2 m, ground 5.4 m); ``mabel`` (density
 filter, ground surface, p98 top, for dense airborne photons); ``atl08`` (the ATL08-style
 classifier for noise, ground and canopy, DESIGN 1.11). :data:`RECOMMENDED_PRESET` names
-the preset the project recommends for ICESat-2.
+the preset the project recommends and uses by default (:func:`default_estimators`).
 """
 
 from __future__ import annotations
@@ -55,7 +57,8 @@ if TYPE_CHECKING:
     from ..progress import Progress
 
 __all__ = ["Estimators", "PRESETS", "preset", "estimate_blocks", "percentile_by_block",
-           "GROUND_ESTIMATORS", "TOP_ESTIMATORS", "NOISE_ESTIMATORS", "RECOMMENDED_PRESET"]
+           "GROUND_ESTIMATORS", "TOP_ESTIMATORS", "NOISE_ESTIMATORS", "RECOMMENDED_PRESET",
+           "PRESET_NAMES", "default_estimators"]
 
 log = logging.getLogger(__name__)
 
@@ -74,8 +77,11 @@ class Estimators:
     Attributes
     ----------
     noise : "sigma", "conf", "density", "atl08" or "none"
+        Default "atl08" (the recommended set: ``Estimators()`` is the ``atl08`` preset).
     ground : "paper", "surface" or "atl08" (needs noise "atl08")
+        Default "atl08".
     top : "paper", "p95", "p98", "p99", "p100" or "atl08" (needs ground "atl08")
+        Default "atl08".
     min_signal_conf : int
         ATL03 land confidence kept by ``noise="conf"`` (default 2, "low" and above).
     surface : GroundSurfaceParams
@@ -86,9 +92,9 @@ class Estimators:
         The preset name these came from, or "custom".
     """
 
-    noise: NoiseEstimator = "sigma"
-    ground: GroundEstimator = "paper"
-    top: TopEstimator = "paper"
+    noise: NoiseEstimator = "atl08"
+    ground: GroundEstimator = "atl08"
+    top: TopEstimator = "atl08"
     min_signal_conf: int = 2
     surface: GroundSurfaceParams = field(default_factory=GroundSurfaceParams)
     density: DensityParams = field(default_factory=DensityParams)
@@ -106,11 +112,14 @@ class Estimators:
                                  f"got {value!r}")
         if self.ground == "atl08" and self.noise != "atl08":
             raise InputError(f"ground estimator 'atl08' needs noise 'atl08' (the classifier "
-                             f"finds the ground surface); got noise {self.noise!r}")
+                             f"finds the ground surface); got noise {self.noise!r}: name the "
+                             "ground and top too (the defaults are the classifier's), e.g. "
+                             "ground='paper', top='paper' for the paper's")
         if (self.top == "atl08") != (self.ground == "atl08"):
             raise InputError(f"top 'atl08' and ground 'atl08' go together (canopy heights are "
                              f"taken above the classifier's ground); got ground "
-                             f"{self.ground!r}, top {self.top!r}")
+                             f"{self.ground!r}, top {self.top!r}: name both (the defaults "
+                             "are the classifier's)")
         if not (isinstance(self.min_signal_conf, int) and -2 <= self.min_signal_conf <= 4):
             raise InputError(f"min_signal_conf must be an integer -2..4, got "
                              f"{self.min_signal_conf!r}")
@@ -132,18 +141,33 @@ class Estimators:
 
 
 PRESETS: dict[str, Estimators] = {
-    "paper": Estimators(name="paper"),
+    "paper": Estimators(noise="sigma", ground="paper", top="paper", name="paper"),
     "icesat2": Estimators(noise="density", ground="paper", top="p98", name="icesat2"),
     "mabel": Estimators(noise="density", ground="surface", top="p98", name="mabel"),
     "atl08": Estimators(noise="atl08", ground="atl08", top="atl08", name="atl08"),
 }
 
 RECOMMENDED_PRESET = "atl08"
-"""The estimator preset the project recommends for ICESat-2 photons."""
+"""The estimator preset the project recommends, the default of every front end."""
+
+#: The preset names every front end offers (CLI ``--preset``, QGIS, Python), in one order.
+PRESET_NAMES: tuple[str, ...] = tuple(PRESETS)
 
 
-def preset(name: str) -> Estimators:
-    """The named preset (``paper``, ``icesat2``, ``mabel``, ``atl08``)."""
+def default_estimators(track: str | None = None) -> Estimators:
+    """The estimators used when none are given: the recommended preset
+    (:data:`RECOMMENDED_PRESET`, ``atl08``) for every sensor.
+
+    ``track`` (a beam or channel id) is accepted so that a sensor-specific default has one
+    place to live; measured on simulated MABEL photons (DESIGN 1.12) the ``atl08`` preset
+    is the better one there too.
+    """
+    return PRESETS[RECOMMENDED_PRESET]
+
+
+def preset(name: str = RECOMMENDED_PRESET) -> Estimators:
+    """The named preset (``paper``, ``icesat2``, ``mabel``, ``atl08``); default the
+    recommended one, ``atl08``."""
     from ..arguments import check_instance
     check_instance(name, str, "preset: name", "a preset name (paper, icesat2, mabel, atl08)")
     try:
@@ -194,7 +218,8 @@ def estimate_blocks(track: PhotonTrack, params: BlockParams | None = None,
     params : BlockParams, optional
         Lengths, ``s0``, ``min_photons`` and the paper's settings (used by its parts).
     estimators : Estimators, optional
-        Default: the paper's.
+        Default: the recommended ones (:func:`default_estimators`, the ``atl08`` preset);
+        ``preset("paper")`` for the paper's method.
     labels : bool
         Also return per-photon labels per length (noise / ground / canopy / between;
         with ``ground="surface"``, ground = the photons the surface was fitted to).
@@ -218,7 +243,7 @@ def estimate_blocks(track: PhotonTrack, params: BlockParams | None = None,
     from .engine import compute_blocks
 
     params = BlockParams() if params is None else params
-    est = Estimators() if estimators is None else estimators
+    est = default_estimators(track.track) if estimators is None else estimators
     if not isinstance(est, Estimators):
         raise InputError(f"estimators must be an Estimators (or a preset name via preset()); "
                          f"got {type(est).__name__}")

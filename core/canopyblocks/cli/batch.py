@@ -6,7 +6,13 @@ import logging
 
 import click
 
-from .common import lengths_option, min_signal_conf_option, vertical_options
+from .common import (
+    WIDTH_HELP,
+    lengths_option,
+    min_signal_conf_option,
+    preset_option,
+    vertical_options,
+)
 
 log = logging.getLogger(__name__)
 
@@ -26,10 +32,8 @@ def register(group: click.Group) -> None:
                    "report.html.")
 @click.option("--beam", "beams", multiple=True, help="Beams to use (default all).")
 @lengths_option("25")
-@click.option("--width", type=float, default=13.0, show_default=True,
-              help="Corridor width, m (the footprint for ICESat-2).")
-@click.option("--preset", type=click.Choice(["paper", "icesat2", "mabel"]), default="paper",
-              show_default=True, help="Block estimators.")
+@click.option("--width", type=float, default=None, help=WIDTH_HELP)
+@preset_option()
 @min_signal_conf_option
 @vertical_options
 @click.option("--photon-vcrs", default="EPSG:4979", show_default=True,
@@ -46,7 +50,7 @@ def register(group: click.Group) -> None:
                    "local cluster.")
 @click.pass_context
 def batch(ctx: click.Context, granules: tuple[str, ...], tiles: tuple[str, ...], output: str,
-          beams: tuple[str, ...], lengths: tuple[float, ...], width: float, preset: str,
+          beams: tuple[str, ...], lengths: tuple[float, ...], width: float | None, preset: str,
           min_signal_conf: int | None, geoid: str | None, offset: float | None,
           photon_vcrs: str, reference_vcrs: str | None, resolution: float, backend: str,
           workers: int | None, scheduler: str | None) -> None:
@@ -60,7 +64,8 @@ def batch(ctx: click.Context, granules: tuple[str, ...], tiles: tuple[str, ...],
 
     if scheduler is not None and backend != "dask":
         backend = "dask"
-    cfg = BatchConfig(lengths=tuple(lengths) or (25.0,), width=width, preset=preset,
+    cfg = BatchConfig(lengths=tuple(lengths) or (25.0,), preset=preset,
+                      **({} if width is None else {"width": width}),
                       min_signal_conf=min_signal_conf, offset=offset, geoid=geoid,
                       photon_vcrs=photon_vcrs, reference_vcrs=reference_vcrs,
                       resolution=resolution)

@@ -11,10 +11,12 @@ import click
 
 from .common import (
     channel_option,
+    explicit_value,
     lengths_option,
     min_signal_conf_option,
     parse_channel,
     parse_floats,
+    preset_option,
 )
 from .progress_bars import progress_bar
 from .vocabulary import deprecated_option, take_alias
@@ -54,16 +56,12 @@ def info_cmd(path: str, as_json: bool) -> None:
               help="Noise filter: keep |z - mean| <= k * std per block.")
 @click.option("--noise", type=click.Choice(["sigma", "conf", "density", "atl08", "none"]),
               default=None,
-              help="Noise filter: sigma (paper, default), conf (ATL03 signal_conf_ph), "
+              help="Noise filter: sigma (the paper's), conf (ATL03 signal_conf_ph), "
                    "density (DRAGANN-like: MABEL, simulated, tables), atl08 (the ATL08-style "
-                   "classifier, with the file's background rate when it has one), none.")
-@click.option("--preset", type=click.Choice(["paper", "icesat2", "mabel", "atl08"]),
-              default=None,
-              help="Named estimator set: paper (the paper's method, the default), "
-                   "icesat2 (density filter, the paper's ground window, 98th-percentile top), mabel "
-                   "(density filter, ground surface, 98th-percentile top), atl08 (photons "
-                   "classified as ATL08 does; ground = its ground surface, Hmax = 98th "
-                   "percentile of the canopy heights above it).")
+                   "classifier, with the file's background rate when it has one), none. "
+                   "Without --preset, --noise, --ground-estimator and --top-estimator replace "
+                   "parts of the paper's method.")
+@preset_option()
 @click.option("--ground-estimator", type=click.Choice(["paper", "surface"]), default=None,
               help="Ground: the paper's window mean, or a robust along-track surface.")
 @click.option("--top-estimator", type=click.Choice(["paper", "p95", "p98", "p99", "p100"]),
@@ -102,7 +100,7 @@ def info_cmd(path: str, as_json: bool) -> None:
 def blocks_cmd(ctx: click.Context, paths: tuple[str, ...], output: str,
                beams: tuple[str, ...],
                channel: str | None, lengths: tuple[float, ...], s0: float | None, k_sigma: float,
-               noise: str | None, preset: str | None, ground_estimator: str | None,
+               noise: str | None, preset: str, ground_estimator: str | None,
                top_estimator: str | None, calibration: str | None,
                min_signal_conf: int | None, top_cutoff: float | None,
                ground_cutoff: float | None, min_photons: int, atl08: str | None,
@@ -110,8 +108,8 @@ def blocks_cmd(ctx: click.Context, paths: tuple[str, ...], output: str,
                time_range: tuple[str, str] | None, crs: str | None, with_photons: bool,
                old_photons: bool,
                profile: str | None, workers: int | None) -> None:
-    """Canopy top, mean ground, Hmax and H90 per along-track block (the paper's method,
-    or the estimators of --preset).
+    """Canopy top, mean ground, Hmax and H90 per along-track block (the recommended
+    estimators, atl08, or those of --preset; --preset paper: the paper's method).
 
     Several PATHs (granules) give one table with a 'granule' column, filtered by
     --bbox, --polygon and --time.
@@ -120,11 +118,10 @@ def blocks_cmd(ctx: click.Context, paths: tuple[str, ...], output: str,
     from ..workflows.blocks import blocks_from_file
 
     with_photons = take_alias(with_photons, old_photons, old="--photons", new="--photon-layer")
-    estimators = estimators_from_options(preset, noise, ground_estimator, top_estimator,
-                                         min_signal_conf)
+    estimators = estimators_from_options(explicit_value(ctx, "preset", preset), noise,
+                                         ground_estimator, top_estimator, min_signal_conf)
     params = BlockParams(
         lengths=tuple(lengths) or (25.0,), s0=s0, k_sigma=k_sigma,
-        noise="none" if noise == "none" and estimators is None else "sigma",
         min_signal_conf=min_signal_conf, top_cutoff=top_cutoff, ground_cutoff=ground_cutoff,
         min_photons=min_photons,
     )
@@ -168,23 +165,24 @@ def blocks_cmd(ctx: click.Context, paths: tuple[str, ...], output: str,
 
 def estimators_from_options(preset: str | None, noise: str | None, ground: str | None,
                             top: str | None, min_signal_conf: int | None = None
-                            ) -> Estimators | None:
-    """The Estimators the options name, or None for the paper's engine as it is."""
+                            ) -> Estimators:
+    """The Estimators the options name.
+
+    ``preset`` None (not given): the recommended preset (``atl08``) when no part is
+    named, else the named parts (``noise``, ``ground``, ``top``) replacing those of the
+    paper's method; a given ``preset`` has its parts replaced by the named ones.
+    """
     from dataclasses import replace
 
+    from ..blocks.estimators import RECOMMENDED_PRESET
     from ..blocks.estimators import preset as named_preset
 
-    if preset is None and noise in (None, "sigma", "none") and ground in (None, "paper") \
-            and top in (None, "paper"):
-        return None
-    est = named_preset(preset or "paper")
-    changes: dict[str, Any] = {}
-    if noise is not None:
-        changes["noise"] = noise
-    if ground is not None:
-        changes["ground"] = ground
-    if top is not None:
-        changes["top"] = top
+    parts = {"noise": noise, "ground": ground, "top": top}
+    base = preset or ("paper" if any(v is not None for v in parts.values())
+                      else RECOMMENDED_PRESET)
+    est = named_preset(base)
+    changes: dict[str, Any] = {k: v for k, v in parts.items()
+                               if v is not None and v != getattr(est, k)}
     if min_signal_conf is not None and (noise == "conf" or est.noise == "conf"):
         changes["min_signal_conf"] = min_signal_conf
     if changes:

@@ -7,10 +7,13 @@ from typing import Any
 import click
 
 from .common import (
+    WIDTH_HELP,
     channel_option,
+    explicit_value,
     lengths_option,
     min_signal_conf_option,
     parse_channel,
+    preset_option,
     vertical_options,
 )
 from .progress_bars import progress_bar
@@ -36,18 +39,17 @@ from .progress_bars import progress_bar
 @channel_option
 @lengths_option(default="10, 25, 50")
 @min_signal_conf_option
-@click.option("--preset", type=click.Choice(["paper", "icesat2", "mabel"]), default=None,
-              help="--method bias: estimators the calibration is for (default paper).")
-@click.option("--noise", type=click.Choice(["sigma", "conf", "density", "none"]), default=None,
-              help="--method bias: noise filter overriding the preset's.")
+@preset_option("--method bias: the estimators the calibration is for; --method cutoffs "
+               "calibrates the paper's method's cut-offs whatever the default.")
+@click.option("--noise", type=click.Choice(["sigma", "conf", "density", "atl08", "none"]),
+              default=None, help="--method bias: noise filter overriding the preset's (without "
+              "--preset: replacing the paper's).")
 @click.option("--ground-estimator", type=click.Choice(["paper", "surface"]), default=None)
 @click.option("--top-estimator", type=click.Choice(["paper", "p95", "p98", "p99", "p100"]),
               default=None)
 @click.option("--kind", type=click.Choice(["additive", "linear"]), default="additive",
               show_default=True, help="--method bias: correction form.")
-@click.option("--width", type=float, default=None,
-              help="Corridor width, m (default 2 for cutoffs, 13 (the ICESat-2 footprint) "
-                   "for bias).")
+@click.option("--width", type=float, default=None, help=WIDTH_HELP)
 @click.option("--crs", default=None, help="Metric CRS for the photons (default: the DTM's).")
 @vertical_options
 @click.option("--photon-vcrs", default=None,
@@ -60,7 +62,7 @@ from .progress_bars import progress_bar
 def calibrate_cmd(ctx: click.Context, photons: str, method: str, dtm: str | None,
                   dsm_max: str | None, dsm_p90: str | None, reference: str,
                   points: tuple[str, ...], beams: tuple[str, ...], channel: str | None,
-                  lengths: tuple[float, ...], min_signal_conf: int | None, preset: str | None,
+                  lengths: tuple[float, ...], min_signal_conf: int | None, preset: str,
                   noise: str | None, ground_estimator: str | None,
                   top_estimator: str | None, kind: str, width: float | None, crs: str | None,
                   geoid: str | None, offset: float | None, photon_vcrs: str | None,
@@ -94,18 +96,19 @@ def calibrate_cmd(ctx: click.Context, photons: str, method: str, dtm: str | None
             check_output_path(output)  # fail before the work, not after it
     params = BlockParams(lengths=tuple(lengths) or (10.0, 25.0, 50.0),
                          min_signal_conf=min_signal_conf)
+    given_preset: str | None = explicit_value(ctx, "preset", preset)
     quiet = bool(ctx.obj and ctx.obj.get("quiet"))
     if method == "bias":
         _bias(photons, params, quiet=quiet, dtm=dtm, dsm_max=dsm_max, dsm_p90=dsm_p90,
               reference=reference, points=points, beams=beams, channel=channel,
-              preset=preset, noise=noise, ground_estimator=ground_estimator,
+              preset=given_preset, noise=noise, ground_estimator=ground_estimator,
               top_estimator=top_estimator, min_signal_conf=min_signal_conf, kind=kind,
-              width=13.0 if width is None else width, crs=crs, geoid=geoid, offset=offset,
+              width=width, crs=crs, geoid=geoid, offset=offset,
               photon_vcrs=photon_vcrs, output=output)
         return
     if dtm is None or dsm_max is None or dsm_p90 is None:
         raise InputError("--method cutoffs needs --dtm, --dsm-max and --dsm-p90")
-    if preset not in (None, "paper") or noise not in (None, "sigma") or \
+    if given_preset not in (None, "paper") or noise not in (None, "sigma") or \
             ground_estimator not in (None, "paper") or top_estimator not in (None, "paper"):
         raise InputError("--method cutoffs calibrates the paper's cut-offs; other estimators "
                          "are calibrated with --method bias")
@@ -114,7 +117,7 @@ def calibrate_cmd(ctx: click.Context, photons: str, method: str, dtm: str | None
     with progress_bar("calibrate", quiet=quiet) as progress:
         cal = calibrate_reference_rasters(
             photons, params, dtm=dtm, dsm_max=dsm_max, dsm_p90=dsm_p90,
-            width=2.0 if width is None else width, beam=beams[0] if beams else None,
+            width=width, beam=beams[0] if beams else None,
             channel=parse_channel(channel), crs=crs, geoid=geoid, offset=offset,
             progress=progress)
     # the table is the command's result: on stdout, unless -q and it went to a file
@@ -139,13 +142,13 @@ def _bias(photons: str, params: object, *, quiet: bool, output: str | None,
           preset: str | None, noise: str | None, ground_estimator: str | None,
           top_estimator: str | None, min_signal_conf: int | None, channel: str | None,
           photon_vcrs: str | None, **kw: Any) -> None:
-    from ..blocks.estimators import preset as named_preset
+    from ..blocks.estimators import PRESETS
     from ..validation.bias_calibration import write_bias_calibration
     from ..workflows.calibrate import calibrate_bias_file
     from .blocks import estimators_from_options
 
     est = estimators_from_options(preset, noise, ground_estimator, top_estimator,
-                                  min_signal_conf) or named_preset("paper")
+                                  min_signal_conf)
     with progress_bar("calibrate", quiet=quiet) as progress:
         cal = calibrate_bias_file(photons, params, est,  # type: ignore[arg-type]
                                   channel=parse_channel(channel),
@@ -159,7 +162,7 @@ def _bias(photons: str, params: object, *, quiet: bool, output: str | None,
         write_bias_calibration(cal, output)
         if not quiet:
             click.echo(f"canopyblocks: apply it with `canopyblocks blocks PHOTONS --preset "
-                       f"{est.name if est.name in ('paper', 'icesat2', 'mabel') else '...'} "
+                       f"{est.name if est.name in PRESETS else '...'} "
                        f"--calibration {output}`", err=True)
 
 

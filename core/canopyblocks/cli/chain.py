@@ -6,10 +6,13 @@ from __future__ import annotations
 import click
 
 from .common import (
+    WIDTH_HELP,
     channel_option,
+    explicit_value,
     lengths_option,
     min_signal_conf_option,
     parse_channel,
+    preset_option,
     vertical_options,
 )
 from .progress_bars import progress_bar
@@ -56,26 +59,24 @@ from .vocabulary import deprecated_option, say_deprecated, take_alias
 @lengths_option(default="10, 25, 50")
 @min_signal_conf_option
 @click.option("--width", type=float, default=None,
-              help="Corridor width, m (default 2; the footprint diameter when simulated).")
+              help=WIDTH_HELP[:-2] + "; the footprint diameter when simulated).")
 @click.option("--resolution", type=float, default=2.0, show_default=True,
               help="Reference raster cell size, m.")
 @click.option("--smrf", is_flag=True, help="Classify ground with PDAL's SMRF (unclassified tiles).")
 @vertical_options
 @click.option("--calibrate", is_flag=True,
               help="Also fit the cut-offs to the reference and validate again with them.")
-@click.option("--preset", "estimator_preset",
-              type=click.Choice(["paper", "icesat2", "mabel", "atl08",
-                                 "boreal", "temperate", "tropical"]), default=None,
-              help="Block estimators, as blocks --preset (default the paper's; with it the "
-                   "recommended ones are computed too, see --compare). The photon-rate "
-                   "names are deprecated here: use --photon-rate.")
+@preset_option("With another preset the recommended ones are computed too (see "
+               "--compare). The photon-rate names are deprecated here: use --photon-rate.",
+               dest="estimator_preset", extra_choices=("boreal", "temperate", "tropical"))
 @deprecated_option("--estimators", "old_estimators",
                    type=click.Choice(["paper", "icesat2", "mabel", "atl08"]))
 @click.option("--calibration", type=click.Path(dir_okay=False), default=None,
               help="Bias calibration JSON to apply to the blocks (fitted for --preset).")
 @click.option("--compare/--no-compare", default=True, show_default=True,
-              help="With the paper's estimators, also validate the recommended estimators "
-                   "and fit their bias calibration; the report leads with them.")
+              help="Also validate the paper's method beside the recommended estimators "
+                   "(atl08), in a section of its own; with another --preset, the recommended "
+                   "estimators beside it (the report leads with them).")
 @click.option("--coregister", is_flag=True,
               help="Find the track's geolocation offset against the DTM/DSM and validate the "
                    "shifted blocks (offsets.json, layer stats_uncorrected).")
@@ -91,7 +92,7 @@ def run_cmd(ctx: click.Context, tiles: tuple[str, ...], out_dir: str, photons: s
             azimuth: float, diameter: float, photon_rate: str, seed: int,
             lengths: tuple[float, ...], min_signal_conf: int | None, width: float | None,
             resolution: float, smrf: bool, geoid: str | None, offset: float | None,
-            calibrate: bool, realisations: int, estimator_preset: str | None,
+            calibrate: bool, realisations: int, estimator_preset: str,
             old_estimators: str | None,
             calibration: str | None, compare: bool, coregister: bool,
             footprint_reference: bool, sensor: str, esfl_noise: float | None,
@@ -111,11 +112,12 @@ def run_cmd(ctx: click.Context, tiles: tuple[str, ...], out_dir: str, photons: s
                               ("--dual-noise", dual_noise, "dual")):
         if value is not None and sensor != want:
             raise click.BadParameter(f"applies to --sensor {want} only", param_hint=name)
-    estimator_preset = take_alias(estimator_preset, old_estimators, old="--estimators",
-                                  new="--preset")
+    estimator_preset = take_alias(explicit_value(ctx, "estimator_preset", estimator_preset),
+                                  old_estimators, old="--estimators",
+                                  new="--preset") or RECOMMENDED_PRESET
     if estimator_preset in ("boreal", "temperate", "tropical"):  # the old meaning of --preset
         say_deprecated(f"--preset {estimator_preset}", f"--photon-rate {estimator_preset}")
-        photon_rate, estimator_preset = estimator_preset, None
+        photon_rate, estimator_preset = estimator_preset, RECOMMENDED_PRESET
     params = BlockParams(lengths=tuple(lengths) or (10.0, 25.0, 50.0),
                          min_signal_conf=min_signal_conf)
     quiet = bool(ctx.obj and ctx.obj.get("quiet"))
@@ -127,8 +129,7 @@ def run_cmd(ctx: click.Context, tiles: tuple[str, ...], out_dir: str, photons: s
                            seed=seed, params=params, width=width, resolution=resolution,
                            ground="smrf" if smrf else "class2", geoid=geoid, offset=offset,
                            calibrate=calibrate, realisations=realisations,
-                           estimators=None if estimator_preset in (None, "paper")
-                           else named_preset(estimator_preset),
+                           estimators=named_preset(estimator_preset),
                            calibration=calibration,
                            compare_preset=RECOMMENDED_PRESET if compare else None,
                            coregister=coregister, footprint_reference=footprint_reference,

@@ -36,7 +36,8 @@ from .signals import (
     _signals_handled,
 )
 
-__all__ = ["lengths_option", "channel_option", "min_signal_conf_option", "vertical_options",
+__all__ = ["lengths_option", "channel_option", "preset_option", "PRESET_CHOICES",
+           "explicit_value", "WIDTH_HELP", "min_signal_conf_option", "vertical_options",
            "parse_floats", "parse_channel", "run_main", "setup_logging", "progress_bar", "summary",
            "is_quiet", "EXIT_OK", "EXIT_BAD_INPUT", "EXIT_BUG", "EXIT_SIGINT", "EXIT_SIGTERM"]
 
@@ -48,6 +49,40 @@ def lengths_option(default: str) -> Callable[[F], F]:
     """``--length`` (repeatable, metres) -> ``lengths: tuple[float, ...]``."""
     return click.option("--length", "lengths", multiple=True, type=float,
                         help=f"Block length, m; repeat for several (default {default}).")
+
+
+#: The block estimator presets every command offers, the default first (the names of
+#: ``blocks.estimators.PRESETS``; kept here so that ``--help`` needs no numerical import:
+#: tests/test_defaults_walk.py checks they are the same).
+PRESET_CHOICES: tuple[str, ...] = ("atl08", "paper", "icesat2", "mabel")
+DEFAULT_PRESET = PRESET_CHOICES[0]
+PRESET_HELP = ("Block estimators: atl08 (the recommended: photons classified as ATL08 does; "
+               "ground = its ground surface, Hmax = 98th percentile of the canopy heights "
+               "above it), paper (the paper's method), icesat2 (density filter, the paper's "
+               "ground window, 98th-percentile top), mabel (density filter, ground surface, "
+               "98th-percentile top).")
+
+
+#: ``--width`` help: the rule of ``reference.sensor_width`` (the same numbers; checked by
+#: tests/test_defaults_walk.py).
+WIDTH_HELP = ("Corridor width, m (default: the footprint of the photons' sensor: ICESat-2 "
+              "13, MABEL 2; a photon table of no known sensor needs it).")
+
+
+def preset_option(extra_help: str = "", *, dest: str = "preset",
+                  extra_choices: tuple[str, ...] = ()) -> Callable[[F], F]:
+    """``--preset``: the block estimators, the same names and default in every command."""
+    return click.option("--preset", dest, type=click.Choice([*PRESET_CHOICES, *extra_choices]),
+                        default=DEFAULT_PRESET, show_default=True,
+                        help=f"{PRESET_HELP} {extra_help}".strip())
+
+
+def explicit_value(ctx: click.Context, name: str, value: Any) -> Any:
+    """``value`` when the user gave option ``name`` (parameter name), None when it is the
+    option's default."""
+    from click.core import ParameterSource
+
+    return None if ctx.get_parameter_source(name) == ParameterSource.DEFAULT else value
 
 
 channel_option = click.option("--channel", default=None,

@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from .common import vertical_options
+from .common import WIDTH_HELP, vertical_options
 from .vocabulary import deprecated_option, deprecated_value, take_alias
 
 if TYPE_CHECKING:
@@ -48,8 +48,7 @@ def register(group: click.Group) -> None:
 @click.option("--points-crs", help="CRS of tiles that state none.")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Output .gpkg (layers residuals, stats), or .csv/.parquet.")
-@click.option("--width", type=float, default=2.0, show_default=True,
-              help="Corridor width, m (use the footprint, 13-17 m, for ICESat-2).")
+@click.option("--width", type=float, default=None, help=WIDTH_HELP)
 @vertical_options
 @click.option("--reference-vcrs", help="Vertical/compound CRS of the rasters, e.g. "
               "EPSG:32612+5703 (default: the DTM's CRS).")
@@ -79,7 +78,7 @@ def validate(ctx: click.Context, blocks_path: str, dtm: str | None, dsm_max: str
              dsm_p90: str | None, atl08: str | None, reference: str | None,
              points: tuple[str, ...], diameter: float | None, cut: float | None,
              weighting: str | None, points_crs: str | None,
-             output: str, width: float, geoid: str | None, offset: float | None,
+             output: str, width: float | None, geoid: str | None, offset: float | None,
              reference_vcrs: str | None, photon_vcrs: str, slope_threshold: float,
              blocks_crs: str | None, coregister: bool, coregister_vertical: bool,
              search_range: float, old_range: float | None, coregister_photons: str | None,

@@ -118,17 +118,28 @@ def _write_one(df: pd.DataFrame | Iterable[pd.DataFrame], tmp: Path, suf: str,
         out.to_csv(tmp, index=False, float_format="%.4f")
 
 
+#: GeoPackage version of the files we create: 1.2, which every GDAL since 2.2 reads
+#: without a word (GDAL >= 3.7 writes 1.4 by default, and the GDAL 3.6 of QGIS 3.40 warns
+#: that a 1.4 file "may only be partially supported").
+GPKG_VERSION = "1.2"
+
+
 def _write_gpkg(df: pd.DataFrame, tmp: Path, layer: str, append: bool = False) -> None:
+    new_file = not append and not tmp.exists()
     if isinstance(df, gpd.GeoDataFrame):
         kw = _gpkg_writer()
         if append:
             kw = {**kw, "mode": "a"}
+        if new_file and kw.get("engine") == "pyogrio":
+            kw = {**kw, "dataset_options": {"VERSION": GPKG_VERSION}}
         df.to_file(tmp, layer=layer, driver="GPKG", **kw)
     else:  # attribute-only table (e.g. stats): a GeoPackage table without geometry
         import pyogrio
 
         pyogrio.write_dataframe(pd.DataFrame(df), tmp, layer=layer, driver="GPKG",
-                                append=append)
+                                append=append,
+                                dataset_options={"VERSION": GPKG_VERSION} if new_file
+                                else None)
 
 
 def write_table(df: pd.DataFrame, path: str | os.PathLike[str], *, layer: str = LAYER_BLOCKS,

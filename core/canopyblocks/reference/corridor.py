@@ -41,6 +41,7 @@ from shapely.geometry import LineString
 from shapely.ops import substring
 
 from ..errors import CRSError, InputError
+from .sensor_width import corridor_width
 
 __all__ = ["block_corridors", "track_polyline", "positions_at", "CORRIDOR_ID_COLUMNS"]
 
@@ -147,7 +148,7 @@ def _pieces_from_line(line: LineString, line_s0: float, s_start: np.ndarray,
     return out
 
 
-def block_corridors(blocks: pd.DataFrame, *, width: float = 2.0,
+def block_corridors(blocks: pd.DataFrame, *, width: float | None = None,
                     track_line: LineString | None = None,
                     line_s0: float = 0.0) -> gpd.GeoDataFrame:
     """One corridor polygon per block, cut at the block edges.
@@ -157,9 +158,10 @@ def block_corridors(blocks: pd.DataFrame, *, width: float = 2.0,
     blocks : GeoDataFrame
         Block table (``canopyblocks.schema.BLOCK_COLUMNS``), centres ``x``/``y`` in the
         track's metric CRS (the GeoDataFrame's CRS).
-    width : float
-        Full corridor width, metres (default 2 m: 1 m each side, MABEL's footprint;
-        use the footprint diameter, 13-17 m, for ICESat-2).
+    width : float, optional
+        Full corridor width, metres; default the footprint of the blocks' sensor
+        (:func:`~canopyblocks.reference.sensor_width.corridor_width`: ICESat-2 13 m, MABEL
+        2 m, known from the ``track`` ids); tracks of no known sensor need it.
     track_line : LineString, optional
         The track line in the blocks' CRS.  Its arc length plus ``line_s0`` is ``s``.
         Default: the polyline through the block centres (see module notes).
@@ -180,10 +182,11 @@ def block_corridors(blocks: pd.DataFrame, *, width: float = 2.0,
     """
     from ..arguments import check_frame
     check_frame(blocks, "block_corridors: blocks", "a block table (DataFrame)")
-    width = float(width)
-    if not np.isfinite(width) or width <= 0:
-        raise InputError(f"corridor width must be a positive number of metres, got {width!r}")
     _require_columns(blocks, CORRIDOR_ID_COLUMNS, "the block table")
+    if width is not None:
+        width = float(width)
+    width = corridor_width(width, pd.unique(blocks["track"].astype(str)),
+                           source="the block table")
     crs = getattr(blocks, "crs", None)
     if crs is not None and not crs.is_projected:
         raise CRSError(

@@ -146,7 +146,8 @@ def require_plausible_reference(residuals: pd.DataFrame,
 
 def validate_blocks(blocks: gpd.GeoDataFrame, *, dtm: str | os.PathLike[str],
                     dsm_max: str | os.PathLike[str], dsm_p90: str | os.PathLike[str],
-                    width: float = 2.0, geoid: str | os.PathLike[str] | None = None,
+                    width: float | None = None,
+                    geoid: str | os.PathLike[str] | None = None,
                     offset: float | None = None, reference_vertical_crs: object = None,
                     photon_vertical_crs: object = None, slope_threshold: float = 2.0,
                     all_touched: bool = True, ground_stat: str = "mean",
@@ -160,8 +161,9 @@ def validate_blocks(blocks: gpd.GeoDataFrame, *, dtm: str | os.PathLike[str],
         Block table in the track's metric CRS.
     dtm, dsm_max, dsm_p90 : path
         Reference GeoTIFFs on one grid (metres).
-    width : float
-        Corridor width, metres (2 m default; the footprint for ICESat-2).
+    width : float, optional
+        Corridor width, metres; default the footprint of the blocks' sensor (ICESat-2
+        13 m, MABEL 2 m: :func:`~canopyblocks.reference.sensor_width.corridor_width`).
     geoid, offset
         Vertical conversion of the photon heights (see ``reference.datum``).
     reference_vertical_crs : CRS-like, optional
@@ -205,11 +207,12 @@ def validate_blocks(blocks: gpd.GeoDataFrame, *, dtm: str | os.PathLike[str],
 
 
 def validate_atl08(blocks: gpd.GeoDataFrame, atl08: str | os.PathLike[str], *,
-                   width: float = 2.0, max_distance: float | None = None,
+                   width: float | None = None, max_distance: float | None = None,
                    progress: Progress | None = None) -> ValidationResult:
     """Validate photon blocks against ATL08 land segments (heights stay ellipsoidal).
 
-    The residual layer's geometry is the block corridor (``width`` metres).
+    The residual layer's geometry is the block corridor (``width`` metres; default the
+    footprint of the blocks' sensor).
     """
     _check_blocks(blocks)
     prog = as_progress(progress)

@@ -143,8 +143,8 @@ def run_blocks(
     """Block table of several tracks (concatenated) and, optionally, their labels.
 
     ``estimators`` (DESIGN 1.10; e.g. ``blocks.estimators.preset("icesat2")``) chooses
-    the noise filter, ground and top estimators; None runs the paper's engine as it is
-    (no ``estimators`` column), bit for bit.
+    the noise filter, ground and top estimators; None: the recommended ones (the
+    ``atl08`` preset); ``preset("paper")`` runs the paper's method, bit for bit.
     """
     prog = as_progress(progress)
     frames: list[gpd.GeoDataFrame] = []
@@ -275,7 +275,8 @@ def blocks_from_file(
     params : BlockParams
         Block lengths, noise filter, cut-offs.
     estimators : Estimators, optional
-        Estimators beyond the paper's (DESIGN 1.10), e.g. the ``icesat2`` preset.
+        The block estimators (DESIGN 1.10); default the recommended ones (the ``atl08``
+        preset); ``preset("paper")`` for the paper's method.
     calibration : BiasCalibration or path, optional
         Bias calibration (``canopyblocks calibrate --method bias``) applied to hmax/h90
         (and top/z90); refused when fitted with other estimators.

@@ -23,7 +23,7 @@ import geopandas as gpd
 import numpy as np
 import pandas as pd
 
-from ..blocks import BlockParams, compute_blocks
+from ..blocks import BlockParams
 from ..errors import CanopyBlocksWarning, InputError, NoUsableDataError
 from ..photons import PhotonTrack
 from ..progress import Progress, as_progress
@@ -223,16 +223,15 @@ def _require_signal(track: PhotonTrack, level: int) -> None:
 def blocks_of_track(track: PhotonTrack, params: BlockParams, *, labels: bool = False,
                     estimators: Estimators | None = None, progress: Progress | None = None
                     ) -> tuple[gpd.GeoDataFrame, dict[float, np.ndarray] | None]:
-    """The block table of one track and, with ``labels``, its per-photon labels."""
-    if estimators is not None:
-        from ..blocks.estimators import estimate_blocks
+    """The block table of one track and, with ``labels``, its per-photon labels
+    (``estimators`` None: the recommended ones, :func:`~canopyblocks.blocks.estimators.
+    default_estimators`)."""
+    from ..blocks.estimators import default_estimators, estimate_blocks
 
-        if labels:
-            return estimate_blocks(track, params, estimators, labels=True, progress=progress)
-        return estimate_blocks(track, params, estimators, progress=progress), None
+    est = default_estimators(track.track) if estimators is None else estimators
     if labels:
-        return compute_blocks(track, params, labels=True, progress=progress)
-    return compute_blocks(track, params, progress=progress), None
+        return estimate_blocks(track, params, est, labels=True, progress=progress)
+    return estimate_blocks(track, params, est, progress=progress), None
 
 
 def concat_blocks(frames: Sequence[pd.DataFrame], crs: Any) -> gpd.GeoDataFrame:

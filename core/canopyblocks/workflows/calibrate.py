@@ -31,14 +31,14 @@ __all__ = ["calibrate_bias_file"]
 def calibrate_bias_file(
     photons: str | os.PathLike[str],
     params: BlockParams,
-    estimators: Estimators,
+    estimators: Estimators | None = None,
     *,
     dtm: str | os.PathLike[str] | None = None,
     dsm_max: str | os.PathLike[str] | None = None,
     dsm_p90: str | os.PathLike[str] | None = None,
     points: Sequence[str | os.PathLike[str]] = (),
     reference: str = "corridor",
-    width: float = 13.0,
+    width: float | None = None,
     beams: Sequence[str] = (),
     channel: int | str | None = None,
     crs: Any = None,
@@ -57,15 +57,16 @@ def calibrate_bias_file(
         ATL03 / MABEL / photon table (every beam, or ``beams``).
     params : BlockParams
         Block lengths (one model per length).
-    estimators : Estimators
+    estimators : Estimators, optional
         The estimators the calibration is valid for (recorded; applying it to blocks made
-        with others is refused).
+        with others is refused); default the recommended ones (the ``atl08`` preset).
     dtm, dsm_max, dsm_p90 : path
         Corridor reference rasters (``reference="corridor"``).
     points : sequence of path
         Airborne tiles (``reference="footprint"``: footprint-matched reference).
-    width : float
-        Corridor width (m) of the raster reference; recorded.
+    width : float, optional
+        Corridor width (m) of the raster reference; recorded. Default the footprint of
+        the photons' sensor (ICESat-2 13 m, MABEL 2 m).
     kind : "additive" or "linear"
     by_strength : bool
         One model per beam strength (ATL03 strong/weak); else one for all tracks.
@@ -75,6 +76,8 @@ def calibrate_bias_file(
     BiasCalibration
         Write it with :func:`~canopyblocks.validation.bias_calibration.write_bias_calibration`.
     """
+    from ..blocks.estimators import default_estimators
+    from ..reference.sensor_width import corridor_width
     from ..validation.block_validation import raster_horizontal_crs, validate_blocks
     from .blocks import read_tracks, run_blocks, track_strengths
 
@@ -90,6 +93,10 @@ def calibrate_bias_file(
         crs = None if horizontal is None else horizontal.to_wkt()
     tracks = read_tracks(photons, beams=beams, channel=channel, crs=crs,
                          min_signal_conf=params.min_signal_conf, progress=prog.sub(0.0, 0.2))
+    if estimators is None:
+        estimators = default_estimators(tracks[0].track if tracks else None)
+    if reference == "corridor":
+        width = corridor_width(width, [t.track for t in tracks], source=str(photons))
     blocks, _ = run_blocks(tracks, params, estimators=estimators, progress=prog.sub(0.2, 0.5))
     if reference == "footprint":
         from ..reference.footprint_params import FootprintReferenceParams
@@ -127,7 +134,7 @@ def calibrate_reference_rasters(
     dtm: str,
     dsm_max: str,
     dsm_p90: str,
-    width: float = 2.0,
+    width: float | None = None,
     beam: str | None = None,
     channel: int | str | None = None,
     crs: object = None,
@@ -135,7 +142,8 @@ def calibrate_reference_rasters(
     offset: float | None = None,
     progress: Progress | None = None,
 ) -> CutoffCalibration:
-    """Read one track, compute blocks, take reference values from the rasters, calibrate.
+    """Read one track, compute blocks with the paper's method, take reference values from
+    the rasters, and calibrate the paper's cut-offs.
 
     Parameters
     ----------
@@ -145,11 +153,13 @@ def calibrate_reference_rasters(
         Lengths and everything but the cut-offs.
     dtm, dsm_max, dsm_p90 : path
         Reference GeoTIFFs on one grid (metres).
-    width : float
-        Corridor width, metres.
+    width : float, optional
+        Corridor width, metres; default the footprint of the photons' sensor (ICESat-2
+        13 m, MABEL 2 m).
     crs : CRS-like, optional
         Metric CRS for the photons; default the DTM's horizontal CRS.
     """
+    from ..blocks.estimators import preset
     from ..validation.block_validation import raster_horizontal_crs, validate_blocks
     from .blocks import read_tracks, run_blocks
 
@@ -161,7 +171,8 @@ def calibrate_reference_rasters(
                          crs=crs, min_signal_conf=params.min_signal_conf,
                          progress=prog.sub(0.0, 0.1))
     track = tracks[0]
-    blocks, _ = run_blocks([track], params, progress=prog.sub(0.1, 0.2))
+    blocks, _ = run_blocks([track], params, estimators=preset("paper"),
+                           progress=prog.sub(0.1, 0.2))
     val = validate_blocks(blocks, dtm=dtm, dsm_max=dsm_max, dsm_p90=dsm_p90, width=width,
                           geoid=geoid, offset=offset, progress=prog.sub(0.2, 0.5))
     return calibrate_against_reference(track, val.residuals, params, progress=prog.sub(0.5, 1.0))

@@ -17,10 +17,11 @@ import pandas as pd
 
 from ..atomic import check_writable, new_files_removed_on_failure
 from ..blocks import BlockParams
-from ..blocks.estimators import RECOMMENDED_PRESET
+from ..blocks.estimators import RECOMMENDED_PRESET, preset
 from ..errors import FileFormatError, InputError
 from ..outputs.tables import write_layers, write_table
 from ..progress import Progress, as_progress
+from ..reference.sensor_width import corridor_width
 from ..schema import LAYER_RESIDUALS, LAYER_STATS
 from .blocks import blocks_from_file
 from .chain_figures import BiasOffer, EstimatorSet, chain_figures
@@ -120,8 +121,9 @@ def run_chain(
     params : BlockParams, optional
         Default: lengths 10, 25 and 50 m (seed 001).
     width : float, optional
-        Corridor width, m; default 2 m for real photons and the footprint diameter for
-        simulated ones (an ICESat-2 footprint is 13-17 m wide).
+        Corridor width, m; default the footprint of the photons' sensor (ICESat-2 13 m,
+        MABEL 2 m: :mod:`canopyblocks.reference.sensor_width`; a photon table of no known
+        sensor needs it) and ``diameter`` for simulated photons.
     resolution : float
         Reference raster cell size, m.
     geoid, offset
@@ -135,7 +137,8 @@ def run_chain(
         blocks with them and validate again: layers ``residuals_calibrated`` and
         ``stats_calibrated``, table ``calibration.csv`` with held-out RMSEs.
     estimators : Estimators, optional
-        Block estimators (DESIGN 1.10; default the paper's).
+        Block estimators (DESIGN 1.10); default the recommended ones (the ``atl08``
+        preset); ``preset("paper")`` for the paper's method.
     calibration : path or BiasCalibration, optional
         Bias calibration applied to the blocks.
     compare_preset : str, optional
@@ -212,7 +215,6 @@ def run_chain(
             # simulated heights are the tiles' own heights: same vertical datum by construction
             offset, geoid, photon_vcrs = 0.0, None, _tiles_crs(tiles) or crs
             width = diameter if width is None else width
-        width = 2.0 if width is None else width
         ref_vcrs = _tiles_crs(tiles)
         if not simulated:  # the one datum rule, before minutes of work (validate applies it too)
             from ..reference.datum import check_vertical_datums
@@ -225,6 +227,7 @@ def run_chain(
                                crs=crs, output=out / "blocks.gpkg", with_photons=True,
                                progress=prog.sub(0.25, 0.4))
         blocks = res.blocks
+        width = corridor_width(width, res.track_ids, source=str(photons))
         prog.update(0.4, "reference rasters (PDAL)")
         rasters = make_reference_rasters(tiles, out / "rasters", resolution=resolution,
                                          crs=blocks.crs, ground=ground,  # type: ignore[arg-type]
@@ -249,7 +252,7 @@ def run_chain(
         fkw: dict[str, Any] = {"geoid": geoid, "offset": offset,
                                "photon_vertical_crs": photon_vcrs,
                                "reference_vertical_crs": ref_vcrs}
-        primary = "paper" if estimators is None else (estimators.name or "custom")
+        primary = RECOMMENDED_PRESET if estimators is None else (estimators.name or "custom")
         sets = {primary: EstimatorSet(primary, blocks, res.labels, "",
                                       val.residuals, val.stats)}
         if footprint_reference:
@@ -274,7 +277,7 @@ def run_chain(
 
             prog.update(0.9, "calibrating cut-offs")
             cutoffs, edges = _calibrated_cutoffs(res.tracks[0], val.residuals, params)
-            blocks_c, _ = run_blocks(res.tracks, cutoffs.params)
+            blocks_c, _ = run_blocks(res.tracks, cutoffs.params, estimators=preset("paper"))
             val_c = validate_blocks(blocks_c, dtm=rasters.dtm, dsm_max=rasters.dsm_max,
                                     dsm_p90=rasters.dsm_p90, **vkw)
             layers.update({f"{LAYER_RESIDUALS}_calibrated": val_c.residuals,
@@ -401,7 +404,6 @@ def _compare_preset(name: str, tracks: Any, params: BlockParams, rasters: Any,
                     vkw: dict[str, Any], prog: Progress) -> EstimatorSet:
     """The blocks made with preset ``name`` (with their photon labels), validated against
     the corridor maximum."""
-    from ..blocks.estimators import preset
     from ..validation.block_validation import validate_blocks
     from .blocks import run_blocks
 

@@ -153,7 +153,7 @@ def validate_file(
     atl08: str | os.PathLike[str] | None = None,
     points: Sequence[str | os.PathLike[str]] = (),
     footprint_params: Any = None,
-    width: float = 2.0,
+    width: float | None = None,
     geoid: str | os.PathLike[str] | None = None,
     offset: float | None = None,
     reference_vertical_crs: Any = None,
@@ -188,8 +188,10 @@ def validate_file(
         Airborne LAS/LAZ tiles (``reference="footprint"`` and footprint tables).
     footprint_params : FootprintReferenceParams, optional
         Default: ICESat-2 (13 m) for blocks, GEDI (22 m) for footprints.
-    width : float
-        Corridor width (m) for the raster reference.
+    width : float, optional
+        Corridor width (m) for the raster reference; default the footprint of the
+        blocks' sensor (ICESat-2 13 m, MABEL 2 m, known from the track ids); a table of
+        no known sensor needs it.
     geoid, offset, reference_vertical_crs, photon_vertical_crs
         The datum rule (DESIGN 2.6): known-different datums without a conversion are
         refused.
@@ -366,7 +368,8 @@ def _check_reference_inputs(reference: str, dtm: object, dsm_max: object, dsm_p9
 
 def _validate(kind: str, table: pd.DataFrame, reference: str, dtm: Any, dsm_max: Any,
               dsm_p90: Any, atl08: Any, points: Sequence[Any], footprint_params: Any,
-              width: float, geoid: Any, offset: float | None, reference_vertical_crs: Any,
+              width: float | None, geoid: Any, offset: float | None,
+              reference_vertical_crs: Any,
               photon_vertical_crs: Any, slope_threshold: float, points_crs: Any,
               prog: Progress, pixels: pd.DataFrame | None = None
               ) -> tuple[pd.DataFrame, pd.DataFrame, str]:

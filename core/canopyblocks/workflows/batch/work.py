@@ -10,14 +10,16 @@ from __future__ import annotations
 import logging
 import traceback
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pyproj
 
+from ...blocks.estimators import RECOMMENDED_PRESET
 from ...errors import CanopyBlocksError, NoUsableDataError
+from ...reference.sensor_width import sensor_width
 from .units import Tile, Unit
 
 __all__ = ["BatchConfig", "run_unit", "raster_paths", "build_tile_rasters"]
@@ -36,9 +38,11 @@ class BatchConfig:
     lengths : tuple of float
         Block lengths.
     width : float
-        Corridor width for the validation (the footprint for ICESat-2).
+        Corridor width for the validation; default the footprint of the granules'
+        sensor (ICESat-2, 13 m: :mod:`canopyblocks.reference.sensor_width`).
     preset : str
-        Block estimators (``paper``, ``icesat2``, ``mabel``).
+        Block estimators (``atl08``, the default and recommended; ``paper``, the paper's
+        method; ``icesat2``; ``mabel``).
     min_signal_conf : int or None
         ATL03 confidence threshold applied when reading.
     offset : float or None
@@ -50,8 +54,8 @@ class BatchConfig:
     """
 
     lengths: tuple[float, ...] = (25.0,)
-    width: float = 13.0
-    preset: str = "paper"
+    width: float = field(default_factory=lambda: sensor_width("ICESat-2"))
+    preset: str = RECOMMENDED_PRESET
     min_signal_conf: int | None = None
     offset: float | None = None
     geoid: str | None = None
