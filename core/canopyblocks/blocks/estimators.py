@@ -41,7 +41,8 @@ import numpy as np
 
 from ..errors import InputError, SparseBlockWarning
 from ..schema import LABEL_BETWEEN, LABEL_CANOPY, LABEL_GROUND, LABEL_NOISE
-from .atl08_classify import CLASS_COLUMN, Atl08Params, classify_photons
+from .atl08_classify import CLASS_COLUMN, Atl08Params
+from .background_check import classify_photons
 from .density_filter import DensityParams, density_filter
 from .ground_surface import GroundSurfaceParams, block_mean_ground, fit_ground_surface
 from .grouped import percentile_by_group
@@ -225,7 +226,7 @@ def estimate_blocks(track: PhotonTrack, params: BlockParams | None = None,
     work = track
     removed = None
     if est.noise == "atl08":
-        classes = classify_photons(track, est.atl08)
+        classes = classify_photons(track, est.atl08)  # after the background-rate check
         if labels:  # the photon layer's ATL08-style column (classed_pc_flag)
             track.extra[CLASS_COLUMN] = classes.classes
         if est.ground == "atl08":
