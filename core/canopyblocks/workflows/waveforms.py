@@ -62,8 +62,8 @@ def _refuse_if_all_invalid(path: Any, table: pd.DataFrame, problems: int) -> Non
 
 
 def _terrain_filter(table: pd.DataFrame) -> pd.DataFrame:
-    """Seed-003 terrain outliers along one whole beam (time order), flagged."""
-    from ..waveforms.terrain_filter import terrain_outliers
+    """GEDI terrain outliers along one whole beam (time order), flagged."""
+    from ..waveforms.gedi_outliers import gedi_outliers
 
     if table.empty:
         return table
@@ -75,7 +75,8 @@ def _terrain_filter(table: pd.DataFrame) -> pd.DataFrame:
     z = np.where(usable, ground, np.nan)[order]
     h = np.where(usable, height, np.nan)[order]
     outlier = np.zeros(len(table), dtype=bool)
-    outlier[order] = terrain_outliers(z, h)
+    lon, lat = table["lon"].to_numpy(float)[order], table["lat"].to_numpy(float)[order]
+    outlier[order] = gedi_outliers(z, h, lon, lat)
     flag = flag.copy()
     flag[outlier & (flag == "ok")] = "terrain_outlier"
     return table.assign(flag=flag)
