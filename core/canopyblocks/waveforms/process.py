@@ -40,13 +40,13 @@ from .batch import WaveformBatch
 from .cover import cover_and_penetration
 from .details import ShotDetails
 from .extent import signal_extent
+from .gedi_outliers import gedi_outliers
 from .modes import energetic_modes, lowest_mode, mode_mask
 from .profile import bottom_first
 from .rh import energy_positions, signal_energy, truncate_cm
 from .scan import Scan, scan_shots
 from .settings import WaveformParams
 from .smoothing import smooth_subsampled
-from .gedi_outliers import gedi_outliers
 
 if TYPE_CHECKING:
     import geopandas as gpd
