@@ -163,7 +163,10 @@ def run_batch(granules: Sequence[str | os.PathLike[str]],
     check_paths(granules, "run_batch: granules")
     check_paths(tiles, "run_batch: tiles")
     check_path(out_dir, "run_batch: out_dir", "a folder path")
-    cfg = config or BatchConfig()
+    cfg = BatchConfig() if config is None else config
+    if not isinstance(cfg, BatchConfig):
+        raise InputError(f"run_batch: config must be a BatchConfig (e.g. BatchConfig(offset=0.0)) "
+                         f"or None; got {type(cfg).__name__} {str(cfg)[:60]}")
     prog = as_progress(progress)
     if backend not in BACKENDS:
         raise InputError(f"backend must be one of {', '.join(BACKENDS)}; got {backend!r}")
