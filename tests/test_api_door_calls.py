@@ -76,3 +76,18 @@ def test_blocks_doors(tmp_path: Path) -> None:
     assert "(start, end)" in _refused(blocks_from_granules, [CLIP], None,
                                       output=tmp_path / "g.csv", time_range=("2022-04-01",))
     assert "seconds" in _refused(utc_from_delta_time, ["a"])
+
+
+def test_waveform_elevations_in_feet_are_refused() -> None:
+    from canopyblocks import process_waveforms
+    from canopyblocks.waveforms.batch import WaveformBatch
+    b = _batch()
+    kw = {f.name: getattr(b, f.name) for f in dataclasses.fields(b)}
+    ok = process_waveforms(b)
+    assert np.isfinite(ok["ground"]).all()  # the metric batch: processed
+    feet = WaveformBatch(**{**kw, "elev_bin0": b.elev_bin0 / 0.3048,
+                            "elev_lastbin": b.elev_lastbin / 0.3048})
+    assert "feet" in _refused(process_waveforms, feet)
+    far = WaveformBatch(**{**kw, "elev_bin0": b.elev_bin0 + 1e6,
+                           "elev_lastbin": b.elev_lastbin + 1e6})
+    assert "outside any Earth surface" in _refused(process_waveforms, far)
