@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING, Literal, overload
 
 import numpy as np
 
-from ..errors import InputError, SparseBlockWarning
+from ..errors import InputError, NoUsableDataError, SparseBlockWarning
 from ..schema import LABEL_BETWEEN, LABEL_CANOPY, LABEL_GROUND, LABEL_NOISE
 from .atl08_classify import CLASS_COLUMN, Atl08Params
 from .background_check import classify_photons
@@ -253,6 +253,12 @@ def estimate_blocks(track: PhotonTrack, params: BlockParams | None = None,
                  "photons/m^2)", track.track, 100 * res.background_share, len(track),
                  float(np.median(res.rate)) if res.rate.size else 0.0)
         work = track.subset(res.keep)
+    if removed is not None and len(track) and not len(work):
+        what = "the ATL08-style classifier" if est.noise == "atl08" else "the density filter"
+        raise NoUsableDataError(
+            f"track {track.track} ({track.source or 'in memory'}): all {len(track):,} photons "
+            f"were classed noise by {what} (noise={est.noise!r}); no blocks -- a beam in "
+            "cloud, or a background rate the photons cannot stand out of")
     bp = _paper_params(params, est)
     paper_only = est.ground == "paper" and est.top == "paper"
     with warnings.catch_warnings():

@@ -123,7 +123,8 @@ def run_batch(granules: Sequence[str | os.PathLike[str]],
     granules : sequence of path
         ATL03 files, or folders of them (``*.h5``).
     tiles : sequence of path
-        LAS/LAZ tiles, or folders of them, in one CRS.
+        LAS/LAZ tiles, or folders of them, in one CRS or several (e.g. UTM zones: each
+        unit is validated on the tiles of one CRS; the merged table is in the first's).
     out_dir : path
         Output folder (created; reused by a rerun).
     config : BatchConfig, optional
