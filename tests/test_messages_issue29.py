@@ -119,3 +119,31 @@ def test_batch_takes_tiles_in_several_crs(tmp_path: Path, caplog) -> None:  # no
         units = find_units([str(granule)], tiles)
     assert len(units) == 1 and len(units[0].tiles) == 1
     assert "crosses tiles in 2 CRSs" in caplog.text
+
+
+def test_footprint_options_with_the_corridor_reference_are_warned(tmp_path: Path) -> None:
+    import rasterio
+    from rasterio.transform import from_origin
+
+    from canopyblocks.errors import CanopyBlocksError
+    from canopyblocks.reference import FootprintReferenceParams
+    from canopyblocks.workflows.blocks import blocks_from_file
+    from canopyblocks.workflows.validate import validate_file
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        blocks_from_file(CLIP, None, output=tmp_path / "b.gpkg")
+    dtm = tmp_path / "dtm.tif"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", PendingDeprecationWarning)  # affine's, not ours
+        with rasterio.open(dtm, "w", driver="GTiff", width=4, height=4, count=1,
+                           dtype="float32", crs="EPSG:32613",
+                           transform=from_origin(0, 4, 1, 1)) as r:
+            r.write(np.zeros((1, 4, 4), np.float32))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with pytest.raises(CanopyBlocksError):  # the raster lies elsewhere
+            validate_file(tmp_path / "b.gpkg", tmp_path / "r.gpkg", reference="corridor",
+                          dtm=dtm, dsm_max=dtm, dsm_p90=dtm,
+                          footprint_params=FootprintReferenceParams(diameter=20.0))
+    assert any(issubclass(w.category, CanopyBlocksWarning)
+               and "apply to the footprint reference only" in str(w.message) for w in caught)
