@@ -218,10 +218,13 @@ class SimParams:
                     f"noise_rate={nr!r} (= {from_nr:.4g} MHz) disagree")
             mhz = from_nr
         if mhz >= MAX_BACKGROUND_MHZ:
+            given = (f"noise_rate={nr!r} photons per shot per metre (= {mhz:.4g} MHz)"
+                     if nr is not None else
+                     f"background_rate_mhz (--background-rate) {mhz:g} MHz")
             raise InputError(
-                f"background_rate_mhz (--background-rate) {mhz:g} MHz: ATL03 readers take a "
-                f"rate of {MAX_BACKGROUND_MHZ:g} MHz (1 GHz) or more for damage, and the "
-                "brightest sunlit scenes give ~10 MHz; give a rate below that (day ~3)")
+                f"{given}: ATL03 readers take a background rate of {MAX_BACKGROUND_MHZ:g} "
+                "MHz (1 GHz) or more for damage, and the brightest sunlit scenes give ~10 "
+                "MHz; give a rate below that (day ~3)")
         object.__setattr__(self, "background_rate_mhz", float(mhz))
         object.__setattr__(self, "noise_rate", None)
         for name in ("telemetry_window", "telemetry_smoothing"):
