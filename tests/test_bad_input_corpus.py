@@ -40,6 +40,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from badinputs.api_corpus import RUNNERS as API_RUNNERS  # noqa: E402
 from badinputs.gedi_corpus import RUNNERS as GEDI_RUNNERS  # noqa: E402
+from badinputs.issue29_corpus import RUNNERS as ISSUE29_RUNNERS  # noqa: E402
 from badinputs.make_corpus import (  # noqa: E402
     SUBPROCESS_SAMPLE,
     Base,
@@ -523,6 +524,7 @@ RUNNERS = {"atl03": (run_atl03, check_atl03), "atl08": (run_atl08, check_atl08),
            "table": (run_table, check_table), "param": (run_param, check_param)}
 RUNNERS.update(GEDI_RUNNERS)  # damaged GEDI L1B files (badinputs/gedi_corpus.py)
 RUNNERS.update(API_RUNNERS)  # misuse of every public function (badinputs/api_corpus.py)
+RUNNERS.update(ISSUE29_RUNNERS)  # wrong background rates, foreign exceptions (issue 29)
 
 
 def judge_api(case: Case, inputs: dict[str, Any], folder: Path) -> str:

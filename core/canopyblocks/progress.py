@@ -76,4 +76,8 @@ def as_progress(progress: Progress | ProgressCallback | None) -> Progress:
         return Progress()
     if isinstance(progress, Progress):
         return progress
+    if not callable(progress):
+        from .errors import InputError
+        raise InputError(f"progress must be a Progress, a callable(fraction, message) or "
+                         f"None; got {type(progress).__name__} {str(progress)[:40]!r}")
     return Progress(callback=progress)

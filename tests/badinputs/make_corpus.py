@@ -789,7 +789,9 @@ def cli_cases() -> list[Case]:
                                ("--mean-photons", "1e9", "photons"),
                                ("--noise-rate", "1e6", "noise"),
                                ("--realisations", "abc", "realisations"),
-                               ("--diameter", "nan", "diameter")):
+                               ("--diameter", "nan", "diameter"),
+                               ("--telemetry-window", "1e5", "telemetry"),
+                               ("--background-rate", "1000", "1 ghz")):
         def args_p(folder: Path, base: Base, i: Inputs, opt: str = opt, value: str = value
                    ) -> list[str]:
             return ["simulate", str(base.conifer), "--azimuth", "0", "--realisations", "2",
@@ -910,10 +912,11 @@ def all_cases() -> list[Case]:
     from .api_corpus import api_cases
     from .coregistration_cases import coregistration_cases
     from .gedi_corpus import gedi_cases
+    from .issue29_corpus import issue29_cases
 
     cases = (baseline_cases() + atl03_cases() + atl08_cases() + las_cases() + raster_cases() + table_cases()
              + param_cases() + cli_cases() + gedi_cases()
-             + coregistration_cases() + api_cases())
+             + coregistration_cases() + api_cases() + issue29_cases())
     ids = [c.id for c in cases]
     dup = {i for i in ids if ids.count(i) > 1}
     if dup:

@@ -41,9 +41,10 @@ from typing import TYPE_CHECKING, Literal, overload
 
 import numpy as np
 
-from ..errors import InputError, SparseBlockWarning
+from ..errors import InputError, NoUsableDataError, SparseBlockWarning
 from ..schema import LABEL_BETWEEN, LABEL_CANOPY, LABEL_GROUND, LABEL_NOISE
-from .atl08_classify import CLASS_COLUMN, Atl08Params, classify_photons
+from .atl08_classify import CLASS_COLUMN, Atl08Params
+from .background_check import classify_photons
 from .density_filter import DensityParams, density_filter
 from .ground_surface import GroundSurfaceParams, block_mean_ground, fit_ground_surface
 from .grouped import percentile_by_group
@@ -250,7 +251,7 @@ def estimate_blocks(track: PhotonTrack, params: BlockParams | None = None,
     work = track
     removed = None
     if est.noise == "atl08":
-        classes = classify_photons(track, est.atl08)
+        classes = classify_photons(track, est.atl08)  # after the background-rate check
         if labels:  # the photon layer's ATL08-style column (classed_pc_flag)
             track.extra[CLASS_COLUMN] = classes.classes
         if est.ground == "atl08":
@@ -277,6 +278,12 @@ def estimate_blocks(track: PhotonTrack, params: BlockParams | None = None,
                  "photons/m^2)", track.track, 100 * res.background_share, len(track),
                  float(np.median(res.rate)) if res.rate.size else 0.0)
         work = track.subset(res.keep)
+    if removed is not None and len(track) and not len(work):
+        what = "the ATL08-style classifier" if est.noise == "atl08" else "the density filter"
+        raise NoUsableDataError(
+            f"track {track.track} ({track.source or 'in memory'}): all {len(track):,} photons "
+            f"were classed noise by {what} (noise={est.noise!r}); no blocks -- a beam in "
+            "cloud, or a background rate the photons cannot stand out of")
     bp = _paper_params(params, est)
     paper_only = est.ground == "paper" and est.top == "paper"
     with warnings.catch_warnings():

@@ -59,10 +59,8 @@ log = logging.getLogger(__name__)
               help="Solar background noise, MHz, the same for strong and weak beams "
                    "(0 = off; night ~0.1-0.3, day ~1-5). Noise photons fall uniformly in "
                    "a telemetry window around the smoothed terrain.")
-@click.option("--night", "light", flag_value="night", default=None,
-              help="Night-time background: --background-rate 0.15.")
-@click.option("--day", "light", flag_value="day",
-              help="Daytime background: --background-rate 3.")
+@click.option("--night", is_flag=True, help="Night-time background: --background-rate 0.15.")
+@click.option("--day", is_flag=True, help="Daytime background: --background-rate 3.")
 @click.option("--telemetry-window", type=float, default=100.0, show_default=True,
               help="Half-height of the window the background photons fill, m, around "
                    "the airborne ground smoothed over 1 km.")
@@ -96,7 +94,7 @@ def simulate_cmd(ctx: click.Context, las: tuple[str, ...], sensor: str, azimuth:
                  diameters: tuple[float, ...],
                  instrument: Instrument, shot_spacing: float | None, preset: Ecosystem,
                  old_preset: Ecosystem | None, beam: Beam, old_beam: Beam | None,
-                 mean_photons: float | None, background_rate: float, light: str | None,
+                 mean_photons: float | None, background_rate: float, night: bool, day: bool,
                  telemetry_window: float, noise_rate: float | None, geolocation_sigma: float,
                  dual_noise: float | None, esfl_noise: float | None, realisations: int, seed: int, crs: str | None, output: str, fmt: str | None,
                  photon_table: str | None, report: str | None) -> None:
@@ -124,6 +122,9 @@ def simulate_cmd(ctx: click.Context, las: tuple[str, ...], sensor: str, azimuth:
         raise click.BadParameter("applies to --sensor dual only", param_hint="--dual-noise")
     if esfl_noise is not None:
         raise click.BadParameter("applies to --sensor esfl only", param_hint="--esfl-noise")
+    if night and day:
+        raise click.UsageError("give the background noise once; got --day and --night")
+    light = "night" if night else "day" if day else None
     background_rate = _background_rate(background_rate, light, noise_rate, quiet=bool(
         ctx.obj and ctx.obj.get("quiet")))
     params = SimParams(instrument=instrument,

@@ -100,6 +100,8 @@ def waveforms_cmd(ctx: click.Context, path: str, output: str, beams: tuple[str, 
             click.echo(f"  vs {row['product']} {row['metric']:<6} n={row['n']:<5} "
                        f"bias={row['bias']:+.3f} rmse={row['rmse']:.3f}{unit}  within 0.10"
                        f"{unit}: {100 * row['within_0.10']:.1f} %", err=True)
+            if row.get("left_out", "none") != "none":
+                click.echo(f"    left out: {row['left_out']}", err=True)
     flags = ", ".join(f"{k} {v}" for k, v in sorted(res.flags.items()))
     click.echo(f"canopyblocks: {len(res.footprints)} footprints ({flags}) -> {res.output}",
                err=True)

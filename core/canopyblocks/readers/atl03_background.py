@@ -15,6 +15,7 @@ import logging
 
 import numpy as np
 
+from ..errors import FileFormatError
 from ..photons import BackgroundRate
 from ._h5 import H5File
 
@@ -42,14 +43,24 @@ def read_background_rate(f: H5File, beam: str, t_min: float, t_max: float
     g = f"{beam}/bckgrd_atlas"
     if not (f.is_dataset(f"{g}/delta_time") and f.is_dataset(f"{g}/bckgrd_rate")):
         return None
-    shape_t, shape_r = f.shape(f"{g}/delta_time"), f.shape(f"{g}/bckgrd_rate")
+    try:
+        shape_t, shape_r = f.shape(f"{g}/delta_time"), f.shape(f"{g}/bckgrd_rate")
+    except FileFormatError as exc:
+        log.warning("%s: %s cannot be read (%s); the background rate is estimated from "
+                    "the photons instead", f.path, g, str(exc).splitlines()[0])
+        return None
     if len(shape_t) != 1 or shape_t != shape_r or shape_t[0] == 0:
         log.warning("%s: %s/delta_time and bckgrd_rate differ in shape (%s, %s); the "
                     "background rate is estimated from the photons instead",
                     f.path, g, shape_t, shape_r)
         return None
-    t = f.read(f"{g}/delta_time", dtype=np.float64)
-    r = f.read(f"{g}/bckgrd_rate", dtype=np.float64)
+    try:
+        t = f.read(f"{g}/delta_time", dtype=np.float64)
+        r = f.read(f"{g}/bckgrd_rate", dtype=np.float64)
+    except FileFormatError as exc:  # damage here must not cost the photons
+        log.warning("%s: %s cannot be read (%s); the background rate is estimated from "
+                    "the photons instead", f.path, g, str(exc).splitlines()[0])
+        return None
     ok = np.isfinite(t) & np.isfinite(r) & (r >= 0) & (r < RATE_LIMIT_HZ)
     if np.isfinite(t_min) and np.isfinite(t_max):
         near = ok & (t >= t_min - _MARGIN_S) & (t <= t_max + _MARGIN_S)

@@ -400,6 +400,14 @@ def iter_gedi_l1b(path: str | os.PathLike[str], beams: Sequence[str] | str | Non
     """
     if isinstance(chunk_shots, bool) or not isinstance(chunk_shots, int) or chunk_shots < 1:
         raise InputError(f"chunk_shots must be a positive integer; got {chunk_shots!r}")
+    from ..arguments import check_path
+    check_path(path, "GEDI L1B path", "a GEDI L1B file path")
+    if bbox is not None:
+        try:
+            bbox = tuple(float(v) for v in bbox)  # type: ignore[assignment]
+        except (TypeError, ValueError):
+            raise InputError(f"bbox must be (lon_min, lat_min, lon_max, lat_max) in degrees "
+                             f"(four numbers); got {bbox!r}") from None
     prog = as_progress(progress)
     p = Path(path)
     with open_h5(p) as f:

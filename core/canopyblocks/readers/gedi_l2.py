@@ -17,7 +17,7 @@ import pandas as pd
 from ..errors import FileFormatError, InputError
 from ._h5 import H5File, open_h5
 
-__all__ = ["read_gedi_l2a", "read_gedi_l2b", "L2A_SETTINGS"]
+__all__ = ["read_gedi_l2a", "read_gedi_l2b", "l2a_has_setting", "L2A_SETTINGS"]
 
 L2A_SETTINGS: tuple[str, ...] = ("a1", "a2", "a3", "a4", "a5", "a6")
 
@@ -57,6 +57,17 @@ def _bbox(df: pd.DataFrame, bbox: tuple[float, float, float, float] | None) -> p
     with np.errstate(invalid="ignore"):
         keep = (lo >= bbox[0]) & (lo <= bbox[2]) & (la >= bbox[1]) & (la <= bbox[3])
     return df[keep].reset_index(drop=True)
+
+
+def l2a_has_setting(path: str | os.PathLike[str], setting: str) -> bool:
+    """True when the L2A file holds the values of setting group ``setting`` (``geolocation/
+    elev_lowestmode_aN``) in some beam; False for a file that holds only the selected
+    algorithm's values (what subsetting services keep)."""
+    if setting not in L2A_SETTINGS:
+        raise InputError(f"setting must be one of {', '.join(L2A_SETTINGS)}; got {setting!r}")
+    with open_h5(path) as f:
+        beams = [k for k in f.keys() if k.startswith("BEAM") and f.is_group(k)]
+        return any(f.is_dataset(f"{b}/geolocation/elev_lowestmode_{setting}") for b in beams)
 
 
 def read_gedi_l2a(path: str | os.PathLike[str], beams: Sequence[str] | str | None = None, *,
@@ -135,7 +146,8 @@ def read_gedi_l2b(path: str | os.PathLike[str], beams: Sequence[str] | str | Non
     -------
     DataFrame
         ``beam, shot_number (int64), lon, lat, cover (0..1), pai, fhd_normal, rh100 (m),
-        l2b_quality_flag`` (and ``algorithmrun_flag`` when present).
+        l2b_quality_flag`` (and ``algorithmrun_flag``, ``selected_l2a_algorithm`` -- the L2A
+        setting group each shot's values come from, 1..6 -- when present).
     """
     frames = []
     with open_h5(path) as f:
@@ -152,7 +164,8 @@ def read_gedi_l2b(path: str | os.PathLike[str], beams: Sequence[str] | str | Non
                     raise FileFormatError(f"{f.path}: {beam} lacks {names[0]}")
                 cols[key] = _num(_read(f, beam, name, n))
             cols["cover"] = _num(_read(f, beam, "cover", n))
-            for key in ("pai", "fhd_normal", "rh100", "l2b_quality_flag", "algorithmrun_flag"):
+            for key in ("pai", "fhd_normal", "rh100", "l2b_quality_flag", "algorithmrun_flag",
+                        "selected_l2a_algorithm"):
                 if f.is_dataset(f"{beam}/{key}"):
                     a = _read(f, beam, key, n)
                     cols[key] = _num(a) if key in ("pai", "fhd_normal") else np.asarray(a)

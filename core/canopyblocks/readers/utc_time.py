@@ -44,7 +44,13 @@ def utc_from_delta_time(delta_time: npt.ArrayLike,
         NaT where ``delta_time`` is not finite or falls before 2017-01-01 (the last leap
         second: an older time is not of these missions' clock).
     """
-    t = np.asarray(delta_time, dtype=np.float64) + float(epoch_gps_seconds) - _GPS_MINUS_UTC
+    from ..arguments import check_array, check_number
+    arr = check_array(delta_time, "utc_from_delta_time: delta_time", scalar=True,
+                      what="seconds since the epoch (numbers)") \
+        if not (isinstance(delta_time, np.ndarray) and delta_time.dtype.kind == "f") \
+        else delta_time
+    check_number(epoch_gps_seconds, "utc_from_delta_time: epoch_gps_seconds")
+    t = np.asarray(arr, dtype=np.float64) + float(epoch_gps_seconds) - _GPS_MINUS_UTC
     ok = np.isfinite(t)
     whole = np.floor(np.where(ok, t, 0.0))
     ns = np.round((np.where(ok, t, 0.0) - whole) * 1e9)

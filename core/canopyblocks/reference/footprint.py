@@ -326,6 +326,27 @@ def _max_shots(cloud: FootprintCloud) -> int:
     return int(max(1, min(20_000, _CHUNK_PAIRS // per_fp)))
 
 
+def _refuse_degrees(sx: np.ndarray, sy: np.ndarray, cloud: FootprintCloud) -> None:
+    """Refuse centres that are lon/lat degrees given for a cloud in metres: every centre
+    within +-180 / +-90, not whole numbers, and none within 1 km of the cloud."""
+    fin = np.isfinite(sx) & np.isfinite(sy)
+    if not fin.any() or cloud.index.x.size == 0:
+        return
+    fx, fy = sx[fin], sy[fin]
+    if np.abs(fx).max() > 180.0 or np.abs(fy).max() > 90.0 or \
+            (np.all(fx == np.round(fx)) and np.all(fy == np.round(fy))):
+        return
+    x0, x1 = float(cloud.index.x.min()), float(cloud.index.x.max())
+    y0, y1 = float(cloud.index.y.min()), float(cloud.index.y.max())
+    near = (fx >= x0 - 1000) & (fx <= x1 + 1000) & (fy >= y0 - 1000) & (fy <= y1 + 1000)
+    if near.any():
+        return
+    raise InputError(f"footprint_reference: centres x {fx.min():.6g}..{fx.max():.6g}, y "
+                     f"{fy.min():.6g}..{fy.max():.6g} look like lon/lat degrees, but the "
+                     f"airborne points are in metres (x {x0:.0f}..{x1:.0f}, y "
+                     f"{y0:.0f}..{y1:.0f}); project the centres to the points' CRS")
+
+
 def footprint_reference(points: LasPoints | FootprintCloud, x: np.ndarray, y: np.ndarray,
                         params: FootprintReferenceParams | None = None, *,
                         progress: Progress | None = None) -> pd.DataFrame:
@@ -365,6 +386,7 @@ def footprint_reference(points: LasPoints | FootprintCloud, x: np.ndarray, y: np
     sy = np.asarray(y, dtype=np.float64).ravel()
     if sx.shape != sy.shape:
         raise InputError(f"x and y must have the same length; got {sx.size} and {sy.size}")
+    _refuse_degrees(sx, sy, cloud)
     n = sx.size
     out = _empty_result(n)
     out["ref_flag"][:] = REFERENCE_FLAG_OUTSIDE

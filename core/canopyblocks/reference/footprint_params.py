@@ -27,6 +27,11 @@ FOOTPRINT_REFERENCE_COLUMNS: tuple[str, ...] = (
 )
 
 
+MIN_CUT_RADIUS_M = 0.5
+"""Smallest cut radius (m) of a footprint: a smaller circle holds no airborne points at
+any survey's density (100 points/m2 leave 0.1 m between points)."""
+
+
 @dataclass(frozen=True)
 class FootprintReferenceParams:
     """How the footprint reference weights and reduces the airborne points.
@@ -74,6 +79,12 @@ class FootprintReferenceParams:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise InputError(f"{name} must be a positive number of metres, got {v!r}")
+        if self.cut * self.diameter / 2.0 < MIN_CUT_RADIUS_M:
+            raise InputError(
+                f"a footprint of diameter {self.diameter:g} m cut at {self.cut:g} x R (radius "
+                f"{self.cut * self.diameter / 2.0:.3g} m) holds no airborne points: give the "
+                f"diameter (--diameter) and cut (--cut) so the radius is at least "
+                f"{MIN_CUT_RADIUS_M:g} m (ICESat-2 ~13 m, GEDI ~22 m, cut ~1-1.5)")
         if self.weighting not in ("gaussian", "gaussian_density"):
             raise InputError(f"weighting={self.weighting!r}; use 'gaussian' or "
                              "'gaussian_density'")

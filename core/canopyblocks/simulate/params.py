@@ -42,6 +42,10 @@ PHOTONS_PER_SHOT_PER_M_PER_MHZ = 1e6 * 2.0 / SPEED_OF_LIGHT
 #: Background rates (MHz) of the ``night`` and ``day`` presets: ICESat-2 night-time
 #: rates are ~0.1-0.3 MHz, daytime ~1-5 MHz (the bundled real daytime clip: 0.9-3.7 MHz).
 BACKGROUND_PRESETS_MHZ: dict[str, float] = {"night": 0.15, "day": 3.0}
+#: Background rates (MHz) at or above this are refused: ATL03 readers take them for damage.
+MAX_BACKGROUND_MHZ = 1000.0
+#: Largest telemetry half-height (m) simulated: real bands are tens to hundreds of metres.
+MAX_TELEMETRY_WINDOW_M = 3000.0
 
 #: Instrument presets: footprint diameter (m), shot spacing (m), pulse rate (Hz).
 #: ICESat-2: 13 m at the start of the mission (17 m at the end), 0.7 m, 10 kHz.
@@ -213,12 +217,25 @@ class SimParams:
                     f"give the background rate once: background_rate_mhz={mhz!r} and "
                     f"noise_rate={nr!r} (= {from_nr:.4g} MHz) disagree")
             mhz = from_nr
+        if mhz >= MAX_BACKGROUND_MHZ:
+            given = (f"noise_rate={nr!r} photons per shot per metre (= {mhz:.4g} MHz)"
+                     if nr is not None else
+                     f"background_rate_mhz (--background-rate) {mhz:g} MHz")
+            raise InputError(
+                f"{given}: ATL03 readers take a background rate of {MAX_BACKGROUND_MHZ:g} "
+                "MHz (1 GHz) or more for damage, and the brightest sunlit scenes give ~10 "
+                "MHz; give a rate below that (day ~3)")
         object.__setattr__(self, "background_rate_mhz", float(mhz))
         object.__setattr__(self, "noise_rate", None)
         for name in ("telemetry_window", "telemetry_smoothing"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise InputError(f"{name} must be a positive number of metres; got {v!r}")
+        if self.telemetry_window > MAX_TELEMETRY_WINDOW_M:
+            raise InputError(
+                f"telemetry_window (--telemetry-window) {self.telemetry_window:g} m: the "
+                f"half-height of ATL03's telemetry band is tens to hundreds of metres; give "
+                f"at most {MAX_TELEMETRY_WINDOW_M:g} m")
 
     @property
     def noise_per_shot_per_m(self) -> float:

@@ -126,6 +126,16 @@ def _rmse(v: np.ndarray) -> float:
     return float(np.sqrt(np.mean(v * v))) if v.size else float("nan")
 
 
+def _check_strengths(strengths: object, name: str) -> None:
+    """``strengths`` is None or a mapping of track -> "strong"/"weak"."""
+    if strengths is None:
+        return
+    if not isinstance(strengths, dict) or not all(
+            isinstance(k, str) and isinstance(v, str) for k, v in strengths.items()):
+        raise InputError(f"{name}: strengths must map each track to its beam strength, e.g. "
+                         f"{{'gt1l': 'strong', 'gt1r': 'weak'}}; got {str(strengths)[:60]!r}")
+
+
 def fit_bias_calibration(residuals: pd.DataFrame, *, kind: BiasKind = "additive",
                          strengths: dict[str, str] | None = None, preset: str = "custom",
                          noise_level: float | None = None,
@@ -157,6 +167,7 @@ def fit_bias_calibration(residuals: pd.DataFrame, *, kind: BiasKind = "additive"
                                m, f"ref_{m}", "fit_bias_calibration")
     if kind not in ("additive", "linear"):
         raise InputError(f"kind must be 'additive' or 'linear', got {kind!r}")
+    _check_strengths(strengths, "fit_bias_calibration")
     need = {"track", "length", "block", "hmax", "h90", "ref_hmax", "ref_h90"}
     missing = need - set(residuals.columns)
     if missing:
@@ -226,6 +237,7 @@ def apply_bias_calibration(blocks: pd.DataFrame, cal: BiasCalibration, *,
     from ..arguments import check_frame, check_instance
     check_frame(blocks, "apply_bias_calibration: blocks", "a block table (DataFrame)")
     check_instance(cal, BiasCalibration, "apply_bias_calibration: cal", "a BiasCalibration (fit_bias_calibration or read_bias_calibration)")
+    _check_strengths(strengths, "apply_bias_calibration")
     label = (str(blocks["estimators"].iloc[0]) if "estimators" in blocks.columns and len(blocks)
              else _PAPER_LABEL)
     if "estimators" in blocks.columns and blocks["estimators"].nunique() > 1:

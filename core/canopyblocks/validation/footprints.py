@@ -217,8 +217,18 @@ def validate_footprints(
     NoUsableDataError
         No footprint usable (all outside the tiles, flagged, or without ground points).
     """
+    from ..arguments import check_instance
+
     prog = as_progress(progress)
-    params = params or FootprintReferenceParams.gedi()
+    params = FootprintReferenceParams.gedi() if params is None else params
+    check_instance(params, FootprintReferenceParams, "validate_footprints: params",
+                   "a FootprintReferenceParams (e.g. FootprintReferenceParams.gedi())")
+    if not (isinstance(points, (LasPoints, str, os.PathLike)) or (
+            isinstance(points, (list, tuple)) and points
+            and all(isinstance(p, (str, os.PathLike)) for p in points))):
+        from ..arguments import describe
+        raise InputError(f"validate_footprints: points must be airborne points (read_las) or "
+                         f"LAS/LAZ path(s); got {describe(points)}")
     if not isinstance(footprints, pd.DataFrame) or len(footprints) == 0:
         raise NoUsableDataError("the footprint table is empty; nothing to validate")
     missing = [c for c in ("ground", "rh98", "rh50") if c not in footprints.columns]

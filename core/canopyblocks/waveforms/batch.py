@@ -85,7 +85,29 @@ class WaveformBatch:
                  "lat_bin0", "lat_lastbin", "lon_bin0", "lon_lastbin", "noise_mean",
                  "noise_sd", "stale", "degraded")
 
+    _DTYPES = {"shot_number": np.uint64, "waveforms": np.float32, "n_samples": np.int64,
+               "stale": np.bool_, "degraded": np.bool_}
+
     def __post_init__(self) -> None:
+        if not isinstance(self.beam, str):
+            raise InputError(f"WaveformBatch.beam must be a beam name (str); got "
+                             f"{type(self.beam).__name__}")
+        if not isinstance(self.extra, dict):
+            raise InputError(f"WaveformBatch.extra must be a dict of per-shot arrays; got "
+                             f"{type(self.extra).__name__}")
+        for name in ("waveforms", *self._PER_SHOT):  # lists become arrays of the field's type
+            value = getattr(self, name)
+            if isinstance(value, np.ndarray):
+                continue
+            if value is None or isinstance(value, (str, bytes, dict)):
+                raise InputError(f"WaveformBatch.{name} must be an array of numbers; got "
+                                 f"{type(value).__name__}")
+            try:
+                arr = np.asarray(value, dtype=self._DTYPES.get(name, np.float64))
+            except (TypeError, ValueError, OverflowError):
+                raise InputError(f"WaveformBatch.{name} must be an array of numbers; got "
+                                 f"{type(value).__name__} {str(value)[:40]}") from None
+            object.__setattr__(self, name, arr)
         if self.waveforms.ndim != 2:
             raise InputError(
                 f"waveforms must be a 2-D array (shots x samples); got shape {self.waveforms.shape}")

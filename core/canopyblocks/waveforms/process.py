@@ -11,7 +11,7 @@ Steps, each vectorised over the shots of a chunk (one module each):
 4. the signal alone, bottom first (:mod:`.profile`): modes, ground = lowest mode
    (:mod:`.modes`);
 5. cumulative energy -> RH0..RH100 (:mod:`.rh`), cover and penetration (:mod:`.cover`);
-6. flags, and the seed-003 terrain filter along the beam (:mod:`.terrain_filter`).
+6. flags, and GEDI's terrain-outlier criteria along the beam (:mod:`.gedi_outliers`).
 
 Only the part of each shot's search window where a signal can lie (plus the kernels'
 reach) is smoothed -- results there are those of smoothing the whole waveform -- and
@@ -40,13 +40,13 @@ from .batch import WaveformBatch
 from .cover import cover_and_penetration
 from .details import ShotDetails
 from .extent import signal_extent
+from .gedi_outliers import gedi_outliers
 from .modes import energetic_modes, lowest_mode, mode_mask
 from .profile import bottom_first
 from .rh import energy_positions, signal_energy, truncate_cm
 from .scan import Scan, scan_shots
 from .settings import WaveformParams
 from .smoothing import smooth_subsampled
-from .terrain_filter import terrain_outliers
 
 if TYPE_CHECKING:
     import geopandas as gpd
@@ -356,8 +356,10 @@ def _footprint_columns(batch: WaveformBatch, params: WaveformParams | None,
         usable = (code == _OK) | (code == _TOO_MANY)
         z = np.where(usable, ground_elev, np.nan)[order]
         height = np.where(usable, top_elev - ground_elev, np.nan)[order]
+        dem = batch.extra.get("digital_elevation_model")
         outlier = np.zeros(n, dtype=bool)
-        outlier[order] = terrain_outliers(z, height)
+        outlier[order] = gedi_outliers(z, height, lon[order], lat[order],
+                                       dem=None if dem is None else np.asarray(dem)[order])
         code[outlier & (code == _OK)] = _TERRAIN
 
     table: dict[str, object] = {

@@ -110,7 +110,7 @@ class WaveformParams:
     rho_ratio : float
         ``rho_v / rho_g`` of the cover formula (DESIGN 4.5); GEDI L2B uses 1.5.
     terrain_filter : bool
-        Flag terrain outliers along each beam (DESIGN 4.6).
+        Flag terrain outliers along each beam (GEDI criteria: :mod:`.gedi_outliers`).
     kernel : {"l2a", "nominal"}
         Smoothing kernel: L2A's effective kernel (default) or DESIGN 4.3's nominal
         Gaussian (sd = width, truncated at 2 sd).

@@ -251,7 +251,7 @@ def small_pages() -> Iterator[None]:
 
 def blocks_from_file(
     path: str | os.PathLike[str],
-    params: BlockParams,
+    params: BlockParams | None,
     *,
     estimators: Estimators | None = None,
     calibration: Any = None,
@@ -272,8 +272,8 @@ def blocks_from_file(
     ----------
     path : path-like
         ATL03 granule, MABEL L2A file, or a CSV/Parquet photon table.
-    params : BlockParams
-        Block lengths, noise filter, cut-offs.
+    params : BlockParams or None
+        Block lengths, noise filter, cut-offs (None: the defaults).
     estimators : Estimators, optional
         The block estimators (DESIGN 1.10); default the recommended ones (the ``atl08``
         preset); ``preset("paper")`` for the paper's method.
@@ -295,8 +295,11 @@ def blocks_from_file(
     -------
     BlocksResult
     """
-    from ..arguments import check_path
+    from ..arguments import check_instance, check_path
     check_path(path, "blocks_from_file: path", "a photon file path")
+    params = BlockParams() if params is None else params
+    check_instance(params, BlockParams, "blocks_from_file: params",
+                   "a BlockParams (None: the defaults)")
     from ..atomic import check_writable
     from ..outputs.tables import check_output_path, write_layers
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import logging
 import os
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -22,7 +23,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from ..errors import InputError, NoUsableDataError
+from ..errors import CanopyBlocksWarning, InputError, NoUsableDataError
 from ..progress import Progress, as_progress
 
 __all__ = ["blocks_from_granules", "granule_time_span", "read_polygon", "parse_utc"]
@@ -30,16 +31,47 @@ __all__ = ["blocks_from_granules", "granule_time_span", "read_polygon", "parse_u
 log = logging.getLogger(__name__)
 
 
-def parse_utc(text: str, what: str) -> np.datetime64:
-    """``2022-04-01`` or ``2022-04-01T22:00:00`` (UTC) as datetime64[ns]."""
+def parse_utc(text: str, what: str, *, end: bool = False) -> np.datetime64:
+    """``2022-04-01`` or ``2022-04-01T22:00:00`` (UTC) as datetime64[ns]; a date alone
+    given as an ``end`` means the end of that day (its last nanosecond)."""
+    if not isinstance(text, (str, np.datetime64)):
+        raise InputError(f"{what}: give a UTC date or date and time as text, e.g. "
+                         f"2022-04-01; got {type(text).__name__} {text!r}")
     try:
-        t = np.datetime64(str(text).strip().rstrip("Z"), "ns")
-    except ValueError:
+        t = np.datetime64(str(text).strip().rstrip("Z"))
+    except (ValueError, OverflowError):
         raise InputError(f"{what} {text!r}: give a UTC date or date and time, e.g. "
                          "2022-04-01 or 2022-04-01T22:00:00") from None
     if np.isnat(t):
         raise InputError(f"{what} {text!r}: not a date")
-    return t
+    year = int(t.astype("datetime64[Y]").astype(np.int64)) + 1970
+    if not 1990 <= year <= 2100:
+        raise InputError(f"{what} {text!r}: the year {year} is outside 1990-2100 (ICESat-2 "
+                         "and GEDI fly since 2018); give a date of the granules")
+    unit = np.datetime_data(t.dtype)[0]
+    ns = t.astype("datetime64[ns]")
+    if end and unit in ("Y", "M", "W", "D"):
+        ns = (t + np.timedelta64(1, unit)).astype("datetime64[ns]") - np.timedelta64(1, "ns")
+    return ns
+
+
+def _distinct(paths: Sequence[str | os.PathLike[str]]) -> list[str | os.PathLike[str]]:
+    """``paths`` with a file given twice (the same file, however named) kept once, with a
+    warning: blocking it twice would write every row twice."""
+    from ..arguments import check_paths
+    check_paths(paths, "blocks_from_granules: paths")
+    seen: dict[str, str | os.PathLike[str]] = {}
+    twice = []
+    for p in paths:
+        key = os.path.realpath(os.fspath(p))
+        if key in seen:
+            twice.append(str(p))
+        else:
+            seen[key] = p
+    if twice:
+        warnings.warn(f"{', '.join(twice)}: given more than once; each file is blocked once",
+                      CanopyBlocksWarning, stacklevel=3)
+    return list(seen.values())
 
 
 def granule_time_span(path: str | os.PathLike[str]) -> tuple[np.datetime64, np.datetime64]:
@@ -128,10 +160,15 @@ def blocks_from_granules(paths: Sequence[str | os.PathLike[str]], params: Any, *
     from .blocks import blocks_from_file
 
     check_output_path(output)
+    paths = _distinct(paths)
     start = end = None
     if time_range is not None:
-        start, end = (parse_utc(t, w) for t, w in zip(time_range, ("--time START",
-                                                                   "--time END")))
+        if isinstance(time_range, (str, bytes)) or not isinstance(time_range, (tuple, list)) \
+                or len(time_range) != 2:
+            raise InputError(f"time_range must be (start, end), two UTC dates such as "
+                             f"('2022-04-01', '2022-04-30'); got {time_range!r}")
+        start = parse_utc(time_range[0], "--time START")
+        end = parse_utc(time_range[1], "--time END", end=True)
         if end < start:
             raise InputError(f"--time {time_range[0]} {time_range[1]}: the end comes "
                              "before the start")

@@ -17,8 +17,9 @@ import geopandas as gpd
 import numpy as np
 import pandas as pd
 
-from ..blocks.atl08_classify import CLASS_COLUMN, Atl08Params, classify_photons
+from ..blocks.atl08_classify import CLASS_COLUMN, Atl08Params
 from ..blocks.atl08_segments import atl08_segments
+from ..blocks.background_check import classify_photons
 from ..errors import InputError
 from ..progress import Progress, as_progress
 from ..schema import LAYER_PHOTONS

@@ -14,6 +14,7 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -21,7 +22,7 @@ from typing import Any, Literal
 
 import pandas as pd
 
-from ..errors import CRSError, InputError, NoUsableDataError
+from ..errors import CanopyBlocksWarning, CRSError, InputError, NoUsableDataError
 from ..progress import Progress, as_progress
 from ..schema import LAYER_FOOTPRINTS, LAYER_RESIDUALS, LAYER_STATS
 from ..validation.footprints import (
@@ -259,6 +260,12 @@ def validate_file(
             raise NoUsableDataError(f"{path} holds no blocks; nothing to validate (check "
                                     "the photons and block lengths that made it)")
         _check_reference_inputs(reference, dtm, dsm_max, dsm_p90, atl08, points)
+        if footprint_params is not None and reference != "footprint":
+            warnings.warn(f"the footprint's diameter, cut and weighting (--diameter, --cut, "
+                          f"--weighting) apply to the footprint reference only; the "
+                          f"{reference} reference ignores them"
+                          + (" (its corridor is --width wide)" if reference == "corridor"
+                             else ""), CanopyBlocksWarning, stacklevel=2)
     if getattr(table, "crs", None) is None and not (footprints and {"lon", "lat"}
                                                      <= set(table.columns)):
         if table_crs is None:

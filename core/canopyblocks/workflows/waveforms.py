@@ -62,8 +62,8 @@ def _refuse_if_all_invalid(path: Any, table: pd.DataFrame, problems: int) -> Non
 
 
 def _terrain_filter(table: pd.DataFrame) -> pd.DataFrame:
-    """Seed-003 terrain outliers along one whole beam (time order), flagged."""
-    from ..waveforms.terrain_filter import terrain_outliers
+    """GEDI terrain outliers along one whole beam (time order), flagged."""
+    from ..waveforms.gedi_outliers import gedi_outliers
 
     if table.empty:
         return table
@@ -75,7 +75,8 @@ def _terrain_filter(table: pd.DataFrame) -> pd.DataFrame:
     z = np.where(usable, ground, np.nan)[order]
     h = np.where(usable, height, np.nan)[order]
     outlier = np.zeros(len(table), dtype=bool)
-    outlier[order] = terrain_outliers(z, h)
+    lon, lat = table["lon"].to_numpy(float)[order], table["lat"].to_numpy(float)[order]
+    outlier[order] = gedi_outliers(z, h, lon, lat)
     flag = flag.copy()
     flag[outlier & (flag == "ok")] = "terrain_outlier"
     return table.assign(flag=flag)
@@ -236,27 +237,48 @@ def compare_with_l2a(footprints: pd.DataFrame, l2a: str | os.PathLike[str] | Non
     Returns
     -------
     (DataFrame, DataFrame)
-        The joined table, and per beam and metric ``n``, ``bias``, ``rmse``,
-        ``within_0.10`` (share of valid ok shots within 0.10 m).
+        The joined table, and per beam and metric ``n``, ``left_out`` (the shots left
+        out and why: not in the file, another algorithm selected, L2A quality 0, flagged
+        here), ``bias``, ``rmse``, ``within_0.10`` (share of valid ok shots within 0.10 m).
+
+    An L2A file holding only the selected algorithm's values (``elev_lowestmode``, ``rh``;
+    what subsetting services keep) is compared on the shots whose selected algorithm
+    (L2B ``selected_l2a_algorithm``, else L2A ``selected_algorithm``) is ``setting``.
     """
-    from ..readers.gedi_l2 import read_gedi_l2a, read_gedi_l2b
+    from ..readers.gedi_l2 import l2a_has_setting, read_gedi_l2a, read_gedi_l2b
 
     out = footprints.copy()
     metrics = ["ground", "rh50", "rh98", "top"]
     sn = out["shot_number"].to_numpy(np.int64)
+    cov = None
+    if l2b is not None:
+        cov = read_gedi_l2b(l2b).drop_duplicates("shot_number").set_index("shot_number")
+        _check_same_shots(sn, cov.index.to_numpy(np.int64), l2b, "L2B")
+    reasons: dict[str, np.ndarray] = {}
     if l2a is not None:
-        ref = read_gedi_l2a(l2a, setting=setting)
+        every = l2a_has_setting(l2a, setting)
+        ref = read_gedi_l2a(l2a, setting=setting if every else None)
         ref = ref.drop_duplicates("shot_number").set_index("shot_number")
         _check_same_shots(sn, ref.index.to_numpy(np.int64), l2a, "L2A")
         for m in metrics:
             out[f"l2a_{m}"] = ref[m].reindex(sn).to_numpy(float)
             out[f"d_{m}"] = out[m].to_numpy(float) - out[f"l2a_{m}"].to_numpy(float)
-        valid = ((ref["quality_flag"].reindex(sn).to_numpy() == 1)
-                 & (ref["algrunflag"].reindex(sn).to_numpy() == 1))
-        out["l2a_valid"] = valid & (out["flag"].to_numpy(object) == "ok")
-    if l2b is not None:
-        cov = read_gedi_l2b(l2b).drop_duplicates("shot_number").set_index("shot_number")
-        _check_same_shots(sn, cov.index.to_numpy(np.int64), l2b, "L2B")
+        there = np.isin(sn, ref.index.to_numpy(np.int64))
+        reasons["not in the L2A file"] = ~there
+        quality = ((ref["quality_flag"].reindex(sn).to_numpy() == 1)
+                   & (ref["algrunflag"].reindex(sn).to_numpy() == 1))
+        if not every:  # only the selected algorithm's values: those of our setting count
+            algo = _selected_algorithm(ref, cov, sn, l2a, setting)
+            reasons[f"L2A selected another algorithm than {setting}"] = \
+                there & (algo != int(setting[1:]))
+        reasons["L2A quality_flag 0"] = there & ~quality
+    flag = out["flag"].to_numpy(object)
+    for name in sorted(set(flag.tolist()) - {"ok"}):
+        reasons[f"flagged {name} here"] = flag == name
+    if l2a is not None:
+        out["l2a_valid"] = ~np.logical_or.reduce([np.zeros(len(out), bool),
+                                                  *reasons.values()])
+    if cov is not None:
         out["l2b_cover"] = cov["cover"].reindex(out["shot_number"].to_numpy(np.int64)) \
             .to_numpy(float)
         out["d_cover"] = out["cover"].to_numpy(float) - out["l2b_cover"].to_numpy(float)
@@ -274,11 +296,42 @@ def compare_with_l2a(footprints: pd.DataFrame, l2a: str | os.PathLike[str] | Non
                 d = d[np.isfinite(d)]
                 rows.append({"beam": beam, "metric": m,
                              "product": "L2B" if m == "cover" else "L2A", "n": int(d.size),
+                             "left_out": _left_out(reasons, np.ones(len(out), bool)
+                                                   if beam == "all" else
+                                                   (out["beam"] == beam).to_numpy()),
                              "bias": float(d.mean()) if d.size else np.nan,
                              "rmse": float(np.sqrt(np.mean(d * d))) if d.size else np.nan,
                              "within_0.10": float(np.mean(np.abs(d) <= 0.10)) if d.size
                              else np.nan})
     return out, pd.DataFrame(rows)
+
+
+def _selected_algorithm(ref: pd.DataFrame, l2b: pd.DataFrame | None, sn: np.ndarray,
+                        path: Any, setting: str) -> np.ndarray:
+    """Per footprint, the L2A setting group (1..6) whose values an L2A file holding only
+    the selected algorithm's values gives: L2B's ``selected_l2a_algorithm``, else L2A's
+    ``selected_algorithm``; -1 where neither says."""
+    for table, col in ((l2b, "selected_l2a_algorithm"), (ref, "selected_algorithm")):
+        if table is not None and col in table:
+            a = pd.to_numeric(table[col].reindex(sn), errors="coerce").to_numpy(float)
+            return np.where(np.isfinite(a), a, -1).astype(np.int64)
+    raise InputError(f"{path}: this GEDI L2A file holds only the selected algorithm's values "
+                     f"(no geolocation/elev_lowestmode_{setting}) and does not say which "
+                     "algorithm each shot used (selected_algorithm); give the L2B file of the "
+                     "same orbit (--l2b: selected_l2a_algorithm) or an L2A with every setting")
+
+
+def _left_out(reasons: dict[str, np.ndarray], scope: np.ndarray) -> str:
+    """Shots of ``scope`` left out of a comparison, counted per reason (a shot counts under
+    its first reason): e.g. ``'flagged terrain_outlier here 16; L2A quality_flag 0 3'``."""
+    taken = ~np.asarray(scope, bool)
+    parts = []
+    for name, r in reasons.items():
+        k = int(np.count_nonzero(r & ~taken))
+        taken = taken | r
+        if k:
+            parts.append(f"{name} {k}")
+    return "; ".join(parts) if parts else "none"
 
 
 def footprints_to_file(

@@ -123,7 +123,8 @@ def run_batch(granules: Sequence[str | os.PathLike[str]],
     granules : sequence of path
         ATL03 files, or folders of them (``*.h5``).
     tiles : sequence of path
-        LAS/LAZ tiles, or folders of them, in one CRS.
+        LAS/LAZ tiles, or folders of them, in one CRS or several (e.g. UTM zones: each
+        unit is validated on the tiles of one CRS; the merged table is in the first's).
     out_dir : path
         Output folder (created; reused by a rerun).
     config : BatchConfig, optional
@@ -163,7 +164,10 @@ def run_batch(granules: Sequence[str | os.PathLike[str]],
     check_paths(granules, "run_batch: granules")
     check_paths(tiles, "run_batch: tiles")
     check_path(out_dir, "run_batch: out_dir", "a folder path")
-    cfg = config or BatchConfig()
+    cfg = BatchConfig() if config is None else config
+    if not isinstance(cfg, BatchConfig):
+        raise InputError(f"run_batch: config must be a BatchConfig (e.g. BatchConfig(offset=0.0)) "
+                         f"or None; got {type(cfg).__name__} {str(cfg)[:60]}")
     prog = as_progress(progress)
     if backend not in BACKENDS:
         raise InputError(f"backend must be one of {', '.join(BACKENDS)}; got {backend!r}")

@@ -79,20 +79,15 @@ def list_inputs(items: Sequence[str | os.PathLike[str]], suffixes: tuple[str, ..
 
 
 def tile_index(paths: Sequence[str | os.PathLike[str]]) -> list[Tile]:
-    """Header extents and CRSs of the tiles (all must share one CRS)."""
+    """Header extents and CRSs of the tiles (tiles may be in several CRSs, e.g. UTM zones:
+    each unit is validated on tiles of one CRS)."""
     from ...readers.las import las_bounds, las_crs
 
     tiles = []
-    crs0: pyproj.CRS | None = None
     for p in paths:
         crs = las_crs(p)
         if crs is None:
             raise CRSError(f"{p} states no CRS; batch needs tiles with a CRS in their header")
-        if crs0 is None:
-            crs0 = crs
-        elif crs != crs0:
-            raise CRSError(f"tiles in several CRSs ({crs0.name}, {crs.name} in {p}); "
-                           "reproject them to one CRS first")
         tiles.append(Tile(str(p), tuple(float(v) for v in las_bounds(p)),  # type: ignore[arg-type]
                           crs.to_wkt()))
     return tiles
@@ -126,10 +121,14 @@ def find_units(granules: Sequence[str], tiles: Sequence[Tile], *,
 
     if not tiles:
         raise InputError("no airborne tiles given")
-    crs = pyproj.CRS.from_wkt(tiles[0].crs_wkt)
-    to_tiles = pyproj.Transformer.from_crs("EPSG:4326", crs, always_xy=True)
-    boxes = shapely.box(*np.array([t.bounds for t in tiles]).T)
-    everywhere = shapely.union_all(boxes)
+    groups: dict[str, list[Tile]] = {}
+    for t in tiles:  # tiles of one CRS together (in the order first seen)
+        groups.setdefault(t.crs_wkt, []).append(t)
+    per_crs = []
+    for wkt, group in groups.items():
+        boxes = shapely.box(*np.array([t.bounds for t in group]).T)
+        per_crs.append((group, boxes, shapely.union_all(boxes), pyproj.Transformer.from_crs(
+            "EPSG:4326", pyproj.CRS.from_wkt(wkt), always_xy=True)))
     units = []
     for g in granules:
         try:
@@ -145,15 +144,26 @@ def find_units(granules: Sequence[str], tiles: Sequence[Tile], *,
         for beam, (lon, lat) in lines.items():
             if lon.size < 2:
                 continue
-            x, y = to_tiles.transform(lon, lat)
-            track = shapely.LineString(np.column_stack([x, y]))
-            line = track.buffer(buffer)
-            hit = [t for t, box in zip(tiles, boxes) if line.intersects(box)]
-            if hit:
-                units.append(Unit(str(g), beam, tuple(hit)))
+            hits = []
+            for group, boxes, everywhere, to_tiles in per_crs:
+                x, y = to_tiles.transform(lon, lat)
+                track = shapely.LineString(np.column_stack([x, y]))
+                line = track.buffer(buffer)
+                hit = [t for t, box in zip(group, boxes) if line.intersects(box)]
+                if hit:
+                    hits.append(hit)
+                else:
+                    nearest = min(nearest, float(track.distance(everywhere)))
+            if hits:  # one CRS a unit: the one with most tiles on the track
+                best = max(hits, key=len)
+                if len(hits) > 1:
+                    log.warning("%s %s crosses tiles in %d CRSs; validated on the %d tile(s) "
+                                "in %s, %d tile(s) in other CRSs left out", Path(g).name, beam,
+                                len(hits), len(best),
+                                pyproj.CRS.from_wkt(best[0].crs_wkt).name,
+                                sum(len(h) for h in hits) - len(best))
+                units.append(Unit(str(g), beam, tuple(best)))
                 found += 1
-            else:
-                nearest = min(nearest, float(track.distance(everywhere)))
         if not found and missed is not None:
             missed[str(g)] = (
                 f"none of its {len(lines)} beam(s) ({', '.join(lines) or 'none'}) has a "

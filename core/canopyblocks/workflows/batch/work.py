@@ -136,6 +136,16 @@ def run_unit(unit: Unit, config: BatchConfig, out_dir: str, raster_root: str) ->
     return summary
 
 
+def _utc(granule: str, delta_time: np.ndarray) -> np.ndarray:
+    """UTC of ``delta_time`` (to the ms, as the photon layer); NaT for a simulated granule,
+    whose clock starts at its first shot."""
+    from ...readers.utc_time import file_counts_from_sdp_epoch, utc_from_delta_time
+
+    if not file_counts_from_sdp_epoch(granule):
+        return np.full(delta_time.size, np.datetime64("NaT"), dtype="datetime64[ns]")
+    return utc_from_delta_time(delta_time).astype("datetime64[ms]").astype("datetime64[ns]")
+
+
 def _work(unit: Unit, config: BatchConfig, out_dir: Path, raster_root: Path,
           summary: dict) -> None:
     from ...blocks import BlockParams
@@ -172,6 +182,9 @@ def _work(unit: Unit, config: BatchConfig, out_dir: Path, raster_root: Path,
         raise NoUsableDataError(f"{unit.key}: no block lies on its tiles")
     residuals = pd.concat(parts, ignore_index=True)
     residuals.insert(0, "granule", Path(unit.granule).name)
+    if "time" in residuals.columns and "time_utc" not in residuals.columns:
+        residuals.insert(residuals.columns.get_loc("time") + 1, "time_utc",
+                         _utc(unit.granule, residuals["time"].to_numpy(float)))
     summary["n_validated"] = int(residuals["use"].sum()) if "use" in residuals else 0
     folder = out_dir / "parts" / unit.partition
     folder.mkdir(parents=True, exist_ok=True)
