@@ -60,7 +60,8 @@ def test_all_noise_track_says_so_with_the_count() -> None:
         warnings.simplefilter("ignore", CanopyBlocksWarning)
         with pytest.raises(NoUsableDataError,
                            match=rf"all {len(track):,} photons were classed noise"):
-            estimate_blocks(track, BlockParams(), Estimators(noise="atl08"))
+            estimate_blocks(track, BlockParams(),
+                            Estimators(noise="atl08", ground="paper", top="paper"))
 
 
 def test_simulate_background_and_window_options(tmp_path: Path) -> None:
