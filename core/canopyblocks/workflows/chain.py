@@ -17,7 +17,8 @@ import pandas as pd
 
 from ..atomic import check_writable, new_files_removed_on_failure
 from ..blocks import BlockParams
-from ..blocks.estimators import RECOMMENDED_PRESET, preset
+from ..blocks.estimators import RECOMMENDED_PRESET
+from ..blocks.estimators import preset as named_preset
 from ..errors import FileFormatError, InputError
 from ..outputs.tables import write_layers, write_table
 from ..progress import Progress, as_progress
@@ -277,7 +278,7 @@ def run_chain(
 
             prog.update(0.9, "calibrating cut-offs")
             cutoffs, edges = _calibrated_cutoffs(res.tracks[0], val.residuals, params)
-            blocks_c, _ = run_blocks(res.tracks, cutoffs.params, estimators=preset("paper"))
+            blocks_c, _ = run_blocks(res.tracks, cutoffs.params, estimators=named_preset("paper"))
             val_c = validate_blocks(blocks_c, dtm=rasters.dtm, dsm_max=rasters.dsm_max,
                                     dsm_p90=rasters.dsm_p90, **vkw)
             layers.update({f"{LAYER_RESIDUALS}_calibrated": val_c.residuals,
@@ -407,7 +408,7 @@ def _compare_preset(name: str, tracks: Any, params: BlockParams, rasters: Any,
     from ..validation.block_validation import validate_blocks
     from .blocks import run_blocks
 
-    est = preset(name)
+    est = named_preset(name)
     blocks, labels = run_blocks(tracks, params, estimators=est, labels=True,
                                 progress=prog.sub(0.0, 0.6))
     val = validate_blocks(blocks, dtm=rasters.dtm, dsm_max=rasters.dsm_max,
