@@ -170,7 +170,8 @@ def gedi_beam_info(path: str | os.PathLike[str]) -> list[GediBeamInfo]:
 
 def gedi_file_info(path: str | os.PathLike[str]) -> dict[str, Any]:
     """What ``canopyblocks info`` prints for a GEDI L1B file."""
-    info: dict[str, Any] = {"path": str(path), "product": "GEDI L1B", "beams": []}
+    from .remote import source_label
+    info: dict[str, Any] = {"path": source_label(path), "product": "GEDI L1B", "beams": []}
     lon_all, lat_all = [], []
     with open_h5(path) as f:
         for b in _beams_in(f):
@@ -401,8 +402,9 @@ def iter_gedi_l1b(path: str | os.PathLike[str], beams: Sequence[str] | str | Non
     if isinstance(chunk_shots, bool) or not isinstance(chunk_shots, int) or chunk_shots < 1:
         raise InputError(f"chunk_shots must be a positive integer; got {chunk_shots!r}")
     prog = as_progress(progress)
-    p = Path(path)
-    with open_h5(p) as f:
+    from .remote import source_label
+    p = source_label(path)  # a path, or a URL without its query string
+    with open_h5(path) as f:
         present = _beams_in(f)
         if not present or not any(f.is_dataset(f"{b}/rxwaveform") for b in present):
             raise FileFormatError(f"{p}: not a GEDI L1B file (no BEAMxxxx/rxwaveform); give "
