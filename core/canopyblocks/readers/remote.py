@@ -33,12 +33,12 @@ from urllib.parse import urlsplit, urlunsplit
 from ..errors import DependencyError, FileFormatError
 
 __all__ = ["is_url", "is_file_object", "source_arg", "source_label", "source_name", "RemoteFile",
-           "open_source", "list_granules", "BLOCK", "MAX_BLOCKS", "MAX_GAP", "RETRIES"]
+           "open_source", "list_granules", "clear_cache", "BLOCK", "MAX_BLOCKS", "MAX_GAP", "RETRIES"]
 
 #: Bytes per cached block (HDF5 metadata and small reads).
-BLOCK = 1 << 18
-#: Cached blocks per open file (BLOCK * MAX_BLOCKS = 16 MiB at most).
-MAX_BLOCKS = 64
+BLOCK = 1 << 15
+#: Cached blocks, all granules of the process together (BLOCK * MAX_BLOCKS = 32 MiB).
+MAX_BLOCKS = 1024
 #: Ranges closer than this are fetched in one request.
 MAX_GAP = 1 << 16
 #: Largest coalesced request (bigger ones are split so that they run concurrently).
@@ -124,7 +124,6 @@ def _filesystem(url: str) -> Any:
                 # botocore's own tries: 2 (ours wrap them, with back-off)
                 "config_kwargs": {"retries": {"max_attempts": 2, "mode": "standard"},
                                   "connect_timeout": 20, "read_timeout": 60},
-                "retries": 2,
             }
             if endpoint:
                 kw["endpoint_url"] = endpoint
@@ -134,7 +133,9 @@ def _filesystem(url: str) -> Any:
                           token=env.get("AWS_SESSION_TOKEN") or None)
             if env.get("AWS_PROFILE"):
                 kw["profile"] = env["AWS_PROFILE"]
-            return s3fs.S3FileSystem(**kw)
+            fs = s3fs.S3FileSystem(**kw)
+            fs.retries = 2  # s3fs's own loop (ours wraps it, with back-off)
+            return fs
         _need("aiohttp")
         from fsspec.implementations.http import HTTPFileSystem
 
@@ -200,6 +201,20 @@ def _explain(exc: BaseException, label: str, tries: int) -> FileFormatError:
 
 
 # ---------------------------------------------------------------------------- the file
+#: Blocks of objects in storage, shared by every open in this process (LRU, MAX_BLOCKS).
+_BLOCKS: OrderedDict[tuple[str, int, int, int], bytes] = OrderedDict()
+#: Sizes of the objects opened (one HEAD per object and process).
+_SIZES: dict[str, int] = {}
+_CACHE_LOCK = threading.Lock()
+
+
+def clear_cache() -> None:
+    """Forget the cached blocks and sizes (an object changed in storage, or a test)."""
+    with _CACHE_LOCK:
+        _BLOCKS.clear()
+        _SIZES.clear()
+
+
 class RemoteFile(io.RawIOBase):
     """A read-only, seekable view of one object in storage, fetched by byte ranges.
 
@@ -227,9 +242,13 @@ class RemoteFile(io.RawIOBase):
         self.nbytes = 0
         self.error: FileFormatError | None = None
         self._pos = 0
-        self._cache: OrderedDict[int, bytes] = OrderedDict()
         self._lock = threading.Lock()
+        if size is None:
+            with _CACHE_LOCK:
+                size = _SIZES.get(path)
         self.size = int(size) if size is not None else self._size()
+        with _CACHE_LOCK:
+            _SIZES[path] = self.size
 
     # -- transport with retries
     def _retry(self, what: Callable[[], Any]) -> Any:
@@ -332,22 +351,23 @@ class RemoteFile(io.RawIOBase):
         return b - a
 
     def _cached(self, a: int, b: int) -> bytes:
+        """Bytes ``a:b`` through the block cache (shared by every open of this object in
+        the process: a command opens a granule several times, its metadata is fetched once)."""
         first, last = a // BLOCK, (b - 1) // BLOCK
-        with self._lock:
-            missing = [k for k in range(first, last + 1) if k not in self._cache]
+        keys = [(self.remote_path, self.size, BLOCK, k) for k in range(first, last + 1)]
+        with _CACHE_LOCK:
+            have = {key: _BLOCKS[key] for key in keys if key in _BLOCKS}
+        missing = [key for key in keys if key not in have]
         if missing:
-            spans = [(k * BLOCK, min(self.size, (k + 1) * BLOCK)) for k in missing]
-            for k, blob in zip(missing, self.fetch(spans)):
-                with self._lock:
-                    self._cache[k] = blob
-        with self._lock:
-            parts = []
-            for k in range(first, last + 1):
-                self._cache.move_to_end(k)
-                parts.append(self._cache[k])
-            while len(self._cache) > MAX_BLOCKS:
-                self._cache.popitem(last=False)
-        joined = b"".join(parts)
+            spans = [(k * BLOCK, min(self.size, (k + 1) * BLOCK)) for *_, k in missing]
+            have.update(zip(missing, self.fetch(spans)))
+        with _CACHE_LOCK:
+            for key in keys:
+                _BLOCKS[key] = have[key]
+                _BLOCKS.move_to_end(key)
+            while len(_BLOCKS) > MAX_BLOCKS:
+                _BLOCKS.popitem(last=False)
+        joined = b"".join(have[key] for key in keys)
         return joined[a - first * BLOCK:b - first * BLOCK]
 
 
