@@ -172,9 +172,10 @@ class S3Server:
             auth = environ.get("HTTP_AUTHORIZATION", "")
             ranged = "HTTP_RANGE" in environ
             if "Credential=DENIED/" in auth:
+                body = b"" if environ.get("REQUEST_METHOD") == "HEAD" else _DENIED
                 start_response("403 Forbidden", [("Content-Type", "application/xml"),
-                                                 ("Content-Length", str(len(_DENIED)))])
-                return [_DENIED]
+                                                 ("Content-Length", str(len(body)))])
+                return [body]
             if ranged and environ.get("REQUEST_METHOD") == "GET" and self.fail_next_gets > 0:
                 self.fail_next_gets -= 1
                 start_response("503 Slow Down", [("Content-Type", "application/xml"),

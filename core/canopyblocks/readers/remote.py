@@ -142,32 +142,49 @@ def _filesystem(url: str) -> Any:
         return HTTPFileSystem(block_size=0)
 
 
+def _chain(exc: BaseException) -> list[BaseException]:
+    """``exc`` and the exceptions it was raised from (fsspec wraps a failed HEAD in a
+    FileNotFoundError)."""
+    out: list[BaseException] = []
+    cur: BaseException | None = exc
+    while cur is not None and all(cur is not e for e in out):
+        out.append(cur)
+        cur = cur.__cause__ or cur.__context__
+    return out
+
+
 def _status(exc: BaseException) -> int | None:
-    for attr in ("status", "status_code", "code"):
-        v = getattr(exc, attr, None)
-        if isinstance(v, int) and 100 <= v < 600:
-            return v
-    resp = getattr(exc, "response", None)
-    if isinstance(resp, dict):
-        v = resp.get("ResponseMetadata", {}).get("HTTPStatusCode")
-        if isinstance(v, int):
-            return v
+    """The HTTP status behind ``exc`` (or the exceptions it was raised from), if any."""
+    for e in _chain(exc):
+        for attr in ("status", "status_code", "code"):
+            v = getattr(e, attr, None)
+            if isinstance(v, int) and 100 <= v < 600:
+                return v
+        resp = getattr(e, "response", None)
+        if isinstance(resp, dict):
+            v = resp.get("ResponseMetadata", {}).get("HTTPStatusCode")
+            if isinstance(v, int):
+                return v
     return None
+
+
+_CONNECTION_WORDS = ("Connect", "Timeout", "Disconnect", "Payload", "Endpoint",
+                     "ClientOSError", "IncompleteRead")
+
+
+def _connection_lost(exc: BaseException) -> bool:
+    return any(isinstance(e, (ConnectionError, TimeoutError, EOFError))
+               or any(w in type(e).__name__ for w in _CONNECTION_WORDS) for e in _chain(exc))
 
 
 def _transient(exc: BaseException) -> bool:
     """A failure worth another try: connection dropped or timed out, 5xx, throttling."""
-    if isinstance(exc, (FileNotFoundError, PermissionError, IsADirectoryError)):
+    if any("Credential" in type(e).__name__ for e in _chain(exc)):
         return False
     status = _status(exc)
     if status is not None:
         return status >= 500 or status in (408, 429)
-    name = type(exc).__name__
-    if "Credential" in name:
-        return False
-    return isinstance(exc, (ConnectionError, TimeoutError, EOFError)) or any(
-        word in name for word in ("Connect", "Timeout", "Disconnect", "Payload", "Endpoint",
-                                  "ReadTimeout", "ClientOSError", "IncompleteRead"))
+    return _connection_lost(exc)
 
 
 def _explain(exc: BaseException, label: str, tries: int) -> FileFormatError:
@@ -175,13 +192,13 @@ def _explain(exc: BaseException, label: str, tries: int) -> FileFormatError:
     name = type(exc).__name__
     status = _status(exc)
     s3 = label.lower().startswith("s3://")
-    if "NoCredentials" in name or "PartialCredentials" in name or (
-            "Credential" in name and "Error" in name):
+    if any("Credential" in type(e).__name__ for e in _chain(exc)):
         return FileFormatError(
             f"{label}: no credentials for S3 were found; set AWS_ACCESS_KEY_ID and "
             "AWS_SECRET_ACCESS_KEY (or AWS_PROFILE / ~/.aws/credentials), or open NASA "
             "granules with earthaccess.open(...) and pass the file object")
-    if isinstance(exc, FileNotFoundError) or status == 404:
+    if status == 404 or (isinstance(exc, FileNotFoundError) and status is None
+                         and not _connection_lost(exc)):
         return FileFormatError(
             f"{label}: not found (404); check the "
             + ("bucket and key" if s3 else "address") + " of the granule")
