@@ -22,6 +22,7 @@ from ..errors import FileFormatError, InputError
 from ..outputs.report import ReportSection, write_report
 from ..outputs.tables import write_layers, write_table
 from ..progress import Progress, as_progress
+from ..readers.remote import is_file_object, is_url, source_label, source_name
 from ..schema import FLAG_OK, FLAGS, LAYER_BLOCKS, LAYER_RESIDUALS, LAYER_STATS
 from .blocks import blocks_from_file
 from .chain_report import datum_sentence
@@ -224,7 +225,7 @@ def run_chain(
         if coregister:
             blocks, offsets_doc, before = _coregistered(
                 blocks, res.tracks, rasters, out, vkw, prog.sub(0.75, 0.8),
-                source=Path(photons).name)
+                source=source_name(photons))
             if before is not None:
                 layers[f"{LAYER_STATS}_uncorrected"] = before
         val = validate_blocks(blocks, dtm=rasters.dtm, dsm_max=rasters.dsm_max,
@@ -277,7 +278,7 @@ def run_chain(
         map_png = _residual_map(lead_res, rasters.dtm, plots_dir, lead)
         plots.append(map_png)
         prog.update(0.95, "report")
-        report = _report(out, tiles=tiles, photons=Path(photons), simulated=simulated,
+        report = _report(out, tiles=tiles, photons=photons, simulated=simulated,
                          params=params, width=width, resolution=resolution, blocks=blocks,
                          stats=val.stats, plots=plots, azimuth=azimuth,
                          datum=datum_sentence(val.datum, geoid=geoid, offset=offset,
@@ -288,7 +289,7 @@ def run_chain(
                          compare_preset=compare_preset, offsets=offsets_doc, lead=lead,
                          layers=layers, tracks=res.tracks, map_png=map_png)
         prog.update(1.0, "done")
-        return ChainResult(out_dir=out, photons=Path(photons), blocks=out / "blocks.gpkg",
+        return ChainResult(out_dir=out, photons=_as_path(photons), blocks=out / "blocks.gpkg",
                            rasters={"dtm": rasters.dtm, "dsm_max": rasters.dsm_max,
                                     "dsm_p90": rasters.dsm_p90},
                            validation=validation, report=report, plots=plots, stats=val.stats,
@@ -378,7 +379,7 @@ def _compare_preset(name: str, tracks: Any, params: BlockParams, rasters: Any, o
     try:
         cal = fit_bias_calibration(residuals, strengths=track_strengths(photons, tracks) or None,
                                    preset=name, corridor_width=vkw["width"],
-                                   sources=(Path(photons).name,))
+                                   sources=(source_name(photons),))
     except NoUsableDataError as exc:
         log.warning("no bias calibration for the %s preset: %s", name, exc)
         table = pd.DataFrame()
@@ -442,7 +443,12 @@ def _residual_map(residuals: Any, dtm: Path, folder: Path, lead: Any) -> Path:
                                     f"{length:g} m blocks")
 
 
-def _report(out: Path, *, tiles: list[Path], photons: Path, simulated: bool,
+def _as_path(photons: Any) -> Path | str:
+    """A local file as a Path; a URL or an open file by its name in messages."""
+    return source_label(photons) if is_url(photons) or is_file_object(photons) else Path(photons)
+
+
+def _report(out: Path, *, tiles: list[Path], photons: Any, simulated: bool,
             params: BlockParams, width: float, resolution: float, blocks: pd.DataFrame,
             stats: pd.DataFrame, datum: str, plots: list[Path], azimuth: float,
             diameter: float, preset: str, seed: int, lead: Any, layers: dict[str, Any],
@@ -456,15 +462,15 @@ def _report(out: Path, *, tiles: list[Path], photons: Path, simulated: bool,
 
     source = (f"ICESat-2 photons simulated over the airborne tiles: track azimuth "
               f"{azimuth:g} degrees, {diameter:g} m footprints, '{preset}' photon rate, "
-              f"seed {seed}; written in the ATL03 layout to {photons.name} and read back."
-              if simulated else f"Photons read from {photons}.")
+              f"seed {seed}; written in the ATL03 layout to {source_name(photons)} and read "
+              "back." if simulated else f"Photons read from {source_label(photons)}.")
     counts = (blocks.groupby(["length", "flag"]).size().unstack(fill_value=0).reset_index()
               if len(blocks) else pd.DataFrame())
     counts = (report_stats_table(counts.rename_axis(columns=None)).rename(
         columns={f: f"{f} (blocks)" for f in FLAGS}) if len(counts) else counts)
     beams = [str(t.track) for t in tracks]
     sections = [summary_section(
-        lead, source=photons.name + (" (simulated)" if simulated else ""),
+        lead, source=source_name(photons) + (" (simulated)" if simulated else ""),
         n_tracks=len(tracks), n_photons=int(sum(len(t) for t in tracks)), beams=beams,
         lengths=params.lengths, tiles=tiles, n_blocks=len(blocks),
         map_png=map_png)]
