@@ -40,10 +40,10 @@ def main() -> None:
     args = ap.parse_args()
 
     import pandas as pd
-    from loopback_servers import S3Server, write_track_granule
 
     from canopyblocks import BlockParams, blocks_from_file
     from canopyblocks.readers import remote
+    from loopback_servers import S3Server, write_track_granule
 
     work = Path(args.workdir)
     work.mkdir(parents=True, exist_ok=True)

@@ -23,12 +23,11 @@ pytest.importorskip("s3fs")
 pytest.importorskip("aiohttp")
 pytest.importorskip("moto")
 
-from loopback_servers import RangeHTTPServer, S3Server, write_track_granule  # noqa: E402
-
 from canopyblocks import BlockParams, blocks_from_file  # noqa: E402
 from canopyblocks.errors import FileFormatError, InputError  # noqa: E402
 from canopyblocks.readers import read_atl03, remote  # noqa: E402
 from canopyblocks.readers.sniff import file_info  # noqa: E402
+from loopback_servers import RangeHTTPServer, S3Server, write_track_granule  # noqa: E402
 
 PARAMS = BlockParams(lengths=(25.0,))
 ATL03 = "icesat2/vegr_atl03_clip.h5"
