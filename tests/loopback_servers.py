@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import http.server
 import threading
+import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -61,6 +62,10 @@ class _RangeHandler(http.server.BaseHTTPRequestHandler):
             self.close_connection = True
             self.connection.close()
             return True
+        if rel.startswith("slow/"):  # a server that never answers in time
+            time.sleep(self.server.delay)
+            self.close_connection = True
+            return True
         return False
 
     def do_HEAD(self) -> None:
@@ -106,11 +111,13 @@ class _HTTPServer(http.server.ThreadingHTTPServer):
     daemon_threads = True
     root: Path
     tally: Tally
+    delay: float = 2.0
 
 
 class RangeHTTPServer:
     """Files under ``root`` at ``http://127.0.0.1:<port>/<name>``; ``private/...`` answers
-    403, ``drop/...`` closes the connection without an answer, others 404 when missing."""
+    403, ``drop/...`` closes the connection without an answer, ``slow/...`` answers nothing
+    for ``delay`` seconds, others 404 when missing."""
 
     def __init__(self, root: Path) -> None:
         self.server = _HTTPServer((LOOPBACK, 0), _RangeHandler)

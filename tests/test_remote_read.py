@@ -223,6 +223,15 @@ def test_https_dropped_connection(http):
               "check the network")
 
 
+def test_https_timed_out(http, monkeypatch):
+    monkeypatch.setattr(remote, "READ_TIMEOUT", 0.3)  # the server keeps silent for 2 s
+    monkeypatch.setattr(remote, "RETRIES", 1)
+    url = f"{http.url}/slow/granule.h5"
+    with pytest.raises(FileFormatError) as exc:
+        blocks_from_file(url, PARAMS)
+    _one_line(exc, url, "connection failed after 2 tries", "no answer within 0.3 s")
+
+
 def test_s3_store_gone(s3_env, monkeypatch):
     # a port nothing listens on (bound, then closed): the connection is refused
     import socket

@@ -46,6 +46,9 @@ MAX_REQUEST = 1 << 23
 #: Tries after the first for a transient failure; back-off ``BACKOFF * 2**k`` seconds.
 RETRIES = 4
 BACKOFF = 0.5
+#: Seconds to wait for a connection, and for the next bytes of an answer.
+CONNECT_TIMEOUT = 20.0
+READ_TIMEOUT = 60.0
 
 _SCHEMES = ("s3://", "http://", "https://")
 
@@ -123,7 +126,8 @@ def _filesystem(url: str) -> Any:
             kw: dict[str, Any] = {
                 # botocore's own tries: 2 (ours wrap them, with back-off)
                 "config_kwargs": {"retries": {"max_attempts": 2, "mode": "standard"},
-                                  "connect_timeout": 20, "read_timeout": 60},
+                                  "connect_timeout": CONNECT_TIMEOUT,
+                                  "read_timeout": READ_TIMEOUT},
             }
             if endpoint:
                 kw["endpoint_url"] = endpoint
@@ -136,10 +140,12 @@ def _filesystem(url: str) -> Any:
             fs = s3fs.S3FileSystem(**kw)
             fs.retries = 2  # s3fs's own loop (ours wraps it, with back-off)
             return fs
-        _need("aiohttp")
+        aiohttp = _need("aiohttp")
         from fsspec.implementations.http import HTTPFileSystem
 
-        return HTTPFileSystem(block_size=0)
+        timeout = aiohttp.ClientTimeout(total=None, sock_connect=CONNECT_TIMEOUT,
+                                        sock_read=READ_TIMEOUT)
+        return HTTPFileSystem(block_size=0, client_kwargs={"timeout": timeout})
 
 
 def _chain(exc: BaseException) -> list[BaseException]:
@@ -209,7 +215,11 @@ def _explain(exc: BaseException, label: str, tries: int) -> FileFormatError:
                "AWS_PROFILE, ~/.aws) may read this object, and AWS_ENDPOINT_URL"
                if s3 else "log in (earthaccess.login()) or renew the link, then run again"))
     if _transient(exc):
-        why = f"HTTP {status}" if status else name
+        lost = [type(e).__name__ for e in _chain(exc) if _connection_lost(e)]
+        why = f"HTTP {status}" if status else (lost[-1] if lost else name)
+        if "Timeout" in why:
+            wait = CONNECT_TIMEOUT if "Connect" in why else READ_TIMEOUT
+            why = f"no answer within {wait:g} s"
         return FileFormatError(
             f"{label}: the connection failed after {tries} tries ({why}); check the "
             "network" + (" and AWS_ENDPOINT_URL" if s3 else "") + ", then run again")
