@@ -312,3 +312,16 @@ def test_batch_inputs_from_a_list_and_a_prefix(s3_env, tmp_path):
     assert list_inputs(["s3://granules/ATL03/"], (".h5",)) == [
         f"s3://granules/ATL03/{n}" for n in ("ATL03_long.h5", "harmony_ATL03_gt1l.h5",
                                              "vegr_atl03_clip.h5")]
+
+
+def test_cli_batch_takes_urls(s3_env, tmp_path):
+    """click does not refuse a URL as a missing file; an empty prefix is said in one line."""
+    tiles = tmp_path / "tiles"
+    tiles.mkdir()
+    url = "s3://granules/nothing-here/"
+    r = _cli("batch", url, "--tiles", str(tiles), "-o", str(tmp_path / "out"),
+             env=_aws(s3_env))
+    assert r.returncode == 2, r.stderr
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and url in lines[0] and "no input files" in lines[0], lines
+    assert "does not exist" not in r.stderr
