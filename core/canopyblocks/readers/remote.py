@@ -13,6 +13,9 @@ index first, then the photon rows inside the study area) fetch only the chunks t
   of ``BLOCK`` bytes per block (at most ``MAX_BLOCKS`` blocks); reads of a block or more go
   straight to storage.  Many chunks at once (:meth:`RemoteFile.fetch`) are coalesced
   (neighbours within ``MAX_GAP`` bytes) and fetched concurrently.
+* Why fsspec and not h5coro: h5coro reads HDF5 with its own parser of a subset of the format;
+  the readers here stand on h5py (the chunk index, filters, HDF5's own check of the first
+  chunk), so a URL goes through the very code a local file does and gives the same numbers.
 * Transient failures (a dropped or timed-out connection, HTTP 5xx, throttling) are retried
   ``RETRIES`` times with exponential back-off; every failure ends as one
   :class:`~canopyblocks.errors.FileFormatError` line naming the URL (without its query string,
