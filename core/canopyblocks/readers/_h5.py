@@ -293,8 +293,7 @@ def open_h5(path: str | os.PathLike[str] | IO[bytes], product: str = "HDF5"
         return
     if not isinstance(path, (str, os.PathLike)):
         from ..arguments import describe
-        raise InputError(f"expected the path of {kind} (str or Path), an s3:// or https:// "
-                         f"URL, or an open binary file; got {describe(path)}")
+        raise InputError(f"expected the path of {kind} (str or Path), got {describe(path)}")
     p = Path(path)
     if not p.exists():
         raise FileFormatError(f"{p}: file does not exist")
