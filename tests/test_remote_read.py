@@ -167,7 +167,9 @@ def test_transient_503_is_retried(s3_env, sample):
 
 
 # ------------------------------------------------------------------- failures, one line
-def _one_line(exc: pytest.ExceptionInfo[BaseException], url: str, *words: str) -> str:
+def _one_line(exc: pytest.ExceptionInfo[BaseException], url: str, *words: str,
+              storage: bool = True) -> str:
+    assert isinstance(exc.value, remote.StorageError) == storage, repr(exc.value)
     msg = str(exc.value)
     assert "\n" not in msg
     assert msg.startswith(url), msg
@@ -251,7 +253,7 @@ def test_not_hdf5_and_bad_argument(http, granule_dir):
     url = f"{http.url}/notes.h5"
     with pytest.raises(FileFormatError) as exc:
         blocks_from_file(url, PARAMS)
-    _one_line(exc, url, "not an HDF5 file")
+    _one_line(exc, url, "not an HDF5 file", storage=False)
     with pytest.raises(InputError):
         blocks_from_file(12, PARAMS)  # type: ignore[arg-type]
 

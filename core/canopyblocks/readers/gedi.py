@@ -134,9 +134,12 @@ def gedi_vertical_datum(path: str | os.PathLike[str]) -> str:
 
 def is_gedi_l1b(path: str | os.PathLike[str]) -> bool:
     """True when ``path`` is an HDF5 file with a ``BEAMxxxx/rxwaveform`` dataset."""
+    from .remote import StorageError
     try:
         with open_h5(path) as f:
             return any(f.is_dataset(f"{b}/rxwaveform") for b in _beams_in(f))
+    except StorageError:
+        raise  # a granule in storage that cannot be fetched: said once, not tried again
     except (FileFormatError, OSError):
         return False
 

@@ -18,7 +18,7 @@ index first, then the photon rows inside the study area) fetch only the chunks t
   chunk), so a URL goes through the very code a local file does and gives the same numbers.
 * Transient failures (a dropped or timed-out connection, HTTP 5xx, throttling) are retried
   ``RETRIES`` times with exponential back-off; every failure ends as one
-  :class:`~canopyblocks.errors.FileFormatError` line naming the URL (without its query string,
+  :class:`StorageError` (a :class:`~canopyblocks.errors.FileFormatError`) line naming the URL (without its query string,
   where signed links keep their secrets) and what to do.
 """
 
@@ -35,7 +35,8 @@ from urllib.parse import urlsplit, urlunsplit
 
 from ..errors import DependencyError, FileFormatError
 
-__all__ = ["is_url", "is_file_object", "source_arg", "source_label", "source_name", "RemoteFile",
+__all__ = ["StorageError", "is_url", "is_file_object", "source_arg", "source_label",
+           "source_name", "RemoteFile",
            "open_source", "list_granules", "clear_cache", "BLOCK", "MAX_BLOCKS", "MAX_GAP", "RETRIES"]
 
 #: Bytes per cached block (HDF5 metadata and small reads).
@@ -54,6 +55,11 @@ CONNECT_TIMEOUT = 20.0
 READ_TIMEOUT = 60.0
 
 _SCHEMES = ("s3://", "http://", "https://")
+
+
+class StorageError(FileFormatError):
+    """Object storage failed (not found, access denied, no credentials, connection lost):
+    one line naming the URL (never a secret) and what to do."""
 
 
 def is_url(value: object) -> bool:
@@ -196,23 +202,23 @@ def _transient(exc: BaseException) -> bool:
     return _connection_lost(exc)
 
 
-def _explain(exc: BaseException, label: str, tries: int) -> FileFormatError:
+def _explain(exc: BaseException, label: str, tries: int) -> StorageError:
     """One line: the URL (no secrets) and what to do."""
     name = type(exc).__name__
     status = _status(exc)
     s3 = label.lower().startswith("s3://")
     if any("Credential" in type(e).__name__ for e in _chain(exc)):
-        return FileFormatError(
+        return StorageError(
             f"{label}: no credentials for S3 were found; set AWS_ACCESS_KEY_ID and "
             "AWS_SECRET_ACCESS_KEY (or AWS_PROFILE / ~/.aws/credentials), or open NASA "
             "granules with earthaccess.open(...) and pass the file object")
     if status == 404 or (isinstance(exc, FileNotFoundError) and status is None
                          and not _connection_lost(exc)):
-        return FileFormatError(
+        return StorageError(
             f"{label}: not found (404); check the "
             + ("bucket and key" if s3 else "address") + " of the granule")
     if isinstance(exc, PermissionError) or status in (401, 403):
-        return FileFormatError(
+        return StorageError(
             f"{label}: access denied ({status or 403}); "
             + ("check that the credentials (AWS_ACCESS_KEY_ID/AWS_SECRET_ACCESS_KEY, "
                "AWS_PROFILE, ~/.aws) may read this object, and AWS_ENDPOINT_URL"
@@ -223,10 +229,10 @@ def _explain(exc: BaseException, label: str, tries: int) -> FileFormatError:
         if "Timeout" in why:
             wait = CONNECT_TIMEOUT if "Connect" in why else READ_TIMEOUT
             why = f"no answer within {wait:g} s"
-        return FileFormatError(
+        return StorageError(
             f"{label}: the connection failed after {tries} tries ({why}); check the "
             "network" + (" and AWS_ENDPOINT_URL" if s3 else "") + ", then run again")
-    return FileFormatError(f"{label}: cannot read from storage ({name}"
+    return StorageError(f"{label}: cannot read from storage ({name}"
                            + (f", HTTP {status}" if status else "") + ")")
 
 
@@ -297,7 +303,7 @@ class RemoteFile(io.RawIOBase):
         info = self._retry(lambda: self.fs.info(self.remote_path))
         size = info.get("size") if isinstance(info, dict) else None
         if not isinstance(size, int):
-            self.error = FileFormatError(
+            self.error = StorageError(
                 f"{self.label}: the server does not tell the size of the granule; it cannot "
                 "be read by ranges (download it, then pass the local file)")
             raise self.error
