@@ -327,3 +327,35 @@ def test_cli_batch_takes_urls(s3_env, tmp_path):
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and url in lines[0] and "no input files" in lines[0], lines
     assert "does not exist" not in r.stderr
+
+
+def test_nasa_bucket_keys_from_earthaccess(s3_env, sample, monkeypatch):
+    """No AWS keys, a bucket of NASA's archive: Earthdata's temporary keys through
+    earthaccess (here a stand-in module handing out keys the loopback store accepts)."""
+    import types
+
+    asked: list[str] = []
+    fake = types.ModuleType("earthaccess")
+    fake.__auth__ = types.SimpleNamespace(authenticated=True)  # type: ignore[attr-defined]
+
+    def get_s3_credentials(daac: str) -> dict[str, str]:
+        asked.append(daac)
+        return {"accessKeyId": "testing", "secretAccessKey": SECRET, "sessionToken": "t",
+                "expiration": "later"}
+
+    fake.get_s3_credentials = get_s3_credentials  # type: ignore[attr-defined]
+    monkeypatch.setitem(sys.modules, "earthaccess", fake)
+    s3_env.put("nsidc-cumulus-prod-protected", "ATLAS/ATL03/006/vegr_atl03_clip.h5",
+               sample(ATL03))
+    monkeypatch.delenv("AWS_ACCESS_KEY_ID")
+    monkeypatch.delenv("AWS_SECRET_ACCESS_KEY")
+    url = "s3://nsidc-cumulus-prod-protected/ATLAS/ATL03/006/vegr_atl03_clip.h5"
+    _same(blocks_from_file(url, PARAMS).blocks, blocks_from_file(sample(ATL03), PARAMS).blocks)
+    assert asked == ["NSIDC"]  # once: the keys are kept for the hour they last
+    # earthaccess without a login: the standard chain decides, and says what to do
+    remote.clear_cache()
+    fake.__auth__ = types.SimpleNamespace(authenticated=False)  # type: ignore[attr-defined]
+    fake.login = lambda strategy: None  # type: ignore[attr-defined]
+    with pytest.raises(FileFormatError) as exc:
+        blocks_from_file(url, PARAMS)
+    _one_line(exc, url, "no credentials", "earthaccess")

@@ -7,7 +7,9 @@ a :class:`RemoteFile`, a read-only, seekable file object that HDF5 reads through
 index first, then the photon rows inside the study area) fetch only the chunks they need.
 
 * Transport: ``fsspec`` with ``s3fs`` (credentials from the standard chain: the AWS
-  variables, ``~/.aws``, an instance role; the endpoint from ``AWS_ENDPOINT_URL``) or its
+  variables, ``AWS_PROFILE``/``~/.aws``, an instance role; for a bucket of NASA's archives
+  without any of these, Earthdata's temporary keys through ``earthaccess`` where installed;
+  the endpoint from ``AWS_ENDPOINT_URL``) or its
   HTTP file system (range requests, with ``aiohttp``): the optional ``cloud`` extra.
 * Caching is modest: small reads (HDF5's metadata, a chunk or two) go through an LRU cache
   of ``BLOCK`` bytes per block (at most ``MAX_BLOCKS`` blocks); reads of a block or more go
@@ -144,8 +146,10 @@ def _filesystem(url: str) -> Any:
                 # the chain's first link, passed on so that a changed key gets a new client
                 kw.update(key=env["AWS_ACCESS_KEY_ID"], secret=env["AWS_SECRET_ACCESS_KEY"],
                           token=env.get("AWS_SESSION_TOKEN") or None)
-            if env.get("AWS_PROFILE"):
+            elif env.get("AWS_PROFILE"):
                 kw["profile"] = env["AWS_PROFILE"]
+            else:  # a NASA archive's bucket: Earthdata's temporary keys, where earthaccess is
+                kw.update(_earthdata_credentials(url))
             fs = s3fs.S3FileSystem(**kw)
             fs.retries = 2  # s3fs's own loop (ours wraps it, with back-off)
             return fs
@@ -166,6 +170,52 @@ def _chain(exc: BaseException) -> list[BaseException]:
         out.append(cur)
         cur = cur.__cause__ or cur.__context__
     return out
+
+
+#: Buckets of NASA's archives (by prefix) and their data centre: ICESat-2 at NSIDC, GEDI
+#: L1B/L2 at LP DAAC, GEDI L4 at ORNL DAAC.
+DAAC_BUCKETS = {"nsidc-cumulus-prod-": "NSIDC", "lp-prod-": "LPDAAC",
+                "ornl-cumulus-prod-": "ORNLDAAC"}
+_EARTHDATA: dict[str, tuple[float, dict[str, str]]] = {}  # daac -> (time, keys)
+_EARTHDATA_SECONDS = 50 * 60  # the keys last an hour
+
+
+def _earthdata_credentials(url: str) -> dict[str, str]:
+    """Temporary S3 keys of NASA Earthdata for a NASA bucket, through ``earthaccess`` when it
+    is installed and a login works without a prompt (``EARTHDATA_USERNAME``/``_PASSWORD`` or
+    ``~/.netrc``); ``{}`` otherwise (the standard chain then decides)."""
+    import importlib
+
+    bucket = url.split("://", 1)[-1].split("/", 1)[0]
+    daac = next((d for prefix, d in DAAC_BUCKETS.items() if bucket.startswith(prefix)), None)
+    if daac is None:
+        return {}
+    now = time.monotonic()
+    got = _EARTHDATA.get(daac)
+    if got is not None and now - got[0] < _EARTHDATA_SECONDS:
+        return got[1]
+    try:
+        ea = importlib.import_module("earthaccess")
+    except ImportError:
+        return {}
+    try:
+        if not getattr(getattr(ea, "__auth__", None), "authenticated", False):
+            for strategy in ("environment", "netrc"):  # never the interactive prompt
+                try:
+                    ea.login(strategy=strategy)
+                except Exception:  # noqa: BLE001 -- the next strategy, or none
+                    continue
+                if getattr(getattr(ea, "__auth__", None), "authenticated", False):
+                    break
+            else:
+                return {}
+        creds = ea.get_s3_credentials(daac=daac)
+        keys = {"key": str(creds["accessKeyId"]), "secret": str(creds["secretAccessKey"]),
+                "token": str(creds["sessionToken"])}
+    except Exception:  # noqa: BLE001 -- no keys: the standard chain decides, and says so
+        return {}
+    _EARTHDATA[daac] = (now, keys)
+    return keys
 
 
 def _status(exc: BaseException) -> int | None:
@@ -249,6 +299,7 @@ def clear_cache() -> None:
     with _CACHE_LOCK:
         _BLOCKS.clear()
         _SIZES.clear()
+        _EARTHDATA.clear()
 
 
 class RemoteFile(io.RawIOBase):
