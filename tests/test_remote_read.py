@@ -359,3 +359,17 @@ def test_nasa_bucket_keys_from_earthaccess(s3_env, sample, monkeypatch):
     with pytest.raises(FileFormatError) as exc:
         blocks_from_file(url, PARAMS)
     _one_line(exc, url, "no credentials", "earthaccess")
+
+
+def test_gedi_footprints_from_https_identical_to_local(gedi_l1b, monkeypatch):
+    from canopyblocks.workflows.waveforms import footprints_from_l1b
+
+    monkeypatch.setattr(remote, "BACKOFF", 0.01)
+    remote.clear_cache()
+    with RangeHTTPServer(gedi_l1b.parent) as server:
+        url = f"{server.url}/{gedi_l1b.name}"
+        got = footprints_from_l1b(url)[0]
+        assert server.tally.requests == server.tally.range_requests > 0
+    local = footprints_from_l1b(gedi_l1b)[0]
+    assert len(local) == 300
+    _same(got, local)
