@@ -83,6 +83,9 @@ class _RangeHandler(http.server.BaseHTTPRequestHandler):
     def do_GET(self) -> None:
         if self._refuse():
             return
+        if self.server.tally.requests >= self.server.fail_after:  # the store went down
+            self.send_error(503, "Service Unavailable")
+            return
         p = self._file()
         if p is None:
             self.send_error(404, "Not Found")
@@ -112,15 +115,18 @@ class _HTTPServer(http.server.ThreadingHTTPServer):
     root: Path
     tally: Tally
     delay: float = 2.0
+    fail_after: float = float("inf")
 
 
 class RangeHTTPServer:
     """Files under ``root`` at ``http://127.0.0.1:<port>/<name>``; ``private/...`` answers
     403, ``drop/...`` closes the connection without an answer, ``slow/...`` answers nothing
-    for ``delay`` seconds, others 404 when missing."""
+    for ``delay`` seconds, others 404 when missing; after ``fail_after`` answered GETs every
+    GET gets 503 (a store that goes down in the middle of a read)."""
 
-    def __init__(self, root: Path) -> None:
+    def __init__(self, root: Path, fail_after: float = float("inf")) -> None:
         self.server = _HTTPServer((LOOPBACK, 0), _RangeHandler)
+        self.server.fail_after = fail_after
         self.server.root = Path(root).resolve()
         self.server.tally = self.tally = Tally()
         self._thread = threading.Thread(target=self.server.serve_forever, daemon=True)

@@ -234,6 +234,19 @@ def test_https_timed_out(http, monkeypatch):
     _one_line(exc, url, "connection failed after 2 tries", "no answer within 0.3 s")
 
 
+def test_store_down_in_the_middle_of_a_read(granule_dir, monkeypatch, tmp_path):
+    monkeypatch.setattr(remote, "BACKOFF", 0.01)
+    remote.clear_cache()
+    out = tmp_path / "blocks.parquet"
+    with RangeHTTPServer(granule_dir, fail_after=12) as server:
+        url = f"{server.url}/ATL03_long.h5"
+        with pytest.raises(FileFormatError) as exc:
+            blocks_from_file(url, PARAMS, output=out, workers=1)
+        assert server.tally.requests == 12  # it had read part of the granule
+    _one_line(exc, url, "connection failed", "HTTP 503", "run again")
+    assert list(tmp_path.iterdir()) == []  # nothing half-written
+
+
 def test_s3_store_gone(s3_env, monkeypatch):
     # a port nothing listens on (bound, then closed): the connection is refused
     import socket

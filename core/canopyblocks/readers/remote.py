@@ -9,8 +9,8 @@ index first, then the photon rows inside the study area) fetch only the chunks t
 * Transport: ``fsspec`` with ``s3fs`` (credentials from the standard chain: the AWS
   variables, ``AWS_PROFILE``/``~/.aws``, an instance role; for a bucket of NASA's archives
   without any of these, Earthdata's temporary keys through ``earthaccess`` where installed;
-  the endpoint from ``AWS_ENDPOINT_URL``) or its
-  HTTP file system (range requests, with ``aiohttp``): the optional ``cloud`` extra.
+  the endpoint from ``AWS_ENDPOINT_URL``) or its HTTP file system (range requests, with
+  ``aiohttp``): the optional ``cloud`` extra.
 * Caching is modest: small reads (HDF5's metadata, a chunk or two) go through an LRU cache
   of ``BLOCK`` bytes per block (at most ``MAX_BLOCKS`` blocks); reads of a block or more go
   straight to storage.  Many chunks at once (:meth:`RemoteFile.fetch`) are coalesced
@@ -20,8 +20,8 @@ index first, then the photon rows inside the study area) fetch only the chunks t
   chunk), so a URL goes through the very code a local file does and gives the same numbers.
 * Transient failures (a dropped or timed-out connection, HTTP 5xx, throttling) are retried
   ``RETRIES`` times with exponential back-off; every failure ends as one
-  :class:`StorageError` (a :class:`~canopyblocks.errors.FileFormatError`) line naming the URL (without its query string,
-  where signed links keep their secrets) and what to do.
+  :class:`StorageError` line (a :class:`~canopyblocks.errors.FileFormatError`) naming the
+  URL (without its query string, where signed links keep their secrets) and what to do.
 """
 
 from __future__ import annotations
@@ -38,8 +38,8 @@ from urllib.parse import urlsplit, urlunsplit
 from ..errors import DependencyError, FileFormatError
 
 __all__ = ["StorageError", "is_url", "is_file_object", "source_arg", "source_label",
-           "source_name", "RemoteFile",
-           "open_source", "list_granules", "clear_cache", "BLOCK", "MAX_BLOCKS", "MAX_GAP", "RETRIES"]
+           "source_name", "RemoteFile", "open_source", "list_granules", "clear_cache",
+           "BLOCK", "MAX_BLOCKS", "MAX_GAP", "RETRIES"]
 
 #: Bytes per cached block (HDF5 metadata and small reads).
 BLOCK = 1 << 15
