@@ -10,6 +10,8 @@ echo "== simulator (bench/bench_simulate.py)"
 "$PY" bench/bench_simulate.py
 echo "== granule scale (bench/bench_granule.py)"
 "$PY" bench/bench_granule.py
+echo "== a granule in object storage (bench/bench_remote.py)"
+"$PY" bench/bench_remote.py
 echo "== many granules (bench/bench_batch.py)"
 "$PY" bench/bench_batch.py
 echo "== GEDI waveforms (bench/bench_waveforms.py)"

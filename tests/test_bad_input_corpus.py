@@ -518,7 +518,17 @@ def check_param(case: Case, i: dict[str, Any], result: Any, ws: list[str]) -> No
     raise AssertionError(f"accepted: {result!r}")
 
 
-RUNNERS = {"atl03": (run_atl03, check_atl03), "atl08": (run_atl08, check_atl08),
+def run_atl03_url(i: dict[str, Any], folder: Path) -> Any:
+    """The damaged granule read from a loopback HTTP server (range requests); the check is
+    the local file's (plain h5py)."""
+    from loopback_servers import RangeHTTPServer
+
+    p = Path(i["path"])
+    with RangeHTTPServer(p.parent) as server:
+        return run_atl03({**i, "path": f"{server.url}/{p.name}"}, folder)
+
+
+RUNNERS = {"atl03": (run_atl03, check_atl03), "atl03-url": (run_atl03_url, check_atl03), "atl08": (run_atl08, check_atl08),
            "las": (run_las, check_las), "simulate": (run_simulate, check_simulate),
            "rasters": (run_rasters, check_rasters), "validate": (run_validate, check_validate),
            "table": (run_table, check_table), "param": (run_param, check_param)}

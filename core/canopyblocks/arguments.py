@@ -19,7 +19,7 @@ import numpy as np
 
 from .errors import InputError
 
-__all__ = ["describe", "check_path", "check_paths", "check_instance", "check_frame",
+__all__ = ["describe", "check_path", "check_source", "check_paths", "check_instance", "check_frame",
            "check_array", "check_number", "check_mapping", "check_choice"]
 
 T = TypeVar("T")
@@ -59,6 +59,18 @@ def check_path(value: object, name: str, what: str = "a file path (str or pathli
     if not _is_pathlike(value):
         raise _fail(name, what, value)
     return Path(value)  # type: ignore[arg-type]
+
+
+def check_source(value: object, name: str,
+                 what: str = "a file path, an s3:// or https:// URL, or an open binary file"
+                 ) -> Any:
+    """A granule as given: a path or URL (str, ``os.PathLike``) or an open binary file object
+    (``read`` and ``seek``, such as ``earthaccess.open`` returns); refuses None, numbers, ''."""
+    if _is_pathlike(value) or (
+            not isinstance(value, (str, bytes)) and callable(getattr(value, "read", None))
+            and callable(getattr(value, "seek", None))):
+        return value
+    raise _fail(name, what, value)
 
 
 def check_paths(value: object, name: str,

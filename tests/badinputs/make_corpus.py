@@ -908,6 +908,18 @@ def baseline_cases() -> list[Case]:
     return cases
 
 
+def url_cases() -> list[Case]:
+    """The damaged vegr ATL03 granules once more, read from a loopback HTTP server by range
+    requests (``https://`` in use): the same outcome as the local file, the URL named."""
+    from dataclasses import replace
+
+    vegr = [c for c in atl03_cases() if c.id.startswith("atl03-vegr-")]
+    # every truncation and bit flip (what a dropped transfer leaves), a sample of the rest
+    picked = [c for i, c in enumerate(vegr)
+              if "truncated" in c.id or "bitflip" in c.id or i % 8 == 0]
+    return [replace(c, id=f"url-{c.id}", runner="atl03-url") for c in picked]
+
+
 def all_cases() -> list[Case]:
     from .api_corpus import api_cases
     from .coregistration_cases import coregistration_cases
@@ -916,7 +928,8 @@ def all_cases() -> list[Case]:
 
     cases = (baseline_cases() + atl03_cases() + atl08_cases() + las_cases() + raster_cases() + table_cases()
              + param_cases() + cli_cases() + gedi_cases()
-             + coregistration_cases() + api_cases() + issue29_cases())
+             + coregistration_cases() + api_cases() + issue29_cases()
+             + url_cases())
     ids = [c.id for c in cases]
     dup = {i for i in ids if ids.count(i) > 1}
     if dup:

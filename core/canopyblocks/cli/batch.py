@@ -13,6 +13,7 @@ from .common import (
     preset_option,
     vertical_options,
 )
+from .sources import GranuleSource
 
 log = logging.getLogger(__name__)
 
@@ -23,7 +24,7 @@ def register(group: click.Group) -> None:
 
 
 @click.command("batch")
-@click.argument("granules", nargs=-1, required=True, type=click.Path(exists=True))
+@click.argument("granules", nargs=-1, required=True, type=GranuleSource(exists=True))
 @click.option("--tiles", "tiles", multiple=True, required=True, type=click.Path(exists=True),
               help="LAS/LAZ tile, or a folder of tiles (repeatable); one CRS.")
 @click.option("-o", "--output", required=True, type=click.Path(file_okay=False),
@@ -55,6 +56,9 @@ def batch(ctx: click.Context, granules: tuple[str, ...], tiles: tuple[str, ...],
           photon_vcrs: str, reference_vcrs: str | None, resolution: float, backend: str,
           workers: int | None, scheduler: str | None) -> None:
     """Validate many ATL03 granules (files or folders) against airborne tiles.
+
+    A granule may also be an s3:// or https:// URL, an s3:// prefix (every .h5 under it),
+    or a .txt file listing paths or URLs, one a line.
 
     One unit of work per (granule, beam, tiles it crosses); a rerun skips finished
     units; a failed unit is reported and the others complete.

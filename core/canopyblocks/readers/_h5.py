@@ -12,7 +12,7 @@ import logging
 import os
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
 
@@ -76,13 +76,18 @@ class H5File:
     ``"gt1r/heights/h_ph"``.
     """
 
-    def __init__(self, handle: Any, path: Path, product: str = "HDF5") -> None:
+    def __init__(self, handle: Any, path: Path | str, product: str = "HDF5",
+                 source: Any = None) -> None:
         self._f = handle
-        self.path = path
+        self.path = path  # a URL (without its query string) for a granule in storage
         self.product = product
+        self._source = source  # a readers.remote.RemoteFile, or None
 
     # ---------------------------------------------------------------- helpers
     def _fail(self, what: str, exc: BaseException | None = None) -> FileFormatError:
+        remote = getattr(self._source, "error", None)
+        if isinstance(remote, FileFormatError):  # storage failed, not the file
+            return remote
         tail = f" ({type(exc).__name__}: {exc})" if exc is not None else ""
         return FileFormatError(f"{self.path}: {what}{tail}")
 
@@ -131,6 +136,11 @@ class H5File:
                 "not the expected product"
             )
         return obj
+
+    @property
+    def _fetch(self) -> Any:
+        """Byte ranges of the granule in storage, coalesced and concurrent (None: local)."""
+        return getattr(self._source, "fetch", None)
 
     def shape(self, name: str) -> tuple[int, ...]:
         """Shape of dataset ``name``."""
@@ -187,7 +197,7 @@ class H5File:
         lo, hi, step = (sel if sel is not None else slice(None)).indices(int(shape[0]))
         if step != 1:
             return None
-        chunked = read_chunks(ds, lo, hi, dst)
+        chunked = read_chunks(ds, lo, hi, dst, fetch=self._fetch)
         if chunked is not None:
             return chunked
         out = np.empty(max(0, hi - lo), dtype=dst)
@@ -214,7 +224,7 @@ class H5File:
                 raise self._fail(f"dataset /{name} has shape {shape}, expected (n, k) with "
                                  f"k > {column}; the file is not the expected product")
             return np.ascontiguousarray(arr[:, column])
-        chunked = read_chunks(ds, lo, hi, dst, column)
+        chunked = read_chunks(ds, lo, hi, dst, column, fetch=self._fetch)
         if chunked is not None:
             return chunked
         out = np.empty(hi - lo, dtype=dst)
@@ -260,16 +270,27 @@ class H5File:
 
 
 @contextlib.contextmanager
-def open_h5(path: str | os.PathLike[str], product: str = "HDF5") -> Iterator[H5File]:
+def open_h5(path: str | os.PathLike[str] | IO[bytes], product: str = "HDF5"
+            ) -> Iterator[H5File]:
     """Open ``path`` read-only as an :class:`H5File`.
+
+    ``path`` may also be an ``s3://`` or ``https://`` URL or an open binary file object
+    (such as ``earthaccess.open`` returns): HDF5 then reads it by byte ranges
+    (:mod:`canopyblocks.readers.remote`).
 
     Raises
     ------
     FileFormatError
         When the file does not exist, is not HDF5, or cannot be opened
-        (truncated, corrupt); the message names the file.
+        (truncated, corrupt); for a URL also not found, access denied, no credentials or
+        the connection lost; the message names the file.
     """
     kind = "an HDF5 file" if product == "HDF5" else f"an HDF5 {product} file"
+    from .remote import is_file_object, is_url
+    if is_url(path) or is_file_object(path):
+        with _open_remote(path, kind) as (handle, label, source):
+            yield H5File(handle, label, product, source)
+        return
     if not isinstance(path, (str, os.PathLike)):
         from ..arguments import describe
         raise InputError(f"expected the path of {kind} (str or Path), got {describe(path)}")
@@ -291,6 +312,58 @@ def open_h5(path: str | os.PathLike[str], product: str = "HDF5") -> Iterator[H5F
         ) from None
     try:
         yield H5File(handle, p, product)
+    finally:
+        with contextlib.suppress(Exception):
+            handle.close()
+
+
+def _signature_at(fh: Any, size: int | None) -> bool:
+    off = 0
+    while (size is None or off + 8 <= size) and off <= 1 << 20:
+        fh.seek(off)
+        if fh.read(8) == HDF5_SIGNATURE:
+            return True
+        if size is None and off > 0:
+            return False
+        off = 512 if off == 0 else off * 2
+    return False
+
+
+@contextlib.contextmanager
+def _open_remote(value: Any, kind: str) -> Iterator[tuple[Any, str, Any]]:
+    """(h5py file, label, source) of a URL or a file object; a failure of the storage
+    raised as its own one-line message, whatever HDF5 or a reader made of it."""
+    from ..errors import CanopyBlocksError
+    from .remote import open_source, source_label
+
+    label = source_label(value)
+    source = open_source(value)
+    size = getattr(source, "size", None)
+    try:
+        ok = _signature_at(source, size if isinstance(size, int) else None)
+    except FileFormatError:
+        raise
+    except (OSError, ValueError) as exc:
+        raise FileFormatError(f"{label}: cannot read ({type(exc).__name__}: {exc})") from None
+    if not ok:
+        raise FileFormatError(f"{label}: not an HDF5 file (no HDF5 signature); expected {kind}")
+    source.seek(0)
+    h5py = _import_h5py()
+    try:
+        handle = h5py.File(source, "r")
+    except (OSError, RuntimeError, ValueError) as exc:
+        err = getattr(source, "error", None)
+        if isinstance(err, FileFormatError):
+            raise err from None
+        raise FileFormatError(
+            f"{label}: cannot open as HDF5, the file is truncated or corrupt ({exc})") from None
+    try:
+        yield handle, label, source
+    except CanopyBlocksError:
+        err = getattr(source, "error", None)
+        if isinstance(err, FileFormatError):
+            raise err from None
+        raise
     finally:
         with contextlib.suppress(Exception):
             handle.close()

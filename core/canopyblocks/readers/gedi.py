@@ -27,7 +27,6 @@ import re
 import warnings
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -135,9 +134,12 @@ def gedi_vertical_datum(path: str | os.PathLike[str]) -> str:
 
 def is_gedi_l1b(path: str | os.PathLike[str]) -> bool:
     """True when ``path`` is an HDF5 file with a ``BEAMxxxx/rxwaveform`` dataset."""
+    from .remote import StorageError
     try:
         with open_h5(path) as f:
             return any(f.is_dataset(f"{b}/rxwaveform") for b in _beams_in(f))
+    except StorageError:
+        raise  # a granule in storage that cannot be fetched: said once, not tried again
     except (FileFormatError, OSError):
         return False
 
@@ -170,7 +172,8 @@ def gedi_beam_info(path: str | os.PathLike[str]) -> list[GediBeamInfo]:
 
 def gedi_file_info(path: str | os.PathLike[str]) -> dict[str, Any]:
     """What ``canopyblocks info`` prints for a GEDI L1B file."""
-    info: dict[str, Any] = {"path": str(path), "product": "GEDI L1B", "beams": []}
+    from .remote import source_label
+    info: dict[str, Any] = {"path": source_label(path), "product": "GEDI L1B", "beams": []}
     lon_all, lat_all = [], []
     with open_h5(path) as f:
         for b in _beams_in(f):
@@ -409,8 +412,9 @@ def iter_gedi_l1b(path: str | os.PathLike[str], beams: Sequence[str] | str | Non
             raise InputError(f"bbox must be (lon_min, lat_min, lon_max, lat_max) in degrees "
                              f"(four numbers); got {bbox!r}") from None
     prog = as_progress(progress)
-    p = Path(path)
-    with open_h5(p) as f:
+    from .remote import source_label
+    p = source_label(path)  # a path, or a URL without its query string
+    with open_h5(path) as f:
         present = _beams_in(f)
         if not present or not any(f.is_dataset(f"{b}/rxwaveform") for b in present):
             raise FileFormatError(f"{p}: not a GEDI L1B file (no BEAMxxxx/rxwaveform); give "

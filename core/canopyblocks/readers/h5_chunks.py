@@ -26,6 +26,8 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import FileFormatError
+
 __all__ = ["read_chunks", "inflate_threads", "INFLATE"]
 
 _DEFLATE, _SHUFFLE = 1, 2
@@ -36,6 +38,8 @@ _MAX_INDEXED = 1024
 _MIN_CHUNKS = 4
 #: Chunks inflated by one task of the pool.
 _BATCH = 16
+#: Compressed bytes fetched at a time from object storage (then inflated on threads).
+_FETCH_BYTES = 1 << 26
 
 
 def _inflater() -> tuple[str, Callable[[bytes, int], bytes | bytearray]]:
@@ -97,7 +101,9 @@ def _chunk_table(ds: Any, n_rows: int, rows: int) -> list[tuple[int, int, int]] 
 
 
 def read_chunks(ds: Any, lo: int, hi: int, dtype: np.dtype | None = None,
-                column: int | None = None) -> np.ndarray | None:
+                column: int | None = None, *,
+                fetch: Callable[[list[tuple[int, int]]], list[bytes]] | None = None
+                ) -> np.ndarray | None:
     """Rows ``lo:hi`` of dataset ``ds`` (an open h5py dataset), inflated on threads.
 
     Parameters
@@ -109,6 +115,11 @@ def read_chunks(ds: Any, lo: int, hi: int, dtype: np.dtype | None = None,
         Convert to it (the caller has checked that the conversion is lossless).
     column : int, optional
         Of a 2-D dataset only this column (a 1-D array; no full-width copy is made).
+    fetch : callable, optional
+        For a file HDF5 reads through a file object (a granule in object storage):
+        ``fetch([(start, end), ...]) -> [bytes, ...]`` gives the bytes of byte ranges
+        (coalesced and concurrent, :meth:`canopyblocks.readers.remote.RemoteFile.fetch`);
+        the chunks are fetched ``_FETCH_BYTES`` at a time, then inflated on threads.
 
     Returns
     -------
@@ -122,7 +133,9 @@ def read_chunks(ds: Any, lo: int, hi: int, dtype: np.dtype | None = None,
             or (column is not None and (len(shape) != 2 or not 0 <= column < shape[1]))):
         return None
     f = ds.file
-    if getattr(f, "driver", None) != "sec2" or getattr(f, "userblock_size", 1) != 0:
+    driver = getattr(f, "driver", None)
+    if getattr(f, "userblock_size", 1) != 0 or not (
+            driver == "sec2" or (driver == "fileobj" and fetch is not None)):
         return None
     shuffle = _filters_ok(ds)
     if shuffle is None:
@@ -145,14 +158,18 @@ def read_chunks(ds: Any, lo: int, hi: int, dtype: np.dtype | None = None,
     pick = (slice(None),) if column is None else (slice(None), column)
     out = np.empty((hi - lo, *shape[1:]) if column is None else (hi - lo,), dtype=dst)
     _name, inflate = INFLATE
-    try:
-        fd = os.open(f.filename, os.O_RDONLY)
-    except OSError:
-        return None
+    fetched: dict[int, bytes] = {}
+    if fetch is not None:
+        fd = -1
+    else:
+        try:
+            fd = os.open(f.filename, os.O_RDONLY)
+        except OSError:
+            return None
 
     def chunk(i: int) -> None:
         start, offset, nbytes = table[i]
-        raw = os.pread(fd, nbytes, offset)
+        raw = fetched.pop(i) if fetch is not None else os.pread(fd, nbytes, offset)
         if len(raw) != nbytes:
             raise ValueError("short read")
         data = np.frombuffer(inflate(raw, size), np.uint8)
@@ -164,11 +181,21 @@ def read_chunks(ds: Any, lo: int, hi: int, dtype: np.dtype | None = None,
         a, b = max(lo, start), min(hi, start + rows)
         out[a - lo:b - lo] = values[a - start:b - start][pick]
 
+    stop = [last]  # the end of the chunks fetched so far
+
     def batch(i0: int) -> None:  # a batch of chunks per task: futures cost ~20 us each
-        for i in range(i0, min(last, i0 + _BATCH)):
+        for i in range(i0, min(stop[0], i0 + _BATCH)):
             chunk(i)
 
+    def prefetch(i0: int, i1: int) -> None:
+        if fetch is not None:
+            want = range(i0, i1)
+            for i, raw in zip(want, fetch([(table[i][1], table[i][1] + table[i][2])
+                                           for i in want])):
+                fetched[i] = raw
+
     try:
+        prefetch(first, first + 1)
         chunk(first)
         n_check = min(hi, (first + 1) * rows) - lo
         check = np.empty((n_check, *shape[1:]), dtype=src)
@@ -177,12 +204,24 @@ def read_chunks(ds: Any, lo: int, hi: int, dtype: np.dtype | None = None,
             return None
         pool = ThreadPoolExecutor(inflate_threads())
         try:
-            for _ in pool.map(batch, range(first + 1, last, _BATCH)):
-                pass
+            i0 = first + 1
+            while i0 < last:  # (local files: one step; storage: _FETCH_BYTES at a time)
+                i1 = last
+                if fetch is not None:
+                    sizes = np.cumsum([table[i][2] for i in range(i0, last)])
+                    i1 = i0 + max(1, int(np.searchsorted(sizes, _FETCH_BYTES)))
+                    prefetch(i0, i1)
+                stop[0] = i1
+                for _ in pool.map(batch, range(i0, i1, _BATCH)):
+                    pass
+                i0 = i1
         finally:  # Ctrl-C: the chunks not started are dropped
             pool.shutdown(wait=True, cancel_futures=True)
+    except FileFormatError:
+        raise  # storage failed (after its retries): said once, in its own words
     except Exception:  # noqa: BLE001 -- short file, corrupt bytes: HDF5 decides
         return None
     finally:
-        os.close(fd)
+        if fd >= 0:
+            os.close(fd)
     return out

@@ -63,8 +63,17 @@ def detect_product(path: str | os.PathLike[str]) -> Product:
     FileFormatError
         Missing, unreadable, or not a recognised photon product.
     """
-    from ..arguments import check_path
-    p = check_path(path, "photon file")
+    from ..arguments import check_path, check_source
+    from .remote import is_file_object, is_url, source_label
+    remote = is_url(path) or is_file_object(path)
+    p: Any = check_source(path, "photon file") if remote else check_path(path, "photon file")
+    if remote:
+        label = source_label(path)
+        suf = Path(label).suffix.lower()
+        if suf in TABLE_SUFFIXES or suf in _LIDAR_SUFFIXES:
+            raise FileFormatError(f"{label}: tables and point clouds are read from local "
+                                  "files; download it first")
+        return _hdf5_product(path, label)
     if not p.exists():
         raise FileFormatError(f"{p}: file does not exist")
     suf = p.suffix.lower()
@@ -80,11 +89,15 @@ def detect_product(path: str | os.PathLike[str]) -> Product:
             f"{p}: not a recognised photon file: not HDF5 (ATL03/MABEL) and not a table "
             f"({', '.join(TABLE_SUFFIXES)})"
         )
+    return _hdf5_product(p, str(p))
+
+
+def _hdf5_product(p: Any, label: str) -> Product:
     with open_h5(p, "ATL03/MABEL") as f:
         prod = _h5_product(f)
         if prod is None:
             raise FileFormatError(
-                f"{p}: HDF5 file but neither ATL03 (gtXX/heights) nor MABEL L2A "
+                f"{label}: HDF5 file but neither ATL03 (gtXX/heights) nor MABEL L2A "
                 f"(photon/channelNNN); top-level groups: {', '.join(f.keys()) or 'none'}"
                 + ("; GEDI: L1B waveforms go through `canopyblocks waveforms`, L2A/L2B "
                    "serve as its --l2a/--l2b"
@@ -140,8 +153,8 @@ def open_track(
     FileFormatError, InputError, NoUsableDataError, CRSError
         With the file named; options that do not fit the product are refused.
     """
-    from ..arguments import check_path
-    check_path(path, "open_track: path")
+    from ..arguments import check_source
+    check_source(path, "open_track: path")
     prod = detect_product(path)
     if prod == "ATL08":
         raise InputError(
@@ -191,18 +204,20 @@ def file_info(path: str | os.PathLike[str]) -> dict[str, Any]:
         lat_max, degrees).  ATL03 spans come from the geolocation segments; MABEL
         spans from every k-th photon (at most 100,000 per channel).
     """
-    from ..arguments import check_path
-    check_path(path, "file_info: path")
+    from ..arguments import check_source
+    check_source(path, "file_info: path")
     from .gedi import gedi_file_info, is_gedi_l1b
+    from .remote import is_file_object, source_label
 
-    if Path(path).suffix.lower() in (".h5", ".hdf5", ".he5") and is_gedi_l1b(path):
+    if (is_file_object(path) or Path(source_label(path)).suffix.lower()
+            in (".h5", ".hdf5", ".he5")) and is_gedi_l1b(path):
         return gedi_file_info(path)
     from .flash_dual import flash_dual_file_info, flash_dual_sensor
 
     if flash_dual_sensor(path) is not None:   # ESFL cubes or dual-wavelength pairs
         return flash_dual_file_info(path)
     prod = detect_product(path)
-    info: dict[str, Any] = {"path": str(path), "product": prod}
+    info: dict[str, Any] = {"path": source_label(path), "product": prod}
     if prod == "table":
         tr = read_table(path)
         info.update(n_photons=len(tr), track=tr.track, crs=tr.crs.to_string(),

@@ -64,12 +64,12 @@ def file_counts_from_sdp_epoch(path: str | os.PathLike[str]) -> bool:
     """False for a file written by canopyblocks (simulated GEDI waveforms, ATL03-layout
     photons simulated or converted: their ``delta_time`` counts from the first shot, not
     from the missions' epoch), True otherwise."""
-    try:
-        import h5py
+    from ._h5 import open_h5
 
-        with h5py.File(path, "r") as f:
-            said = f.attrs.get("description", "")
-            said = said.decode() if isinstance(said, bytes) else str(said)
-            return "simulated" not in f.attrs and "written by canopyblocks" not in said
+    try:
+        with open_h5(path) as f:  # (a path, a URL or a file object)
+            attrs = f.attrs("/")
+            said = str(attrs.get("description", ""))
+            return "simulated" not in attrs and "written by canopyblocks" not in said
     except (OSError, ImportError):
         return True

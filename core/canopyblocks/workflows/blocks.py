@@ -66,7 +66,7 @@ class BlocksResult:
             self.track_ids = [t.track for t in self.tracks]
 
 
-def select_tracks(path: str, beams: tuple[str, ...], channel: int | str | None) -> list[dict]:
+def select_tracks(path: Any, beams: tuple[str, ...], channel: int | str | None) -> list[dict]:
     """The list of ``open_track`` keyword sets to read: one per beam/channel.
 
     ATL03 without ``--beam``: every beam that holds photons.  MABEL without
@@ -107,14 +107,15 @@ def read_tracks(
         When no requested beam/channel holds usable photons (e.g. a sea-ice granule
         with ``min_signal_conf`` set: its land confidence is -1 everywhere).
     """
-    from ..arguments import check_path
-    check_path(path, "read_tracks: path", "a photon file path")
+    from ..arguments import check_source
+    from ..readers.remote import source_arg, source_name
+    check_source(path, "read_tracks: path", "a photon file path or URL")
     prog = as_progress(progress)
-    selections = select_tracks(str(path), tuple(beams), channel)
+    selections = select_tracks(source_arg(path), tuple(beams), channel)
     tracks: list[PhotonTrack] = []
     problems: list[str] = []
     for i, sel in enumerate(selections):
-        prog.update(i / max(1, len(selections)), f"reading {sel or Path(path).name}")
+        prog.update(i / max(1, len(selections)), f"reading {sel or source_name(path)}")
         try:
             t = read_track(path, sel, atl08=atl08, bbox=bbox, crs=crs,
                            min_signal_conf=min_signal_conf)
@@ -200,7 +201,7 @@ def _workers_for(path: str | os.PathLike[str], selections: Sequence[dict],
     from ..readers import atl03_beams, detect_product
     from .blocks_tracks import track_workers_for
 
-    if workers == 1 or detect_product(str(path)) != "ATL03":
+    if workers == 1 or detect_product(path) != "ATL03":
         return 1, []
     n_photons = {b.name: b.n_photons for b in atl03_beams(path)}
     sizes = [n_photons.get(s.get("beam", ""), 0) for s in selections]
@@ -295,8 +296,11 @@ def blocks_from_file(
     -------
     BlocksResult
     """
-    from ..arguments import check_instance, check_path
-    check_path(path, "blocks_from_file: path", "a photon file path")
+    from ..arguments import check_instance, check_source
+    from ..readers.remote import is_file_object, source_arg
+    check_source(path, "blocks_from_file: path", "a photon file path or URL")
+    if is_file_object(path):
+        workers = 1  # an open file stays in this process
     params = BlockParams() if params is None else params
     check_instance(params, BlockParams, "blocks_from_file: params",
                    "a BlockParams (None: the defaults)")
@@ -309,7 +313,7 @@ def blocks_from_file(
         check_writable(profile)
     prog = as_progress(progress)
     want_labels = with_photons or profile is not None
-    selections = select_tracks(str(path), tuple(beams), channel)
+    selections = select_tracks(source_arg(path), tuple(beams), channel)
     n_workers, sizes = (1, []) if len(selections) < 2 else _workers_for(path, selections,
                                                                        workers)
     with small_pages():   # the workers are forked inside: they inherit it

@@ -17,7 +17,6 @@ import logging
 import os
 import warnings
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -76,8 +75,8 @@ def _distinct(paths: Sequence[str | os.PathLike[str]]) -> list[str | os.PathLike
 
 def granule_time_span(path: str | os.PathLike[str]) -> tuple[np.datetime64, np.datetime64]:
     """First and last photon time (UTC) of an ATL03 granule, over all its beams."""
-    import h5py
-
+    from ..readers._h5 import open_h5
+    from ..readers.remote import is_file_object, is_url, source_label
     from ..readers.utc_time import file_counts_from_sdp_epoch, utc_from_delta_time
 
     if not file_counts_from_sdp_epoch(path):
@@ -85,15 +84,20 @@ def granule_time_span(path: str | os.PathLike[str]) -> tuple[np.datetime64, np.d
                          "counts from its first shot; leave --time out")
 
     lo, hi = np.inf, -np.inf
+    label = source_label(path)
     try:
-        with h5py.File(path, "r") as f:
-            for beam in (k for k in f if k.startswith("gt")):
-                d = f.get(f"{beam}/heights/delta_time")
-                if d is not None and d.shape[0]:
-                    lo, hi = min(lo, float(d[0]), float(d[-1])), max(hi, float(d[0]),
-                                                                     float(d[-1]))
+        with open_h5(path) as f:  # the first and last time of each beam: two chunks
+            for beam in (k for k in f.keys() if k.startswith("gt")):
+                name = f"{beam}/heights/delta_time"
+                n = f.shape(name)[0] if f.is_dataset(name) else 0
+                if n:
+                    ends = [float(f.read(name, np.s_[i:i + 1], dtype=np.float64)[0])
+                            for i in (0, n - 1)]
+                    lo, hi = min(lo, *ends), max(hi, *ends)
     except OSError:
-        raise InputError(f"{path}: --time needs ATL03 granules (HDF5); this file is not "
+        if is_url(path) or is_file_object(path):
+            raise  # storage failed: its own message
+        raise InputError(f"{label}: --time needs ATL03 granules (HDF5); this file is not "
                          "one") from None
     if not np.isfinite(lo):
         raise InputError(f"{path}: no ATL03 photon times (gt*/heights/delta_time); "
@@ -157,6 +161,7 @@ def blocks_from_granules(paths: Sequence[str | os.PathLike[str]], params: Any, *
     import geopandas as gpd
 
     from ..outputs.tables import check_output_path, write_table
+    from ..readers.remote import source_name
     from .blocks import blocks_from_file
 
     check_output_path(output)
@@ -182,19 +187,19 @@ def blocks_from_granules(paths: Sequence[str | os.PathLike[str]], params: Any, *
         if start is not None and end is not None:
             t0, t1 = granule_time_span(p)
             if t1 < start or t0 > end:
-                skipped.append(Path(p).name)
+                skipped.append(source_name(p))
                 continue
         try:
             res = blocks_from_file(p, params, bbox=bbox, crs=crs, output=None,
                                    progress=part, **kwargs)
         except NoUsableDataError as exc:  # e.g. nothing inside the bbox: said, not fatal
-            log.warning("%s: no blocks (%s)", Path(p).name, exc)
+            log.warning("%s: no blocks (%s)", source_name(p), exc)
             continue
         b = res.blocks
         crs = crs if crs is not None else b.crs
         if area is not None and len(b):
             b = b[b.geometry.within(area.to_crs(b.crs).iloc[0])]
-        tables.append(b.assign(granule=Path(p).name))
+        tables.append(b.assign(granule=source_name(p)))
     if skipped:
         log.warning("%d of %d granules taken outside the time range, skipped: %s",
                     len(skipped), len(paths), ", ".join(skipped))

@@ -22,6 +22,7 @@ from ..blocks.estimators import preset as named_preset
 from ..errors import FileFormatError, InputError
 from ..outputs.tables import write_layers, write_table
 from ..progress import Progress, as_progress
+from ..readers.remote import is_file_object, is_url, source_label, source_name
 from ..reference.sensor_width import corridor_width
 from ..schema import LAYER_RESIDUALS, LAYER_STATS
 from .blocks import blocks_from_file
@@ -244,7 +245,7 @@ def run_chain(
         if coregister:
             blocks, offsets_doc, before = _coregistered(
                 blocks, res.tracks, rasters, out, vkw, prog.sub(0.75, 0.8),
-                source=Path(photons).name)
+                source=source_name(photons))
             if before is not None:
                 layers[f"{LAYER_STATS}_uncorrected"] = before
         val = validate_blocks(blocks, dtm=rasters.dtm, dsm_max=rasters.dsm_max,
@@ -296,7 +297,7 @@ def run_chain(
                                 datum=datum, lead_reference=_lead_reference(lead))
         prog.update(0.95, "report")
         report = photon_report(
-            out, tiles=tiles, photons=Path(photons), simulated=simulated, params=params,
+            out, tiles=tiles, photons=photons, simulated=simulated, params=params,
             width=width, resolution=resolution, primary=sets[primary], lead=lead,
             paper=paper, figures=figures, azimuth=azimuth,
             datum=datum_sentence(val.datum, geoid=geoid, offset=offset, tiles=datum),
@@ -305,7 +306,7 @@ def run_chain(
             truth_table=seed002, truth_png=seed002_png, offsets=offsets_doc,
             tracks=res.tracks)
         prog.update(1.0, "done")
-        return ChainResult(out_dir=out, photons=Path(photons), blocks=out / "blocks.gpkg",
+        return ChainResult(out_dir=out, photons=_as_path(photons), blocks=out / "blocks.gpkg",
                            rasters={"dtm": rasters.dtm, "dsm_max": rasters.dsm_max,
                                     "dsm_p90": rasters.dsm_p90},
                            validation=validation, report=report, plots=figures.all(),
@@ -439,7 +440,7 @@ def _lead_bias_calibration(lead: EstimatorSet, photons: Any, tracks: Any, width:
     try:
         cal = fit_bias_calibration(residuals, strengths=track_strengths(photons, tracks) or None,
                                    preset=lead.name, corridor_width=width, reference=reference,
-                                   sources=(Path(photons).name,))
+                                   sources=(source_name(photons),))
     except NoUsableDataError as exc:
         log.warning("no bias calibration for the %s estimators: %s", lead.name, exc)
         return BiasOffer(lead.name, reference, pd.DataFrame(), False, str(exc))
@@ -455,3 +456,8 @@ def _lead_bias_calibration(lead: EstimatorSet, photons: Any, tracks: Any, width:
         return BiasOffer(lead.name, reference, table, False, why)
     write_bias_calibration(cal, out / f"bias_calibration_{lead.name}.json")
     return BiasOffer(lead.name, reference, table, True, "")
+
+
+def _as_path(photons: Any) -> Path | str:
+    """A local file as a Path; a URL or an open file by its name in messages."""
+    return source_label(photons) if is_url(photons) or is_file_object(photons) else Path(photons)

@@ -19,6 +19,7 @@ import pandas as pd
 
 from ..blocks import BlockParams
 from ..outputs.report import ReportSection, calibration_table, report_stats_table, write_report
+from ..readers.remote import source_label, source_name
 from ..schema import FLAG_OK, FLAGS, LAYER_BLOCKS
 from .chain_figures import BiasOffer, EstimatorSet, Figures, estimator_words, reference_short
 from .chain_report import (
@@ -40,7 +41,7 @@ def _cap(words: str) -> str:
     return words[:1].upper() + words[1:]
 
 
-def photon_report(out: Path, *, tiles: list[Path], photons: Path, simulated: bool,
+def photon_report(out: Path, *, tiles: list[Path], photons: Any, simulated: bool,
                   params: BlockParams, width: float, resolution: float,
                   primary: EstimatorSet, lead: EstimatorSet, paper: EstimatorSet | None,
                   figures: Figures, azimuth: float, datum: str, diameter: float,
@@ -54,11 +55,12 @@ def photon_report(out: Path, *, tiles: list[Path], photons: Path, simulated: boo
     blocks = primary.blocks
     source = (f"ICESat-2 photons simulated over the airborne tiles: track azimuth "
               f"{azimuth:g} degrees, {diameter:g} m footprints, '{photon_rate}' photon rate, "
-              f"seed {seed}; written in the ATL03 layout to {photons.name} and read back."
-              if simulated else f"Photons read from {photons}.")
+              f"seed {seed}; written in the ATL03 layout to {source_name(photons)} and read "
+              "back."
+              if simulated else f"Photons read from {source_label(photons)}.")
     beams = [str(t.track) for t in tracks]
     summary = summary_section(
-        lr, source=photons.name + (" (simulated)" if simulated else ""),
+        lr, source=source_name(photons) + (" (simulated)" if simulated else ""),
         n_tracks=len(tracks), n_photons=int(sum(len(t) for t in tracks)), beams=beams,
         lengths=params.lengths, tiles=tiles, n_blocks=len(lead.blocks),
         map_png=figures.residual_map)

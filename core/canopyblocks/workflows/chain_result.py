@@ -13,7 +13,7 @@ class ChainResult:
     """Files and tables of one :func:`run_chain` run (all paths inside ``out_dir``)."""
 
     out_dir: Path
-    photons: Path
+    photons: Path | str  # a granule's URL (without its query string) when read from storage
     blocks: Path
     rasters: dict[str, Path]
     validation: Path

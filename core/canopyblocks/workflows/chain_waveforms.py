@@ -13,6 +13,7 @@ from typing import Any
 
 from ..atomic import check_writable, new_files_removed_on_failure
 from ..progress import Progress, as_progress
+from ..readers.remote import is_url, source_name
 
 __all__ = ["run_waveform_chain"]
 
@@ -101,7 +102,7 @@ def run_waveform_chain(
             waveform_summary_section(val.stats, source=Path(l1b).name, n_footprints=len(fp),
                                      beams=beams_used, tiles=tiles, setting=setting),
             ReportSection("Inputs", [
-                f"GEDI L1B waveforms from {Path(l1b).name}, processed with the GEDI L2A "
+                f"GEDI L1B waveforms from {source_name(l1b)}, processed with the GEDI L2A "
                 f"algorithm (setting {setting}).",
                 "Airborne tiles: " + ", ".join(t.name for t in tiles) + "; vertical datums: "
                 + datum_sentence(val.datum, geoid=geoid, offset=offset, tiles=tiles_datum,
@@ -121,6 +122,6 @@ def run_waveform_chain(
         report = write_report(out / "report.html", "canopyblocks: GEDI footprints and "
                               "validation", sections)
         prog.update(1.0, "done")
-        return ChainResult(out_dir=out, photons=Path(l1b), blocks=footprints, rasters={},
+        return ChainResult(out_dir=out, photons=str(l1b) if is_url(l1b) else Path(l1b), blocks=footprints, rasters={},
                            validation=validation, report=report,
                            plots=[*wave_plots, *maps], stats=val.stats, simulated=False)

@@ -70,8 +70,8 @@ def segments_from_file(
     GeoDataFrame
         Columns :data:`~canopyblocks.blocks.atl08_segments.SEGMENT_COLUMNS` of all tracks.
     """
-    from ..arguments import check_path
-    check_path(path, "segments_from_file: path", "a photon file path")
+    from ..arguments import check_source
+    check_source(path, "segments_from_file: path", "a photon file path or URL")
     from ..outputs.tables import check_output_path, write_layers
     from .blocks import read_tracks
 

@@ -146,9 +146,10 @@ def footprints_from_l1b(
     plotted: dict[str, int] = {}
     problems = 0
     reading = prog.sub(0.0, 0.9)
+    from ..readers.remote import is_file_object
     from .waveforms_beams import BeamJob, beams_for_workers, beams_in_workers
-
-    in_workers = beams_for_workers(path, beams, workers)
+    # (an open file object stays in this process; a URL is read by each worker itself)
+    in_workers = [] if is_file_object(path) else beams_for_workers(path, beams, workers)
     if in_workers:
         jobs = [BeamJob(str(path), b, chunk_params, base, bbox, quality, chunk_shots,
                         None if wanted is None else tuple(sorted(wanted)),

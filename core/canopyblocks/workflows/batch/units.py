@@ -62,10 +62,24 @@ class Unit:
 
 def list_inputs(items: Sequence[str | os.PathLike[str]], suffixes: tuple[str, ...]
                 ) -> list[str]:
-    """Files given directly, or found (sorted) in given folders, with one of ``suffixes``."""
+    """Files given directly, or found (sorted) in given folders, with one of ``suffixes``;
+    also granule URLs, ``s3://`` prefixes (every object under it with one of ``suffixes``)
+    and text files (``.txt``/``.lst``) listing paths or URLs, one a line (``#`` comments)."""
+    from ...readers.remote import is_url, list_granules
+
     out: list[str] = []
     for it in items:
+        if is_url(it):  # an s3:// prefix (listed) or a granule's URL
+            url = str(it).strip()
+            listed = url.startswith("s3://") and not url.lower().endswith(suffixes)
+            out.extend(list_granules(url, suffixes) if listed else [url])
+            continue
         p = Path(it)
+        if p.is_file() and p.suffix.lower() in (".txt", ".lst"):  # a list of granules
+            lines = [ln.strip() for ln in p.read_text(encoding="utf-8").splitlines()]
+            out.extend(list_inputs([ln for ln in lines if ln and not ln.startswith("#")],
+                                   suffixes))
+            continue
         if p.is_dir():
             out.extend(str(q) for q in sorted(p.iterdir()) if q.suffix.lower() in suffixes)
         elif p.exists():
