@@ -35,6 +35,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..errors import InputError
+from ..schema import FLAG_LOW_CONFIDENCE, FLAG_OK
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -45,9 +46,6 @@ if TYPE_CHECKING:
 __all__ = ["SigmaModel", "FEATURES", "FLAG_LOW_CONFIDENCE", "sigma_model", "block_features",
            "design_matrix", "predict_sigma", "add_block_sigma", "add_segment_sigma",
            "mark_use", "left_out_summary"]
-
-FLAG_LOW_CONFIDENCE = "low_confidence"
-"""Flag of a block whose predicted sigma is too wide to be useful (still written)."""
 
 #: Terms of the log-linear model, in the order of the coefficients.
 FEATURES: tuple[str, ...] = (
@@ -234,9 +232,9 @@ def mark_use(table: pd.DataFrame, model: SigmaModel | None = None) -> pd.DataFra
     gs = table["ground_sigma"].to_numpy(float)
     with np.errstate(invalid="ignore"):
         wide = (hs > m.hmax_max) | (gs > m.ground_max)
-    flag = np.where((flag == "ok") & wide, FLAG_LOW_CONFIDENCE, flag)
+    flag = np.where((flag == FLAG_OK) & wide, FLAG_LOW_CONFIDENCE, flag)
     table["flag"] = flag
-    table["use"] = flag == "ok"
+    table["use"] = flag == FLAG_OK
     return table
 
 
@@ -277,7 +275,7 @@ def add_segment_sigma(segments: pd.DataFrame, track: PhotonTrack, classes: Atl08
     segments["hmax_sigma"] = hs
     segments["ground_sigma"] = gs
     with np.errstate(invalid="ignore"):
-        segments["use"] = ((segments["flag"] == "ok").to_numpy()
+        segments["use"] = ((segments["flag"] == FLAG_OK).to_numpy()
                            & (hs <= m.hmax_max) & (gs <= m.ground_max))
     return segments
 
