@@ -19,6 +19,7 @@ from __future__ import annotations
 import os
 import tempfile
 import warnings
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -30,7 +31,7 @@ from canopyblocks.blocks.atl08_classify import classify_photons
 from canopyblocks.blocks.estimators import preset
 from canopyblocks.blocks.uncertainty import block_features
 from canopyblocks.readers import read_atl03
-from canopyblocks.readers.las import read_las
+from canopyblocks.readers.las import LasPoints, read_las
 from canopyblocks.reference.footprint import FootprintCloud, block_footprint_reference
 from canopyblocks.reference.footprint_params import FootprintReferenceParams
 from canopyblocks.simulate import SimParams, line_through, simulate_photons
@@ -52,15 +53,29 @@ AZIMUTHS = (0.0, 30.0, 60.0, 90.0, 120.0, 150.0)
 DIAMETER = 13.0
 
 
+def with_relief(pts: LasPoints, grade: float, amplitude: float, wavelength: float
+                ) -> LasPoints:
+    """The points on synthetic relief: every height raised by ``grade`` x (x - x0) plus
+    ``amplitude`` x sin(2 pi (x + y) / wavelength) (m): the same canopy over sloping,
+    rolling ground (a way to show a flat calibration tile what relief does)."""
+    x0 = float(np.min(pts.x))
+    dz = grade * (pts.x - x0) + amplitude * np.sin(2 * np.pi * (pts.x + pts.y) / wavelength)
+    return replace(pts, z=pts.z + dz)
+
+
 def site_blocks(name: str, tiles: tuple[Path, ...], seed: int, *,
                 azimuths: tuple[float, ...] = AZIMUTHS,
                 lengths: tuple[float, ...] = LENGTHS,
+                relief: tuple[float, float, float] | None = None,
                 cache: str | os.PathLike[str] | None = None) -> pd.DataFrame:
     """Blocks of every (azimuth, beam, light) track of a site (see the module notes);
-    read from / written to ``cache`` (a parquet file) when given."""
+    ``relief``: (grade, amplitude m, wavelength m) of :func:`with_relief`; read from /
+    written to ``cache`` (a parquet file) when given."""
     if cache is not None and Path(cache).exists():
         return pd.read_parquet(cache)
     pts = read_las([str(t) for t in tiles])
+    if relief is not None:
+        pts = with_relief(pts, *relief)
     cloud = FootprintCloud(pts, FootprintReferenceParams())
     est = preset("atl08")
     params = BlockParams(lengths=tuple(lengths), s0=0.0)

@@ -58,6 +58,8 @@ FEATURES: tuple[str, ...] = (
     "log_noise_frac",  # log((noise photons in block + 1) / (all photons + 1))
     "log_slope",       # log(0.02 + |rise| of the ground surface over the block / length)
     "log_ground_spread",  # log(0.05 + sd of ground photons about the surface, m)
+    "log_ground_offset",  # log(0.05 + |mean height of the ground photons above the surface|)
+    "log_relief",      # log(0.05 + |z(c-15) + z(c+15) - 2 z(c)| of the surface, m)
     "log_length",      # log(block length / 25 m)
     "log_hmax",        # log(1 + Hmax, m)
 )
@@ -95,7 +97,11 @@ class SigmaModel:
     def __post_init__(self) -> None:
         for name in ("hmax", "ground"):
             v = getattr(self, name)
-            if len(v) != len(FEATURES) or not np.all(np.isfinite(v)):
+            try:
+                arr = np.asarray(v, dtype=float)
+            except (TypeError, ValueError):
+                arr = np.array([np.nan])
+            if arr.shape != (len(FEATURES),) or not np.all(np.isfinite(arr)):
                 raise InputError(f"sigma model: {name} needs {len(FEATURES)} finite "
                                  f"coefficients, got {v!r}")
         for name in ("hmax_max", "ground_max", "floor"):
@@ -147,7 +153,9 @@ def block_features(track: PhotonTrack, classes: Atl08Classes, s_start: np.ndarra
     dict
         ``n_ground, n_canopy, n_top, n_noise, n_all, background`` (photons per m along
         per m height, mean over the block's photons), ``ground_spread`` (sd of the ground
-        photons about the surface, m; NaN under 2 of them), ``slope``, ``length`` (m),
+        photons about the surface, m; NaN under 2 of them), ``ground_offset`` (their mean
+        height above the surface, m), ``relief`` (the surface's second difference over
+        +-15 m about the centre, m), ``slope``, ``length`` (m),
         ``hmax`` (m).
     """
     from .atl08_classify import CLASS_CANOPY, CLASS_GROUND, CLASS_NOISE, CLASS_TOP
@@ -179,11 +187,15 @@ def block_features(track: PhotonTrack, classes: Atl08Classes, s_start: np.ndarra
     spread[n_ground < 2] = np.nan
     surf = classes.surface
     slope = np.abs(np.interp(b, surf.s, surf.z) - np.interp(a, surf.s, surf.z)) / (b - a)
+    mid = 0.5 * (a + b)
+    relief = np.abs(np.interp(mid - 15.0, surf.s, surf.z) + np.interp(mid + 15.0, surf.s, surf.z)
+                    - 2 * np.interp(mid, surf.s, surf.z))
     return {"n_ground": n_ground,
             "n_canopy": count((c == CLASS_CANOPY) | (c == CLASS_TOP)),
             "n_top": count(c == CLASS_TOP), "n_noise": count(c == CLASS_NOISE),
             "n_all": n_all, "background": np.where(np.isfinite(bg), bg, 0.0),
-            "ground_spread": spread, "slope": slope, "length": b - a,
+            "ground_spread": spread, "ground_offset": np.where(n_ground > 0, m1, np.nan),
+            "relief": relief, "slope": slope, "length": b - a,
             "hmax": np.asarray(hmax, float)}
 
 
@@ -193,6 +205,8 @@ def design_matrix(f: dict[str, np.ndarray] | pd.DataFrame) -> np.ndarray:
     n_sig = np.asarray(f["n_ground"], float) + np.asarray(f["n_canopy"], float)
     spread = np.asarray(f["ground_spread"], float)
     spread = np.where(np.isfinite(spread), np.minimum(spread, 5.0), 1.0)
+    offset = np.abs(np.asarray(f["ground_offset"], float))
+    offset = np.where(np.isfinite(offset), np.minimum(offset, 5.0), 1.0)
     hmax = np.asarray(f["hmax"], float)
     hmax = np.where(np.isfinite(hmax), np.clip(hmax, 0.0, 80.0), 0.0)
     cols = [np.ones_like(length),
@@ -204,6 +218,8 @@ def design_matrix(f: dict[str, np.ndarray] | pd.DataFrame) -> np.ndarray:
             np.log((np.asarray(f["n_noise"], float) + 1) / (np.asarray(f["n_all"], float) + 1)),
             np.log(np.minimum(np.asarray(f["slope"], float), 1.0) + 0.02),
             np.log(0.05 + spread),
+            np.log(0.05 + offset),
+            np.log(0.05 + np.minimum(np.asarray(f["relief"], float), 20.0)),
             np.log(length / 25.0),
             np.log1p(hmax)]
     return np.column_stack(cols)
@@ -290,6 +306,8 @@ def left_out_summary(table: pd.DataFrame) -> dict[str, object]:
         ``n_low_confidence``, ``hmax_sigma_max`` and ``ground_sigma_max`` (the thresholds,
         m) -- for a report's sentence.
     """
+    from ..arguments import check_frame
+    check_frame(table, "left_out_summary: table", "a block, segment or residuals table")
     m = sigma_model()
     n = len(table)
     if "use" in table.columns:
