@@ -11,7 +11,7 @@ sigma is the block's whole error), a small ridge on the slopes (1.0); then one f
 sigma so that the calibration blocks' coverage (|residual| <= sigma, <= 2 sigma) is nearest
 to 68 % and 95 % (``coverage_scale``). Threshold: the largest
 ``hmax_sigma`` for which the blocks kept on the calibration tiles have an Hmax RMSE <=
-``--target`` m (2.8); ``ground_sigma`` above ``--ground-max`` (2.0 m) is also too wide.
+``--target`` m (3.0, the goal of the issue); ``ground_sigma`` above ``--ground-max`` (2.0 m) is also too wide.
 
 Usage: python bench/fit_block_sigma.py [--write] [--cache DIR]
 ``--write`` stores the model in core/canopyblocks/blocks/uncertainty_model.json.
@@ -104,7 +104,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--write", action="store_true", help="store the model in the package")
     ap.add_argument("--cache", default=None, help="directory to cache the simulations in")
-    ap.add_argument("--target", type=float, default=2.8,
+    ap.add_argument("--target", type=float, default=3.0,
                     help="Hmax RMSE (m) the kept calibration blocks must meet")
     ap.add_argument("--ground-max", type=float, default=2.0,
                     help="ground_sigma (m) above which a block is too uncertain")
