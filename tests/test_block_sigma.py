@@ -163,6 +163,9 @@ def test_residuals_carry_sigma_and_leave_out_low_confidence() -> None:
     r = compute_residuals(blocks, ref)
     assert list(r["hmax_sigma"]) == [2.0, 2.5, 9.0] and list(r["ground_sigma"]) == [0.3, 0.4, 0.5]
     assert list(r["use"]) == [True, True, False]
+    ref.loc[1, "ref_flag"] = "outside"
+    r2 = compute_residuals(blocks, ref)
+    assert left_out_summary(r2)["by_flag"] == {"reference outside": 1, FLAG_LOW_CONFIDENCE: 1}
     st = block_stats(r, metrics=("hmax",))
     row = st[st["group"] == "all"].iloc[0]
     assert row["n"] == 2 and row["rmse"] == pytest.approx(np.sqrt(0.5))  # residuals 0 and 1

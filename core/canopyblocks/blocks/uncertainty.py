@@ -302,10 +302,13 @@ def left_out_summary(table: pd.DataFrame) -> dict[str, object]:
     Returns
     -------
     dict
-        ``n`` (rows), ``n_used``, ``n_left_out``, ``by_flag`` (left-out rows per flag),
+        ``n`` (rows), ``n_used``, ``n_left_out``, ``by_flag`` (left-out rows per reason:
+        the block's flag, or ``reference <ref_flag>`` in a residuals table),
         ``n_low_confidence``, ``hmax_sigma_max`` and ``ground_sigma_max`` (the thresholds,
         m) -- for a report's sentence.
     """
+    import pandas as pd
+
     from ..arguments import check_frame
     check_frame(table, "left_out_summary: table", "a block, segment or residuals table")
     m = sigma_model()
@@ -314,9 +317,13 @@ def left_out_summary(table: pd.DataFrame) -> dict[str, object]:
         use = table["use"].fillna(False).to_numpy(bool)
     else:
         use = (table["flag"] == "ok").to_numpy() if "flag" in table.columns else np.ones(n, bool)
-    flags = table["flag"].astype(str)[~use] if "flag" in table.columns else None
-    by_flag = {str(k): int(v) for k, v in flags.value_counts().items()} if flags is not None \
-        else {}
+    why = (table["flag"].astype(str).to_numpy(object) if "flag" in table.columns
+           else np.full(n, "not used", object))
+    if "ref_flag" in table.columns:  # a residuals table: the reference's reason too
+        rf = table["ref_flag"].astype(str).to_numpy(object)
+        why = np.where((why == FLAG_OK) & (rf != FLAG_OK), "reference " + rf, why)
+    left = pd.Series(why[~use])
+    by_flag = {str(k): int(v) for k, v in left.value_counts().items()}
     return {"n": n, "n_used": int(use.sum()), "n_left_out": int(n - use.sum()),
             "by_flag": by_flag, "n_low_confidence": by_flag.get(FLAG_LOW_CONFIDENCE, 0),
             "hmax_sigma_max": m.hmax_max, "ground_sigma_max": m.ground_max}
