@@ -277,10 +277,10 @@ def add_block_sigma(blocks: pd.DataFrame, track: PhotonTrack, classes: Atl08Clas
 
 def add_segment_sigma(segments: pd.DataFrame, track: PhotonTrack, classes: Atl08Classes,
                       model: SigmaModel | None = None) -> pd.DataFrame:
-    """``hmax_sigma`` (of ``h_canopy``), ``ground_sigma`` (of the mean ground surface) and
-    ``use`` of ATL08-style segments, in place; returned. Segments with no canopy photon
-    take the sigma of a bare block (Hmax 0); ``use`` is False unless the flag is ``ok``
-    and both sigmas are within the model's thresholds (the segment flag is kept)."""
+    """``hmax_sigma`` (of ``h_canopy``), ``ground_sigma`` (of the mean ground surface),
+    the ``low_confidence`` flag and ``use`` of ATL08-style segments, in place; returned.
+    Segments with no canopy photon take the sigma of a bare block (Hmax 0); ``use`` is
+    True only for ``ok`` segments (:func:`mark_use`)."""
     m = sigma_model() if model is None else model
     order = np.argsort(segments["s_start"].to_numpy(float), kind="stable")
     h = segments["h_canopy"].to_numpy(float)[order]
@@ -290,10 +290,7 @@ def add_segment_sigma(segments: pd.DataFrame, track: PhotonTrack, classes: Atl08
     hs[order], gs[order] = predict_sigma(f, m)
     segments["hmax_sigma"] = hs
     segments["ground_sigma"] = gs
-    with np.errstate(invalid="ignore"):
-        segments["use"] = ((segments["flag"] == FLAG_OK).to_numpy()
-                           & (hs <= m.hmax_max) & (gs <= m.ground_max))
-    return segments
+    return mark_use(segments, m)
 
 
 def left_out_summary(table: pd.DataFrame) -> dict[str, object]:
