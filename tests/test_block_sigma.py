@@ -83,8 +83,8 @@ def test_sigma_coverage_on_a_tile_never_fitted(simulated: pd.DataFrame) -> None:
     zh = np.abs(df["hmax"] - df["ref_hmax"]) / df["hmax_sigma"]
     zg = np.abs(df["ground"] - df["ref_ground"]) / df["ground_sigma"]
     # a tolerant band around 68 % / 95 % (bench/bench_block_sigma.py measures the shares
-    # on three unseen tiles). Measured here (191 blocks): Hmax 0.87 / 0.98, ground 0.79 /
-    # 0.99; strong 0.82 / 0.99, weak 0.92 / 0.98: on this open tile the model, fitted on
+    # on three unseen tiles). Measured here (191 blocks): Hmax 0.85 / 0.98, ground 0.79 /
+    # 0.98; strong 0.80 / 0.99, weak 0.91 / 0.98: on this open tile the model, fitted on
     # the denser calibration forest, is cautious
     assert 0.55 <= np.mean(zh <= 1) <= 0.93
     assert np.mean(zh <= 2) >= 0.88

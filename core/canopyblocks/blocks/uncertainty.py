@@ -56,6 +56,8 @@ FEATURES: tuple[str, ...] = (
     "log_signal_per_m",  # log(signal photons per metre of track + 0.05): beam strength
     "log_background",  # log(background photons per m along per m height x block length + 0.01)
     "log_noise_frac",  # log((noise photons in block + 1) / (all photons + 1))
+    "log_noise_top",   # log(1 + noise photons 0-10 m above the block's Hmax)
+    "log_noise_ground",  # log(1 + noise photons within 3 m of the ground surface)
     "log_slope",       # log(0.02 + |rise| of the ground surface over the block / length)
     "log_ground_spread",  # log(0.05 + sd of ground photons about the surface, m)
     "log_ground_offset",  # log(0.05 + |mean height of the ground photons above the surface|)
@@ -151,7 +153,9 @@ def block_features(track: PhotonTrack, classes: Atl08Classes, s_start: np.ndarra
     Returns
     -------
     dict
-        ``n_ground, n_canopy, n_top, n_noise, n_all, background`` (photons per m along
+        ``n_ground, n_canopy, n_top, n_noise, n_all``, ``n_noise_top`` (noise photons
+        0-10 m above ``hmax``), ``n_noise_ground`` (within 3 m of the surface),
+        ``background`` (photons per m along
         per m height, mean over the block's photons), ``ground_spread`` (sd of the ground
         photons about the surface, m; NaN under 2 of them), ``ground_offset`` (their mean
         height above the surface, m), ``relief`` (the surface's second difference over
@@ -190,7 +194,15 @@ def block_features(track: PhotonTrack, classes: Atl08Classes, s_start: np.ndarra
     mid = 0.5 * (a + b)
     relief = np.abs(np.interp(mid - 15.0, surf.s, surf.z) + np.interp(mid + 15.0, surf.s, surf.z)
                     - 2 * np.interp(mid, surf.s, surf.z))
+    hmx = np.asarray(hmax, float)
+    hn = classes.height[ok]
+    top_of_row = np.where(np.isfinite(hmx), hmx, 0.0)[row] if n else np.zeros(0)
+    noise = c == CLASS_NOISE
+    with np.errstate(invalid="ignore"):
+        above = noise & (hn > top_of_row) & (hn <= top_of_row + 10.0)
+        near_ground = noise & (np.abs(hn) <= 3.0)
     return {"n_ground": n_ground,
+            "n_noise_top": count(above), "n_noise_ground": count(near_ground),
             "n_canopy": count((c == CLASS_CANOPY) | (c == CLASS_TOP)),
             "n_top": count(c == CLASS_TOP), "n_noise": count(c == CLASS_NOISE),
             "n_all": n_all, "background": np.where(np.isfinite(bg), bg, 0.0),
@@ -216,6 +228,8 @@ def design_matrix(f: dict[str, np.ndarray] | pd.DataFrame) -> np.ndarray:
             np.log(n_sig / length + 0.05),
             np.log(np.asarray(f["background"], float) * length + 0.01),
             np.log((np.asarray(f["n_noise"], float) + 1) / (np.asarray(f["n_all"], float) + 1)),
+            np.log1p(np.asarray(f["n_noise_top"], float)),
+            np.log1p(np.asarray(f["n_noise_ground"], float)),
             np.log(np.minimum(np.asarray(f["slope"], float), 1.0) + 0.02),
             np.log(0.05 + spread),
             np.log(0.05 + offset),
