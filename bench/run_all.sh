@@ -22,3 +22,5 @@ echo "== reference rasters (bench/bench_rasters.py)"
 "$PY" bench/bench_rasters.py
 echo "== co-registration (bench/bench_coregistration.py)"
 "$PY" bench/bench_coregistration.py
+echo "== per-block sigma on unseen tiles (bench/bench_block_sigma.py)"
+"$PY" bench/bench_block_sigma.py

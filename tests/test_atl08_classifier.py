@@ -200,7 +200,8 @@ def test_atl08_preset_blocks_and_labels():
         warnings.simplefilter("ignore")
         blocks, labels = estimate_blocks(track, BlockParams(lengths=(25.0,)), preset("atl08"),
                                          labels=True)
-    ok = blocks["flag"] == "ok"
+    # estimated: ok, or low_confidence (estimated, its sigma too wide for the headline)
+    ok = blocks["flag"].isin(["ok", "low_confidence"])
     assert ok.mean() > 0.95
     mid = 0.5 * (blocks["s_start"] + blocks["s_end"])
     assert np.sqrt(np.mean((blocks["ground"][ok] - slope(mid[ok])) ** 2)) <= 0.2

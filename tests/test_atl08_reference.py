@@ -75,6 +75,7 @@ def _blocks_on_segments(sample, shift: float = 3.0) -> gpd.GeoDataFrame:  # noqa
     df["z90"] = df["ground"] + 5.0
     df["h90"] = 5.0
     df["flag"] = "ok"
+    df["hmax_sigma"], df["ground_sigma"], df["use"] = 2.0, 0.5, True
     return gpd.GeoDataFrame(df[list(BLOCK_COLUMNS)], geometry=gpd.points_from_xy(bx, by),
                             crs=crs)
 

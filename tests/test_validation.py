@@ -46,8 +46,10 @@ def scene(tmp_path: Path) -> dict:
     t = np.array(truth["top"]) + OFFSETS["top"]
     z90 = np.array(truth["top90"]) + OFFSETS["z90"]
     blocks = blocks.assign(lon=-111.0, lat=41.5, n_photons=50, n_kept=45, n_between=30,
-                           top=t, ground=g, hmax=t - g, z90=z90, h90=z90 - g, flag="ok")
+                           top=t, ground=g, hmax=t - g, z90=z90, h90=z90 - g, flag="ok",
+                           hmax_sigma=2.0, ground_sigma=0.5)
     blocks.loc[2, "flag"] = "sparse"
+    blocks["use"] = blocks["flag"] == "ok"
     blocks = blocks[list(BLOCK_COLUMNS) + ["geometry"]]
     return {"paths": paths, "blocks": blocks, "truth": truth, "tmp": tmp_path}
 

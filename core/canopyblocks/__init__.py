@@ -47,6 +47,7 @@ if TYPE_CHECKING:  # loaded on first use, see __getattr__
         estimate_blocks,
         preset,
     )
+    from .blocks.uncertainty import left_out_summary, sigma_model
     from .geo import utm_crs_for
     from .outputs.h5_layouts import Atl03BeamData, MabelChannelData, write_atl03, write_mabel
     from .outputs.tables import read_blocks, read_layer, write_layers, write_table
@@ -209,6 +210,8 @@ _LAZY: dict[str, str] = {
     "RECOMMENDED_PRESET": ".blocks.estimators",
     "classify_photons": ".blocks.background_check",
     "atl08_segments": ".blocks.atl08_segments",
+    "sigma_model": ".blocks.uncertainty",
+    "left_out_summary": ".blocks.uncertainty",
     "segments_from_file": ".workflows.segments",
     "BatchConfig": ".workflows.batch",
     "BatchResult": ".workflows.batch",
@@ -288,6 +291,8 @@ __all__ = [
     "RECOMMENDED_PRESET",
     "classify_photons",
     "atl08_segments",
+    "sigma_model",
+    "left_out_summary",
     "segments_from_file",
     # waveforms (GEDI and the seed-003/004 instruments)
     "WaveformBatch",

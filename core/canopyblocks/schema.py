@@ -15,6 +15,8 @@ __all__ = [
     "FLAG_OK",
     "FLAG_SPARSE",
     "FLAG_INVERTED",
+    "FLAG_IMPLAUSIBLE",
+    "FLAG_LOW_CONFIDENCE",
     "FLAGS",
     "LAYER_BLOCKS",
     "LAYER_RESIDUALS",
@@ -50,14 +52,19 @@ BLOCK_COLUMNS: tuple[str, ...] = (
     "hmax",       # top - ground, m
     "z90",        # 90th percentile height of the photons between ground and top, m
     "h90",        # z90 - ground, m
-    "flag",       # ok / sparse / inverted / implausible
+    "flag",       # ok / sparse / inverted / implausible / low_confidence
+    "hmax_sigma",    # 1-sigma error of hmax, m (atl08 preset; NaN where not modelled)
+    "ground_sigma",  # 1-sigma error of ground, m (atl08 preset; NaN where not modelled)
+    "use",        # bool: enters headline statistics (flag ok)
 )
 
 FLAG_OK = "ok"
 FLAG_SPARSE = "sparse"
 FLAG_INVERTED = "inverted"
 FLAG_IMPLAUSIBLE = "implausible"  # Hmax taller than any tree (blocks/plausibility.py)
-FLAGS: tuple[str, ...] = (FLAG_OK, FLAG_SPARSE, FLAG_INVERTED, FLAG_IMPLAUSIBLE)
+FLAG_LOW_CONFIDENCE = "low_confidence"  # sigma too wide to be useful (blocks/uncertainty.py)
+FLAGS: tuple[str, ...] = (FLAG_OK, FLAG_SPARSE, FLAG_INVERTED, FLAG_IMPLAUSIBLE,
+                          FLAG_LOW_CONFIDENCE)
 
 #: The four validated metrics, photon-side column -> reference-side column.
 METRICS: tuple[str, ...] = ("ground", "top", "hmax", "h90")

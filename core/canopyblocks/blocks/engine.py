@@ -32,6 +32,7 @@ from .histogram import BlockHistograms, segment_starts, sigma_filter
 from .params import BlockParams
 from .plausibility import background_fraction, flag_implausible_blocks
 from .prepared import LengthResult, PreparedTrack
+from .uncertainty import mark_use
 from .windows import DEFAULT_WINDOW_PHOTONS, concat_length_results, window_cuts, window_of
 
 if TYPE_CHECKING:
@@ -356,6 +357,7 @@ def compute_blocks(track: PhotonTrack, params: BlockParams | None = None, *,
         )
     flag_implausible_blocks(gdf, track.track, None if params.min_signal_conf is not None
                             else background_fraction(track.signal_conf))
+    mark_use(gdf)  # the paper's blocks carry no sigma model: use = flag ok
     log.info("track %s: %d blocks for lengths %s", track.track, len(gdf), lengths)
     if labels:
         return gdf, label_out
@@ -382,6 +384,9 @@ def _columns(track_id: str, s0: float, res: LengthResult) -> dict[str, np.ndarra
         "z90": res.z90,
         "h90": res.z90 - res.ground,
         "flag": _FLAG_CODES[res.flag],
+        "hmax_sigma": np.full(n, np.nan),
+        "ground_sigma": np.full(n, np.nan),
+        "use": res.flag == 0,
     }
 
 

@@ -50,6 +50,7 @@ from .ground_surface import GroundSurfaceParams, block_mean_ground, fit_ground_s
 from .grouped import percentile_by_group
 from .params import BlockParams
 from .plausibility import ImplausibleBlockWarning, flag_implausible_blocks
+from .uncertainty import add_block_sigma, mark_use
 
 if TYPE_CHECKING:
     import geopandas as gpd
@@ -265,6 +266,7 @@ def estimate_blocks(track: PhotonTrack, params: BlockParams | None = None,
             _warn_sparse(blocks, track.track, params.min_photons)
             blocks["estimators"] = est.label()
             flag_implausible_blocks(blocks, track.track)
+            add_block_sigma(blocks, track, classes)  # hmax_sigma, ground_sigma, use
             return (blocks, lab) if labels else blocks
         removed = classes.classes <= 0
         work = track.subset(~removed)
@@ -356,6 +358,7 @@ def estimate_blocks(track: PhotonTrack, params: BlockParams | None = None,
             out_labels[length] = _expand(new, removed)
     blocks["estimators"] = est.label()
     flag_implausible_blocks(blocks, track.track)
+    mark_use(blocks)  # no sigma model for these estimators (NaN): use = flag ok
     if labels:
         return blocks, out_labels
     return blocks

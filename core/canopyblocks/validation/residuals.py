@@ -1,7 +1,9 @@
 """Residuals per block: photon metrics minus reference values (DESIGN 2.4, section 5).
 
 All blocks are kept; the column ``use`` marks those that enter the statistics:
-block ``flag == "ok"`` and reference ``ref_flag == "ok"``.
+block ``flag == "ok"`` (so not ``low_confidence``: its sigma too wide, DESIGN 1.12),
+the block's own ``use`` where the table has it, and reference ``ref_flag == "ok"``.
+The block's ``hmax_sigma`` and ``ground_sigma`` (m) are carried along.
 """
 
 from __future__ import annotations
@@ -61,8 +63,9 @@ def compute_residuals(blocks: pd.DataFrame, ref_values: pd.DataFrame,
     Returns
     -------
     GeoDataFrame
-        Block columns, ``schema.RESIDUAL_COLUMNS``, ``slope_class``, ``ref_flag`` and
-        ``use`` (bool), in the blocks' order and index.
+        Block columns (``schema.BLOCK_COLUMNS``, with ``hmax_sigma``, ``ground_sigma`` and
+        ``use``: block and reference usable), ``schema.RESIDUAL_COLUMNS``, ``slope_class``
+        and ``ref_flag``, in the blocks' order and index.
     """
     from ..arguments import check_frame
     check_frame(blocks, "compute_residuals: blocks")
@@ -93,9 +96,14 @@ def compute_residuals(blocks: pd.DataFrame, ref_values: pd.DataFrame,
     out["ref_flag"] = ref["ref_flag"].fillna("missing").to_numpy(object) if "ref_flag" in ref \
         else "ok"
     flag = blocks["flag"].to_numpy(object) if "flag" in blocks else np.full(len(out), FLAG_OK)
-    out["use"] = (flag == FLAG_OK) & (out["ref_flag"].to_numpy(object) == "ok")
+    for c in ("hmax_sigma", "ground_sigma"):  # tables written before the sigma model: NaN
+        out[c] = blocks[c].to_numpy(float) if c in blocks else np.nan
+    # the one place headline statistics are chosen: the block's own use (flag ok, sigma
+    # not too wide: blocks.uncertainty) and a usable reference
+    own = blocks["use"].fillna(False).to_numpy(bool) if "use" in blocks else flag == FLAG_OK
+    out["use"] = own & (flag == FLAG_OK) & (out["ref_flag"].to_numpy(object) == "ok")
     order = [c for c in BLOCK_COLUMNS if c in out] + list(RESIDUAL_COLUMNS) + \
-        ["slope_class", "ref_flag", "use"]
+        ["slope_class", "ref_flag"]
     out = out[order]
     out.index = blocks.index
     geom = corridors.geometry.to_numpy() if corridors is not None else \

@@ -20,6 +20,7 @@ import pandas as pd
 from ..blocks.atl08_classify import CLASS_COLUMN, Atl08Params
 from ..blocks.atl08_segments import atl08_segments
 from ..blocks.background_check import classify_photons
+from ..blocks.uncertainty import add_segment_sigma
 from ..errors import InputError
 from ..progress import Progress, as_progress
 from ..schema import LAYER_PHOTONS
@@ -68,7 +69,9 @@ def segments_from_file(
     Returns
     -------
     GeoDataFrame
-        Columns :data:`~canopyblocks.blocks.atl08_segments.SEGMENT_COLUMNS` of all tracks.
+        Columns :data:`~canopyblocks.blocks.atl08_segments.SEGMENT_COLUMNS` of all tracks,
+        then ``hmax_sigma`` (1 sigma of ``h_canopy``, m), ``ground_sigma`` (of the mean
+        ground, m) and ``use`` (:mod:`~canopyblocks.blocks.uncertainty`).
     """
     from ..arguments import check_source
     check_source(path, "segments_from_file: path", "a photon file path or URL")
@@ -90,7 +93,8 @@ def segments_from_file(
         classes = classify_photons(t, params)
         if with_photons:
             t.extra[CLASS_COLUMN] = classes.classes
-        frames.append(atl08_segments(t, classes, float(length), s0))
+        frames.append(add_segment_sigma(atl08_segments(t, classes, float(length), s0), t,
+                                        classes))
     table = gpd.GeoDataFrame(pd.concat(frames, ignore_index=True), geometry="geometry",
                              crs=tracks[0].crs)
     if output is not None:

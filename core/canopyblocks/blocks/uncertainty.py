@@ -1,0 +1,340 @@
+"""Per-block uncertainty of the ATL08-style heights: ``hmax_sigma`` and ``ground_sigma``.
+
+A block's (or segment's) 1-sigma error, metres, predicted from what the block holds
+(DESIGN 1.12):
+
+- its photons by class (ground, canopy, top of canopy) and the noise photons in it,
+- the background density the classifier used (photons per metre along-track per metre
+  of height: the ATL03 ``bckgrd_rate``, or estimated from the photons),
+- the signal photons per metre of track (a strong beam holds ~4x a weak one),
+- the terrain slope over the block (the classifier's ground surface),
+- the block length,
+- the classifier's own surface fit: the spread of the ground photons about the surface,
+- the block's Hmax itself.
+
+The model is a log-linear one, ``log sigma = x . beta`` for each of Hmax and ground,
+fitted by Gaussian maximum likelihood on residuals against the footprint-matched
+reference (like with like, DESIGN 2.7) of simulated tracks over the **calibration tiles
+only** (``bench/fit_block_sigma.py``); the coefficients are stored in
+``uncertainty_model.json`` beside this module. Blocks whose ``hmax_sigma`` or
+``ground_sigma`` exceed the model's thresholds are flagged ``low_confidence``; every block
+carries ``use`` (False = left out of headline statistics: not ``ok``).
+
+Only the ``atl08`` preset's blocks (and ATL08-style segments) get a sigma: the other
+estimators' errors are not modelled (NaN; their ``use`` follows their flag alone).
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ..errors import InputError
+from ..schema import FLAG_LOW_CONFIDENCE, FLAG_OK
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+    from ..photons import PhotonTrack
+    from .atl08_classify import Atl08Classes
+
+__all__ = ["SigmaModel", "FEATURES", "FLAG_LOW_CONFIDENCE", "sigma_model", "block_features",
+           "design_matrix", "predict_sigma", "add_block_sigma", "add_segment_sigma",
+           "mark_use", "left_out_summary"]
+
+#: Terms of the log-linear model, in the order of the coefficients.
+FEATURES: tuple[str, ...] = (
+    "const",
+    "log_n_top",       # log(1 + top-of-canopy photons)
+    "log_n_canopy",    # log(1 + canopy photons, classes 2-3)
+    "log_n_ground",    # log(1 + ground photons)
+    "log_signal_per_m",  # log(signal photons per metre of track + 0.05): beam strength
+    "log_background",  # log(background photons per m along per m height x block length + 0.01)
+    "log_noise_frac",  # log((noise photons in block + 1) / (all photons + 1))
+    "log_noise_top",   # log(1 + noise photons 0-10 m above the block's Hmax)
+    "log_noise_ground",  # log(1 + noise photons within 3 m of the ground surface)
+    "log_slope",       # log(0.02 + |rise| of the ground surface over the block / length)
+    "log_ground_spread",  # log(0.05 + sd of ground photons about the surface, m)
+    "log_ground_offset",  # log(0.05 + |mean height of the ground photons above the surface|)
+    "log_relief",      # log(0.05 + |z(c-15) + z(c+15) - 2 z(c)| of the surface, m)
+    "log_length",      # log(block length / 25 m)
+    "log_hmax",        # log(1 + Hmax, m)
+)
+
+_MODEL_FILE = Path(__file__).with_name("uncertainty_model.json")
+
+
+@dataclass(frozen=True)
+class SigmaModel:
+    """Fitted coefficients of the sigma model (see the module notes).
+
+    Attributes
+    ----------
+    hmax : tuple of float
+        Coefficients of ``log hmax_sigma`` on :data:`FEATURES`.
+    ground : tuple of float
+        Coefficients of ``log ground_sigma``.
+    hmax_max : float
+        ``hmax_sigma`` above this (m) flags a block ``low_confidence``.
+    ground_max : float
+        ``ground_sigma`` above this (m) flags a block ``low_confidence``.
+    floor : float
+        Smallest sigma given, m.
+    fitted_on : str
+        What the model was fitted on.
+    """
+
+    hmax: tuple[float, ...]
+    ground: tuple[float, ...]
+    hmax_max: float
+    ground_max: float
+    floor: float = 0.1
+    fitted_on: str = ""
+
+    def __post_init__(self) -> None:
+        for name in ("hmax", "ground"):
+            v = getattr(self, name)
+            try:
+                arr = np.asarray(v, dtype=float)
+            except (TypeError, ValueError):
+                arr = np.array([np.nan])
+            if arr.shape != (len(FEATURES),) or not np.all(np.isfinite(arr)):
+                raise InputError(f"sigma model: {name} needs {len(FEATURES)} finite "
+                                 f"coefficients, got {v!r}")
+        for name in ("hmax_max", "ground_max", "floor"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and v > 0):
+                raise InputError(f"sigma model: {name} must be a positive number of metres, "
+                                 f"got {v!r}")
+
+    def to_json(self) -> str:
+        """The model as JSON (the package file's format)."""
+        return json.dumps({"features": list(FEATURES), "hmax": list(self.hmax),
+                           "ground": list(self.ground), "hmax_max": self.hmax_max,
+                           "ground_max": self.ground_max, "floor": self.floor,
+                           "fitted_on": self.fitted_on}, indent=1)
+
+    @classmethod
+    def from_json(cls, text: str) -> SigmaModel:
+        """Read :meth:`to_json`'s format."""
+        d = json.loads(text)
+        if tuple(d.get("features", ())) != FEATURES:
+            raise InputError("sigma model: its features are not this version's; refit it")
+        return cls(tuple(map(float, d["hmax"])), tuple(map(float, d["ground"])),
+                   float(d["hmax_max"]), float(d["ground_max"]), float(d.get("floor", 0.1)),
+                   str(d.get("fitted_on", "")))
+
+
+@lru_cache(maxsize=1)
+def sigma_model() -> SigmaModel:
+    """The package's fitted model (``uncertainty_model.json``)."""
+    return SigmaModel.from_json(_MODEL_FILE.read_text())
+
+
+def block_features(track: PhotonTrack, classes: Atl08Classes, s_start: np.ndarray,
+                   s_end: np.ndarray, hmax: np.ndarray) -> dict[str, np.ndarray]:
+    """Raw per-interval quantities the model uses (sorted, non-overlapping intervals).
+
+    Parameters
+    ----------
+    track : PhotonTrack
+    classes : Atl08Classes
+        The classifier's result on ``track``.
+    s_start, s_end : ndarray
+        Along-track bounds of each block or segment (m), sorted by ``s_start``.
+    hmax : ndarray
+        The block's Hmax (m; NaN where none).
+
+    Returns
+    -------
+    dict
+        ``n_ground, n_canopy, n_top, n_noise, n_all``, ``n_noise_top`` (noise photons
+        0-10 m above ``hmax``), ``n_noise_ground`` (within 3 m of the surface),
+        ``background`` (photons per m along
+        per m height, mean over the block's photons), ``ground_spread`` (sd of the ground
+        photons about the surface, m; NaN under 2 of them), ``ground_offset`` (their mean
+        height above the surface, m), ``relief`` (the surface's second difference over
+        +-15 m about the centre, m), ``slope``, ``length`` (m),
+        ``hmax`` (m).
+    """
+    from .atl08_classify import CLASS_CANOPY, CLASS_GROUND, CLASS_NOISE, CLASS_TOP
+
+    a = np.asarray(s_start, float)
+    b = np.asarray(s_end, float)
+    n = a.size
+    s = np.asarray(track.s, float)
+    cls = classes.classes
+    j = np.searchsorted(a, s, side="right") - 1
+    ok = (cls >= 0) & (j >= 0) & np.isfinite(s)
+    jj = np.clip(j, 0, max(n - 1, 0))
+    ok &= s < b[jj] if n else np.zeros_like(ok)
+    row, c = jj[ok], cls[ok]
+
+    def count(mask: np.ndarray) -> np.ndarray:
+        return np.bincount(row[mask], minlength=n).astype(float)
+
+    n_all = count(np.ones(row.size, bool))
+    gr = c == CLASS_GROUND
+    n_ground = count(gr)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        bg = np.bincount(row, classes.background[ok], minlength=n) / n_all
+        hg = classes.height[ok][gr]
+        rg = row[gr]
+        m1 = np.bincount(rg, hg, minlength=n) / n_ground
+        m2 = np.bincount(rg, hg * hg, minlength=n) / n_ground
+        spread = np.sqrt(np.maximum(m2 - m1 * m1, 0.0) * n_ground / (n_ground - 1))
+    spread[n_ground < 2] = np.nan
+    surf = classes.surface
+    slope = np.abs(np.interp(b, surf.s, surf.z) - np.interp(a, surf.s, surf.z)) / (b - a)
+    mid = 0.5 * (a + b)
+    relief = np.abs(np.interp(mid - 15.0, surf.s, surf.z) + np.interp(mid + 15.0, surf.s, surf.z)
+                    - 2 * np.interp(mid, surf.s, surf.z))
+    hmx = np.asarray(hmax, float)
+    hn = classes.height[ok]
+    top_of_row = np.where(np.isfinite(hmx), hmx, 0.0)[row] if n else np.zeros(0)
+    noise = c == CLASS_NOISE
+    with np.errstate(invalid="ignore"):
+        above = noise & (hn > top_of_row) & (hn <= top_of_row + 10.0)
+        near_ground = noise & (np.abs(hn) <= 3.0)
+    return {"n_ground": n_ground,
+            "n_noise_top": count(above), "n_noise_ground": count(near_ground),
+            "n_canopy": count((c == CLASS_CANOPY) | (c == CLASS_TOP)),
+            "n_top": count(c == CLASS_TOP), "n_noise": count(c == CLASS_NOISE),
+            "n_all": n_all, "background": np.where(np.isfinite(bg), bg, 0.0),
+            "ground_spread": spread, "ground_offset": np.where(n_ground > 0, m1, np.nan),
+            "relief": relief, "slope": slope, "length": b - a,
+            "hmax": np.asarray(hmax, float)}
+
+
+def design_matrix(f: dict[str, np.ndarray] | pd.DataFrame) -> np.ndarray:
+    """The model's terms (:data:`FEATURES`) from :func:`block_features`' quantities."""
+    length = np.asarray(f["length"], float)
+    n_sig = np.asarray(f["n_ground"], float) + np.asarray(f["n_canopy"], float)
+    spread = np.asarray(f["ground_spread"], float)
+    spread = np.where(np.isfinite(spread), np.minimum(spread, 5.0), 1.0)
+    offset = np.abs(np.asarray(f["ground_offset"], float))
+    offset = np.where(np.isfinite(offset), np.minimum(offset, 5.0), 1.0)
+    hmax = np.asarray(f["hmax"], float)
+    hmax = np.where(np.isfinite(hmax), np.clip(hmax, 0.0, 80.0), 0.0)
+    cols = [np.ones_like(length),
+            np.log1p(np.asarray(f["n_top"], float)),
+            np.log1p(np.asarray(f["n_canopy"], float)),
+            np.log1p(np.asarray(f["n_ground"], float)),
+            np.log(n_sig / length + 0.05),
+            np.log(np.asarray(f["background"], float) * length + 0.01),
+            np.log((np.asarray(f["n_noise"], float) + 1) / (np.asarray(f["n_all"], float) + 1)),
+            np.log1p(np.asarray(f["n_noise_top"], float)),
+            np.log1p(np.asarray(f["n_noise_ground"], float)),
+            np.log(np.minimum(np.asarray(f["slope"], float), 1.0) + 0.02),
+            np.log(0.05 + spread),
+            np.log(0.05 + offset),
+            np.log(0.05 + np.minimum(np.asarray(f["relief"], float), 20.0)),
+            np.log(length / 25.0),
+            np.log1p(hmax)]
+    return np.column_stack(cols)
+
+
+def predict_sigma(f: dict[str, np.ndarray] | pd.DataFrame, model: SigmaModel | None = None
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """``hmax_sigma, ground_sigma`` (1 sigma, m) of each interval; NaN where no Hmax."""
+    m = sigma_model() if model is None else model
+    x = design_matrix(f)
+    with np.errstate(over="ignore"):
+        hs = np.maximum(np.exp(np.clip(x @ np.asarray(m.hmax), -10, 10)), m.floor)
+        gs = np.maximum(np.exp(np.clip(x @ np.asarray(m.ground), -10, 10)), m.floor)
+    none = ~np.isfinite(np.asarray(f["hmax"], float))
+    hs[none] = np.nan
+    gs[none] = np.nan
+    return hs, gs
+
+
+def mark_use(table: pd.DataFrame, model: SigmaModel | None = None) -> pd.DataFrame:
+    """Flag ``low_confidence`` where a sigma is over the model's threshold (``ok`` blocks
+    only) and set ``use`` = flag is ``ok``; in place, and returned."""
+    m = sigma_model() if model is None else model
+    flag = table["flag"].astype(object).to_numpy()
+    hs = table["hmax_sigma"].to_numpy(float)
+    gs = table["ground_sigma"].to_numpy(float)
+    with np.errstate(invalid="ignore"):
+        wide = (hs > m.hmax_max) | (gs > m.ground_max)
+    flag = np.where((flag == FLAG_OK) & wide, FLAG_LOW_CONFIDENCE, flag)
+    table["flag"] = flag
+    table["use"] = flag == FLAG_OK
+    return table
+
+
+def add_block_sigma(blocks: pd.DataFrame, track: PhotonTrack, classes: Atl08Classes,
+                    model: SigmaModel | None = None) -> pd.DataFrame:
+    """Fill ``hmax_sigma``, ``ground_sigma``, the ``low_confidence`` flag and ``use`` of an
+    ``atl08`` block table (every length), in place; returned."""
+    hs = np.full(len(blocks), np.nan)
+    gs = np.full(len(blocks), np.nan)
+    lengths = blocks["length"].to_numpy(float)
+    for length in np.unique(lengths):
+        rows = np.flatnonzero(lengths == length)
+        sub = blocks.iloc[rows]
+        order = np.argsort(sub["s_start"].to_numpy(float), kind="stable")
+        r = rows[order]
+        f = block_features(track, classes, blocks["s_start"].to_numpy(float)[r],
+                           blocks["s_end"].to_numpy(float)[r],
+                           blocks["hmax"].to_numpy(float)[r])
+        hs[r], gs[r] = predict_sigma(f, model)
+    blocks["hmax_sigma"] = hs
+    blocks["ground_sigma"] = gs
+    return mark_use(blocks, model)
+
+
+def add_segment_sigma(segments: pd.DataFrame, track: PhotonTrack, classes: Atl08Classes,
+                      model: SigmaModel | None = None) -> pd.DataFrame:
+    """``hmax_sigma`` (of ``h_canopy``), ``ground_sigma`` (of the mean ground surface),
+    the ``low_confidence`` flag and ``use`` of ATL08-style segments, in place; returned.
+    Segments with no canopy photon take the sigma of a bare block (Hmax 0); ``use`` is
+    True only for ``ok`` segments (:func:`mark_use`)."""
+    m = sigma_model() if model is None else model
+    order = np.argsort(segments["s_start"].to_numpy(float), kind="stable")
+    h = segments["h_canopy"].to_numpy(float)[order]
+    f = block_features(track, classes, segments["s_start"].to_numpy(float)[order],
+                       segments["s_end"].to_numpy(float)[order], np.where(np.isfinite(h), h, 0))
+    hs, gs = np.full(len(segments), np.nan), np.full(len(segments), np.nan)
+    hs[order], gs[order] = predict_sigma(f, m)
+    segments["hmax_sigma"] = hs
+    segments["ground_sigma"] = gs
+    return mark_use(segments, m)
+
+
+def left_out_summary(table: pd.DataFrame) -> dict[str, object]:
+    """How many rows headline statistics leave out and why.
+
+    Returns
+    -------
+    dict
+        ``n`` (rows), ``n_used``, ``n_left_out``, ``by_flag`` (left-out rows per reason:
+        the block's flag, or ``reference <ref_flag>`` in a residuals table),
+        ``n_low_confidence``, ``hmax_sigma_max`` and ``ground_sigma_max`` (the thresholds,
+        m) -- for a report's sentence.
+    """
+    import pandas as pd
+
+    from ..arguments import check_frame
+    check_frame(table, "left_out_summary: table", "a block, segment or residuals table")
+    m = sigma_model()
+    n = len(table)
+    if "use" in table.columns:
+        use = table["use"].fillna(False).to_numpy(bool)
+    else:
+        use = (table["flag"] == "ok").to_numpy() if "flag" in table.columns else np.ones(n, bool)
+    why = (table["flag"].astype(str).to_numpy(object) if "flag" in table.columns
+           else np.full(n, "not used", object))
+    if "ref_flag" in table.columns:  # a residuals table: the reference's reason too
+        rf = table["ref_flag"].astype(str).to_numpy(object)
+        why = np.where((why == FLAG_OK) & (rf != FLAG_OK), "reference " + rf, why)
+    left = pd.Series(why[~use])
+    by_flag = {str(k): int(v) for k, v in left.value_counts().items()}
+    return {"n": n, "n_used": int(use.sum()), "n_left_out": int(n - use.sum()),
+            "by_flag": by_flag, "n_low_confidence": by_flag.get(FLAG_LOW_CONFIDENCE, 0),
+            "hmax_sigma_max": m.hmax_max, "ground_sigma_max": m.ground_max}
