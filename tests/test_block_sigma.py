@@ -144,7 +144,7 @@ def test_paper_blocks_have_nan_sigma_and_use_follows_flag() -> None:
     track = read_atl03(str(A03), "gt1r")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        b = estimate_blocks(track, BlockParams(lengths=(25.0,)))
+        b = estimate_blocks(track, BlockParams(lengths=(25.0,)), preset("paper"))
     assert list(b.columns[:len(BLOCK_COLUMNS)]) == list(BLOCK_COLUMNS)
     assert b["hmax_sigma"].isna().all() and b["ground_sigma"].isna().all()
     assert (b["use"] == (b["flag"] == "ok")).all()
