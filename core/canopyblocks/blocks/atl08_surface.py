@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError, NoUsableDataError
-from .ground_surface import GroundSurface, _bridge, _kernel, _local_linear
+from .ground_surface import GroundSurface, _bridge, _kernel, _local_linear_binned, _node_bins
 from .grouped import percentile_by_group
 
 __all__ = ["SurfaceParams", "fit_atl08_surface"]
@@ -102,6 +102,8 @@ class SurfaceParams:
 
 
 _NODE = 1.0  # m between surface nodes
+_RESERVE = 1.0  # m the surface may move before the photons left out are looked at again
+_EPS = 1e-9
 
 
 def _median3(low: np.ndarray) -> np.ndarray:
@@ -197,21 +199,48 @@ def fit_atl08_surface(s: np.ndarray, z: np.ndarray,
     surf = _start(ss, zz, p, nodes) if start is None else start(nodes)
     kernel = _kernel(p.bandwidth, _NODE)
     support = np.zeros(nodes.size)
+    bins, offs = _node_bins(ss, nodes, _NODE)
+    # Passes after the first look only at the photons that can still weigh: those within
+    # the widest band to come plus _RESERVE of the surface, while the surface has moved
+    # less than _RESERVE since they were chosen (else all photons again). The others'
+    # weights are provably 0, and a weight of 0 adds exact zeros: the same surface.
+    cur: np.ndarray | None = None  # indices into ss of the photons looked at (None: all)
+    drift = 0.0  # max |surface change| summed since photons were first left out
+    eps = _EPS * (1.0 + float(np.max(np.abs(zz))))  # the rounding of np.interp, amply
     w = np.zeros(ss.size)
     for k, band in enumerate(p.bands):
-        r = zz - np.interp(ss, nodes, surf)
-        spread = np.interp(ss, nodes, _spread(nodes, surf, p.footprint_radius))
-        u = r / np.hypot(band, spread)
+        if cur is not None and drift + eps >= _RESERVE:
+            cur, drift = None, 0.0
+        sk, zk = (ss, zz) if cur is None else (ss[cur], zz[cur])
+        r = zk - np.interp(sk, nodes, surf)
+        if p.footprint_radius > 0:
+            spread = np.interp(sk, nodes, _spread(nodes, surf, p.footprint_radius))
+            u = r / np.hypot(band, spread)
+        else:  # (hypot(band, 0) is band, exactly)
+            u = r / band
         w = np.where(np.abs(u) < 1.0, (1.0 - u * u) ** 2, 0.0)
         if k < len(p.bands) - 1:  # the last, narrowest pass is symmetric: no bias
             w = np.where(r > 0, w * p.above_weight, w)
-        if not (w > 0).any():
+        on = np.flatnonzero(w > 0)
+        if not on.size:
             break
-        level, support = _local_linear(ss, zz, w, nodes, _NODE, kernel)
+        at = on if cur is None else cur[on]
+        level, support = _local_linear_binned(bins[at], offs[at], zz[at], w[on], nodes.size,
+                                              _NODE, kernel)
         try:
-            surf = _bridge(nodes, level, support >= p.min_support)
+            new = _bridge(nodes, level, support >= p.min_support)
         except NoUsableDataError:
             break
+        if p.footprint_radius <= 0 and k < len(p.bands) - 1:
+            step = float(np.max(np.abs(new - surf)))
+            drift = drift + step if cur is not None else step
+            if drift + eps < _RESERVE and bool(np.all(np.isfinite(surf))):
+                near = np.abs(r) < max(p.bands[k + 1:]) + _RESERVE
+                if not near.all():  # (else nothing is gained)
+                    cur = np.flatnonzero(near) if cur is None else cur[near]
+            elif cur is None:
+                drift = 0.0
+        surf = new
     used = np.zeros(s.size, bool)
-    used[order] = w > 0
+    used[order if cur is None else order[cur]] = w > 0
     return GroundSurface(nodes, surf, support >= p.min_support, used)
