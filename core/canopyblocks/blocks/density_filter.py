@@ -31,6 +31,8 @@ __all__ = ["DensityParams", "DensityResult", "density_filter", "box_area", "pois
 log = logging.getLogger(__name__)
 
 _MAX_CELLS = 40_000_000
+_ENTRIES = 1 << 20  # photons (with the segments' margins) counted together
+_CELLS = 1 << 22  # grid cells summed together
 
 
 @dataclass(frozen=True)
@@ -106,31 +108,77 @@ class DensityResult:
         return float(1.0 - self.keep.mean()) if self.keep.size else 0.0
 
 
-def _box_counts(s: np.ndarray, z: np.ndarray, p: DensityParams) -> np.ndarray:
-    """Neighbours of each photon within the box (itself included), on a fine grid."""
+def _box_counts(ss: np.ndarray, zs: np.ndarray, starts: np.ndarray, ends: np.ndarray,
+                lo: np.ndarray, hi: np.ndarray, p: DensityParams) -> np.ndarray:
+    """Neighbours of each photon within the box (itself included), on a fine grid per
+    along-track segment: the photons ``starts[k]:ends[k]`` of the s-sorted track counted
+    on the grid of ``lo[k]:hi[k]`` (the segment with a margin of one box each side, so
+    counts near its ends see their true neighbours), origin at that slice's lowest s and z.
+
+    The grids of many segments are stacked in one array of a common width and summed at
+    once: a box's count is a difference of the summed-area table between rows of its own
+    grid, in which the sums over the grids above cancel (exact integers).
+    """
+    out = np.empty(ss.size, np.int64)
+    lens = hi - lo
+    k0 = 0
+    while k0 < starts.size:  # groups of segments of about _ENTRIES photons (with margins)
+        k1 = k0 + max(int(np.searchsorted(np.cumsum(lens[k0:]), _ENTRIES)), 1)
+        _group_counts(ss, zs, starts[k0:k1], ends[k0:k1], lo[k0:k1], hi[k0:k1], p, out)
+        k0 = k1
+    return out
+
+
+def _group_counts(ss: np.ndarray, zs: np.ndarray, starts: np.ndarray, ends: np.ndarray,
+                  lo: np.ndarray, hi: np.ndarray, p: DensityParams, out: np.ndarray) -> None:
+    """:func:`_box_counts` of some segments, into ``out``."""
     sub = p.cells
     ds = p.along / sub
     dz = p.height / sub
-    ci = np.floor((s - s.min()) / ds).astype(np.int64)
-    ri = np.floor((z - z.min()) / dz).astype(np.int64)
-    nc, nr = int(ci.max()) + 1, int(ri.max()) + 1
-    if nc * nr > _MAX_CELLS:
+    lens = hi - lo
+    first = np.concatenate([[0], np.cumsum(lens)[:-1]])  # each segment's first entry
+    seg = np.repeat(np.arange(lens.size), lens)
+    idx = np.arange(int(lens.sum())) + np.repeat(lo - first, lens)  # photon of each entry
+    ze = zs[idx]
+    # (the lowest s of a slice of the sorted track is its first)
+    ci = np.floor((ss[idx] - ss[lo][seg]) / ds).astype(np.int64)
+    ri = np.floor((ze - np.minimum.reduceat(ze, first)[seg]) / dz).astype(np.int64)
+    del ze
+    nc = np.maximum.reduceat(ci, first) + 1
+    nr = np.maximum.reduceat(ri, first) + 1
+    big = np.flatnonzero(nc * nr > _MAX_CELLS)
+    if big.size:
         raise InputError(
-            f"density filter grid of {nc} x {nr} cells for one segment is too large; the "
-            "height range is huge (fill values or far outliers?): remove them first")
-    # (bincount, not np.add.at: the same counts, several times faster; int32 sums are exact
-    # below 2**31 photons a segment)
-    grid = np.bincount((ri + 1) * (nc + 1) + (ci + 1), minlength=(nr + 1) * (nc + 1))
-    grid = grid.astype(np.int32).reshape(nr + 1, nc + 1)
-    # cells [0, r) x [0, c); the contiguous axis first, then rows; read flat
-    sat = grid.cumsum(1, dtype=np.int32).cumsum(0, dtype=np.int32).ravel()
-    w = nc + 1
-    c0 = np.maximum(ci - sub, 0)
-    c1 = np.minimum(ci + sub + 1, nc)
-    r0 = np.maximum(ri - sub, 0) * w
-    r1 = np.minimum(ri + sub + 1, nr) * w
-    return (sat.take(r1 + c1) - sat.take(r0 + c1) - sat.take(r1 + c0)
-            + sat.take(r0 + c0)).astype(np.int64)
+            f"density filter grid of {int(nc[big[0]])} x {int(nr[big[0]])} cells for one "
+            "segment is too large; the height range is huge (fill values or far outliers?): "
+            "remove them first")
+    own = (idx >= starts[seg]) & (idx < ends[seg])
+    width = int(nc.max()) + 1
+    rows = nr + 1
+    g0 = 0
+    while g0 < lens.size:  # stacks of about _CELLS cells
+        g1 = g0 + max(int(np.searchsorted(np.cumsum(rows[g0:]) * width, _CELLS, "right")), 1)
+        e0, e1 = int(first[g0]), int(first[g1 - 1] + lens[g1 - 1])
+        top = np.concatenate([[0], np.cumsum(rows[g0:g1])[:-1]])  # each grid's first row
+        sg = seg[e0:e1] - g0
+        r_top = top[sg]
+        c, r = ci[e0:e1], ri[e0:e1]
+        # (bincount, not np.add.at: the same counts, several times faster; int32 sums are
+        # exact below 2**31 photons a stack)
+        grid = np.bincount((r_top + r + 1) * width + (c + 1),
+                           minlength=int(rows[g0:g1].sum()) * width).astype(np.int32)
+        sat = grid.reshape(-1, width).cumsum(1, dtype=np.int32).cumsum(0, dtype=np.int32)
+        sat = sat.ravel()
+        del grid
+        ncs, nrs = nc[g0:g1][sg], nr[g0:g1][sg]
+        c0 = np.maximum(c - sub, 0)
+        c1 = np.minimum(c + sub + 1, ncs)
+        r0 = (r_top + np.maximum(r - sub, 0)) * width
+        r1 = (r_top + np.minimum(r + sub + 1, nrs)) * width
+        cnt = (sat.take(r1 + c1) - sat.take(r0 + c1) - sat.take(r1 + c0) + sat.take(r0 + c0))
+        mine = own[e0:e1]
+        out[idx[e0:e1][mine]] = cnt[mine]
+        g0 = g1
 
 
 def _segment_rate(z: np.ndarray, length: float, p: DensityParams) -> float:
@@ -191,15 +239,12 @@ def density_filter(s: np.ndarray, z: np.ndarray,
     quantiles: dict[float, float] = {}
     zs = z[order]  # sorted once: each segment is then a contiguous slice
     rs = rate[order] if rate is not None else None
-    cnt_s = np.empty(ss.size, np.int64)
     lam_s = np.empty(ss.size)
     thr_s = np.empty(ss.size)
     lo_all = np.searchsorted(ss, ss[starts] - p.along, side="left")
     hi_all = np.searchsorted(ss, ss[ends - 1] + p.along, side="right")
-    for a, b, lo, hi in zip(starts.tolist(), ends.tolist(), lo_all.tolist(), hi_all.tolist()):
-        # one numpy grid per along-track segment, with a margin of one box on each side,
-        # so counts near its ends see their true neighbours
-        cnt_s[a:b] = _box_counts(ss[lo:hi], zs[lo:hi], p)[a - lo:b - lo]
+    cnt_s = _box_counts(ss, zs, starts, ends, lo_all, hi_all, p)
+    for a, b in zip(starts.tolist(), ends.tolist()):
         length = max(float(ss[b - 1] - ss[a]), p.along)
         if p.background is not None:
             lam = p.background
