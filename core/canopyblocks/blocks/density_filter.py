@@ -31,8 +31,8 @@ __all__ = ["DensityParams", "DensityResult", "density_filter", "box_area", "pois
 log = logging.getLogger(__name__)
 
 _MAX_CELLS = 40_000_000
-_ENTRIES = 1 << 20  # photons (with the segments' margins) counted together
-_CELLS = 1 << 22  # grid cells summed together
+_ENTRIES = 1 << 17  # photons (with the segments' margins) counted together
+_CELLS = 1 << 21  # grid cells summed together
 
 
 @dataclass(frozen=True)
@@ -224,30 +224,42 @@ def density_filter(s: np.ndarray, z: np.ndarray,
         if rate.shape != s.shape:
             raise InputError(f"rate has shape {rate.shape}; one value per photon {s.shape} "
                              "is needed")
+    return DensityResult(*_filter(s, z, p, rate, full=True))
+
+
+def _filter(s: np.ndarray, z: np.ndarray, p: DensityParams, rate: np.ndarray | None, *,
+            full: bool = False, with_rate: bool = False) -> tuple[np.ndarray, ...]:
+    """:func:`density_filter` on checked float arrays: ``keep``, then with ``full`` the
+    count, rate and threshold per photon, or with ``with_rate`` the rate only (fewer
+    full-length arrays: the classifier needs no more)."""
     n = s.size
     keep = np.zeros(n, bool)
-    count = np.zeros(n, np.int64)
-    rates = np.zeros(n)
-    thr = np.zeros(n)
-    ok = np.flatnonzero(np.isfinite(s) & np.isfinite(z))
-    if ok.size == 0:
-        return DensityResult(keep, count, rates, thr)
-    order = ok[np.argsort(s[ok], kind="stable")]
+    fin = np.isfinite(s) & np.isfinite(z)
+    if fin.all():
+        order = np.argsort(s, kind="stable")
+    else:
+        ok = np.flatnonzero(fin)
+        order = ok[np.argsort(s[ok], kind="stable")]
+    del fin
+    if order.size == 0:
+        return (keep, np.zeros(n, np.int64), np.zeros(n), np.zeros(n))[:4 if full else
+                                                                         2 if with_rate else 1]
     ss = s[order]
     seg = np.floor((ss - ss[0]) / p.segment).astype(np.int64)
     bounds = np.flatnonzero(np.diff(seg)) + 1
+    del seg
     starts = np.concatenate([[0], bounds])
     ends = np.concatenate([bounds, [ss.size]])
     area = box_area(p)
     quantiles: dict[float, float] = {}
     zs = z[order]  # sorted once: each segment is then a contiguous slice
     rs = rate[order] if rate is not None else None
-    lam_s = np.empty(ss.size)
-    thr_s = np.empty(ss.size)
+    lam_seg = np.empty(starts.size)
+    thr_seg = np.empty(starts.size)
     lo_all = np.searchsorted(ss, ss[starts] - p.along, side="left")
     hi_all = np.searchsorted(ss, ss[ends - 1] + p.along, side="right")
     cnt_s = _box_counts(ss, zs, starts, ends, lo_all, hi_all, p)
-    for a, b in zip(starts.tolist(), ends.tolist()):
+    for k, (a, b) in enumerate(zip(starts.tolist(), ends.tolist())):
         length = max(float(ss[b - 1] - ss[a]), p.along)
         if p.background is not None:
             lam = p.background
@@ -259,17 +271,30 @@ def density_filter(s: np.ndarray, z: np.ndarray,
         t = quantiles.get(mu)
         if t is None:  # rates repeat from segment to segment: one quantile each
             t = quantiles[mu] = poisson_quantile(p.quantile, mu)
-        lam_s[a:b] = lam
-        thr_s[a:b] = t
+        lam_seg[k] = lam
+        thr_seg[k] = t
+    del zs, rs
     if p.edge_correction:
         inside = (np.minimum(ss - ss[0], p.along) + np.minimum(ss[-1] - ss, p.along)
                   ) / (2.0 * p.along)
         cnt_s = np.rint(1 + (cnt_s - 1) / np.maximum(inside, 0.5)).astype(np.int64)
-    count[order] = cnt_s
-    rates[order] = lam_s
-    thr[order] = thr_s
+        del inside
+    del ss
+    lens = ends - starts
+    thr_s = np.repeat(thr_seg, lens)
     keep[order] = cnt_s - 1 > thr_s  # the count includes the photon itself
-    return DensityResult(keep, count, rates, thr)
+    out: tuple[np.ndarray, ...] = (keep,)
+    if full:
+        count = np.zeros(n, np.int64)
+        count[order] = cnt_s
+        thr = np.zeros(n)
+        thr[order] = thr_s
+    del cnt_s, thr_s
+    if full or with_rate:
+        rates = np.zeros(n)
+        rates[order] = np.repeat(lam_seg, lens)
+        out = (keep, count, rates, thr) if full else (keep, rates)
+    return out
 
 
 def box_area(p: DensityParams) -> float:
