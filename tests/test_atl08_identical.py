@@ -149,3 +149,19 @@ def test_classes_pinned_to_the_classifier_before_it_was_fast():
 # made fast (counts: noise 10821 / 10833, ground 5299, canopy 3291 / 3274, top 597 / 602)
 PINNED_KNOWN_RATE = "43136af316562db9"
 PINNED_ESTIMATED = "1e53e1571a6f7aca"
+
+
+@pytest.mark.parametrize("far", [False, True])
+def test_block_rows_equal_a_sorted_search(far):
+    from canopyblocks.blocks.atl08_blocks import _row_of_block
+
+    rng = np.random.default_rng(9)
+    nums = np.unique(rng.integers(-50, 400, 200))
+    if far:  # a block far away: the lookup table would be huge, so it searches
+        nums = np.append(nums, 10**12)
+    bidx = np.floor(rng.uniform(-80, 450, 5000))
+    bidx[::97] = np.nan
+    ok = rng.random(bidx.size) < 0.9
+    pos = np.searchsorted(nums, bidx)
+    hit = ok & (pos < len(nums)) & (nums[np.minimum(pos, len(nums) - 1)] == bidx)
+    assert np.array_equal(_row_of_block(nums, bidx, ok), np.where(hit, pos, -1))
