@@ -115,9 +115,10 @@ def _box_counts(ss: np.ndarray, zs: np.ndarray, starts: np.ndarray, ends: np.nda
     on the grid of ``lo[k]:hi[k]`` (the segment with a margin of one box each side, so
     counts near its ends see their true neighbours), origin at that slice's lowest s and z.
 
-    The grids of many segments are stacked in one array of a common width and summed at
-    once: a box's count is a difference of the summed-area table between rows of its own
-    grid, in which the sums over the grids above cancel (exact integers).
+    The grids of many segments are stacked in one array and summed at once (a summed-area
+    table): a box's count is a difference of the table between rows of its own grid, in
+    which the sums over the grids before it cancel (exact integers). Each grid is padded
+    with a box's width of empty cells on every side, so no box needs clipping.
     """
     out = np.empty(ss.size, np.int64)
     lens = hi - lo
@@ -133,54 +134,60 @@ def _group_counts(ss: np.ndarray, zs: np.ndarray, starts: np.ndarray, ends: np.n
                   lo: np.ndarray, hi: np.ndarray, p: DensityParams, out: np.ndarray) -> None:
     """:func:`_box_counts` of some segments, into ``out``."""
     sub = p.cells
+    box = 2 * sub + 1
     ds = p.along / sub
     dz = p.height / sub
     lens = hi - lo
     first = np.concatenate([[0], np.cumsum(lens)[:-1]])  # each segment's first entry
-    seg = np.repeat(np.arange(lens.size), lens)
-    idx = np.arange(int(lens.sum())) + np.repeat(lo - first, lens)  # photon of each entry
+    total = int(lens.sum())
+    idx = np.arange(total) + np.repeat(lo - first, lens)  # the photon of each entry
     ze = zs[idx]
     # (the lowest s of a slice of the sorted track is its first)
-    ci = np.floor((ss[idx] - ss[lo][seg]) / ds).astype(np.int64)
-    ri = np.floor((ze - np.minimum.reduceat(ze, first)[seg]) / dz).astype(np.int64)
-    del ze
-    nc = np.maximum.reduceat(ci, first) + 1
-    nr = np.maximum.reduceat(ri, first) + 1
+    ci = np.floor((ss[idx] - np.repeat(ss[lo], lens)) / ds).astype(np.int32)
+    ri = np.floor((ze - np.repeat(np.minimum.reduceat(ze, first), lens)) / dz
+                  ).astype(np.int32)
+    del ze, idx
+    nc = np.maximum.reduceat(ci, first).astype(np.int64) + 1
+    nr = np.maximum.reduceat(ri, first).astype(np.int64) + 1
     big = np.flatnonzero(nc * nr > _MAX_CELLS)
     if big.size:
         raise InputError(
             f"density filter grid of {int(nc[big[0]])} x {int(nr[big[0]])} cells for one "
             "segment is too large; the height range is huge (fill values or far outliers?): "
             "remove them first")
-    own = (idx >= starts[seg]) & (idx < ends[seg])
-    width = int(nc.max()) + 1
-    rows = nr + 1
+    # each segment's own photons are a run of its entries; in entry order they are the
+    # photons starts[0]:ends[-1] in order
+    mark = (np.bincount(first + starts - lo, minlength=total + 1)
+            - np.bincount(first + ends - lo, minlength=total + 1))
+    own = np.cumsum(mark[:-1]) > 0
+    del mark
+    width = int(nc.max()) + 2 * sub + 1  # box columns of padding left and right
+    rows = nr + 2 * sub + 1  # box rows of padding above and below
     g0 = 0
     while g0 < lens.size:  # stacks of about _CELLS cells
         g1 = g0 + max(int(np.searchsorted(np.cumsum(rows[g0:]) * width, _CELLS, "right")), 1)
         e0, e1 = int(first[g0]), int(first[g1 - 1] + lens[g1 - 1])
-        top = np.concatenate([[0], np.cumsum(rows[g0:g1])[:-1]])  # each grid's first row
         height = int(rows[g0:g1].sum())
-        sg = seg[e0:e1] - g0
-        r_top = top[sg]
-        c, r = ci[e0:e1], ri[e0:e1]
-        # laid out column by column (the long axis contiguous: both sums run fast);
-        # bincount, not np.add.at: the same counts, several times faster; int32 sums are
-        # exact below 2**31 photons a stack
-        grid = np.bincount((c + 1) * height + (r_top + r + 1),
+        top = np.concatenate([[0], np.cumsum(rows[g0:g1])[:-1]])  # each grid's first row
+        it = np.int32 if width * height < 2**31 - 1 else np.int64
+        # laid out column by column (the long axis contiguous: both sums run fast); the
+        # photon at grid column c, row r of its segment sits in cell (c + sub + 1,
+        # top + r + sub + 1); its box's corners in the table, below and left of the box,
+        # are column c and row top + r, "base", and base + box columns / rows
+        base = (ci[e0:e1].astype(it) * it(height)
+                + np.repeat(top.astype(it), lens[g0:g1]) + ri[e0:e1])
+        # (bincount, not np.add.at: the same counts, several times faster; int32 sums are
+        # exact below 2**31 photons a stack)
+        grid = np.bincount(base + it((sub + 1) * height + sub + 1),
                            minlength=width * height).astype(np.int32)
         sat = grid.reshape(width, height).cumsum(1, dtype=np.int32).cumsum(0, dtype=np.int32)
         sat = sat.ravel()
         del grid
-        mine = np.flatnonzero(own[e0:e1])  # counted, not only counting
-        sg, r_top, c, r = sg[mine], r_top[mine], c[mine], r[mine]
-        ncs, nrs = nc[g0:g1][sg], nr[g0:g1][sg]
-        c0 = np.maximum(c - sub, 0) * height
-        c1 = np.minimum(c + sub + 1, ncs) * height
-        r0 = r_top + np.maximum(r - sub, 0)
-        r1 = r_top + np.minimum(r + sub + 1, nrs)
-        cnt = (sat.take(r1 + c1) - sat.take(r0 + c1) - sat.take(r1 + c0) + sat.take(r0 + c0))
-        out[idx[e0:e1][mine]] = cnt
+        base = base[own[e0:e1]]
+        dc, dr = box * height, box
+        cnt = (sat[dc + dr:].take(base) - sat[dr:].take(base) - sat[dc:].take(base)
+               + sat.take(base))
+        out[int(starts[g0]):int(ends[g1 - 1])] = cnt
         g0 = g1
 
 
