@@ -242,13 +242,16 @@ def _filter(s: np.ndarray, z: np.ndarray, p: DensityParams, rate: np.ndarray | N
     n = s.size
     keep = np.zeros(n, bool)
     fin = np.isfinite(s) & np.isfinite(z)
+    order: np.ndarray | slice
     if fin.all():
-        order = np.argsort(s, kind="stable")
+        # a track read from a file comes sorted by s: then no copies in sorted order
+        order = slice(None) if n < 2 or bool(np.all(s[1:] >= s[:-1])) else np.argsort(
+            s, kind="stable")
     else:
         ok = np.flatnonzero(fin)
         order = ok[np.argsort(s[ok], kind="stable")]
     del fin
-    if order.size == 0:
+    if n == 0 or (isinstance(order, np.ndarray) and order.size == 0):
         return (keep, np.zeros(n, np.int64), np.zeros(n), np.zeros(n))[:4 if full else
                                                                          2 if with_rate else 1]
     ss = s[order]
