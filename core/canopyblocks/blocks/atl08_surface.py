@@ -189,11 +189,16 @@ def fit_atl08_surface(s: np.ndarray, z: np.ndarray,
     if int(ok.sum()) < 2:
         raise NoUsableDataError("fewer than 2 signal photons with a finite position and "
                                 "height: no ground surface")
-    idx = np.flatnonzero(ok)
-    if bool(np.all(np.diff(s[idx]) >= 0)):
-        order = idx
+    order: np.ndarray | slice
+    if ok.all() and bool(np.all(s[1:] >= s[:-1])):
+        order = slice(None)  # finite and sorted: the arrays themselves, no copies
     else:
-        order = idx[np.argsort(s[idx], kind="stable")]
+        idx = np.flatnonzero(ok)
+        if bool(np.all(np.diff(s[idx]) >= 0)):
+            order = idx
+        else:
+            order = idx[np.argsort(s[idx], kind="stable")]
+    del ok
     ss, zz = s[order], z[order]
     nodes = np.arange(ss[0], ss[-1] + _NODE, _NODE)
     surf = _start(ss, zz, p, nodes) if start is None else start(nodes)
@@ -212,15 +217,23 @@ def fit_atl08_surface(s: np.ndarray, z: np.ndarray,
         if cur is not None and drift + eps >= _RESERVE:
             cur, drift = None, 0.0
         sk, zk = (ss, zz) if cur is None else (ss[cur], zz[cur])
-        r = zk - np.interp(sk, nodes, surf)
+        r = np.interp(sk, nodes, surf)
+        np.subtract(zk, r, out=r)  # the residual, in place (the same bits)
         if p.footprint_radius > 0:
             spread = np.interp(sk, nodes, _spread(nodes, surf, p.footprint_radius))
             u = r / np.hypot(band, spread)
         else:  # (hypot(band, 0) is band, exactly)
             u = r / band
-        w = np.where(np.abs(u) < 1.0, (1.0 - u * u) ** 2, 0.0)
+        # Tukey's biweight (1 - u^2)^2 inside |u| < 1, computed in place
+        w = u * u
+        np.subtract(1.0, w, out=w)
+        np.square(w, out=w)
+        w[~(np.abs(u) < 1.0)] = 0.0
+        del u
         if k < len(p.bands) - 1:  # the last, narrowest pass is symmetric: no bias
-            w = np.where(r > 0, w * p.above_weight, w)
+            above = r > 0
+            w[above] *= p.above_weight
+            del above
         on = np.flatnonzero(w > 0)
         if not on.size:
             break
@@ -242,5 +255,8 @@ def fit_atl08_surface(s: np.ndarray, z: np.ndarray,
                 drift = 0.0
         surf = new
     used = np.zeros(s.size, bool)
-    used[order if cur is None else order[cur]] = w > 0
+    if cur is None:
+        used[order] = w > 0
+    else:
+        used[cur if isinstance(order, slice) else order[cur]] = w > 0
     return GroundSurface(nodes, surf, support >= p.min_support, used)
