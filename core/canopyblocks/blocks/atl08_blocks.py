@@ -39,6 +39,7 @@ __all__ = ["atl08_block_table", "HMAX_PERCENTILE"]
 HMAX_PERCENTILE = 98.0
 """Percentile of the canopy heights giving a block's Hmax (ATL08's ``h_canopy``)."""
 
+_FILLED = ("n_kept", "n_between", "ground", "top", "hmax", "z90", "h90", "flag")
 _LABEL_OF_CLASS = np.array([-1, LABEL_NOISE, LABEL_GROUND, LABEL_BETWEEN, LABEL_CANOPY],
                            np.int8)  # index: class + 1
 
@@ -60,6 +61,8 @@ def atl08_block_table(track: PhotonTrack, params: BlockParams, classes: Atl08Cla
     can_i = can_i[np.argsort(hrel[can_i])]
     can_h = hrel[can_i]
     out_labels: dict[float, np.ndarray] = {}
+    # the columns filled in as whole arrays (one assignment each, not one per length)
+    new = {k: blocks[k].to_numpy(copy=True) for k in _FILLED}
     for length in sorted(params.lengths):
         rows = np.flatnonzero(blocks["length"].to_numpy() == length)
         sub = blocks.iloc[rows]
@@ -85,19 +88,20 @@ def atl08_block_table(track: PhotonTrack, params: BlockParams, classes: Atl08Cla
         hmax = np.where(n_can > 0, rh[:, 0], 0.0)
         h90 = np.where(n_can > 0, rh[:, 1], 0.0)
         sparse = n_kept < params.min_photons
-        idx = blocks.index[rows]
-        blocks.loc[idx, "n_kept"] = n_kept
-        blocks.loc[idx, "n_between"] = np.where(sparse, 0, n_can)
-        blocks.loc[idx, "ground"] = np.where(sparse, np.nan, ground)
-        blocks.loc[idx, "top"] = np.where(sparse, np.nan, ground + hmax)
-        blocks.loc[idx, "hmax"] = np.where(sparse, np.nan, hmax)
-        blocks.loc[idx, "z90"] = np.where(sparse, np.nan, ground + h90)
-        blocks.loc[idx, "h90"] = np.where(sparse, np.nan, h90)
-        blocks.loc[idx, "flag"] = np.where(sparse, "sparse", "ok")
+        new["n_kept"][rows] = n_kept
+        new["n_between"][rows] = np.where(sparse, 0, n_can)
+        new["ground"][rows] = np.where(sparse, np.nan, ground)
+        new["top"][rows] = np.where(sparse, np.nan, ground + hmax)
+        new["hmax"][rows] = np.where(sparse, np.nan, hmax)
+        new["z90"][rows] = np.where(sparse, np.nan, ground + h90)
+        new["h90"][rows] = np.where(sparse, np.nan, h90)
+        new["flag"][rows] = np.where(sparse, "sparse", "ok")
         if labels:
             lab = _LABEL_OF_CLASS[cls.astype(np.int64) + 1]
             lab[~inrow] = -1
             out_labels[length] = lab
+    for k, v in new.items():
+        blocks[k] = v
     return blocks, out_labels
 
 
