@@ -116,6 +116,24 @@ def _local_linear_binned(b: np.ndarray, ds: np.ndarray, z: np.ndarray, w: np.nda
     """:func:`_local_linear` from the photons' nodes ``b`` and offsets ``ds`` (of
     :func:`_node_bins`) on ``m`` nodes. Photons of weight 0 add exact zeros to the binned
     sums, so leaving them out changes no bit."""
+    return _local_linear_sums(_binned_sums(b, ds, z, w, m), spacing, kernel)
+
+
+def _binned_sums(b: np.ndarray, ds: np.ndarray, z: np.ndarray, w: np.ndarray, m: int
+                 ) -> tuple[np.ndarray, ...]:
+    """Per node (of ``m``), the sums of w, w ds, w z, w ds^2 and w z ds over its photons
+    (bincount: in photon order, from 0)."""
+    wds = w * ds
+    wz = w * z
+    return tuple(np.bincount(b, weights=v, minlength=m)
+                 for v in (w, wds, wz, wds * ds, wz * ds))
+
+
+def _local_linear_sums(sums: tuple[np.ndarray, ...], spacing: float, kernel: np.ndarray
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_local_linear` from the nodes' :func:`_binned_sums`."""
+    b_w, b_wds, b_wz, b_wdsds, b_wzds = sums
+    m = b_w.size
     half = kernel.size // 2
 
     def same(x: np.ndarray, k: np.ndarray) -> np.ndarray:
@@ -137,18 +155,12 @@ def _local_linear_binned(b: np.ndarray, ds: np.ndarray, z: np.ndarray, w: np.nda
         # reversed lag kernel so node_j - node_i = +lag
         return same(binned, k[::-1])
 
-    def bins(v: np.ndarray) -> np.ndarray:
-        return np.bincount(b, weights=v, minlength=m)
-
-    wds = w * ds
-    wz = w * z
-    b_w, b_wds, b_wz = bins(w), bins(wds), bins(wz)  # each binned once
     w0 = same(b_w, kernel)
     wds_lag = conv(b_wds, klag)  # used twice
     sw_d = conv(b_wds, kernel) + conv(b_w, klag)
-    sw_dd = conv(bins(wds * ds), kernel) + 2 * wds_lag + conv(b_w, klag2)
+    sw_dd = conv(b_wdsds, kernel) + 2 * wds_lag + conv(b_w, klag2)
     swz = conv(b_wz, kernel)
-    swzd = conv(bins(wz * ds), kernel) + conv(b_wz, klag)
+    swzd = conv(b_wzds, kernel) + conv(b_wz, klag)
     det = w0 * sw_dd - sw_d * sw_d
     with np.errstate(invalid="ignore", divide="ignore"):
         level = np.where(det > 1e-9 * np.maximum(w0, 1e-300) ** 2,
