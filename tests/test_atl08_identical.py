@@ -2,8 +2,8 @@
 
 - the density filter's box counts (many segments' grids stacked in one summed-area table,
   in groups and stacks of any size) equal a pair-by-pair count on each segment's grid;
-- the ground surface, whose later passes look only at photons that can still weigh,
-  equals the plain loop over every photon in every pass (the fit as first written);
+- the ground surface, whose later passes look only at photons that can still weigh, in
+  chunks, equals the plain loop over every photon in every pass (the fit as first written);
 - the grouped sort equals ``np.lexsort``;
 - the classes of a small fixed-seed track equal those of the classifier before it was
   made fast (a hash of them, recorded from that version).
@@ -105,12 +105,16 @@ def _plain_surface(s: np.ndarray, z: np.ndarray, p: SurfaceParams) -> tuple[np.n
     return nodes, surf, support >= p.min_support, used
 
 
+@pytest.mark.parametrize("chunk", [1 << 16, 97])
 @pytest.mark.parametrize("presorted", [False, True])
 @pytest.mark.parametrize("reserve", [1.0, 0.05, 0.0])
 @pytest.mark.parametrize("bands", [(3.0, 2.0, 1.0, 0.6), (1.0, 0.6), (0.6, 2.0, 0.3)])
-def test_surface_passes_on_fewer_photons_are_the_same(monkeypatch, reserve, bands, presorted):
-    # reserve 0: every pass over all photons; 0.05 m: the photons looked at again often
+def test_surface_passes_on_fewer_photons_are_the_same(monkeypatch, reserve, bands, presorted,
+                                                      chunk):
+    # reserve 0: every pass over all photons; 0.05 m: the photons looked at again often;
+    # chunk 97: each pass in many chunks (cut between nodes)
     monkeypatch.setattr(surface_mod, "_RESERVE", reserve)
+    monkeypatch.setattr(surface_mod, "_CHUNK", chunk)
     s, z = _forest(6, n_shots=3000, rate_mhz=0.03)
     if presorted:  # (as read from a file: then the fit works on the arrays themselves)
         o = np.argsort(s, kind="stable")

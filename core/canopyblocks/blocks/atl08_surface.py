@@ -30,7 +30,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError, NoUsableDataError
-from .ground_surface import GroundSurface, _bridge, _kernel, _local_linear_binned, _node_bins
+from .ground_surface import (
+    GroundSurface,
+    _binned_sums,
+    _bridge,
+    _kernel,
+    _local_linear_sums,
+    _node_bins,
+)
 from .grouped import percentile_by_group
 
 __all__ = ["SurfaceParams", "fit_atl08_surface"]
@@ -155,6 +162,62 @@ def _spread(nodes: np.ndarray, surf: np.ndarray, radius: float) -> np.ndarray:
     return np.abs(slope) * radius
 
 
+_CHUNK = 1 << 16  # photons a surface pass handles at once (cut between nodes)
+
+
+def _pass(ss: np.ndarray, zz: np.ndarray, bins: np.ndarray, nodes: np.ndarray,
+          surf: np.ndarray, cur: np.ndarray | None, band: float, p: SurfaceParams,
+          near_within: float | None, last: bool
+          ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None, np.ndarray | None]:
+    """One pass of :func:`fit_atl08_surface` over the photons ``cur`` (None: all): per
+    photon whether it weighs, the nodes' binned sums (None when none weighs) and, with
+    ``near_within``, which photons lie within that of the surface (indices into ``cur``)."""
+    n = ss.size if cur is None else cur.size
+    m = nodes.size
+    # chunks cut where a new node starts
+    cuts = [0]
+    for j in range(_CHUNK, n, _CHUNK):
+        first = int(np.searchsorted(bins, bins[j if cur is None else cur[j]], "left"))
+        c = first if cur is None else int(np.searchsorted(cur, first, "left"))
+        if c > cuts[-1]:
+            cuts.append(c)
+    cuts.append(n)
+    sums = [np.zeros(m) for _ in range(5)]
+    weighs = np.zeros(n, bool)
+    near_parts = []
+    for a, b in zip(cuts[:-1], cuts[1:]):
+        ix = slice(a, b) if cur is None else cur[a:b]
+        sk, zk = ss[ix], zz[ix]
+        r = np.interp(sk, nodes, surf)
+        np.subtract(zk, r, out=r)  # the residual, in place (the same bits)
+        if p.footprint_radius > 0:
+            spread = np.interp(sk, nodes, _spread(nodes, surf, p.footprint_radius))
+            u = r / np.hypot(band, spread)
+        else:  # (hypot(band, 0) is band, exactly)
+            u = r / band
+        # Tukey's biweight (1 - u^2)^2 inside |u| < 1, computed in place
+        w = u * u
+        np.subtract(1.0, w, out=w)
+        np.square(w, out=w)
+        w[~(np.abs(u) < 1.0)] = 0.0
+        if not last:  # the last, narrowest pass is symmetric: no bias
+            w[r > 0] *= p.above_weight
+        pos = w > 0
+        weighs[a:b] = pos
+        if near_within is not None:
+            near_parts.append(np.flatnonzero(np.abs(r) < near_within) + a)
+        on = np.flatnonzero(pos)
+        if not on.size:
+            continue
+        bc = bins[ix][on]
+        b0, b1 = int(bc[0]), int(bc[-1])
+        part = _binned_sums(bc - b0, sk[on] - nodes[bc], zk[on], w[on], b1 - b0 + 1)
+        for total, x in zip(sums, part):
+            total[b0:b1 + 1] += x  # (zeros there: no other chunk holds these nodes)
+    near = np.concatenate(near_parts) if near_within is not None else None
+    return weighs, (tuple(sums) if weighs.any() else None), near
+
+
 def fit_atl08_surface(s: np.ndarray, z: np.ndarray,
                       params: SurfaceParams | None = None,
                       start: GroundSurface | None = None) -> GroundSurface:
@@ -204,59 +267,45 @@ def fit_atl08_surface(s: np.ndarray, z: np.ndarray,
     surf = _start(ss, zz, p, nodes) if start is None else start(nodes)
     kernel = _kernel(p.bandwidth, _NODE)
     support = np.zeros(nodes.size)
-    bins, offs = _node_bins(ss, nodes, _NODE)
+    bins = _node_bins(ss, nodes, _NODE)[0]
     # Passes after the first look only at the photons that can still weigh: those within
     # the widest band to come plus _RESERVE of the surface, while the surface has moved
     # less than _RESERVE since they were chosen (else all photons again). The others'
     # weights are provably 0, and a weight of 0 adds exact zeros: the same surface.
+    # Each pass runs over chunks of photons cut between nodes, so every node's sums come
+    # whole from one chunk, in photon order from 0: the same bits as one pass.
     cur: np.ndarray | None = None  # indices into ss of the photons looked at (None: all)
     drift = 0.0  # max |surface change| summed since photons were first left out
     eps = _EPS * (1.0 + float(np.max(np.abs(zz))))  # the rounding of np.interp, amply
-    w = np.zeros(ss.size)
+    weighs = np.zeros(ss.size, bool)  # w > 0 in the last pass, per photon looked at
+    looked = cur
     for k, band in enumerate(p.bands):
         if cur is not None and drift + eps >= _RESERVE:
             cur, drift = None, 0.0
-        sk, zk = (ss, zz) if cur is None else (ss[cur], zz[cur])
-        r = np.interp(sk, nodes, surf)
-        np.subtract(zk, r, out=r)  # the residual, in place (the same bits)
-        if p.footprint_radius > 0:
-            spread = np.interp(sk, nodes, _spread(nodes, surf, p.footprint_radius))
-            u = r / np.hypot(band, spread)
-        else:  # (hypot(band, 0) is band, exactly)
-            u = r / band
-        # Tukey's biweight (1 - u^2)^2 inside |u| < 1, computed in place
-        w = u * u
-        np.subtract(1.0, w, out=w)
-        np.square(w, out=w)
-        w[~(np.abs(u) < 1.0)] = 0.0
-        del u
-        if k < len(p.bands) - 1:  # the last, narrowest pass is symmetric: no bias
-            above = r > 0
-            w[above] *= p.above_weight
-            del above
-        on = np.flatnonzero(w > 0)
-        if not on.size:
+        prune = p.footprint_radius <= 0 and k < len(p.bands) - 1
+        weighs, sums, near = _pass(ss, zz, bins, nodes, surf, cur, band, p,
+                                   (max(p.bands[k + 1:]) + _RESERVE) if prune else None,
+                                   last=k == len(p.bands) - 1)
+        looked = cur
+        if sums is None:
             break
-        at = on if cur is None else cur[on]
-        level, support = _local_linear_binned(bins[at], offs[at], zz[at], w[on], nodes.size,
-                                              _NODE, kernel)
+        level, support = _local_linear_sums(sums, _NODE, kernel)
         try:
             new = _bridge(nodes, level, support >= p.min_support)
         except NoUsableDataError:
             break
-        if p.footprint_radius <= 0 and k < len(p.bands) - 1:
+        if prune and near is not None:
             step = float(np.max(np.abs(new - surf)))
             drift = drift + step if cur is not None else step
             if drift + eps < _RESERVE and bool(np.all(np.isfinite(surf))):
-                near = np.abs(r) < max(p.bands[k + 1:]) + _RESERVE
-                if not near.all():  # (else nothing is gained)
-                    cur = np.flatnonzero(near) if cur is None else cur[near]
+                if near.size < weighs.size:  # (else nothing is gained)
+                    cur = near if cur is None else cur[near]
             elif cur is None:
                 drift = 0.0
         surf = new
     used = np.zeros(s.size, bool)
-    if cur is None:
-        used[order] = w > 0
+    if looked is None:
+        used[order] = weighs
     else:
-        used[cur if isinstance(order, slice) else order[cur]] = w > 0
+        used[looked if isinstance(order, slice) else order[looked]] = weighs
     return GroundSurface(nodes, surf, support >= p.min_support, used)
