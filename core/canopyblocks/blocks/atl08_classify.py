@@ -223,8 +223,12 @@ def _gap_and_top(win: np.ndarray, hrel: np.ndarray, n_win: int, max_gap: float,
     before = np.zeros(n_win, np.int64)
     before[counts > 0] = cum[starts[counts > 0]] - big[starts[counts > 0]]
     reach_sorted = (cum - before[grp]) == 0
+    # the reachable photons of a window are the lowest ones (up to its first big gap), so
+    # the highest of them is the last: the same as np.maximum.at, without its slow loop
+    n_reach = np.bincount(grp[reach_sorted], minlength=n_win)
     top = np.full(n_win, -np.inf)
-    np.maximum.at(top, grp[reach_sorted], hs[reach_sorted])
+    has = n_reach > 0
+    top[has] = hs[starts[has] + n_reach[has] - 1]
     toc_sorted = reach_sorted & (hs >= top[grp] - toc_depth)
     reach = np.empty(hs.size, bool)
     toc = np.empty(hs.size, bool)
