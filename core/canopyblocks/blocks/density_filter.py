@@ -285,10 +285,16 @@ def _filter(s: np.ndarray, z: np.ndarray, p: DensityParams, rate: np.ndarray | N
         thr_seg[k] = t
     del zs, rs
     if p.edge_correction:
-        inside = (np.minimum(ss - ss[0], p.along) + np.minimum(ss[-1] - ss, p.along)
+        # the share of the box inside the track is exactly 1 farther than `along` from both
+        # ends, where the correction leaves the count as it is: correct the ends only
+        near_end = (ss - ss[0] < p.along) | (ss[-1] - ss < p.along)
+        e = np.flatnonzero(near_end)
+        del near_end
+        se = ss[e]
+        inside = (np.minimum(se - ss[0], p.along) + np.minimum(ss[-1] - se, p.along)
                   ) / (2.0 * p.along)
-        cnt_s = np.rint(1 + (cnt_s - 1) / np.maximum(inside, 0.5)).astype(np.int64)
-        del inside
+        cnt_s[e] = np.rint(1 + (cnt_s[e] - 1) / np.maximum(inside, 0.5)).astype(np.int64)
+        del inside, se, e
     del ss
     lens = ends - starts
     thr_s = np.repeat(thr_seg, lens)
