@@ -318,13 +318,19 @@ def classify_photons(track: PhotonTrack, params: Atl08Params | None = None) -> A
             fit = np.flatnonzero(gsig & (np.abs(r1) <= 2.0 * max(sp.bands)))
         if fit.size >= 2:
             surface = fit_atl08_surface(s[fit], z[fit], sp, start=surface)
-    hrel = np.full(n, np.nan)
-    hrel[finite] = z[finite] - surface(s[finite])
+    all_finite = bool(finite.all())
+    if all_finite:  # (no copies of the finite photons)
+        hrel = surface(s)
+        np.subtract(z, hrel, out=hrel)
+    else:
+        hrel = np.full(n, np.nan)
+        hrel[finite] = z[finite] - surface(s[finite])
     # the long, flat canopy test at the same background rate (longer on a sparse track)
     cf = p.sparse_canopy_filter if sparse else p.canopy_filter
     flat = _filter(s, z, cf, bg if cf.background is None else None)[0]
-    classes = np.full(n, CLASS_NONE, np.int8)
-    classes[finite] = CLASS_NOISE
+    classes = np.full(n, CLASS_NOISE if all_finite else CLASS_NONE, np.int8)
+    if not all_finite:
+        classes[finite] = CLASS_NOISE
     with np.errstate(invalid="ignore"):
         ground = gsig & (hrel >= -p.ground_below) & (hrel <= p.ground_buffer)
         above = (signal | flat) & (hrel > p.ground_buffer)
@@ -341,4 +347,5 @@ def classify_photons(track: PhotonTrack, params: Atl08Params | None = None) -> A
                  track.track, {int(k): int(v) for k, v in zip(*np.unique(classes,
                                                                          return_counts=True))},
                  source, float(np.median(bg)) if bg.size else 0.0)
-    return Atl08Classes(classes, np.where(classes >= 0, hrel, np.nan), surface, bg, source)
+    return Atl08Classes(classes, hrel if all_finite else np.where(classes >= 0, hrel, np.nan),
+                        surface, bg, source)
