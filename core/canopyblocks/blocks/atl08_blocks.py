@@ -39,6 +39,7 @@ __all__ = ["atl08_block_table", "HMAX_PERCENTILE"]
 HMAX_PERCENTILE = 98.0
 """Percentile of the canopy heights giving a block's Hmax (ATL08's ``h_canopy``)."""
 
+_FILLED = ("n_kept", "n_between", "ground", "top", "hmax", "z90", "h90", "flag")
 _LABEL_OF_CLASS = np.array([-1, LABEL_NOISE, LABEL_GROUND, LABEL_BETWEEN, LABEL_CANOPY],
                            np.int8)  # index: class + 1
 
@@ -55,7 +56,13 @@ def atl08_block_table(track: PhotonTrack, params: BlockParams, classes: Atl08Cla
     cls = classes.classes
     s = np.asarray(track.s, float)
     hrel = classes.height
+    # the canopy photons sorted by height once, for the percentiles of every length
+    can_i = np.flatnonzero((cls == CLASS_CANOPY) | (cls == CLASS_TOP))
+    can_i = can_i[np.argsort(hrel[can_i])]
+    can_h = hrel[can_i]
     out_labels: dict[float, np.ndarray] = {}
+    # the columns filled in as whole arrays (one assignment each, not one per length)
+    new = {k: blocks[k].to_numpy(copy=True) for k in _FILLED}
     for length in sorted(params.lengths):
         rows = np.flatnonzero(blocks["length"].to_numpy() == length)
         sub = blocks.iloc[rows]
@@ -65,32 +72,52 @@ def atl08_block_table(track: PhotonTrack, params: BlockParams, classes: Atl08Cla
         s0 = float(sub["s_start"].iloc[0] - nums[0] * length)
         with np.errstate(invalid="ignore"):
             bidx = np.floor((s - s0) / length)
-        pos = np.searchsorted(nums, bidx)
-        inrow = (cls >= 0) & (pos < len(nums)) & (nums[np.minimum(pos, len(nums) - 1)] == bidx)
-        prow = pos[inrow]
+        row = _row_of_block(nums, bidx, cls >= 0)  # -1: in no row
+        inrow = row >= 0
+        prow = row[inrow]
         c = cls[inrow]
         n = len(sub)
-        sig = c > CLASS_NOISE
-        can = (c == CLASS_CANOPY) | (c == CLASS_TOP)
-        n_kept = np.bincount(prow[sig], minlength=n)
-        n_can = np.bincount(prow[can], minlength=n)
-        rh = percentiles_by_group(prow[can], hrel[inrow][can], (HMAX_PERCENTILE, 90.0), n)
+        n_kept = np.bincount(prow[c > CLASS_NOISE], minlength=n)
+        crow = row[can_i]
+        cin = crow >= 0
+        n_can = np.bincount(crow[cin], minlength=n)
+        rh = percentiles_by_group(crow[cin], can_h[cin], (HMAX_PERCENTILE, 90.0), n,
+                                  values_sorted=True)
         ground = block_mean_ground(classes.surface, sub["s_start"].to_numpy(float),
                                    sub["s_end"].to_numpy(float))
         hmax = np.where(n_can > 0, rh[:, 0], 0.0)
         h90 = np.where(n_can > 0, rh[:, 1], 0.0)
         sparse = n_kept < params.min_photons
-        idx = blocks.index[rows]
-        blocks.loc[idx, "n_kept"] = n_kept
-        blocks.loc[idx, "n_between"] = np.where(sparse, 0, n_can)
-        blocks.loc[idx, "ground"] = np.where(sparse, np.nan, ground)
-        blocks.loc[idx, "top"] = np.where(sparse, np.nan, ground + hmax)
-        blocks.loc[idx, "hmax"] = np.where(sparse, np.nan, hmax)
-        blocks.loc[idx, "z90"] = np.where(sparse, np.nan, ground + h90)
-        blocks.loc[idx, "h90"] = np.where(sparse, np.nan, h90)
-        blocks.loc[idx, "flag"] = np.where(sparse, "sparse", "ok")
+        new["n_kept"][rows] = n_kept
+        new["n_between"][rows] = np.where(sparse, 0, n_can)
+        new["ground"][rows] = np.where(sparse, np.nan, ground)
+        new["top"][rows] = np.where(sparse, np.nan, ground + hmax)
+        new["hmax"][rows] = np.where(sparse, np.nan, hmax)
+        new["z90"][rows] = np.where(sparse, np.nan, ground + h90)
+        new["h90"][rows] = np.where(sparse, np.nan, h90)
+        new["flag"][rows] = np.where(sparse, "sparse", "ok")
         if labels:
             lab = _LABEL_OF_CLASS[cls.astype(np.int64) + 1]
             lab[~inrow] = -1
             out_labels[length] = lab
+    for k, v in new.items():
+        blocks[k] = v
     return blocks, out_labels
+
+
+def _row_of_block(nums: np.ndarray, bidx: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """Per photon, the index in ``nums`` (sorted block numbers) of its block number
+    ``bidx`` (float; NaN for none), or -1 when it is not there or ``ok`` is false."""
+    row = np.full(bidx.size, -1, np.int64)
+    lo, hi = int(nums[0]), int(nums[-1])
+    if hi - lo > 4 * bidx.size + 1_000_000:  # a sparse far-flung set of blocks: search
+        pos = np.searchsorted(nums, bidx)
+        hit = ok & (pos < len(nums)) & (nums[np.minimum(pos, len(nums) - 1)] == bidx)
+        row[hit] = pos[hit]
+        return row
+    with np.errstate(invalid="ignore"):
+        at = np.flatnonzero(ok & (bidx >= lo) & (bidx <= hi))
+    lut = np.full(hi - lo + 1, -1, np.int64)  # block number - lo -> row
+    lut[nums - lo] = np.arange(len(nums))
+    row[at] = lut[(bidx[at] - lo).astype(np.int64)]
+    return row

@@ -30,7 +30,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError, NoUsableDataError
-from .ground_surface import GroundSurface, _bridge, _kernel, _local_linear
+from .ground_surface import (
+    GroundSurface,
+    _binned_sums,
+    _bridge,
+    _kernel,
+    _local_linear_sums,
+    _node_bins,
+)
 from .grouped import percentile_by_group
 
 __all__ = ["SurfaceParams", "fit_atl08_surface"]
@@ -102,6 +109,8 @@ class SurfaceParams:
 
 
 _NODE = 1.0  # m between surface nodes
+_RESERVE = 1.0  # m the surface may move before the photons left out are looked at again
+_EPS = 1e-9
 
 
 def _median3(low: np.ndarray) -> np.ndarray:
@@ -153,6 +162,62 @@ def _spread(nodes: np.ndarray, surf: np.ndarray, radius: float) -> np.ndarray:
     return np.abs(slope) * radius
 
 
+_CHUNK = 1 << 16  # photons a surface pass handles at once (cut between nodes)
+
+
+def _pass(ss: np.ndarray, zz: np.ndarray, bins: np.ndarray, nodes: np.ndarray,
+          surf: np.ndarray, cur: np.ndarray | None, band: float, p: SurfaceParams,
+          near_within: float | None, last: bool
+          ) -> tuple[np.ndarray, tuple[np.ndarray, ...] | None, np.ndarray | None]:
+    """One pass of :func:`fit_atl08_surface` over the photons ``cur`` (None: all): per
+    photon whether it weighs, the nodes' binned sums (None when none weighs) and, with
+    ``near_within``, which photons lie within that of the surface (indices into ``cur``)."""
+    n = ss.size if cur is None else cur.size
+    m = nodes.size
+    # chunks cut where a new node starts
+    cuts = [0]
+    for j in range(_CHUNK, n, _CHUNK):
+        first = int(np.searchsorted(bins, bins[j if cur is None else cur[j]], "left"))
+        c = first if cur is None else int(np.searchsorted(cur, first, "left"))
+        if c > cuts[-1]:
+            cuts.append(c)
+    cuts.append(n)
+    sums = [np.zeros(m) for _ in range(5)]
+    weighs = np.zeros(n, bool)
+    near_parts = []
+    for a, b in zip(cuts[:-1], cuts[1:]):
+        ix = slice(a, b) if cur is None else cur[a:b]
+        sk, zk = ss[ix], zz[ix]
+        r = np.interp(sk, nodes, surf)
+        np.subtract(zk, r, out=r)  # the residual, in place (the same bits)
+        if p.footprint_radius > 0:
+            spread = np.interp(sk, nodes, _spread(nodes, surf, p.footprint_radius))
+            u = r / np.hypot(band, spread)
+        else:  # (hypot(band, 0) is band, exactly)
+            u = r / band
+        # Tukey's biweight (1 - u^2)^2 inside |u| < 1, computed in place
+        w = u * u
+        np.subtract(1.0, w, out=w)
+        np.square(w, out=w)
+        w[~(np.abs(u) < 1.0)] = 0.0
+        if not last:  # the last, narrowest pass is symmetric: no bias
+            w[r > 0] *= p.above_weight
+        pos = w > 0
+        weighs[a:b] = pos
+        if near_within is not None:
+            near_parts.append(np.flatnonzero(np.abs(r) < near_within) + a)
+        on = np.flatnonzero(pos)
+        if not on.size:
+            continue
+        bc = bins[ix][on]
+        b0, b1 = int(bc[0]), int(bc[-1])
+        part = _binned_sums(bc - b0, sk[on] - nodes[bc], zk[on], w[on], b1 - b0 + 1)
+        for total, x in zip(sums, part):
+            total[b0:b1 + 1] += x  # (zeros there: no other chunk holds these nodes)
+    near = np.concatenate(near_parts) if near_within is not None else None
+    return weighs, (tuple(sums) if weighs.any() else None), near
+
+
 def fit_atl08_surface(s: np.ndarray, z: np.ndarray,
                       params: SurfaceParams | None = None,
                       start: GroundSurface | None = None) -> GroundSurface:
@@ -187,31 +252,60 @@ def fit_atl08_surface(s: np.ndarray, z: np.ndarray,
     if int(ok.sum()) < 2:
         raise NoUsableDataError("fewer than 2 signal photons with a finite position and "
                                 "height: no ground surface")
-    idx = np.flatnonzero(ok)
-    if bool(np.all(np.diff(s[idx]) >= 0)):
-        order = idx
+    order: np.ndarray | slice
+    if ok.all() and bool(np.all(s[1:] >= s[:-1])):
+        order = slice(None)  # finite and sorted: the arrays themselves, no copies
     else:
-        order = idx[np.argsort(s[idx], kind="stable")]
+        idx = np.flatnonzero(ok)
+        if bool(np.all(np.diff(s[idx]) >= 0)):
+            order = idx
+        else:
+            order = idx[np.argsort(s[idx], kind="stable")]
+    del ok
     ss, zz = s[order], z[order]
     nodes = np.arange(ss[0], ss[-1] + _NODE, _NODE)
     surf = _start(ss, zz, p, nodes) if start is None else start(nodes)
     kernel = _kernel(p.bandwidth, _NODE)
     support = np.zeros(nodes.size)
-    w = np.zeros(ss.size)
+    bins = _node_bins(ss, nodes, _NODE)[0]
+    # Passes after the first look only at the photons that can still weigh: those within
+    # the widest band to come plus _RESERVE of the surface, while the surface has moved
+    # less than _RESERVE since they were chosen (else all photons again). The others'
+    # weights are provably 0, and a weight of 0 adds exact zeros: the same surface.
+    # Each pass runs over chunks of photons cut between nodes, so every node's sums come
+    # whole from one chunk, in photon order from 0: the same bits as one pass.
+    cur: np.ndarray | None = None  # indices into ss of the photons looked at (None: all)
+    drift = 0.0  # max |surface change| summed since photons were first left out
+    eps = _EPS * (1.0 + float(np.max(np.abs(zz))))  # the rounding of np.interp, amply
+    weighs = np.zeros(ss.size, bool)  # w > 0 in the last pass, per photon looked at
+    looked = cur
     for k, band in enumerate(p.bands):
-        r = zz - np.interp(ss, nodes, surf)
-        spread = np.interp(ss, nodes, _spread(nodes, surf, p.footprint_radius))
-        u = r / np.hypot(band, spread)
-        w = np.where(np.abs(u) < 1.0, (1.0 - u * u) ** 2, 0.0)
-        if k < len(p.bands) - 1:  # the last, narrowest pass is symmetric: no bias
-            w = np.where(r > 0, w * p.above_weight, w)
-        if not (w > 0).any():
+        if cur is not None and drift + eps >= _RESERVE:
+            cur, drift = None, 0.0
+        prune = p.footprint_radius <= 0 and k < len(p.bands) - 1
+        weighs, sums, near = _pass(ss, zz, bins, nodes, surf, cur, band, p,
+                                   (max(p.bands[k + 1:]) + _RESERVE) if prune else None,
+                                   last=k == len(p.bands) - 1)
+        looked = cur
+        if sums is None:
             break
-        level, support = _local_linear(ss, zz, w, nodes, _NODE, kernel)
+        level, support = _local_linear_sums(sums, _NODE, kernel)
         try:
-            surf = _bridge(nodes, level, support >= p.min_support)
+            new = _bridge(nodes, level, support >= p.min_support)
         except NoUsableDataError:
             break
+        if prune and near is not None:
+            step = float(np.max(np.abs(new - surf)))
+            drift = drift + step if cur is not None else step
+            if drift + eps < _RESERVE and bool(np.all(np.isfinite(surf))):
+                if near.size < weighs.size:  # (else nothing is gained)
+                    cur = near if cur is None else cur[near]
+            elif cur is None:
+                drift = 0.0
+        surf = new
     used = np.zeros(s.size, bool)
-    used[order] = w > 0
+    if looked is None:
+        used[order] = weighs
+    else:
+        used[looked if isinstance(order, slice) else order[looked]] = weighs
     return GroundSurface(nodes, surf, support >= p.min_support, used)

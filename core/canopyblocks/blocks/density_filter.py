@@ -31,6 +31,8 @@ __all__ = ["DensityParams", "DensityResult", "density_filter", "box_area", "pois
 log = logging.getLogger(__name__)
 
 _MAX_CELLS = 40_000_000
+_ENTRIES = 1 << 17  # photons (with the segments' margins) counted together
+_CELLS = 1 << 21  # grid cells summed together
 
 
 @dataclass(frozen=True)
@@ -106,31 +108,87 @@ class DensityResult:
         return float(1.0 - self.keep.mean()) if self.keep.size else 0.0
 
 
-def _box_counts(s: np.ndarray, z: np.ndarray, p: DensityParams) -> np.ndarray:
-    """Neighbours of each photon within the box (itself included), on a fine grid."""
+def _box_counts(ss: np.ndarray, zs: np.ndarray, starts: np.ndarray, ends: np.ndarray,
+                lo: np.ndarray, hi: np.ndarray, p: DensityParams) -> np.ndarray:
+    """Neighbours of each photon within the box (itself included), on a fine grid per
+    along-track segment: the photons ``starts[k]:ends[k]`` of the s-sorted track counted
+    on the grid of ``lo[k]:hi[k]`` (the segment with a margin of one box each side, so
+    counts near its ends see their true neighbours), origin at that slice's lowest s and z.
+
+    The grids of many segments are stacked in one array and summed at once (a summed-area
+    table): a box's count is a difference of the table between rows of its own grid, in
+    which the sums over the grids before it cancel (exact integers). Each grid is padded
+    with a box's width of empty cells on every side, so no box needs clipping.
+    """
+    out = np.empty(ss.size, np.int64)
+    lens = hi - lo
+    k0 = 0
+    while k0 < starts.size:  # groups of segments of about _ENTRIES photons (with margins)
+        k1 = k0 + max(int(np.searchsorted(np.cumsum(lens[k0:]), _ENTRIES)), 1)
+        _group_counts(ss, zs, starts[k0:k1], ends[k0:k1], lo[k0:k1], hi[k0:k1], p, out)
+        k0 = k1
+    return out
+
+
+def _group_counts(ss: np.ndarray, zs: np.ndarray, starts: np.ndarray, ends: np.ndarray,
+                  lo: np.ndarray, hi: np.ndarray, p: DensityParams, out: np.ndarray) -> None:
+    """:func:`_box_counts` of some segments, into ``out``."""
     sub = p.cells
+    box = 2 * sub + 1
     ds = p.along / sub
     dz = p.height / sub
-    ci = np.floor((s - s.min()) / ds).astype(np.int64)
-    ri = np.floor((z - z.min()) / dz).astype(np.int64)
-    nc, nr = int(ci.max()) + 1, int(ri.max()) + 1
-    if nc * nr > _MAX_CELLS:
+    lens = hi - lo
+    first = np.concatenate([[0], np.cumsum(lens)[:-1]])  # each segment's first entry
+    total = int(lens.sum())
+    idx = np.arange(total) + np.repeat(lo - first, lens)  # the photon of each entry
+    ze = zs[idx]
+    # (the lowest s of a slice of the sorted track is its first)
+    ci = np.floor((ss[idx] - np.repeat(ss[lo], lens)) / ds).astype(np.int32)
+    ri = np.floor((ze - np.repeat(np.minimum.reduceat(ze, first), lens)) / dz
+                  ).astype(np.int32)
+    del ze, idx
+    nc = np.maximum.reduceat(ci, first).astype(np.int64) + 1
+    nr = np.maximum.reduceat(ri, first).astype(np.int64) + 1
+    big = np.flatnonzero(nc * nr > _MAX_CELLS)
+    if big.size:
         raise InputError(
-            f"density filter grid of {nc} x {nr} cells for one segment is too large; the "
-            "height range is huge (fill values or far outliers?): remove them first")
-    # (bincount, not np.add.at: the same counts, several times faster; int32 sums are exact
-    # below 2**31 photons a segment)
-    grid = np.bincount((ri + 1) * (nc + 1) + (ci + 1), minlength=(nr + 1) * (nc + 1))
-    grid = grid.astype(np.int32).reshape(nr + 1, nc + 1)
-    # cells [0, r) x [0, c); the contiguous axis first, then rows; read flat
-    sat = grid.cumsum(1, dtype=np.int32).cumsum(0, dtype=np.int32).ravel()
-    w = nc + 1
-    c0 = np.maximum(ci - sub, 0)
-    c1 = np.minimum(ci + sub + 1, nc)
-    r0 = np.maximum(ri - sub, 0) * w
-    r1 = np.minimum(ri + sub + 1, nr) * w
-    return (sat.take(r1 + c1) - sat.take(r0 + c1) - sat.take(r1 + c0)
-            + sat.take(r0 + c0)).astype(np.int64)
+            f"density filter grid of {int(nc[big[0]])} x {int(nr[big[0]])} cells for one "
+            "segment is too large; the height range is huge (fill values or far outliers?): "
+            "remove them first")
+    # each segment's own photons are a run of its entries; in entry order they are the
+    # photons starts[0]:ends[-1] in order
+    mark = (np.bincount(first + starts - lo, minlength=total + 1)
+            - np.bincount(first + ends - lo, minlength=total + 1))
+    own = np.cumsum(mark[:-1]) > 0
+    del mark
+    width = int(nc.max()) + 2 * sub + 1  # box columns of padding left and right
+    rows = nr + 2 * sub + 1  # box rows of padding above and below
+    g0 = 0
+    while g0 < lens.size:  # stacks of about _CELLS cells
+        g1 = g0 + max(int(np.searchsorted(np.cumsum(rows[g0:]) * width, _CELLS, "right")), 1)
+        e0, e1 = int(first[g0]), int(first[g1 - 1] + lens[g1 - 1])
+        height = int(rows[g0:g1].sum())
+        top = np.concatenate([[0], np.cumsum(rows[g0:g1])[:-1]])  # each grid's first row
+        it = np.int32 if width * height < 2**31 - 1 else np.int64
+        # laid out column by column (the long axis contiguous: both sums run fast); the
+        # photon at grid column c, row r of its segment sits in cell (c + sub + 1,
+        # top + r + sub + 1); its box's corners in the table, below and left of the box,
+        # are column c and row top + r, "base", and base + box columns / rows
+        base = (ci[e0:e1].astype(it) * it(height)
+                + np.repeat(top.astype(it), lens[g0:g1]) + ri[e0:e1])
+        # (bincount, not np.add.at: the same counts, several times faster; int32 sums are
+        # exact below 2**31 photons a stack)
+        grid = np.bincount(base + it((sub + 1) * height + sub + 1),
+                           minlength=width * height).astype(np.int32)
+        sat = grid.reshape(width, height).cumsum(1, dtype=np.int32).cumsum(0, dtype=np.int32)
+        sat = sat.ravel()
+        del grid
+        base = base[own[e0:e1]]
+        dc, dr = box * height, box
+        cnt = (sat[dc + dr:].take(base) - sat[dr:].take(base) - sat[dc:].take(base)
+               + sat.take(base))
+        out[int(starts[g0]):int(ends[g1 - 1])] = cnt
+        g0 = g1
 
 
 def _segment_rate(z: np.ndarray, length: float, p: DensityParams) -> float:
@@ -173,33 +231,45 @@ def density_filter(s: np.ndarray, z: np.ndarray,
         if rate.shape != s.shape:
             raise InputError(f"rate has shape {rate.shape}; one value per photon {s.shape} "
                              "is needed")
+    return DensityResult(*_filter(s, z, p, rate, full=True))
+
+
+def _filter(s: np.ndarray, z: np.ndarray, p: DensityParams, rate: np.ndarray | None, *,
+            full: bool = False, with_rate: bool = False) -> tuple[np.ndarray, ...]:
+    """:func:`density_filter` on checked float arrays: ``keep``, then with ``full`` the
+    count, rate and threshold per photon, or with ``with_rate`` the rate only (fewer
+    full-length arrays: the classifier needs no more)."""
     n = s.size
     keep = np.zeros(n, bool)
-    count = np.zeros(n, np.int64)
-    rates = np.zeros(n)
-    thr = np.zeros(n)
-    ok = np.flatnonzero(np.isfinite(s) & np.isfinite(z))
-    if ok.size == 0:
-        return DensityResult(keep, count, rates, thr)
-    order = ok[np.argsort(s[ok], kind="stable")]
+    fin = np.isfinite(s) & np.isfinite(z)
+    order: np.ndarray | slice
+    if fin.all():
+        # a track read from a file comes sorted by s: then no copies in sorted order
+        order = slice(None) if n < 2 or bool(np.all(s[1:] >= s[:-1])) else np.argsort(
+            s, kind="stable")
+    else:
+        ok = np.flatnonzero(fin)
+        order = ok[np.argsort(s[ok], kind="stable")]
+    del fin
+    if n == 0 or (isinstance(order, np.ndarray) and order.size == 0):
+        return (keep, np.zeros(n, np.int64), np.zeros(n), np.zeros(n))[:4 if full else
+                                                                         2 if with_rate else 1]
     ss = s[order]
     seg = np.floor((ss - ss[0]) / p.segment).astype(np.int64)
     bounds = np.flatnonzero(np.diff(seg)) + 1
+    del seg
     starts = np.concatenate([[0], bounds])
     ends = np.concatenate([bounds, [ss.size]])
     area = box_area(p)
     quantiles: dict[float, float] = {}
     zs = z[order]  # sorted once: each segment is then a contiguous slice
     rs = rate[order] if rate is not None else None
-    cnt_s = np.empty(ss.size, np.int64)
-    lam_s = np.empty(ss.size)
-    thr_s = np.empty(ss.size)
+    lam_seg = np.empty(starts.size)
+    thr_seg = np.empty(starts.size)
     lo_all = np.searchsorted(ss, ss[starts] - p.along, side="left")
     hi_all = np.searchsorted(ss, ss[ends - 1] + p.along, side="right")
-    for a, b, lo, hi in zip(starts.tolist(), ends.tolist(), lo_all.tolist(), hi_all.tolist()):
-        # one numpy grid per along-track segment, with a margin of one box on each side,
-        # so counts near its ends see their true neighbours
-        cnt_s[a:b] = _box_counts(ss[lo:hi], zs[lo:hi], p)[a - lo:b - lo]
+    cnt_s = _box_counts(ss, zs, starts, ends, lo_all, hi_all, p)
+    for k, (a, b) in enumerate(zip(starts.tolist(), ends.tolist())):
         length = max(float(ss[b - 1] - ss[a]), p.along)
         if p.background is not None:
             lam = p.background
@@ -211,17 +281,36 @@ def density_filter(s: np.ndarray, z: np.ndarray,
         t = quantiles.get(mu)
         if t is None:  # rates repeat from segment to segment: one quantile each
             t = quantiles[mu] = poisson_quantile(p.quantile, mu)
-        lam_s[a:b] = lam
-        thr_s[a:b] = t
+        lam_seg[k] = lam
+        thr_seg[k] = t
+    del zs, rs
     if p.edge_correction:
-        inside = (np.minimum(ss - ss[0], p.along) + np.minimum(ss[-1] - ss, p.along)
+        # the share of the box inside the track is exactly 1 farther than `along` from both
+        # ends, where the correction leaves the count as it is: correct the ends only
+        near_end = (ss - ss[0] < p.along) | (ss[-1] - ss < p.along)
+        e = np.flatnonzero(near_end)
+        del near_end
+        se = ss[e]
+        inside = (np.minimum(se - ss[0], p.along) + np.minimum(ss[-1] - se, p.along)
                   ) / (2.0 * p.along)
-        cnt_s = np.rint(1 + (cnt_s - 1) / np.maximum(inside, 0.5)).astype(np.int64)
-    count[order] = cnt_s
-    rates[order] = lam_s
-    thr[order] = thr_s
+        cnt_s[e] = np.rint(1 + (cnt_s[e] - 1) / np.maximum(inside, 0.5)).astype(np.int64)
+        del inside, se, e
+    del ss
+    lens = ends - starts
+    thr_s = np.repeat(thr_seg, lens)
     keep[order] = cnt_s - 1 > thr_s  # the count includes the photon itself
-    return DensityResult(keep, count, rates, thr)
+    out: tuple[np.ndarray, ...] = (keep,)
+    if full:
+        count = np.zeros(n, np.int64)
+        count[order] = cnt_s
+        thr = np.zeros(n)
+        thr[order] = thr_s
+    del cnt_s, thr_s
+    if full or with_rate:
+        rates = np.zeros(n)
+        rates[order] = np.repeat(lam_seg, lens)
+        out = (keep, count, rates, thr) if full else (keep, rates)
+    return out
 
 
 def box_area(p: DensityParams) -> float:
@@ -230,10 +319,23 @@ def box_area(p: DensityParams) -> float:
     return ((2 * p.cells + 1) * p.along / p.cells) * ((2 * p.cells + 1) * p.height / p.cells)
 
 
+_QUANTILES: dict[tuple[float, float], float] = {}
+
+
 def poisson_quantile(q: float, mu: float) -> float:
     """The ``q`` quantile of a Poisson distribution of mean ``mu``: the smallest count k with
     P(X <= k) >= q (scipy.stats.poisson.ppf, without importing scipy.stats, which costs the
     command line 0.5-0.7 s at start-up)."""
+    key = (float(q), float(mu))
+    t = _QUANTILES.get(key)
+    if t is None:  # (rates repeat from track to track: remembered, a few thousand at most)
+        t = _poisson_quantile(*key)
+        if len(_QUANTILES) < 100_000:
+            _QUANTILES[key] = t
+    return t
+
+
+def _poisson_quantile(q: float, mu: float) -> float:
     if not mu > 0:
         return 0.0
     kmax = int(mu + 12.0 * np.sqrt(mu) + 40.0)

@@ -100,10 +100,40 @@ def _kernel(bandwidth: float, spacing: float) -> np.ndarray:
 def _local_linear(s: np.ndarray, z: np.ndarray, w: np.ndarray, nodes: np.ndarray,
                   spacing: float, kernel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Kernel-weighted local linear fit of z(s) at ``nodes``: (height, weight sum)."""
-    b = np.clip(np.rint((s - nodes[0]) / spacing).astype(np.int64), 0, nodes.size - 1)
-    ds = s - nodes[b]  # offset of each photon from its bin's node
-    m = nodes.size
+    b, ds = _node_bins(s, nodes, spacing)
+    return _local_linear_binned(b, ds, z, w, nodes.size, spacing, kernel)
 
+
+def _node_bins(s: np.ndarray, nodes: np.ndarray, spacing: float
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """Each photon's nearest node and its offset from it (m)."""
+    b = np.clip(np.rint((s - nodes[0]) / spacing).astype(np.int64), 0, nodes.size - 1)
+    return b, s - nodes[b]
+
+
+def _local_linear_binned(b: np.ndarray, ds: np.ndarray, z: np.ndarray, w: np.ndarray, m: int,
+                         spacing: float, kernel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_local_linear` from the photons' nodes ``b`` and offsets ``ds`` (of
+    :func:`_node_bins`) on ``m`` nodes. Photons of weight 0 add exact zeros to the binned
+    sums, so leaving them out changes no bit."""
+    return _local_linear_sums(_binned_sums(b, ds, z, w, m), spacing, kernel)
+
+
+def _binned_sums(b: np.ndarray, ds: np.ndarray, z: np.ndarray, w: np.ndarray, m: int
+                 ) -> tuple[np.ndarray, ...]:
+    """Per node (of ``m``), the sums of w, w ds, w z, w ds^2 and w z ds over its photons
+    (bincount: in photon order, from 0)."""
+    wds = w * ds
+    wz = w * z
+    return tuple(np.bincount(b, weights=v, minlength=m)
+                 for v in (w, wds, wz, wds * ds, wz * ds))
+
+
+def _local_linear_sums(sums: tuple[np.ndarray, ...], spacing: float, kernel: np.ndarray
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_local_linear` from the nodes' :func:`_binned_sums`."""
+    b_w, b_wds, b_wz, b_wdsds, b_wzds = sums
+    m = b_w.size
     half = kernel.size // 2
 
     def same(x: np.ndarray, k: np.ndarray) -> np.ndarray:
@@ -111,9 +141,6 @@ def _local_linear(s: np.ndarray, z: np.ndarray, w: np.ndarray, nodes: np.ndarray
         # the kernel would get more values than nodes; the centred slice of "full" is the
         # same values for long tracks and the right length for short ones
         return np.convolve(x, k, mode="full")[half:half + m]
-
-    def binned(v: np.ndarray) -> np.ndarray:
-        return same(np.bincount(b, weights=v, minlength=m), kernel)
 
     # moments about each photon's own node, then shifted to the evaluation node:
     # for a photon in bin j evaluated at node i, (s - node_i) = ds + (node_j - node_i);
@@ -123,19 +150,17 @@ def _local_linear(s: np.ndarray, z: np.ndarray, w: np.ndarray, nodes: np.ndarray
     klag = kernel * lag
     klag2 = kernel * lag * lag
 
-    def conv(v: np.ndarray, k: np.ndarray) -> np.ndarray:
+    def conv(binned: np.ndarray, k: np.ndarray) -> np.ndarray:
         # np.convolve flips the kernel: index k[q] pairs bin j = i + (half - q); use the
         # reversed lag kernel so node_j - node_i = +lag
-        return same(np.bincount(b, weights=v, minlength=m), k[::-1])
+        return same(binned, k[::-1])
 
-    w0 = binned(w)
-    wds = w * ds
-    wz = w * z
-    wds_lag = conv(wds, klag)  # used twice
-    sw_d = conv(wds, kernel) + conv(w, klag)
-    sw_dd = conv(wds * ds, kernel) + 2 * wds_lag + conv(w, klag2)
-    swz = conv(wz, kernel)
-    swzd = conv(wz * ds, kernel) + conv(wz, klag)
+    w0 = same(b_w, kernel)
+    wds_lag = conv(b_wds, klag)  # used twice
+    sw_d = conv(b_wds, kernel) + conv(b_w, klag)
+    sw_dd = conv(b_wdsds, kernel) + 2 * wds_lag + conv(b_w, klag2)
+    swz = conv(b_wz, kernel)
+    swzd = conv(b_wzds, kernel) + conv(b_wz, klag)
     det = w0 * sw_dd - sw_d * sw_d
     with np.errstate(invalid="ignore", divide="ignore"):
         level = np.where(det > 1e-9 * np.maximum(w0, 1e-300) ** 2,

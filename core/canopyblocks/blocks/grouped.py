@@ -12,21 +12,49 @@ import numpy as np
 __all__ = ["sorted_groups", "percentile_by_group", "percentiles_by_group"]
 
 
-def sorted_groups(group: np.ndarray, values: np.ndarray, n_groups: int
+def sorted_groups(group: np.ndarray, values: np.ndarray, n_groups: int, *,
+                  values_sorted: bool = False
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The values sorted by (group, value).
+    """The values sorted by (group, value); ``values_sorted``: they are in ascending order
+    already (the sort by group alone remains).
 
     Returns
     -------
     order : ndarray of int64
-        Permutation of the inputs.
+        Permutation of the inputs (equal values of a group in no set order: they are
+        interchangeable).
     sorted_values : ndarray
     starts, counts : ndarray of int64, one per group 0..n_groups-1
     """
-    order = np.lexsort((values, group))
+    order = _group_value_order(np.asarray(group), np.asarray(values), n_groups,
+                               values_sorted)
     counts = np.bincount(group, minlength=n_groups)[:n_groups]
     starts = np.concatenate([[0], np.cumsum(counts)[:-1]]).astype(np.int64)
     return order, values[order], starts, counts
+
+
+def _group_value_order(group: np.ndarray, values: np.ndarray, n_groups: int,
+                       values_sorted: bool = False) -> np.ndarray:
+    """A permutation sorting by (group, value): the values sorted (numpy's unstable
+    default sort), then stable radix passes over 16-bit digits of the group (least
+    significant first) -- the same sorted values as ``np.lexsort((values, group))`` at a
+    quarter of its cost (two merge sorts there)."""
+    if group.size < 2 or n_groups > 2**48 or group.dtype.kind not in "iu":
+        return np.lexsort((values, group))
+    if values_sorted:
+        order, g = np.arange(values.size), group
+    else:
+        order = np.argsort(values)
+        g = group[order]
+    shift = 0
+    while True:
+        digit = ((g >> shift) & 0xFFFF).astype(np.uint16)
+        p = np.argsort(digit, kind="stable")  # radix sort for 16-bit integers
+        order = order[p]
+        shift += 16
+        if (n_groups - 1) >> shift == 0:
+            return order
+        g = g[p]
 
 
 def _pick(zs: np.ndarray, starts: np.ndarray, counts: np.ndarray, q: float) -> np.ndarray:
@@ -53,9 +81,11 @@ def percentile_by_group(group: np.ndarray, values: np.ndarray, q: float,
 
 
 def percentiles_by_group(group: np.ndarray, values: np.ndarray, qs: list[float] | tuple[float, ...],
-                         n_groups: int) -> np.ndarray:
-    """Several percentiles per group from one sort: array of shape (n_groups, len(qs))."""
-    _, zs, starts, counts = sorted_groups(group, values, n_groups)
+                         n_groups: int, *, values_sorted: bool = False) -> np.ndarray:
+    """Several percentiles per group from one sort: array of shape (n_groups, len(qs));
+    ``values_sorted``: the values are in ascending order already."""
+    _, zs, starts, counts = sorted_groups(group, values, n_groups,
+                                          values_sorted=values_sorted)
     if not len(qs):
         return np.empty((n_groups, 0))
     return np.column_stack([_pick(zs, starts, counts, float(q)) for q in qs])
