@@ -115,7 +115,7 @@ class Atl08Params:
         median |error| 0.18/0.31/0.54 -> 0.14/0.16/0.23 m, RMSE 1.53/1.41/1.84 ->
         1.28/1.21/1.44 m, blocks estimated 93/98/88 -> 95/99/96 %; strong beams' ground
         RMSE at 4.5 MHz 3.79 -> 0.49 m (one track lost its ground), unchanged at night and
-        1.5 MHz (0.16 m). Wyoming clip (strong, daytime): ATL08's ground photons classed
+        1.5 MHz (0.16 m). Wyoming clip (a weak beam, daytime): ATL08's ground photons classed
         ground 0.836 -> 0.848, its canopy photons classed canopy 0.820 -> 0.841.
     ground_trend : float
         Half-width (m) of the running mean giving that trend (50).
