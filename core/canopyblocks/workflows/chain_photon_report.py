@@ -126,7 +126,7 @@ def photon_report(out: Path, *, tiles: list[Path], photons: Any, simulated: bool
             f"{who} looks metres low against it while it is close to the footprint-matched "
             "reference of the summary; no correction is fitted against it (one would make "
             "the heights as much too tall against the like-with-like reference)."],
-            {f"{who} against the {reference_short('corridor')}, all blocks":
+            {f"{who} against the {reference_short('corridor')}, the blocks used":
              report_stats_table(lead.corridor_stats[lead.corridor_stats["group"] == "all"])}))
     if truth_table is not None:
         sections.append(ReportSection("Simulated photons against truth", [

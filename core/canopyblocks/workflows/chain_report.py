@@ -128,7 +128,8 @@ def summary_section(lead: LeadResult, *, source: str, n_tracks: int, n_photons: 
     else:
         paras.append("No block could be validated against this reference.")
     paras.append("Residual = block value minus reference value, metres; the table below is "
-                 f"layer '{lead.layer}' of validation.gpkg (all blocks).")
+                 f"layer '{lead.layer}' of validation.gpkg (the blocks used, all aspects and "
+                 "slopes together).")
     return ReportSection("Summary", paras,
                          {f"'{lead.name}' against the {lead.reference}":
                           report_stats_table(table)},
@@ -152,7 +153,7 @@ def paper_section(paper_stats: pd.DataFrame, *, reference: str, layer: str,
     if lead is not None and lead.name != "paper":
         text += f" The '{lead.name}' estimators of the summary avoid these floors."
     return ReportSection("The paper's method and its known bias", [
-        text, f"Layer '{layer}' of validation.gpkg; all blocks:"],
+        text, f"Layer '{layer}' of validation.gpkg; the blocks used, all aspects and slopes together:"],
         {f"the paper's method against the {reference}": report_stats_table(table)})
 
 
@@ -206,7 +207,7 @@ def details_stats(stats: pd.DataFrame) -> dict[str, pd.DataFrame]:
     if stats is None or not len(stats):
         return {}
     overall = stats[stats["group"] == "all"]
-    out = {"all blocks": report_stats_table(overall)}
+    out = {"the blocks used, all aspects and slopes together": report_stats_table(overall)}
     for kind in ("aspect", "slope"):
         g = stats[stats["group"].astype(str).str.startswith(f"{kind}:")]
         if not len(g):
