@@ -26,6 +26,7 @@ from canopyblocks.blocks.ground_surface import _bridge, _kernel, _local_linear
 from canopyblocks.blocks.grouped import sorted_groups
 from canopyblocks.errors import NoUsableDataError
 from canopyblocks.photons import SPEED_OF_LIGHT, BackgroundRate, PhotonTrack
+from test_atl08_speed import _brute_counts  # the one brute-force box count
 
 UTM = pyproj.CRS.from_epsg(32612)
 
@@ -45,24 +46,6 @@ def _forest(seed: int, n_shots: int = 4000, rate_mhz: float = 3.0
     return s, np.concatenate([hs, hn])
 
 
-def _brute_counts(s: np.ndarray, z: np.ndarray, p: DensityParams) -> np.ndarray:
-    """Per photon: the photons of its segment's grid (the segment plus one box each side,
-    origin at their lowest s and z) whose cell is within ``cells`` cells of its own."""
-    order = np.argsort(s, kind="stable")
-    ss, zs = s[order], z[order]
-    seg = np.floor((ss - ss[0]) / p.segment).astype(int)
-    out = np.zeros(s.size, int)
-    ds, dz = p.along / p.cells, p.height / p.cells
-    for k in np.unique(seg):
-        own = np.flatnonzero(seg == k)
-        ext = np.flatnonzero((ss >= ss[own[0]] - p.along) & (ss <= ss[own[-1]] + p.along))
-        ci = np.floor((ss[ext] - ss[ext].min()) / ds).astype(int)
-        ri = np.floor((zs[ext] - zs[ext].min()) / dz).astype(int)
-        for i in own:
-            j = int(np.flatnonzero(ext == i)[0])
-            out[order[i]] = int(np.sum((np.abs(ci - ci[j]) <= p.cells)
-                                       & (np.abs(ri - ri[j]) <= p.cells)))
-    return out
 
 
 @pytest.mark.parametrize("entries, cells", [(1 << 20, 1 << 22), (3000, 1), (1, 50_000)])
