@@ -164,3 +164,26 @@ def test_zero_sample_and_all_noise_shots_are_flagged(gedi_l1b: Path, tmp_path: P
     assert res["flag"].iloc[3] == "no_signal" and np.isnan(res["ground"].iloc[3])
     assert res["flag"].iloc[7] == "no_signal"
     assert (res["flag"].drop(index=[3, 7]) == "ok").all()
+
+
+def test_l1b_dem_reaches_the_terrain_outlier_check(gedi_l1b: Path) -> None:
+    """The L1B's per-shot DEM (geolocation/digital_elevation_model) is read as the file holds
+    it, and a ground far from it is a terrain outlier from the file path too."""
+    import warnings
+    from dataclasses import replace
+
+    from canopyblocks.readers.gedi import DEM
+    from canopyblocks.waveforms.process import process_waveforms
+
+    beam = "BEAM0101"
+    with h5py.File(gedi_l1b) as f:
+        dem = f[f"{beam}/geolocation/digital_elevation_model"][:].astype(np.float64)
+    b = read_gedi_l1b(gedi_l1b, beam)
+    np.testing.assert_array_equal(b.extra[DEM], np.where(dem < -1000.0, np.nan, dem))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fp = process_waveforms(b)
+        ok = fp["flag"] == "ok"
+        assert ok.sum() >= 10   # the real shots agree with the DEM (within 100 m)
+        fp2 = process_waveforms(replace(b, extra={**b.extra, DEM: b.extra[DEM] + 500.0}))
+    assert (fp2.loc[ok.to_numpy(), "flag"] == "terrain_outlier").all()

@@ -58,6 +58,10 @@ GEDI_BEAMS: tuple[str, ...] = ("BEAM0000", "BEAM0001", "BEAM0010", "BEAM0011", "
 _FULL_POWER = ("BEAM0101", "BEAM0110", "BEAM1000", "BEAM1011")
 _BEAM_RE = re.compile(r"^BEAM\d{4}$")
 
+#: ``WaveformBatch.extra`` key of the L1B's DEM elevation per shot (the terrain-outlier check
+#: of :mod:`canopyblocks.waveforms.gedi_outliers` compares the ground with it).
+DEM = "digital_elevation_model"
+
 _PER_SHOT = {
     "shot_number": "shot_number",
     "time": "delta_time",
@@ -73,8 +77,9 @@ _PER_SHOT = {
     "lon_bin0": "geolocation/longitude_bin0",
     "lon_lastbin": "geolocation/longitude_lastbin",
     "degraded": "geolocation/degrade",
+    "dem": "geolocation/digital_elevation_model",
 }
-_OPTIONAL = ("geolocation/degrade",)
+_OPTIONAL = ("geolocation/degrade", "geolocation/digital_elevation_model")
 #: dtype kinds accepted per column (default: any number); counts and indices are integers.
 _KINDS = {"shot_number": "iu", "n_samples": "iu", "start": "iu", "stale": "iub",
           "degraded": "iub"}
@@ -244,6 +249,14 @@ def _read_shots(f: H5File, beam: str) -> dict[str, np.ndarray]:
     return cols
 
 
+def _dem(a: np.ndarray) -> np.ndarray:
+    """The L1B's DEM elevation per shot (m, WGS84 ellipsoid, as the bin elevations); its
+    fill value (-999999) and anything below -1000 m as NaN."""
+    out = _float(a)
+    out[out < -1000.0] = np.nan
+    return out
+
+
 def _float(a: np.ndarray, fill_above: float = 1e30) -> np.ndarray:
     """float64 with fill values (GEDI uses 3.4028235e38 / -9999) as NaN."""
     out = np.asarray(a, dtype=np.float64).copy()
@@ -370,7 +383,8 @@ def _batches(f: H5File, beam: str, mask: np.ndarray, cols: dict[str, np.ndarray]
             degraded=np.asarray(cols["degraded"][rows]) != 0,
             power=power,
             source=source,
-            extra={INVALID_SHOT: cols["problems"][rows] | amp},
+            extra={INVALID_SHOT: cols["problems"][rows] | amp,
+                   **({DEM: _dem(cols["dem"][rows])} if "dem" in cols else {})},
         )
         prog.update((c + 1) / n_chunks, f"{beam}: {int(rows[-1]) + 1} shots read")
 
