@@ -148,9 +148,11 @@ def run_issue29(i: dict[str, Any], folder: Path) -> Any:
 def check_issue29(case: Any, i: dict[str, Any], result: Any, ws: list[str]) -> None:
     assert i["call"].startswith("blocks-"), f"{i['call']}: accepted"
     ok = result[result["flag"] == "ok"]
-    # the paper's method on this weak daytime beam: blocks made (all flagged sparse)
-    assert len(result) >= 20 and (i["call"] == "blocks-paper" or len(ok) >= 20), \
-        f"{len(result)} blocks, {len(ok)} ok"
+    # blocks estimated: ok, or ok but with an error bar too wide to use (low_confidence: this
+    # is a weak beam by day); the paper's method on it: blocks made (all flagged sparse)
+    est = result[result["flag"].isin(["ok", "low_confidence"])]
+    assert len(result) >= 20 and (i["call"] == "blocks-paper" or len(est) >= 20), \
+        f"{len(result)} blocks, {len(est)} estimated"
     assert not len(ok) or float(ok["hmax"].max()) < CLIP_CANOPY_MAX, \
         f"Hmax up to {ok['hmax'].max():.1f} m over a canopy ATL08 puts at <= 10.5 m"
     if case.warn_words:
