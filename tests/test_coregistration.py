@@ -300,11 +300,14 @@ def test_validate_coregister_reports_before_and_after(scene, tmp_path):
     import geopandas as gpd
 
     from canopyblocks.blocks import BlockParams
+    from canopyblocks.blocks.estimators import preset
     from canopyblocks.outputs.tables import write_layers
     from canopyblocks.workflows.blocks import run_blocks
 
     moved = [_shifted(t, -4.0, 6.0, 0.8) for t in scene["tracks"]]
-    blocks, _ = run_blocks(moved, BlockParams(lengths=(10.0,)))
+    # the paper's method: the scene's inserted offset was sized for its dense blocks (the
+    # atl08 blocks of these short synthetic tracks find it, but below significance)
+    blocks, _ = run_blocks(moved, BlockParams(lengths=(10.0,)), estimators=preset("paper"))
     gpkg = tmp_path / "blocks.gpkg"
     write_layers({"blocks": blocks}, gpkg)
     dtm, dsm = tmp_path / "dtm.tif", tmp_path / "dsm.tif"
@@ -318,7 +321,7 @@ def test_validate_coregister_reports_before_and_after(scene, tmp_path):
     assert r.returncode == 0, r.stderr
     doc = json.loads((tmp_path / "val_offsets.json").read_text())
     a = doc["all"]
-    assert a["determined"]
+    assert a["determined"], {k: a[k] for k in ("reason", "status", "rmse_before", "rmse_after") if k in a}
     # blocks carry their ground/top at the block centre: the shift comes back within
     # 1.5 m horizontally; the vertical includes the paper ground estimator's bias (about
     # +1.5 m, DESIGN 1.10), so it is only reported, not applied (the default)
