@@ -25,6 +25,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+# the accuracy bench's calibration tiles and unseen tiles: one list for both benches
+from icesat2_scoring import CAL_TILES, TEST_SITES  # noqa: E402
+
 from canopyblocks.blocks import BlockParams
 from canopyblocks.blocks.atl08_blocks import atl08_block_table
 from canopyblocks.blocks.atl08_classify import classify_photons
@@ -37,14 +40,6 @@ from canopyblocks.reference.footprint_params import FootprintReferenceParams
 from canopyblocks.simulate import SimParams, line_through, simulate_photons
 from canopyblocks.simulate.writers import write_simulation_atl03
 
-ROOT = Path(__file__).resolve().parents[1]
-ALS = ROOT / "tests" / "data" / "als"
-CAL_TILES = (ALS / "lasR_bcts_1.laz", ALS / "lasR_bcts_2.laz")
-TEST_SITES: dict[str, tuple[Path, ...]] = {
-    "lidR_Topography": (ALS / "lidR_Topography.laz",),
-    "pyfor_test": (ALS / "pyfor_test.laz",),
-    "lidR_MixedConifer": (ALS / "lidR_MixedConifer.laz",),
-}
 LIGHTS: dict[str, float] = {"night": 0.15, "day 1.5 MHz": 1.5, "day 3 MHz": 3.0,
                             "day 4.5 MHz": 4.5}
 BEAMS = ("strong", "weak")
