@@ -32,6 +32,7 @@ import geopandas as gpd
 import numpy as np
 import pandas as pd
 
+from ..arguments import check_instance
 from ..errors import InputError, NoUsableDataError
 from ..progress import Progress, as_progress
 from ..schema import FLAG_OK
@@ -107,10 +108,8 @@ def esfl_footprints(path: str | os.PathLike[str], params: Any = None, *, crs: An
     from ..readers.flash_dual import read_esfl_file
     from ..waveforms.esfl import EsflCubes, EsflParams, esfl_chain
 
-    p = params if params is not None else EsflParams()
-    if not isinstance(p, EsflParams):
-        raise InputError(f"params must be an EsflParams for flash-lidar cubes; got "
-                         f"{type(p).__name__}")
+    p = check_instance(EsflParams() if params is None else params, EsflParams, "params",
+                       "an EsflParams for flash-lidar cubes (None: the defaults)")
     prog = as_progress(progress)
     prog.update(0.0, "reading flash-lidar cubes")
     f = read_esfl_file(path)
@@ -175,10 +174,8 @@ def dual_footprints(path: str | os.PathLike[str], params: Any = None, *, crs: An
     from ..readers.flash_dual import read_dual_file
     from ..waveforms.dual_wavelength import DualParams, dual_wavelength_ground
 
-    p = params if params is not None else DualParams()
-    if not isinstance(p, DualParams):
-        raise InputError(f"params must be a DualParams for dual-wavelength pairs; got "
-                         f"{type(p).__name__}")
+    p = check_instance(DualParams() if params is None else params, DualParams, "params",
+                       "a DualParams for dual-wavelength pairs (None: the defaults)")
     prog = as_progress(progress)
     prog.update(0.0, "reading dual-wavelength pairs")
     f = read_dual_file(path)
