@@ -22,8 +22,8 @@ import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from canopyblocks.readers.las import read_las  # noqa: E402
+from canopyblocks.reference.footprint_returns import footprint_index  # noqa: E402
 from canopyblocks.simulate import line_through  # noqa: E402
-from canopyblocks.simulate.footprint_returns import footprint_index  # noqa: E402
 from canopyblocks.simulate.gedi_waveforms import GediSimParams, simulate_gedi  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1] / "tests" / "data" / "als"

@@ -22,7 +22,7 @@ import numpy as np
 import pandas as pd
 
 from ..errors import InputError
-from .waveform_binning import bin_returns
+from ..reference.waveform_binning import bin_returns
 
 __all__ = ["DualSimParams", "DualPairs", "simulate_dual_pairs", "dual_cover_study",
            "lowest_mode_ground", "NOISE_FREE_FLOOR", "PAPER_NOISE"]

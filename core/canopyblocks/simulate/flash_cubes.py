@@ -25,9 +25,9 @@ import pandas as pd
 from ..errors import InputError, NoUsableDataError
 from ..readers.las import LasPoints
 from ..reference.footprint_index import CloudIndex
-from .footprint_returns import footprint_index
+from ..reference.footprint_returns import footprint_index
+from ..reference.waveform_binning import bin_returns
 from .tracks import SimTrack, shots_along
-from .waveform_binning import bin_returns
 
 __all__ = ["FlashSimParams", "FlashSimulation", "simulate_flash_cubes", "threshold_study"]
 

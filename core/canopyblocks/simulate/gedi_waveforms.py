@@ -2,7 +2,7 @@
 
 Footprint centres along a track (every ``spacing`` m) or given; the points under each
 footprint weighted by a Gaussian footprint (sigma 5.5 m) and by point density
-(:mod:`.footprint_returns`); ground and canopy returns scaled by their reflectances;
+(:mod:`~canopyblocks.reference.footprint_returns`); ground and canopy returns scaled by their reflectances;
 binned on GEDI's 1 ns (0.15 m) samples and convolved with the transmitted pulse
 (Gaussian, FWHM 15.6 ns); a gain to digitiser counts, Gaussian noise of the L1B noise
 level, and the digitiser's smoothing (the samples' spread is then smaller than the
@@ -41,10 +41,15 @@ from scipy.ndimage import gaussian_filter1d
 from ..errors import InputError, NoUsableDataError
 from ..readers.las import LasPoints
 from ..reference.footprint_index import CloudIndex
+from ..reference.footprint_returns import footprint_returns
+from ..reference.waveform_reference import (
+    SAMPLE_M,
+    WaveformFormParams,
+    noise_free_waveforms,
+    read_noise_free,
+)
 from ..waveforms.batch import WaveformBatch
-from .footprint_returns import footprint_returns
 from .tracks import SimTrack, shots_along
-from .waveform_binning import bin_returns
 
 __all__ = ["GediSimParams", "GediSimulation", "simulate_gedi", "TRUTH_RH"]
 
@@ -54,8 +59,6 @@ _COVER_THRESHOLD = 2.0
 
 log = logging.getLogger(__name__)
 
-#: Light travels 0.1499 m (there and back) per nanosecond sample.
-SAMPLE_M = 0.299792458 / 2.0
 #: RH percentiles of the truth.
 TRUTH_RH: tuple[int, ...] = (25, 50, 75, 90, 95, 98, 100)
 #: Most footprints one simulation makes (memory: a few kB of waveform each).
@@ -118,6 +121,15 @@ class GediSimParams:
             raise InputError(f"beam must be a GEDI beam name like BEAM0101; got {self.beam!r}")
 
     @property
+    def formation(self) -> WaveformFormParams:
+        """How the waveforms are formed and their noise-free truth read: the parameters
+        of the footprint reference (:mod:`~canopyblocks.reference.waveform_reference`)."""
+        return WaveformFormParams(sigma=self.sigma, pulse_fwhm_ns=self.pulse_fwhm_ns,
+                                  density_cell=self.density_cell, rho_ratio=self.rho_ratio,
+                                  peak_counts=self.peak_counts, noise_mean=self.noise_mean,
+                                  noise_sd=self.noise_sd, margin=self.margin)
+
+    @property
     def pulse_sigma_m(self) -> float:
         """Pulse sigma in range (m)."""
         return self.pulse_fwhm_ns / (2.0 * np.sqrt(2.0 * np.log(2.0))) * SAMPLE_M
@@ -147,31 +159,6 @@ class GediSimulation:
     vertical_datum: str
 
 
-def _noise_free(ret: object, p: GediSimParams, n: int) -> tuple[np.ndarray, np.ndarray, int]:
-    """Noise-free waveforms (counts above noise), window tops (m) and sample count."""
-    shot, z, w, ground = ret.shot, ret.z, ret.weight, ret.ground  # type: ignore[attr-defined]
-    energy = w * np.where(ground, 1.0, p.rho_ratio)
-    zmax = np.full(n, -np.inf)
-    zmin = np.full(n, np.inf)
-    np.maximum.at(zmax, shot, z)
-    np.minimum.at(zmin, shot, z)
-    has = np.isfinite(zmax)
-    top = np.where(has, zmax + p.margin, np.nan)
-    span = np.where(has, zmax - zmin, 0.0)
-    m = int(np.ceil((float(span.max()) + 2 * p.margin) / SAMPLE_M)) + 1
-    # bins centred on the sample elevations: sample j lies at top - j * SAMPLE_M
-    wf = bin_returns(shot, z, energy, np.nan_to_num(top) + 0.5 * SAMPLE_M, SAMPLE_M, m,
-                     p.pulse_sigma_m, n_shots=n)
-    # gain: a bare-ground footprint (all weight on ground) would peak at peak_counts
-    total = np.bincount(shot, weights=energy, minlength=n)
-    unit = bin_returns(np.zeros(1, np.int64), np.zeros(1), np.ones(1),
-                       np.array([p.margin + 0.5 * SAMPLE_M]), SAMPLE_M, m,
-                       p.pulse_sigma_m).max()
-    with np.errstate(invalid="ignore", divide="ignore"):
-        gain = np.where(total > 0, p.peak_counts / (unit * total), 0.0)
-    return wf * gain[:, None], top, m
-
-
 def _truth_rh(wf: np.ndarray, top: np.ndarray, ground: np.ndarray) -> np.ndarray:
     """RH (m above ``ground``) of noise-free waveforms: where the cumulative energy from
     the bottom first reaches k %."""
@@ -189,27 +176,17 @@ def _truth_rh(wf: np.ndarray, top: np.ndarray, ground: np.ndarray) -> np.ndarray
     return out
 
 
-def _noise_free_truth(batch: WaveformBatch, clean: np.ndarray, ground: np.ndarray
-                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The noise-free waveforms as the L2A-style processing (setting a1) reads them --
-    energy between the signal bottom and top, where the noise-free waveform rises above
-    the thresholds the noise sets: RH measured from the class-2 ``ground`` (n, k), the
-    lowest mode (n,) and RH measured from that lowest mode (n, k)."""
-    import warnings
-    from dataclasses import replace
-
-    from ..waveforms.process import process_waveforms
-    from ..waveforms.settings import WaveformParams
-
-    m = batch.waveforms.shape[1]
-    free = replace(batch, waveforms=(clean[:, :m] + batch.noise_mean[:, None])
-                   .astype(np.float32))
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        res = process_waveforms(free, WaveformParams(terrain_filter=False))
+def _noise_free_truth(clean: np.ndarray, top: np.ndarray, form: WaveformFormParams,
+                      lon: np.ndarray, lat: np.ndarray, ground: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The noise-free waveforms read as the footprint reference reads them
+    (:func:`~canopyblocks.reference.waveform_reference.read_noise_free`, the same
+    function): RH measured from the class-2 ``ground`` (n, k), the lowest mode (n,), RH
+    measured from that lowest mode (n, k) and the waveform's cover (n,)."""
+    res = read_noise_free(clean, top, form, lon, lat)
     g = res["ground"].to_numpy(float)
     above_mode = np.column_stack([res[f"rh{k}"].to_numpy(float) for k in TRUTH_RH])
-    return above_mode + (g - ground)[:, None], g, above_mode
+    return above_mode + (g - ground)[:, None], g, above_mode, res["cover"].to_numpy(float)
 
 
 def simulate_gedi(points: LasPoints, track: SimTrack | None = None, *,
@@ -230,7 +207,7 @@ def simulate_gedi(points: LasPoints, track: SimTrack | None = None, *,
     seed : int
         Noise seed; same inputs and seed give identical waveforms.
     index : optional
-        :func:`~.footprint_returns.footprint_index` of ``points``, to reuse across calls.
+        :func:`~canopyblocks.reference.footprint_returns.footprint_index` of ``points``, to reuse across calls.
 
     Raises
     ------
@@ -274,7 +251,7 @@ def simulate_gedi(points: LasPoints, track: SimTrack | None = None, *,
         hag = ret.z - truth_ground[ret.shot]
         wv = ret.per_shot(ret.weight, np.isfinite(hag) & (hag > _COVER_THRESHOLD))
         cover = np.where(wt > 0, wv / wt, np.nan)
-    clean, top, m = _noise_free(ret, p, n)
+    clean, top, m = noise_free_waveforms(ret, p.formation)
     rh_all = _truth_rh(clean, np.nan_to_num(top), truth_ground)
     rng = np.random.default_rng(int(seed))
     noisy = clean + rng.normal(0.0, p.noise_sd, clean.shape)
@@ -295,10 +272,12 @@ def simulate_gedi(points: LasPoints, track: SimTrack | None = None, *,
         lon_bin0=lon, lon_lastbin=lon.copy(), noise_mean=np.full(n, p.noise_mean),
         noise_sd=np.full(n, p.noise_sd), stale=np.zeros(n, bool), degraded=np.zeros(n, bool),
         power="full", source="simulated")
-    rh, mode, rh_mode = _noise_free_truth(batch, clean, truth_ground)
+    rh, mode, rh_mode, wcover = _noise_free_truth(clean, np.where(usable, top, np.nan),
+                                                  p.formation, lon, lat, truth_ground)
     truth = pd.DataFrame({"shot_number": shot_numbers.astype(np.int64), "x": sx, "y": sy,
                           "truth_ground": truth_ground, "truth_ground_lowest_mode": mode,
-                          "truth_cover": cover, "n_points": counts})
+                          "truth_cover": cover, "truth_cover_waveform": wcover,
+                          "n_points": counts})
     for j, k in enumerate(TRUTH_RH):
         truth[f"truth_rh{k}"] = rh[:, j]
     for j, k in enumerate(TRUTH_RH):

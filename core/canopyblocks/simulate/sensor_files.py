@@ -36,11 +36,11 @@ from ..atomic import atomic_output
 from ..errors import InputError
 from ..progress import Progress, as_progress
 from ..readers.las import LasPoints
+from ..reference.footprint_returns import footprint_returns
+from ..reference.waveform_binning import bin_returns
 from .dual_pairs import NOISE_FREE_FLOOR, PAPER_NOISE, DualPairs
 from .flash_cubes import FlashSimParams, simulate_flash_cubes, threshold_study
-from .footprint_returns import footprint_returns
 from .tracks import SimTrack, shots_along
-from .waveform_binning import bin_returns
 
 __all__ = ["DualAlsParams", "simulate_dual_over_points", "simulate_esfl_to_file",
            "simulate_dual_to_file", "simulate_gedi_to_file", "gedi_round_trip",

@@ -14,7 +14,7 @@ import numpy as np
 
 from ..errors import NoUsableDataError
 from ..readers.las import LasPoints
-from ..reference.footprint_index import CloudIndex
+from .footprint_index import CloudIndex
 
 __all__ = ["FootprintReturns", "footprint_returns", "footprint_index", "EXCLUDED_CLASSES"]
 
