@@ -33,6 +33,7 @@ import os
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Literal
 
 import geopandas as gpd
 import numpy as np
@@ -47,6 +48,7 @@ from ..readers.las import LasPoints, las_crs, read_las
 from ..reference.datum import apply_vertical_offset, check_vertical_datums
 from ..reference.footprint import FootprintCloud, block_footprint_reference, footprint_reference
 from ..reference.footprint_params import (
+    REFERENCE_FLAG_NO_GROUND,
     REFERENCE_FLAG_OK,
     REFERENCE_FLAG_OUTSIDE,
     FootprintReferenceParams,
@@ -68,6 +70,7 @@ __all__ = [
     "LAYER_RESIDUALS_FOOTPRINTS",
     "LAYER_STATS_FOOTPRINTS",
     "GEDI_VERTICAL_CRS",
+    "REFERENCE_KINDS",
 ]
 
 log = logging.getLogger(__name__)
@@ -79,6 +82,10 @@ LAYER_RESIDUALS_FOOTPRINTS = "residuals_footprints"
 LAYER_STATS_FOOTPRINTS = "stats_footprints"
 #: GEDI elevations: WGS84 ellipsoidal heights.
 GEDI_VERTICAL_CRS = "EPSG:4979"
+#: Footprint references of :func:`validate_footprints` (``waveform`` the default).
+REFERENCE_KINDS: tuple[str, ...] = ("waveform", "points")
+FootprintReferenceKind = Literal["waveform", "points"]
+_SETTINGS = ("a1", "a2", "a3", "a4", "a5", "a6")
 COVER_CLASSES: tuple[str, ...] = ("0-25", "25-50", "50-75", "75-100")
 _ABSOLUTE = ("ground", "top")
 
@@ -176,6 +183,7 @@ def validate_footprints(
     table_crs: object = None,
     points_crs: object = None,
     slope_threshold: float = 2.0,
+    reference: FootprintReferenceKind = "waveform",
     progress: Progress | None = None,
 ) -> FootprintValidation:
     """Validate waveform footprints against the footprint-matched airborne reference.
@@ -205,6 +213,18 @@ def validate_footprints(
         CRS of tiles that state none.
     slope_threshold : float
         Degrees below which the aspect class is ``flat``.
+    reference : {"waveform", "points"}
+        ``waveform`` (default): the airborne points formed into the waveform the sensor
+        would record (the footprint's Gaussian beam of ``params.diameter / 4`` sigma, the
+        returns' energy, the pulse) and read by the same L2A algorithm: ground = its
+        lowest mode, RH from the energy accumulated from the bottom of its signal, cover
+        from its energy (:mod:`~canopyblocks.reference.waveform_reference`; the GEDI
+        simulator's truth). ``points``: the weighted points themselves -- ground = the
+        weighted mean of the class-2 points, RH = weighted percentiles of all returns
+        above a plane through them, cover = the weighted share of returns more than 2 m
+        above it (:func:`~canopyblocks.reference.footprint.footprint_reference`).
+        Slope, aspect, coverage and the ``outside``/``no_ground`` flags come from the
+        points in both.
 
     Returns
     -------
@@ -251,8 +271,13 @@ def validate_footprints(
     if geoid is not None or offset is not None:
         heights = apply_vertical_offset(heights, geoid=geoid, offset=offset,
                                         columns=_ABSOLUTE)
+    if reference not in REFERENCE_KINDS:
+        raise InputError(f"reference={reference!r}; use one of {', '.join(REFERENCE_KINDS)}")
     cloud = FootprintCloud(pts, params)
-    ref = footprint_reference(cloud, x, y, progress=prog.sub(0.3, 0.95))
+    ref = footprint_reference(cloud, x, y, progress=prog.sub(0.3, 0.8))
+    if reference == "waveform":
+        ref = _waveform_formed(ref, pts, x, y, lon, lat, params, fp)
+        prog.update(0.95, "waveform-formed reference")
     n = len(fp)
     out = pd.DataFrame({
         "beam": fp["beam"].astype(str).to_numpy() if "beam" in fp else np.full(n, ""),
@@ -280,6 +305,7 @@ def validate_footprints(
     out["ref_n_points"] = ref["ref_n_points"].to_numpy()
     out["ref_coverage"] = ref["ref_coverage"].to_numpy(float)
     out["use"] = (own == FLAG_OK) & (rflag == REFERENCE_FLAG_OK)
+    out["reference"] = reference
     n_out = int((rflag == REFERENCE_FLAG_OUTSIDE).sum())
     if n_out:
         warnings.warn(f"{n_out} of {n} footprints lie (partly) outside the airborne tiles "
@@ -296,6 +322,27 @@ def validate_footprints(
     stats = footprint_stats(residuals, length=params.diameter)
     prog.update(1.0, "footprint validation done")
     return FootprintValidation(residuals, stats, decision)
+
+
+def _waveform_formed(ref: pd.DataFrame, pts: LasPoints, x: np.ndarray, y: np.ndarray,
+                     lon: np.ndarray, lat: np.ndarray, params: FootprintReferenceParams,
+                     fp: pd.DataFrame) -> pd.DataFrame:
+    """``ref`` with ground, RH and cover of the waveform-formed reference; footprints whose
+    formed waveform the reading finds no ground in are flagged ``no_ground``."""
+    from ..reference.waveform_reference import WaveformFormParams, waveform_reference
+
+    setting = str(fp["setting"].iloc[0]) if "setting" in fp and len(fp) else "a1"
+    form = WaveformFormParams.for_diameter(
+        params.diameter, setting=setting if setting in _SETTINGS else "a1")
+    wref = waveform_reference(pts, x, y, lon, lat, form)
+    ref = ref.copy()
+    for c in ("ref_ground", *(f"ref_rh{q}" for q in (50, 75, 90, 95, 98, 100)), "ref_cover"):
+        ref[c] = wref[c].to_numpy(float)
+    flag = ref["ref_flag"].to_numpy(object).copy()
+    lost = (flag == REFERENCE_FLAG_OK) & (wref["ref_waveform_flag"].to_numpy(object) != "ok")
+    flag[lost] = REFERENCE_FLAG_NO_GROUND
+    ref["ref_flag"] = flag
+    return ref
 
 
 def footprint_stats(residuals: pd.DataFrame, *, length: float,
