@@ -65,8 +65,7 @@ def validate_footprints_cmd(ctx: click.Context, footprints: str, points: tuple[s
 
     if geoid is not None and offset is not None:
         raise InputError("give either --geoid or --offset, not both")
-    params = FootprintReferenceParams(diameter=diameter, cut=cut,
-                                      weighting=weighting)  # type: ignore[arg-type]
+    params = FootprintReferenceParams.gedi(diameter=diameter, cut=cut, weighting=weighting)
     quiet = bool(ctx.obj.get("quiet")) if ctx.obj else False
     with progress_bar("validate-footprints", quiet=quiet) as prog:
         result = validate_footprints_file(

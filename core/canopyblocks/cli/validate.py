@@ -45,6 +45,12 @@ def register(group: click.Group) -> None:
               default=None, help="Footprint reference: Gaussian weights, optionally divided "
               "by the points per 1.5 m cell (default gaussian for blocks, gaussian_density "
               "for GEDI footprints).")
+@click.option("--footprint-definition", type=click.Choice(["waveform", "points"]),
+              default=None, help="GEDI footprints: compare each with the airborne points "
+              "formed into the waveform GEDI would record and read by the same algorithm "
+              "(waveform, the default: ground = lowest mode, RH from the energy above it) or "
+              "with the weighted points themselves (points: ground = weighted mean of the "
+              "ground points, RH = weighted percentiles of all returns).")
 @click.option("--points-crs", help="CRS of tiles that state none.")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Output .gpkg (layers residuals, stats), or .csv/.parquet.")
@@ -77,8 +83,8 @@ def register(group: click.Group) -> None:
 def validate(ctx: click.Context, blocks_path: str, dtm: str | None, dsm_max: str | None,
              dsm_p90: str | None, atl08: str | None, reference: str | None,
              points: tuple[str, ...], diameter: float | None, cut: float | None,
-             weighting: str | None, points_crs: str | None,
-             output: str, width: float | None, geoid: str | None, offset: float | None,
+             weighting: str | None, footprint_definition: str | None,
+             points_crs: str | None, output: str, width: float | None, geoid: str | None, offset: float | None,
              reference_vcrs: str | None, photon_vcrs: str, slope_threshold: float,
              blocks_crs: str | None, coregister: bool, coregister_vertical: bool,
              search_range: float, old_range: float | None, coregister_photons: str | None,
@@ -103,7 +109,14 @@ def validate(ctx: click.Context, blocks_path: str, dtm: str | None, dsm_max: str
                                                       else "corridor")
     footprints = is_footprint_table(blocks_path)
     given: dict[str, Any] = {k: v for k, v in (("diameter", diameter), ("cut", cut),
-                                               ("weighting", weighting)) if v is not None}
+                                               ("weighting", weighting),
+                                               ("definition", footprint_definition))
+                             if v is not None}
+    from ..errors import InputError
+
+    if footprint_definition is not None and not footprints:
+        raise InputError("--footprint-definition applies to GEDI footprint tables; photon "
+                         "blocks are compared with the weighted points")
     fparams = None
     if given:  # the sensor's footprint, with what was given changed
         fparams = (FootprintReferenceParams.gedi(**given) if footprints

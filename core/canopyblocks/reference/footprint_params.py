@@ -18,6 +18,9 @@ REFERENCE_FLAG_OUTSIDE = "outside"
 REFERENCE_FLAG_NO_GROUND = "no_ground"
 
 Weighting = Literal["gaussian", "gaussian_density"]
+Definition = Literal["points", "waveform"]
+#: Definitions of a waveform footprint's reference (``FootprintReferenceParams.definition``).
+DEFINITIONS: tuple[str, ...] = ("waveform", "points")
 
 #: Columns of :func:`footprint_reference`, in order.
 FOOTPRINT_REFERENCE_COLUMNS: tuple[str, ...] = (
@@ -59,6 +62,17 @@ class FootprintReferenceParams:
         ASPRS class of ground points.
     exclude_classes : tuple of int
         Classes dropped before anything (noise: 7, 18).
+    definition : {"points", "waveform"}
+        What a waveform footprint (GEDI) is compared with. ``waveform`` (the default of
+        :meth:`gedi`): the points formed into the waveform the sensor would record (a
+        Gaussian beam of sigma ``diameter / 4``, the returns' energy, the pulse) and read
+        by the same L2A algorithm -- ground = its lowest mode, RH = where the energy
+        accumulated from the bottom of its signal reaches k % above it, cover = its
+        canopy energy share (:mod:`~canopyblocks.reference.waveform_reference`, the GEDI
+        simulator's truth). ``points``: the weighted points themselves (the module
+        notes of :mod:`~canopyblocks.reference.footprint`): ground = the weighted mean of
+        the class-2 points, RH = weighted percentiles of all returns above their plane.
+        Photon blocks always use ``points``.
     """
 
     diameter: float = 13.0
@@ -71,6 +85,7 @@ class FootprintReferenceParams:
     min_coverage: float = 0.9
     ground_class: int = 2
     exclude_classes: tuple[int, ...] = (7, 18)
+    definition: Definition = "points"
 
     def __post_init__(self) -> None:
         from ..arguments import check_fields
@@ -88,6 +103,10 @@ class FootprintReferenceParams:
         if self.weighting not in ("gaussian", "gaussian_density"):
             raise InputError(f"weighting={self.weighting!r}; use 'gaussian' or "
                              "'gaussian_density'")
+        if self.definition not in DEFINITIONS:
+            raise InputError(f"definition={self.definition!r}; use 'waveform' (the points "
+                             "formed into the sensor's waveform) or 'points' (the weighted "
+                             "points)")
         if not (isinstance(self.min_ground_points, int) and self.min_ground_points >= 3):
             raise InputError("min_ground_points must be an integer >= 3 (a plane needs 3), "
                              f"got {self.min_ground_points!r}")
@@ -111,9 +130,9 @@ class FootprintReferenceParams:
     @classmethod
     def gedi(cls, **kw: object) -> FootprintReferenceParams:
         """GEDI: sigma 5.5 m (R = 11 m, diameter 22 m), points within 1.5 R (3 sigma),
-        density weights (DESIGN 4.9)."""
+        density weights (DESIGN 4.9), the waveform-formed definition."""
         args: dict[str, object] = {"diameter": 22.0, "cut": 1.5,
-                                   "weighting": "gaussian_density"}
+                                   "weighting": "gaussian_density", "definition": "waveform"}
         args.update(kw)
         return cls(**args)  # type: ignore[arg-type]
 

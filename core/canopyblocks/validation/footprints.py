@@ -1,12 +1,21 @@
 """Validation of waveform footprints (GEDI) against airborne lidar points (DESIGN 4.10).
 
-Each footprint is compared with the footprint-matched reference of DESIGN 2.7
-(:mod:`canopyblocks.reference.footprint`): residuals footprint minus reference of
-``ground`` (m, absolute, after the vertical-datum conversion), ``rh98``, ``rh50`` (m above
-ground) and ``cover`` (0..1), and statistics (``validation.stats.error_stats``) per
-metric and group: ``all``, ``beam:<beam>``, ``aspect:<class>``, ``slope:<class>`` and
+Each footprint is compared with a footprint-matched reference from the airborne points,
+by default defined as the waveform is formed (``FootprintReferenceParams.definition =
+"waveform"``, :mod:`canopyblocks.reference.waveform_reference`): the points under the
+footprint formed into the waveform the sensor would record (the same Gaussian beam, the
+returns' energy, the pulse; no noise) and read by the same L2A algorithm, so ``ground``
+is its lowest mode and ``rh98``/``rh50`` the heights above it where its energy,
+accumulated from the bottom of its signal, reaches 98/50 % -- the GEDI simulator's truth,
+the same function. ``definition="points"`` compares with the weighted points of DESIGN
+2.7 instead (:mod:`canopyblocks.reference.footprint`: class-2 weighted mean ground,
+weighted percentiles of all returns). Residuals footprint minus reference of ``ground``
+(m, absolute, after the vertical-datum conversion), ``rh98``, ``rh50`` (m above ground)
+and ``cover`` (0..1), and statistics (``validation.stats.error_stats``) per metric and
+group: ``all``, ``beam:<beam>``, ``aspect:<class>``, ``slope:<class>`` and
 ``cover:<class>`` (classes of the reference cover: ``0-25``, ``25-50``, ``50-75``,
-``75-100`` per cent).  Slope and aspect are the reference ground plane's.
+``75-100`` per cent).  Slope and aspect are the ground plane's through the class-2 points
+(both definitions).
 
 A footprint enters the statistics (``use``) when its own ``flag`` is ``ok`` and the
 reference's is ``ok``; ``flag`` in the residuals is the footprint's flag when it is not
@@ -33,7 +42,6 @@ import os
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Literal
 
 import geopandas as gpd
 import numpy as np
@@ -70,7 +78,7 @@ __all__ = [
     "LAYER_RESIDUALS_FOOTPRINTS",
     "LAYER_STATS_FOOTPRINTS",
     "GEDI_VERTICAL_CRS",
-    "REFERENCE_KINDS",
+    "reference_words",
 ]
 
 log = logging.getLogger(__name__)
@@ -82,9 +90,6 @@ LAYER_RESIDUALS_FOOTPRINTS = "residuals_footprints"
 LAYER_STATS_FOOTPRINTS = "stats_footprints"
 #: GEDI elevations: WGS84 ellipsoidal heights.
 GEDI_VERTICAL_CRS = "EPSG:4979"
-#: Footprint references of :func:`validate_footprints` (``waveform`` the default).
-REFERENCE_KINDS: tuple[str, ...] = ("waveform", "points")
-FootprintReferenceKind = Literal["waveform", "points"]
 _SETTINGS = ("a1", "a2", "a3", "a4", "a5", "a6")
 COVER_CLASSES: tuple[str, ...] = ("0-25", "25-50", "50-75", "75-100")
 _ABSOLUTE = ("ground", "top")
@@ -183,7 +188,6 @@ def validate_footprints(
     table_crs: object = None,
     points_crs: object = None,
     slope_threshold: float = 2.0,
-    reference: FootprintReferenceKind = "waveform",
     progress: Progress | None = None,
 ) -> FootprintValidation:
     """Validate waveform footprints against the footprint-matched airborne reference.
@@ -198,7 +202,13 @@ def validate_footprints(
         Airborne points (metric CRS); tiles are read only around the footprints.
     params : FootprintReferenceParams, optional
         Default :meth:`FootprintReferenceParams.gedi` (22 m, points within 1.5 R,
-        density weights).
+        density weights, ``definition="waveform"``: each footprint against the airborne
+        points formed into its waveform and read by the same algorithm -- ground = the
+        lowest mode, RH from the energy accumulated from the bottom of the signal, cover
+        from the energy; ``definition="points"``: against the weighted points -- ground =
+        the class-2 weighted mean, RH = weighted percentiles of all returns). Slope,
+        aspect, coverage and the ``outside``/``no_ground`` flags come from the points in
+        both.
     photon_vertical_crs : CRS-like, optional
         Datum of the footprint elevations; default the table's ``attrs["vertical_datum"]``
         (a simulated file's: its tiles' datum), else GEDI's EPSG:4979 (WGS84 ellipsoid).
@@ -213,19 +223,6 @@ def validate_footprints(
         CRS of tiles that state none.
     slope_threshold : float
         Degrees below which the aspect class is ``flat``.
-    reference : {"waveform", "points"}
-        ``waveform`` (default): the airborne points formed into the waveform the sensor
-        would record (the footprint's Gaussian beam of ``params.diameter / 4`` sigma, the
-        returns' energy, the pulse) and read by the same L2A algorithm: ground = its
-        lowest mode, RH from the energy accumulated from the bottom of its signal, cover
-        from its energy (:mod:`~canopyblocks.reference.waveform_reference`; the GEDI
-        simulator's truth). ``points``: the weighted points themselves -- ground = the
-        weighted mean of the class-2 points, RH = weighted percentiles of all returns
-        above a plane through them, cover = the weighted share of returns more than 2 m
-        above it (:func:`~canopyblocks.reference.footprint.footprint_reference`).
-        Slope, aspect, coverage and the ``outside``/``no_ground`` flags come from the
-        points in both.
-
     Returns
     -------
     FootprintValidation
@@ -271,11 +268,9 @@ def validate_footprints(
     if geoid is not None or offset is not None:
         heights = apply_vertical_offset(heights, geoid=geoid, offset=offset,
                                         columns=_ABSOLUTE)
-    if reference not in REFERENCE_KINDS:
-        raise InputError(f"reference={reference!r}; use one of {', '.join(REFERENCE_KINDS)}")
     cloud = FootprintCloud(pts, params)
     ref = footprint_reference(cloud, x, y, progress=prog.sub(0.3, 0.8))
-    if reference == "waveform":
+    if params.definition == "waveform":
         ref = _waveform_formed(ref, pts, x, y, lon, lat, params, fp)
         prog.update(0.95, "waveform-formed reference")
     n = len(fp)
@@ -305,7 +300,7 @@ def validate_footprints(
     out["ref_n_points"] = ref["ref_n_points"].to_numpy()
     out["ref_coverage"] = ref["ref_coverage"].to_numpy(float)
     out["use"] = (own == FLAG_OK) & (rflag == REFERENCE_FLAG_OK)
-    out["reference"] = reference
+    out["reference"] = params.definition
     n_out = int((rflag == REFERENCE_FLAG_OUTSIDE).sum())
     if n_out:
         warnings.warn(f"{n_out} of {n} footprints lie (partly) outside the airborne tiles "
@@ -322,6 +317,23 @@ def validate_footprints(
     stats = footprint_stats(residuals, length=params.diameter)
     prog.update(1.0, "footprint validation done")
     return FootprintValidation(residuals, stats, decision)
+
+
+def reference_words(definition: str = "waveform", diameter: float = 22.0) -> str:
+    """One sentence for a report: what a footprint is compared with (``definition`` of
+    :class:`FootprintReferenceParams`)."""
+    if definition == "waveform":
+        return (f"the airborne points under each footprint formed into the waveform the "
+                f"sensor would record (a Gaussian beam {diameter:g} m across, sigma "
+                f"{diameter / 4:g} m; each return's energy, canopy 1.5 times ground; the "
+                "15.6 ns pulse; no noise) and read by the same GEDI L2A algorithm with the "
+                "simulator's noise level: ground = its lowest mode, RH = the height above "
+                "it where the energy accumulated from the bottom of its signal reaches the "
+                "percentile, cover = its canopy share of the energy")
+    return (f"the airborne points weighted by a Gaussian footprint {diameter:g} m across: "
+            "ground = the weighted mean of the ground points, RH = weighted percentiles of "
+            "all returns above a plane through them, cover = the weighted share of returns "
+            "more than 2 m above it")
 
 
 def _waveform_formed(ref: pd.DataFrame, pts: LasPoints, x: np.ndarray, y: np.ndarray,
