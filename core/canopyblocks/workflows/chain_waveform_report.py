@@ -71,8 +71,11 @@ def _said(stats: pd.DataFrame, metric: str) -> str | None:
 
 def waveform_summary_section(stats: pd.DataFrame, *, source: str, n_footprints: int,
                              beams: Sequence[str], tiles: Sequence[Path],
-                             setting: str) -> ReportSection:
-    """The GEDI report's first section."""
+                             setting: str, reference: str = "waveform") -> ReportSection:
+    """The GEDI report's first section (``reference``: the reference's definition,
+    ``FootprintReferenceParams.definition``)."""
+    from ..validation.footprints import reference_words
+
     alls = stats[stats["group"] == "all"] if len(stats) else stats
     n_used = int(alls["n"].max()) if len(alls) else 0
     paras = [f"{n_footprints} GEDI footprints of {len(beams)} "
@@ -81,11 +84,10 @@ def waveform_summary_section(stats: pd.DataFrame, *, source: str, n_footprints: 
              f"validated against the airborne lidar tiles {', '.join(t.name for t in tiles)}."]
     parts = [s for s in (_said(stats, m) for m in ("ground", "rh98", "rh50", "cover")) if s]
     if parts:
-        paras.append(f"Against the footprint-matched airborne reference (the airborne points "
-                     f"weighted by the footprint's Gaussian), over {n_used} footprints: "
-                     + "; ".join(parts) + ". Cover is a fraction of the footprint (0..1): "
-                     "the weighted share of returns more than 2 m above the ground, for the "
-                     "waveforms from their canopy and ground energy.")
+        paras.append(f"Against the footprint-matched airborne reference, over {n_used} "
+                     "footprints: " + "; ".join(parts) + ". Cover is a fraction of the "
+                     "footprint (0..1), for the waveforms from their canopy and ground "
+                     "energy. The reference is " + reference_words(reference) + ".")
     else:
         paras.append("No footprint could be validated against the airborne reference.")
     paras.append("Residual = waveform value minus reference value; the tables below are "

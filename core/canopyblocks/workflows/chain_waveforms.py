@@ -57,6 +57,7 @@ def run_waveform_chain(
     from ..validation.footprints import (
         LAYER_RESIDUALS_FOOTPRINTS,
         LAYER_STATS_FOOTPRINTS,
+        reference_words,
         validate_footprints,
     )
     from .chain_report import datum_sentence
@@ -95,12 +96,15 @@ def run_waveform_chain(
         tiles_datum = _vertical_name(_tiles_crs(tiles))
         maps = write_footprint_plots(val.residuals, plots_dir, datum=tiles_datum)
         prog.update(0.95, "report")
+        reference = str(val.residuals["reference"].iloc[0]) \
+            if "reference" in val.residuals and len(val.residuals) else "points"
         flags = fp["flag"].value_counts().rename_axis("flag").reset_index(name="footprints")
         setting = getattr(params, "setting", "a1")
         beams_used = sorted(str(b) for b in fp["beam"].unique()) if "beam" in fp else []
         sections = [
             waveform_summary_section(val.stats, source=Path(l1b).name, n_footprints=len(fp),
-                                     beams=beams_used, tiles=tiles, setting=setting),
+                                     beams=beams_used, tiles=tiles, setting=setting,
+                                     reference=reference),
             ReportSection("Inputs", [
                 f"GEDI L1B waveforms from {source_name(l1b)}, processed with the GEDI L2A "
                 f"algorithm (setting {setting}).",
@@ -112,8 +116,8 @@ def run_waveform_chain(
                 "RH25-RH100, cover (fraction), penetration, flags)."],
                 {"footprints per flag": flags}, wave_plots[:6]),
             ReportSection("Validation against the airborne lidar", [
-                "Each footprint is compared with the airborne points weighted by a Gaussian "
-                "footprint: ground, RH98, RH50 (m) and cover (fraction). Residual = waveform "
+                "Each footprint is compared with " + reference_words(reference) + ": ground, "
+                "RH98, RH50 (m) and cover (fraction). Residual = waveform "
                 "value minus reference value. Groups by beam, aspect, slope (degrees) and "
                 f"reference cover class (percent of the footprint); groups of fewer than {MIN_GROUP} footprints are left out of "
                 "the tables (the maps show every footprint)."],
