@@ -176,7 +176,7 @@ def test_run_with_gedi_waveforms(scenes: dict[str, Path], tmp_path: Path) -> Non
     groups = re.findall(r"<td>((?:beam|aspect|slope|cover):[^<]*)</td>\s*<td>(\d+)</td>",
                         page)
     assert groups and min(int(n) for _, n in groups) >= 3
-    # simulate's truth cover is the statistic run's reference states (flat ground: equal)
+    # run's reference is simulate's noise-free truth, the same function: equal per footprint
     import geopandas as gpd
 
     from canopyblocks.simulate.gedi_waveforms import simulate_gedi
@@ -186,7 +186,12 @@ def test_run_with_gedi_waveforms(scenes: dict[str, Path], tmp_path: Path) -> Non
     truth = truth.assign(shot_number=truth["shot_number"].astype(res["shot_number"].dtype))
     both = res.merge(truth, on="shot_number")
     assert len(both) >= 15
-    np.testing.assert_allclose(both["truth_cover"], both["ref_cover"], atol=0.03)
+    np.testing.assert_allclose(both["ref_ground"], both["truth_ground_lowest_mode"],
+                               atol=0.002)
+    np.testing.assert_allclose(both["ref_rh98"], both["truth_rh98_lowest_mode"], atol=0.011)
+    np.testing.assert_allclose(both["ref_cover"], both["truth_cover_waveform"], atol=1e-3)
+    assert set(both["reference"]) == {"waveform"}
+    assert "formed into the waveform" in first
 
 
 def _shrub_scene(path: Path, shrub_height: float = 0.6, seed: int = 0) -> None:
