@@ -36,9 +36,9 @@ from ..atomic import atomic_output
 from ..errors import InputError
 from ..progress import Progress, as_progress
 from ..readers.las import LasPoints
+from ..reference.dual_reference import DualFormParams, dual_bands, dual_noise_sd
 from ..reference.footprint_returns import footprint_returns
-from ..reference.waveform_binning import bin_returns
-from .dual_pairs import NOISE_FREE_FLOOR, PAPER_NOISE, DualPairs
+from .dual_pairs import PAPER_NOISE, DualPairs
 from .flash_cubes import FlashSimParams, simulate_flash_cubes, threshold_study
 from .tracks import SimTrack, shots_along
 
@@ -69,6 +69,13 @@ class DualAlsParams:
     noise: float = PAPER_NOISE
     density_cell: float = 1.5
 
+    @property
+    def formation(self) -> DualFormParams:
+        """The pairs' formation: the dual-wavelength reference's parameters."""
+        return DualFormParams(sigma=self.sigma, bin_size=self.bin_size,
+                              pulse_sigma=self.pulse_sigma, leaf=self.leaf, soil=self.soil,
+                              noise=self.noise, density_cell=self.density_cell)
+
     def __post_init__(self) -> None:
         for name in ("sigma", "spacing", "bin_size", "pulse_sigma", "density_cell"):
             if not getattr(self, name) > 0:
@@ -85,22 +92,12 @@ def simulate_dual_over_points(points: LasPoints, track: SimTrack,
     sx, sy, _ = shots_along(track, p.spacing)
     ret = footprint_returns(points, sx, sy, p.sigma, density_cell=p.density_cell)
     n, shot, z, w, ground, r2 = ret.n, ret.shot, ret.z, ret.weight, ret.ground, ret.r2
-    zmax = np.full(n, -np.inf)
-    zmin = np.full(n, np.inf)
-    np.maximum.at(zmax, shot, z)
-    np.minimum.at(zmin, shot, z)
-    pad = 4 * p.pulse_sigma + 1.0
-    top = np.where(np.isfinite(zmax), zmax + pad, np.nan)
-    m = int(np.ceil(np.nanmax(zmax - zmin) + 2 * pad) / p.bin_size) + 1
-    tops = np.nan_to_num(top) + 0.5 * p.bin_size
-    bands = [bin_returns(shot, z, w * np.where(ground, p.soil[b], p.leaf[b]), tops,
-                         p.bin_size, m, p.pulse_sigma, n_shots=n) for b in (0, 1)]
-    peak = bands[1].max(axis=1)
+    # the formation the dual-wavelength reference reads without noise (one function)
+    top, _, bands = dual_bands(ret, p.formation)
     rng = np.random.default_rng(seed)
-    sd = p.noise * peak
-    out = [b + rng.normal(0, 1, b.shape) * sd[:, None] if p.noise > 0 else b for b in bands]
-    sds = (sd, sd) if p.noise > 0 else (NOISE_FREE_FLOOR * out[0].max(axis=1),
-                                        NOISE_FREE_FLOOR * peak)
+    sds = dual_noise_sd(bands, p.noise)
+    out = [b + rng.normal(0, 1, b.shape) * sds[1][:, None] if p.noise > 0 else b
+           for b in bands]
     wg = np.bincount(shot[ground], weights=w[ground], minlength=n)
     zg = np.bincount(shot[ground], weights=(w * z)[ground], minlength=n)
     wt = np.bincount(shot, weights=w, minlength=n)

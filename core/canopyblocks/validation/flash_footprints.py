@@ -105,6 +105,24 @@ def _footprint_ref(pts: LasPoints, x: np.ndarray, y: np.ndarray,
                          "ref_flag": ref["ref_flag"].to_numpy(object)})
 
 
+def _dual_formed(ref: pd.DataFrame, pts: LasPoints, x: np.ndarray,
+                 y: np.ndarray) -> pd.DataFrame:
+    """``ref`` with the dual-wavelength reference's ground, top and height; footprints whose
+    noise-free pair the ground finder reads no ground in are flagged ``no_ground``."""
+    from ..reference.dual_reference import dual_reference
+    from ..reference.footprint_params import REFERENCE_FLAG_NO_GROUND
+
+    d = dual_reference(pts, x, y)
+    ref = ref.copy()
+    for c in ("ref_ground", "ref_top", "ref_height"):
+        ref[c] = d[c].to_numpy(float)
+    flag = ref["ref_flag"].to_numpy(object).copy()
+    flag[(flag == REFERENCE_FLAG_OK)
+         & (d["ref_waveform_flag"].to_numpy(object) != "ok")] = REFERENCE_FLAG_NO_GROUND
+    ref["ref_flag"] = flag
+    return ref
+
+
 def validate_sensor_footprints(
     footprints: pd.DataFrame,
     points: LasPoints | str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
@@ -115,6 +133,7 @@ def validate_sensor_footprints(
     geoid: str | os.PathLike[str] | None = None,
     offset: float | None = None,
     points_crs: object = None,
+    definition: str = "waveform",
     progress: Progress | None = None,
 ) -> FootprintValidation:
     """Validate ESFL or dual-wavelength footprints against the airborne points.
@@ -134,6 +153,12 @@ def validate_sensor_footprints(
         ``attrs["vertical_datum"]``, a simulated file's tiles' datum).
     points_crs : CRS-like, optional
         CRS of tiles that state none.
+    definition : {"waveform", "points"}
+        Dual rows: ``waveform`` (default) compares them with the points formed into the
+        noise-free visible/near-infrared pair and read by the same ground finder
+        (:mod:`~canopyblocks.reference.dual_reference`); ``points`` with the weighted points
+        (class-2 weighted mean ground, height = RH98 of all returns). ESFL rows: the points
+        under their pixels either way.
 
     Returns
     -------
@@ -179,7 +204,11 @@ def validate_sensor_footprints(
         ref = _pixel_ref(pts, fp, pixels, getattr(footprints, "crs", None))
         size = float(footprints.attrs.get("grid_cell", 5.0) or 5.0)
     else:
+        if definition not in ("waveform", "points"):
+            raise InputError(f"definition={definition!r}; use 'waveform' or 'points'")
         ref = _footprint_ref(pts, x, y, ref_params, prog.sub(0.3, 0.9))
+        if definition == "waveform":
+            ref = _dual_formed(ref, pts, x, y)
         size = ref_params.diameter
     values = {"ground": heights["ground"].to_numpy(float),
               "top": heights["top"].to_numpy(float),
