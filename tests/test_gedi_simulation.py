@@ -192,6 +192,42 @@ def test_run_with_gedi_waveforms(scenes: dict[str, Path], tmp_path: Path) -> Non
     np.testing.assert_allclose(both["ref_cover"], both["truth_cover_waveform"], atol=1e-3)
     assert set(both["reference"]) == {"waveform"}
     assert "formed into the waveform" in first
+    # ... and what the scene was built with: flat ground at 100 m, the top layer at 25 m
+    # (RH98 above it by the pulse's reach: sigma 0.99 m)
+    np.testing.assert_allclose(both["ref_ground"], 100.0, atol=0.1)
+    assert np.all((both["ref_rh98"] > LAYERS[1]) & (both["ref_rh98"] < LAYERS[1] + 2.5))
+
+
+def test_run_sensor_gedi_scores_a_simulation_near_zero(sample, tmp_path: Path) -> None:
+    """``run --sensor gedi`` over the bundled forest tiles: the footprints of a simulation
+    against the reference formed as their waveforms are, RH98 and ground bias within 0.5 m
+    of zero (the noise's effect only); the weighted-points reference stays one option away
+    and shows the canopy-top energy a waveform loses below its noise thresholds."""
+    import geopandas as gpd
+    import pandas as pd
+
+    from canopyblocks.reference.footprint_params import FootprintReferenceParams
+    from canopyblocks.validation.footprints import validate_footprints
+
+    tiles = [sample("als/lasR_bcts_1.laz"), sample("als/lasR_bcts_2.laz")]
+    out = tmp_path / "chain"
+    r = _cli("run", *tiles, "--sensor", "gedi", "--seed", "0", "-o", out)
+    assert r.returncode == 0, r.stderr
+    stats = pd.read_csv(out / "stats.csv")
+    alls = stats[stats["group"] == "all"].set_index("metric")
+    assert alls.loc["rh98", "n"] >= 8
+    for metric in ("rh98", "ground"):
+        assert abs(alls.loc[metric, "bias"]) < 0.5, alls.loc[metric]
+    fp = gpd.read_file(out / "footprints.gpkg", layer="footprints")
+    fp.attrs["vertical_datum"] = "unknown"
+    old = validate_footprints(fp, tiles, offset=0.0,
+                              params=FootprintReferenceParams.gedi(definition="points"))
+    assert set(old.residuals["reference"]) == {"points"}
+    both = old.residuals.merge(
+        gpd.read_file(out / "validation.gpkg", layer="residuals_footprints"),
+        on="shot_number", suffixes=("_points", "_waveform"))
+    # all returns above the class-2 plane reach higher than the energy a waveform shows
+    assert (both["ref_rh98_points"] > both["ref_rh98_waveform"]).mean() > 0.8
 
 
 def _shrub_scene(path: Path, shrub_height: float = 0.6, seed: int = 0) -> None:

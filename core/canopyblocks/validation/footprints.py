@@ -208,7 +208,9 @@ def validate_footprints(
         from the energy; ``definition="points"``: against the weighted points -- ground =
         the class-2 weighted mean, RH = weighted percentiles of all returns). Slope,
         aspect, coverage and the ``outside``/``no_ground`` flags come from the points in
-        both.
+        both; with ``waveform`` the residuals also hold the points' ground and RH98
+        (``ref_ground_points``, ``ref_rh98_points``), where a waveform's lowest mode is not
+        the terrain (a ground return lost in the noise).
     photon_vertical_crs : CRS-like, optional
         Datum of the footprint elevations; default the table's ``attrs["vertical_datum"]``
         (a simulated file's: its tiles' datum), else GEDI's EPSG:4979 (WGS84 ellipsoid).
@@ -301,6 +303,9 @@ def validate_footprints(
     out["ref_coverage"] = ref["ref_coverage"].to_numpy(float)
     out["use"] = (own == FLAG_OK) & (rflag == REFERENCE_FLAG_OK)
     out["reference"] = params.definition
+    for c in ("ref_ground_points", "ref_rh98_points"):   # beside the waveform-formed values
+        if c in ref:
+            out[c] = ref[c].to_numpy(float)
     n_out = int((rflag == REFERENCE_FLAG_OUTSIDE).sum())
     if n_out:
         warnings.warn(f"{n_out} of {n} footprints lie (partly) outside the airborne tiles "
@@ -348,6 +353,8 @@ def _waveform_formed(ref: pd.DataFrame, pts: LasPoints, x: np.ndarray, y: np.nda
         params.diameter, setting=setting if setting in _SETTINGS else "a1")
     wref = waveform_reference(pts, x, y, lon, lat, form)
     ref = ref.copy()
+    ref["ref_ground_points"] = ref["ref_ground"].to_numpy(float)   # the class-2 mean
+    ref["ref_rh98_points"] = ref["ref_rh98"].to_numpy(float)
     for c in ("ref_ground", *(f"ref_rh{q}" for q in (50, 75, 90, 95, 98, 100)), "ref_cover"):
         ref[c] = wref[c].to_numpy(float)
     flag = ref["ref_flag"].to_numpy(object).copy()
