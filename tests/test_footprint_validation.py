@@ -261,12 +261,21 @@ def test_validate_footprints_is_validate(tile, tile_path, footprints, tmp_path) 
         warnings.simplefilter("ignore", FootprintOutsideWarning)
         for name, args in {"old": ["validate-footprints", *common],
                            "new": ["validate", *common],
-                           "new22": ["validate", *common, "--diameter", "22"]}.items():
+                           "new22": ["validate", *common, "--diameter", "22"],
+                           "points": ["validate", *common, "--footprint-definition",
+                                      "points", "--weighting", "gaussian"]}.items():
             out = tmp_path / f"{name}.gpkg"
             r = run_cli(*args, "-o", str(out))
             assert r.returncode == 0, r.stderr
             assert ("deprecated" in r.stderr) == (name == "old"), r.stderr
             got[name] = read_layer(out, "residuals_footprints")
+    # the weighted-points definition, one option away, is the brute force's
+    assert set(got["points"]["reference"]) == {"points"}
+    use = got["points"]["use"].to_numpy(bool)
+    assert use.sum() == 11
+    for m, off in OFFSETS.items():
+        np.testing.assert_allclose(got["points"].loc[use, f"res_{m}"], off, atol=1e-6)
+    assert set(got["new"]["reference"]) == {"waveform"}
     for name in ("new", "new22"):
         for col in ("ref_ground", "ref_rh98", "res_rh98"):
             np.testing.assert_allclose(got[name][col], got["old"][col], equal_nan=True,

@@ -37,8 +37,8 @@ def _fmt(v: float, signed: bool = False) -> str:
 def sensor_summary_lines(stats: pd.DataFrame, product: str) -> list[str]:
     """The answer first: height and ground against the reference, one line each."""
     ref = ("the airborne points under each 5 m cell's pixels" if product == "ESFL" else
-           "the footprint-matched airborne points (22 m Gaussian footprint; height "
-           "against its RH98)")
+           "the airborne points formed into the noise-free waveform pair the sensor would "
+           "record (22 m Gaussian footprint) and read by the same ground finder")
     lines = []
     for metric, words in (("height", "canopy height"), ("ground", "ground elevation")):
         row = stats[stats["metric"] == metric]

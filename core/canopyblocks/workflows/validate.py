@@ -388,6 +388,8 @@ def _validate(kind: str, table: pd.DataFrame, reference: str, dtm: Any, dsm_max:
         v = validate_sensor_footprints(table, list(points), pixels=pixels,
                                        reference_vertical_crs=reference_vertical_crs,
                                        geoid=geoid, offset=offset, points_crs=points_crs,
+                                       definition=getattr(footprint_params, "definition",
+                                                          "waveform"),
                                        progress=prog)
         return v.residuals, v.stats, v.datum
     if kind == "footprints":

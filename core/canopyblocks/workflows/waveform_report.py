@@ -40,9 +40,12 @@ def sensor_report_sections(fp: pd.DataFrame, val: Any, *, product: str, source: 
     ref = ("Reference: the airborne points under each row's pixels: ground = the class-2 "
            "TIN averaged over the pixel centres, top = the highest point, height = top - "
            "ground." if product == "ESFL" else
-           "Reference: the airborne points weighted by a Gaussian footprint of sigma 5.5 m "
-           "(22 m): ground = the weighted mean of the ground points, height = RH98 above "
-           "it, top = ground + height.")
+           "Reference: the airborne points under a Gaussian footprint of sigma 5.5 m (22 m) "
+           "formed into the visible/near-infrared pair the sensor would record (leaf and "
+           "soil reflectances, the 4 ns pulse, no noise) and read by the same ground finder "
+           "with the simulated noise level's thresholds: ground = its ground centre, "
+           "height = its tree height (first return above noise to the ground start), top = "
+           "its first return above noise.")
     stats = val.stats.copy()
     return [
         ReportSection("Inputs and method", [
