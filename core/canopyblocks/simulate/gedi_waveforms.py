@@ -24,8 +24,12 @@ where the noise-free waveform rises above the noise thresholds): ``truth_rh*`` a
 ``truth_ground``, ``truth_rh*_lowest_mode`` above ``truth_ground_lowest_mode`` (what the
 processing's RH, measured from its own lowest mode, should reproduce);
 ``truth_rh*_all_energy`` counts every return, however faint, above ``truth_ground``. And
-cover (the footprint-weighted share of returns more than 2 m above the ground, the
-statistic of the footprint-matched reference). Everything is vectorised over
+two covers: ``truth_cover`` (the footprint-weighted share of returns more than 2 m above
+the ground) and ``truth_cover_waveform`` (the noise-free waveform's, as the processing
+reads it). The noise-free waveform and its reading are those of the footprint reference
+(:mod:`~canopyblocks.reference.waveform_reference`, one function), so
+``truth_ground_lowest_mode``, ``truth_rh*_lowest_mode`` and ``truth_cover_waveform`` are
+what ``validate``/``run`` compare the footprints with. Everything is vectorised over
 footprints; a seed makes it deterministic.
 """
 
@@ -147,7 +151,8 @@ class GediSimulation:
         Per footprint: ``shot_number``, ``x``, ``y`` (tiles' CRS), ``truth_ground``
         (class-2 weighted mean), ``truth_ground_lowest_mode`` (noise-free waveform),
         ``truth_rh25`` .. ``truth_rh100`` and ``truth_rh*_lowest_mode`` (m, above each),
-        ``truth_rh*_all_energy``, ``truth_cover``, ``n_points`` (see the module notes).
+        ``truth_rh*_all_energy``, ``truth_cover``, ``truth_cover_waveform``, ``n_points``
+        (see the module notes).
     crs : str
         The tiles' CRS (WKT).
     vertical_datum : str
