@@ -205,6 +205,7 @@ GEDI_ROUND_TRIP = (
     ("rh98", "rh98", "truth_rh98", "class-2 mean"),
     ("rh98", "rh98", "truth_rh98_lowest_mode", "lowest mode"),
     ("cover", "cover", "truth_cover", "returns > 2 m above ground"),
+    ("cover", "cover", "truth_cover_waveform", "noise-free waveform"),
 )
 
 
@@ -214,9 +215,10 @@ def gedi_round_trip(path: str | os.PathLike[str], truth: pd.DataFrame) -> pd.Dat
 
     ``truth`` says which truth a row uses: ``class-2 mean`` (the weighted mean of the
     ground points; RH above it), ``lowest mode`` (the lowest mode of the noise-free
-    waveform; RH above it) or ``returns > 2 m above ground`` (cover as a fraction: the
-    weighted share of returns more than 2 m above the ground, as ``run``'s
-    footprint-matched reference states it)."""
+    waveform; RH above it: what ``run`` and ``validate`` compare footprints with),
+    ``returns > 2 m above ground`` (cover as a fraction: the weighted share of returns more
+    than 2 m above the ground) or ``noise-free waveform`` (cover of the noise-free
+    waveform as the processing reads it: ``run``'s reference)."""
     from ..readers.gedi import gedi_beams, read_gedi_l1b
     from ..waveforms.process import process_waveforms
 
