@@ -7,8 +7,14 @@ Shared by ``fit_block_sigma.py`` (calibration tiles only) and ``bench_block_sigm
 (the unseen tiles). Lights: night 0.15 MHz, day 1.5 / 3 / 4.5 MHz; strong and weak beams;
 six azimuths; block lengths 10, 25, 50 and 100 m (``s0 = 0``).
 
-``site_blocks(name, tiles, seed)`` returns one row per block with a reference:
-``site, azimuth, beam, light, length, block, hmax, ground, flag``, the quantities of
+Geolocation error: the photons are simulated at the true place and the track is reported
+``offset`` m (0, 3, 6) away from it, in a random direction drawn once per line and offset
+(its beams and lights share it; fixed seeds): the reference is taken along the reported
+line, as a user's check against airborne data would be. The block quantities do not
+change with the offset (the photons' heights and along-track distances are the same).
+
+``site_blocks(name, tiles, seed)`` returns one row per block and offset with a reference:
+``site, azimuth, beam, light, offset, length, block, hmax, ground, flag``, the quantities of
 ``blocks.uncertainty.block_features`` and ``ref_ground, ref_hmax`` (footprint-matched:
 mean footprint ground, ground + RH98), ``res_hmax = hmax - ref_hmax``,
 ``res_ground = ground - ref_ground`` (metres).
@@ -38,6 +44,7 @@ from canopyblocks.readers.las import LasPoints, read_las
 from canopyblocks.reference.footprint import FootprintCloud, block_footprint_reference
 from canopyblocks.reference.footprint_params import FootprintReferenceParams
 from canopyblocks.simulate import SimParams, line_through, simulate_photons
+from canopyblocks.simulate.engine import cloud_index
 from canopyblocks.simulate.writers import write_simulation_atl03
 
 LIGHTS: dict[str, float] = {"night": 0.15, "day 1.5 MHz": 1.5, "day 3 MHz": 3.0,
@@ -45,6 +52,7 @@ LIGHTS: dict[str, float] = {"night": 0.15, "day 1.5 MHz": 1.5, "day 3 MHz": 3.0,
 BEAMS = ("strong", "weak")
 LENGTHS = (10.0, 25.0, 50.0, 100.0)
 AZIMUTHS = (0.0, 30.0, 60.0, 90.0, 120.0, 150.0)
+OFFSETS = (0.0, 3.0, 6.0)
 DIAMETER = 13.0
 
 
@@ -58,80 +66,101 @@ def with_relief(pts: LasPoints, grade: float, amplitude: float, wavelength: floa
     return replace(pts, z=pts.z + dz)
 
 
+def _references(line, lengths: tuple[float, ...], cloud: FootprintCloud,
+                shift: tuple[float, float]) -> pd.DataFrame | None:
+    """Footprint-matched reference of every block of ``line`` moved by ``shift`` (m)."""
+    (x0, y0), (x1, y1) = line.vertices
+    dx, dy = (x1 - x0) / line.length, (y1 - y0) / line.length
+    refs = []
+    for length in lengths:
+        nb = int(line.length // length)
+        if nb < 2:  # the reference follows the line through >= 2 centres
+            continue
+        s_mid = (np.arange(nb) + 0.5) * length
+        rb = pd.DataFrame({"track": "ref", "length": length, "block": np.arange(nb),
+                           "s_start": s_mid - length / 2, "s_end": s_mid + length / 2,
+                           "x": x0 + dx * s_mid + shift[0], "y": y0 + dy * s_mid + shift[1]})
+        fp = block_footprint_reference(rb, cloud)
+        refs.append(pd.DataFrame({
+            "length": length, "block": np.arange(nb),
+            "ref_ground": fp["ref_ground"].to_numpy(float),
+            "ref_hmax": fp["ref_hmax"].to_numpy(float),
+            "ref_ok": (fp["ref_flag"] == "ok").to_numpy()}))
+    return pd.concat(refs, ignore_index=True) if refs else None
+
+
+def _track_blocks(t, lengths: tuple[float, ...], params: BlockParams, est) -> pd.DataFrame | None:
+    """The atl08 blocks of one read-back track with the sigma model's quantities."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            classes = classify_photons(t, est.atl08)
+            blocks, _ = atl08_block_table(t, params, classes)
+        except Exception:  # noqa: BLE001 -- no signal on this track
+            return None
+    rows = []
+    for length in lengths:
+        sub = blocks[blocks["length"] == length].sort_values("s_start")
+        if not len(sub):
+            continue
+        f = block_features(t, classes, sub["s_start"].to_numpy(float),
+                           sub["s_end"].to_numpy(float), sub["hmax"].to_numpy(float))
+        d = pd.DataFrame(f)
+        d["length"] = length
+        d["block"] = sub["block"].to_numpy()
+        d["ground"] = sub["ground"].to_numpy(float)
+        d["flag"] = sub["flag"].to_numpy()
+        rows.append(d)
+    return pd.concat(rows, ignore_index=True) if rows else None
+
+
 def site_blocks(name: str, tiles: tuple[Path, ...], seed: int, *,
                 azimuths: tuple[float, ...] = AZIMUTHS,
                 lengths: tuple[float, ...] = LENGTHS,
+                offsets: tuple[float, ...] = OFFSETS,
                 relief: tuple[float, float, float] | None = None,
                 cache: str | os.PathLike[str] | None = None) -> pd.DataFrame:
-    """Blocks of every (azimuth, beam, light) track of a site (see the module notes);
-    ``relief``: (grade, amplitude m, wavelength m) of :func:`with_relief`; read from /
-    written to ``cache`` (a parquet file) when given."""
+    """Blocks of every (azimuth, beam, light) track of a site, reported at every offset
+    (see the module notes); ``relief``: (grade, amplitude m, wavelength m) of
+    :func:`with_relief`; read from / written to ``cache`` (a parquet file) when given."""
     if cache is not None and Path(cache).exists():
         return pd.read_parquet(cache)
     pts = read_las([str(t) for t in tiles])
     if relief is not None:
         pts = with_relief(pts, *relief)
     cloud = FootprintCloud(pts, FootprintReferenceParams())
+    index = cloud_index(pts, SimParams())
     est = preset("atl08")
     params = BlockParams(lengths=tuple(lengths), s0=0.0)
     frames = []
     with tempfile.TemporaryDirectory() as tmp:
         for i, az in enumerate(azimuths):
-            line = line_through(pts.bounds, az, inset=DIAMETER / 2 + 3.0)
-            (x0, y0), (x1, y1) = line.vertices
-            dx, dy = (x1 - x0) / line.length, (y1 - y0) / line.length
-            refs = []
-            for length in lengths:
-                nb = int(line.length // length)
-                if nb < 2:  # the reference follows the line through >= 2 centres
-                    continue
-                s_mid = (np.arange(nb) + 0.5) * length
-                rb = pd.DataFrame({"track": "ref", "length": length, "block": np.arange(nb),
-                                   "s_start": s_mid - length / 2, "s_end": s_mid + length / 2,
-                                   "x": x0 + dx * s_mid, "y": y0 + dy * s_mid})
-                fp = block_footprint_reference(rb, cloud)
-                refs.append(pd.DataFrame({
-                    "length": length, "block": np.arange(nb),
-                    "ref_ground": fp["ref_ground"].to_numpy(float),
-                    "ref_hmax": fp["ref_hmax"].to_numpy(float),
-                    "ref_ok": (fp["ref_flag"] == "ok").to_numpy()}))
-            if not refs:
+            line = line_through(pts.bounds, az, inset=DIAMETER / 2 + 3.0 + max(offsets))
+            rng = np.random.default_rng([seed, i, 7])
+            refs = {}
+            for off in offsets:
+                ang = rng.uniform(0.0, 2 * np.pi)
+                refs[off] = _references(line, lengths, cloud,
+                                        (off * np.cos(ang), off * np.sin(ang)))
+            if refs[offsets[0]] is None:
                 continue
-            ref = pd.concat(refs, ignore_index=True)
             for beam in BEAMS:
                 for j, (light, mhz) in enumerate(LIGHTS.items()):
                     sim = simulate_photons(pts, line, SimParams(beam=beam,
                                                                 background_rate_mhz=mhz),
-                                           seed=seed + 100 * i + 10 * j + (beam == "weak"))
+                                           seed=seed + 100 * i + 10 * j + (beam == "weak"),
+                                           index=index)
                     path = write_simulation_atl03(sim, Path(tmp) / "t.h5")
                     t = read_atl03(path, "gt1r", crs=pts.crs)
-                    with warnings.catch_warnings():
-                        warnings.simplefilter("ignore")
-                        try:
-                            classes = classify_photons(t, est.atl08)
-                            blocks, _ = atl08_block_table(t, params, classes)
-                        except Exception:  # noqa: BLE001 -- no signal on this track
-                            continue
-                    rows = []
-                    for length in lengths:
-                        sub = blocks[blocks["length"] == length].sort_values("s_start")
-                        if not len(sub):
-                            continue
-                        f = block_features(t, classes, sub["s_start"].to_numpy(float),
-                                           sub["s_end"].to_numpy(float),
-                                           sub["hmax"].to_numpy(float))
-                        d = pd.DataFrame(f)
-                        d["length"] = length
-                        d["block"] = sub["block"].to_numpy()
-                        d["ground"] = sub["ground"].to_numpy(float)
-                        d["flag"] = sub["flag"].to_numpy()
-                        rows.append(d)
-                    if not rows:
+                    d0 = _track_blocks(t, lengths, params, est)
+                    if d0 is None:
                         continue
-                    d = pd.concat(rows, ignore_index=True).merge(ref, on=["length", "block"])
-                    d = d[d["ref_ok"]].drop(columns="ref_ok")
-                    d["site"], d["azimuth"], d["beam"], d["light"] = name, az, beam, light
-                    frames.append(d)
+                    for off, ref in refs.items():
+                        d = d0.merge(ref, on=["length", "block"])
+                        d = d[d["ref_ok"]].drop(columns="ref_ok")
+                        d["site"], d["azimuth"], d["beam"], d["light"] = name, az, beam, light
+                        d["offset"] = off
+                        frames.append(d)
     out = pd.concat(frames, ignore_index=True)
     out["res_hmax"] = out["hmax"] - out["ref_hmax"]
     out["res_ground"] = out["ground"] - out["ref_ground"]

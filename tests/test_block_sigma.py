@@ -213,3 +213,86 @@ def test_segment_sigma_against_atl08_on_the_real_clip() -> None:
     within = np.abs(ours - theirs) <= 2 * sig
     assert within.sum() >= 6, (ours - theirs, sig)
     assert np.all(their_unc > 5 * sig)
+
+
+def _one_block(slope: float, geo_sigma: float = np.nan) -> dict[str, np.ndarray]:
+    """block_features' quantities of one 25 m block of a strong beam at night."""
+    v = {"n_ground": 20.0, "n_canopy": 40.0, "n_top": 8.0, "n_noise": 2.0, "n_all": 62.0,
+         "n_noise_top": 0.0, "n_noise_ground": 1.0, "background": 0.0014,
+         "ground_spread": 0.5, "ground_offset": 0.05, "relief": 0.2, "slope": slope,
+         "length": 25.0, "hmax": 15.0, "canopy_gradient": 0.5, "geo_sigma": geo_sigma}
+    return {k: np.array([x], float) for k, x in v.items()}
+
+
+def test_a_20_degree_slope_adds_the_geolocation_term_to_ground_sigma() -> None:
+    """A horizontal error of G m (1 sigma) on ground sloping at 20 degrees is G tan(20 deg)
+    m of height: added in quadrature to the same block's measurement part. G is ICESat-2's
+    published 4.4 m (worst beam, Luthcke et al. 2021) when the file states none, else the
+    file's sqrt(sigma_along^2 + sigma_across^2)."""
+    from dataclasses import replace
+
+    from canopyblocks.blocks.uncertainty import FEATURES, predict_sigma
+
+    m = sigma_model()
+    ground = list(m.ground)
+    ground[FEATURES.index("log_slope")] = 0.0  # the measurement part: the same block
+    same = replace(m, ground=tuple(ground))
+    tan20 = np.tan(np.radians(20.0))
+    for geo_sigma, g in ((np.nan, 4.4), (5.0, 5.0), (np.hypot(3.0, 4.0), 5.0)):
+        _, flat = predict_sigma(_one_block(0.0, geo_sigma), same)
+        _, steep = predict_sigma(_one_block(tan20, geo_sigma), same)
+        assert flat[0] > same.floor  # (not floored)
+        assert np.sqrt(steep[0] ** 2 - flat[0] ** 2) == pytest.approx(g * tan20, rel=1e-9)
+    # the package's own model: at least the geolocation term, and more than flat
+    _, flat = predict_sigma(_one_block(0.0), m)
+    _, steep = predict_sigma(_one_block(tan20), m)
+    assert steep[0] > flat[0] and steep[0] >= 4.4 * tan20 - 1e-12
+
+
+def test_hmax_sigma_grows_with_canopy_relief_by_the_geolocation_term() -> None:
+    from dataclasses import replace
+
+    from canopyblocks.blocks.uncertainty import predict_sigma
+
+    m = replace(sigma_model(), hmax_geo=0.5)
+    flat = _one_block(0.0)
+    rough = dict(flat, canopy_gradient=np.array([2.0]))
+    h0, _ = predict_sigma(dict(flat, canopy_gradient=np.array([0.0])), m)
+    h2, _ = predict_sigma(rough, m)
+    assert np.sqrt(h2[0] ** 2 - h0[0] ** 2) == pytest.approx(0.5 * 4.4 * 2.0, rel=1e-9)
+
+
+def test_the_file_s_geolocation_uncertainty_is_read(tmp_path: Path) -> None:
+    """ATL03's geolocation/sigma_along and sigma_across (per segment) reach each photon
+    as sqrt(along^2 + across^2); fill values are not stated values; a file without them
+    gets none (the model then uses the published figure)."""
+    import h5py
+
+    from canopyblocks.blocks.atl08_classify import classify_photons
+    from canopyblocks.blocks.uncertainty import block_features
+    from canopyblocks.readers.atl03_geolocation import GEOLOCATION_SIGMA_COLUMN
+
+    pts = read_las([str(TILE)])
+    sim = simulate_photons(pts, line_through(pts.bounds, 30.0, inset=9.5), SimParams(), seed=3)
+    path = write_simulation_atl03(sim, tmp_path / "t.h5")
+    assert GEOLOCATION_SIGMA_COLUMN not in read_atl03(path, "gt1r", crs=pts.crs).extra
+    with h5py.File(path, "r+") as f:
+        g = f["gt1r/geolocation"]
+        n = g["segment_id"].shape[0]
+        along = np.full(n, 3.0, np.float32)
+        along[:2] = np.float32(3.4028235e38)  # the product's fill value
+        g["sigma_along"], g["sigma_across"] = along, np.full(n, 4.0, np.float32)
+        first = int(g["ph_index_beg"][2]) - 1  # photons of segments 0-1 come before
+    t = read_atl03(path, "gt1r", crs=pts.crs)
+    geo = t.extra[GEOLOCATION_SIGMA_COLUMN]
+    fin = np.isfinite(geo)
+    assert np.allclose(geo[fin], 5.0) and (~fin).sum() == first
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        classes = classify_photons(t)
+    s = np.array([t.s.min() + 100.0]), np.array([t.s.min() + 125.0])
+    f = block_features(t, classes, *s, np.array([10.0]))
+    assert f["geo_sigma"][0] == pytest.approx(5.0)
+    # and the real clip states 5 m along and across
+    real = read_atl03(str(A03), "gt1r").extra[GEOLOCATION_SIGMA_COLUMN]
+    assert np.allclose(real, np.hypot(5.0, 5.0))

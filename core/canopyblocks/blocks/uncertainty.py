@@ -12,11 +12,24 @@ A block's (or segment's) 1-sigma error, metres, predicted from what the block ho
 - the classifier's own surface fit: the spread of the ground photons about the surface,
 - the block's Hmax itself.
 
-The model is a log-linear one, ``log sigma = x . beta`` for each of Hmax and ground,
-fitted by Gaussian maximum likelihood on residuals against the footprint-matched
-reference (like with like, DESIGN 2.7) of simulated tracks over the **calibration tiles
-only** (``bench/fit_block_sigma.py``); the coefficients are stored in
-``uncertainty_model.json`` beside this module. Blocks whose ``hmax_sigma`` or
+Three parts, added in quadrature (m):
+
+- the measurement: a log-linear ``log s = x . beta`` on the quantities above, times a
+  tail factor per regime (strong or weak beam, night or day: a weak beam by day has
+  heavier tails, so its 1-sigma needs more than a Gaussian's width to cover 68 %);
+- the geolocation, ground: ``G x slope``, where ``G`` is the horizontal geolocation
+  1-sigma (m): the file's own ``geolocation/sigma_along`` and ``sigma_across`` (ATL03,
+  per 20 m segment), ``G = sqrt(sigma_along^2 + sigma_across^2)``, else ICESat-2's
+  published figure (:data:`PUBLISHED_GEOLOCATION_SIGMA`); the block's along-track slope
+  stands for the across-track one, which one track cannot see;
+- the geolocation, Hmax: ``k x G x canopy gradient`` (the RMS slope of the canopy-top
+  profile in 5 m steps along the block; ``k`` fitted).
+
+``beta``, ``k`` and the tail factors are fitted on residuals against the
+footprint-matched reference (like with like, DESIGN 2.7) of simulated tracks over the
+**calibration tiles only**, reported 0, 3 and 6 m off their true place
+(``bench/fit_block_sigma.py``); they are stored in ``uncertainty_model.json`` beside this
+module. Blocks whose ``hmax_sigma`` or
 ``ground_sigma`` exceed the model's thresholds are flagged ``low_confidence``; every block
 carries ``use`` (False = left out of headline statistics: not ``ok``).
 
@@ -35,6 +48,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..errors import InputError
+from ..readers.atl03_geolocation import GEOLOCATION_SIGMA_COLUMN
 from ..schema import FLAG_LOW_CONFIDENCE, FLAG_OK
 
 if TYPE_CHECKING:
@@ -43,7 +57,8 @@ if TYPE_CHECKING:
     from ..photons import PhotonTrack
     from .atl08_classify import Atl08Classes
 
-__all__ = ["SigmaModel", "FEATURES", "FLAG_LOW_CONFIDENCE", "sigma_model", "block_features",
+__all__ = ["SigmaModel", "FEATURES", "PUBLISHED_GEOLOCATION_SIGMA", "REGIMES",
+           "geolocation_sigma", "regime_of", "FLAG_LOW_CONFIDENCE", "sigma_model", "block_features",
            "design_matrix", "predict_sigma", "add_block_sigma", "add_segment_sigma",
            "mark_use", "left_out_summary"]
 
@@ -68,6 +83,14 @@ FEATURES: tuple[str, ...] = (
 
 _MODEL_FILE = Path(__file__).with_name("uncertainty_model.json")
 
+#: ICESat-2's horizontal geolocation 1-sigma, m (radial): the worst beam's remaining
+#: error after calibration, mean + 1 sigma (Luthcke et al. 2021, Earth and Space Science
+#: 8, e2020EA001494: 2.5 m for beam 6 to 4.4 m for beam 2). Used where the file states none.
+PUBLISHED_GEOLOCATION_SIGMA = 4.4
+
+#: Regimes with their own tail factor: (beam, light).
+REGIMES: tuple[str, ...] = ("strong night", "strong day", "weak night", "weak day")
+
 
 @dataclass(frozen=True)
 class SigmaModel:
@@ -87,6 +110,14 @@ class SigmaModel:
         Smallest sigma given, m.
     fitted_on : str
         What the model was fitted on.
+    hmax_tail, ground_tail : tuple of float
+        Tail factor on the measurement part per :data:`REGIMES`.
+    hmax_geo : float
+        ``k``: Hmax's geolocation term per metre of geolocation and unit canopy gradient.
+    weak_signal : float
+        Signal photons per metre of track under which a block counts as a weak beam's.
+    day_background : float
+        Background photons per m along-track per m of height over which it is daylight.
     """
 
     hmax: tuple[float, ...]
@@ -95,6 +126,11 @@ class SigmaModel:
     ground_max: float
     floor: float = 0.1
     fitted_on: str = ""
+    hmax_tail: tuple[float, ...] = (1.0, 1.0, 1.0, 1.0)
+    ground_tail: tuple[float, ...] = (1.0, 1.0, 1.0, 1.0)
+    hmax_geo: float = 1.0
+    weak_signal: float = 1.0
+    day_background: float = 0.0048
 
     def __post_init__(self) -> None:
         for name in ("hmax", "ground"):
@@ -106,17 +142,32 @@ class SigmaModel:
             if arr.shape != (len(FEATURES),) or not np.all(np.isfinite(arr)):
                 raise InputError(f"sigma model: {name} needs {len(FEATURES)} finite "
                                  f"coefficients, got {v!r}")
-        for name in ("hmax_max", "ground_max", "floor"):
+        for name in ("hmax_tail", "ground_tail"):
+            v = getattr(self, name)
+            try:
+                arr = np.asarray(v, dtype=float)
+            except (TypeError, ValueError):
+                arr = np.array([np.nan])
+            if arr.shape != (len(REGIMES),) or not np.all(arr > 0):
+                raise InputError(f"sigma model: {name} needs {len(REGIMES)} positive "
+                                 f"factors, got {v!r}")
+        for name in ("hmax_max", "ground_max", "floor", "weak_signal", "day_background"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and v > 0):
-                raise InputError(f"sigma model: {name} must be a positive number of metres, "
+                raise InputError(f"sigma model: {name} must be a positive number, "
                                  f"got {v!r}")
+        if not (isinstance(self.hmax_geo, (int, float)) and self.hmax_geo >= 0):
+            raise InputError(f"sigma model: hmax_geo must be >= 0, got {self.hmax_geo!r}")
 
     def to_json(self) -> str:
         """The model as JSON (the package file's format)."""
         return json.dumps({"features": list(FEATURES), "hmax": list(self.hmax),
                            "ground": list(self.ground), "hmax_max": self.hmax_max,
                            "ground_max": self.ground_max, "floor": self.floor,
+                           "hmax_tail": list(self.hmax_tail),
+                           "ground_tail": list(self.ground_tail), "hmax_geo": self.hmax_geo,
+                           "weak_signal": self.weak_signal,
+                           "day_background": self.day_background,
                            "fitted_on": self.fitted_on}, indent=1)
 
     @classmethod
@@ -125,9 +176,14 @@ class SigmaModel:
         d = json.loads(text)
         if tuple(d.get("features", ())) != FEATURES:
             raise InputError("sigma model: its features are not this version's; refit it")
+        if "hmax_tail" not in d:
+            raise InputError("sigma model: it has no geolocation or tail terms (an older "
+                             "version's); refit it")
         return cls(tuple(map(float, d["hmax"])), tuple(map(float, d["ground"])),
                    float(d["hmax_max"]), float(d["ground_max"]), float(d.get("floor", 0.1)),
-                   str(d.get("fitted_on", "")))
+                   str(d.get("fitted_on", "")), tuple(map(float, d["hmax_tail"])),
+                   tuple(map(float, d["ground_tail"])), float(d["hmax_geo"]),
+                   float(d["weak_signal"]), float(d["day_background"]))
 
 
 @lru_cache(maxsize=1)
@@ -201,7 +257,18 @@ def block_features(track: PhotonTrack, classes: Atl08Classes, s_start: np.ndarra
     with np.errstate(invalid="ignore"):
         above = noise & (hn > top_of_row) & (hn <= top_of_row + 10.0)
         near_ground = noise & (np.abs(hn) <= 3.0)
+    geo = track.extra.get(GEOLOCATION_SIGMA_COLUMN)
+    if geo is not None and n:
+        g = np.asarray(geo, float)[ok]
+        fin = np.isfinite(g) & (g > 0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            geo_b = (np.bincount(row[fin], g[fin], minlength=n)
+                     / np.bincount(row[fin], minlength=n))
+    else:
+        geo_b = np.full(n, np.nan)
     return {"n_ground": n_ground,
+            "canopy_gradient": _canopy_gradient(s[ok] - a[row], row, c, hn, n),
+            "geo_sigma": geo_b,
             "n_noise_top": count(above), "n_noise_ground": count(near_ground),
             "n_canopy": count((c == CLASS_CANOPY) | (c == CLASS_TOP)),
             "n_top": count(c == CLASS_TOP), "n_noise": count(c == CLASS_NOISE),
@@ -209,6 +276,70 @@ def block_features(track: PhotonTrack, classes: Atl08Classes, s_start: np.ndarra
             "ground_spread": spread, "ground_offset": np.where(n_ground > 0, m1, np.nan),
             "relief": relief, "slope": slope, "length": b - a,
             "hmax": np.asarray(hmax, float)}
+
+
+#: Step of the canopy-top profile whose slope measures a block's canopy relief, m.
+CANOPY_STEP = 5.0
+
+
+def _canopy_gradient(ds: np.ndarray, row: np.ndarray, cls: np.ndarray, height: np.ndarray,
+                     n: int) -> np.ndarray:
+    """RMS slope (m/m) of each block's canopy-top profile: the highest signal photon above
+    the ground surface in :data:`CANOPY_STEP` m steps from the block's start (ground
+    photons count as 0 m), differenced between neighbouring steps; 0 with < 2 steps."""
+    from .atl08_classify import CLASS_CANOPY, CLASS_GROUND, CLASS_TOP
+
+    sig = (cls == CLASS_GROUND) | (cls == CLASS_CANOPY) | (cls == CLASS_TOP)
+    h = np.where(cls == CLASS_GROUND, 0.0, height)[sig]
+    r = row[sig]
+    k = np.floor(ds[sig] / CANOPY_STEP).astype(np.int64)
+    ok = np.isfinite(h)
+    h, r, k = h[ok], r[ok], k[ok]
+    out = np.zeros(n)
+    if not h.size:
+        return out
+    order = np.lexsort((h, k, r))
+    r, k, h = r[order], k[order], h[order]
+    last = np.ones(r.size, bool)
+    last[:-1] = (r[1:] != r[:-1]) | (k[1:] != k[:-1])
+    r, k, h = r[last], k[last], h[last]  # one top per (block, step)
+    nb = (r[1:] == r[:-1]) & (k[1:] == k[:-1] + 1)
+    d2 = ((h[1:] - h[:-1]) / CANOPY_STEP) ** 2
+    num = np.bincount(r[1:][nb], d2[nb], minlength=n)
+    cnt = np.bincount(r[1:][nb], minlength=n)
+    np.divide(num, cnt, out=out, where=cnt > 0)
+    return np.minimum(np.sqrt(out), 3.0)
+
+
+def geolocation_sigma(f: dict[str, np.ndarray] | pd.DataFrame, model: SigmaModel | None = None
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """The geolocation parts of ``hmax_sigma, ground_sigma`` (1 sigma, m) of each interval.
+
+    Ground: ``G x slope``; Hmax: ``k x G x canopy_gradient``, where ``G`` is ``geo_sigma``
+    (the file's horizontal geolocation 1-sigma, m) or, where NaN or absent,
+    :data:`PUBLISHED_GEOLOCATION_SIGMA`, and ``slope`` the along-track slope of the ground
+    surface over the block (m/m; it stands for the unseen across-track slope too).
+    """
+    m = sigma_model() if model is None else model
+    slope = np.minimum(np.asarray(f["slope"], float), 1.0)
+    geo = np.asarray(f["geo_sigma"], float) if "geo_sigma" in f else np.full(slope.shape,
+                                                                              np.nan)
+    geo = np.where(np.isfinite(geo) & (geo > 0), geo, PUBLISHED_GEOLOCATION_SIGMA)
+    grad = np.asarray(f["canopy_gradient"], float) if "canopy_gradient" in f else 0 * slope
+    grad = np.where(np.isfinite(grad), grad, 0.0)
+    return m.hmax_geo * geo * grad, geo * np.where(np.isfinite(slope), slope, 0.0)
+
+
+def regime_of(f: dict[str, np.ndarray] | pd.DataFrame, model: SigmaModel | None = None
+              ) -> np.ndarray:
+    """Index into :data:`REGIMES` of each interval: weak when its signal photons per metre
+    are under ``model.weak_signal``, day when its background is over ``day_background``."""
+    m = sigma_model() if model is None else model
+    length = np.asarray(f["length"], float)
+    n_sig = np.asarray(f["n_ground"], float) + np.asarray(f["n_canopy"], float)
+    weak = n_sig / length < m.weak_signal
+    day = np.asarray(f["background"], float) > m.day_background
+    return 2 * weak.astype(np.int64) + day.astype(np.int64)
 
 
 def design_matrix(f: dict[str, np.ndarray] | pd.DataFrame) -> np.ndarray:
@@ -241,12 +372,18 @@ def design_matrix(f: dict[str, np.ndarray] | pd.DataFrame) -> np.ndarray:
 
 def predict_sigma(f: dict[str, np.ndarray] | pd.DataFrame, model: SigmaModel | None = None
                   ) -> tuple[np.ndarray, np.ndarray]:
-    """``hmax_sigma, ground_sigma`` (1 sigma, m) of each interval; NaN where no Hmax."""
+    """``hmax_sigma, ground_sigma`` (1 sigma, m) of each interval; NaN where no Hmax: the
+    measurement part (log-linear, times the regime's tail factor) and the geolocation part
+    (:func:`geolocation_sigma`) in quadrature."""
     m = sigma_model() if model is None else model
     x = design_matrix(f)
+    reg = regime_of(f, m)
+    gh, gg = geolocation_sigma(f, m)
     with np.errstate(over="ignore"):
-        hs = np.maximum(np.exp(np.clip(x @ np.asarray(m.hmax), -10, 10)), m.floor)
-        gs = np.maximum(np.exp(np.clip(x @ np.asarray(m.ground), -10, 10)), m.floor)
+        hs = np.exp(np.clip(x @ np.asarray(m.hmax), -10, 10)) * np.asarray(m.hmax_tail)[reg]
+        gs = np.exp(np.clip(x @ np.asarray(m.ground), -10, 10)) * np.asarray(m.ground_tail)[reg]
+    hs = np.maximum(np.hypot(hs, gh), m.floor)
+    gs = np.maximum(np.hypot(gs, gg), m.floor)
     none = ~np.isfinite(np.asarray(f["hmax"], float))
     hs[none] = np.nan
     gs[none] = np.nan

@@ -35,6 +35,7 @@ from ..progress import Progress, as_progress
 from ._common import bbox_mask, check_bbox, check_s_range, s_mask
 from ._h5 import H5File, open_h5
 from .atl03_background import read_background_rate
+from .atl03_geolocation import GEOLOCATION_SIGMA_COLUMN, segment_geolocation_sigma
 from .atl08 import BEAMS, join_atl08, read_atl08_photons
 from .photon_checks import (
     PHOTON_LIMITS,
@@ -463,6 +464,9 @@ def read_atl03(
                 if f.is_dataset(dpath) and f.shape(dpath) == (n_all,):
                     arr = f.read(dpath, np.s_[lo:hi])
                     extra[name] = arr if take is None else arr[take]
+        geo = segment_geolocation_sigma(f, beam, segs.segment_id)
+        if geo is not None:  # per photon, in the order the columns were read
+            extra[GEOLOCATION_SIGMA_COLUMN] = np.repeat(geo.astype(np.float32), segs.count)
         seg_ids = within_k = None
         if atl08 is not None:
             _rows, seg_of_ph, within = _photon_rows(segs)
