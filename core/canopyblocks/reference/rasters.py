@@ -274,7 +274,10 @@ def make_reference_rasters(
     if not np.isfinite(surf.top).any():
         raise CoverageError(f"no point of {names} lies in the grid {_fmt(grid.bounds)} "
                             f"({crs_label(target)}); check the bounds and the CRS")
-    out_crs = authority_crs(as_crs(out_wkt, "output crs"))
+    # the tiles' own CRS as their header states it (with its vertical part), or the
+    # output CRS as given when tiles were reprojected
+    reprojected = any(w is not None for w in src_wkts)
+    out_crs = authority_crs(target if reprojected else tile_crss[0])
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     stats: dict[str, Any] = {"tiles_read": len(units), "tiles": len(paths)}
@@ -294,6 +297,7 @@ def make_reference_rasters(
         else:
             dtm = surf.dtm
         write_grid(dtm_path, dtm, grid, out_crs)
+        prog.update(0.85, "dtm done")
         write_grid(max_path, surf.top, grid, out_crs)
         prog.update(0.9, "dsm_max done")
         write_grid(p90_path, surf.p90, grid, out_crs)
