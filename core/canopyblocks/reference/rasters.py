@@ -361,18 +361,19 @@ def _target_crs(infos: list[TileInfo], tile_crss: list[pyproj.CRS],
 def _boxes(infos: list[TileInfo], crss: list[pyproj.CRS],
            target: pyproj.CRS) -> list[tuple[float, float, float, float]]:
     """Each tile's extent in the output CRS (an empty tile gets an empty far box)."""
-    out = []
+    out: list[tuple[float, float, float, float]] = []
     for info, crs in zip(infos, crss):
         if info.n_points == 0:
             out.append((math.inf, math.inf, -math.inf, -math.inf))
             continue
         src = _horizontal(crs)
         if src.equals(_horizontal(target), ignore_axis_order=True):
-            out.append(tuple(info.bounds))
+            out.append(info.bounds)
         else:
             t = pyproj.Transformer.from_crs(src, _horizontal(target), always_xy=True)
-            out.append(t.transform_bounds(*info.bounds, densify_pts=21))
-    return out  # type: ignore[return-value]
+            b = t.transform_bounds(*info.bounds, densify_pts=21)
+            out.append((float(b[0]), float(b[1]), float(b[2]), float(b[3])))
+    return out
 
 
 def _area(bounds: tuple[float, float, float, float] | None, poly: Any,
