@@ -17,7 +17,12 @@ from typing import Any
 from ..progress import Progress, as_progress
 from ..reference.raster_grid import GroundMethod, ReferenceRasters
 
-__all__ = ["make_survey_rasters", "pool_runner", "read_polygon", "survey_tiles"]
+__all__ = ["CORRIDOR_MARGIN", "corridor_area", "make_survey_rasters", "pool_runner",
+           "read_polygon", "survey_tiles"]
+
+CORRIDOR_MARGIN = 30.0
+"""Metres kept around a corridor's half-width: the co-registration search (+-15 m),
+terrain slope and context for the DTM fill."""
 
 _TILE_SUFFIXES = (".las", ".laz")
 
@@ -49,6 +54,40 @@ def survey_tiles(sources: str | os.PathLike[str] | Sequence[str | os.PathLike[st
     if not out:
         raise InputError("no LAS/LAZ tile given")
     return out
+
+
+def corridor_area(blocks: Any, width: float, *, margin: float = CORRIDOR_MARGIN) -> Any:
+    """The area of interest of a block table: the union of its tracks' corridors.
+
+    Each track's (``track`` column) line through its block centres, in ``s_start`` order,
+    buffered by half the corridor width, half the longest block and ``margin`` metres
+    (the blocks' CRS).  Rasters and points are read over this area only, not over the
+    track's bounding box.
+
+    Returns
+    -------
+    shapely (Multi)Polygon, or None when no block has a finite centre.
+    """
+    import numpy as np
+    import shapely
+
+    x = np.asarray(blocks["x"], dtype=float)
+    y = np.asarray(blocks["y"], dtype=float)
+    ok = np.isfinite(x) & np.isfinite(y)
+    if not ok.any():
+        return None
+    reach = 0.5 * float(width) + 0.5 * float(np.nanmax(blocks["length"])) + float(margin)
+    tracks = (np.asarray(blocks["track"]).astype(str) if "track" in blocks
+              else np.zeros(x.size, dtype=str))
+    order = np.argsort(np.asarray(blocks["s_start"], dtype=float), kind="stable") \
+        if "s_start" in blocks else np.arange(x.size)
+    parts = []
+    for t in np.unique(tracks[ok]):  # a loop over tracks, each a vectorised buffer
+        sel = order[(tracks[order] == t) & ok[order]]
+        xy = np.unique(np.c_[x[sel], y[sel]], axis=0) if sel.size < 2 else np.c_[x[sel], y[sel]]
+        geom = shapely.LineString(xy) if len(xy) >= 2 else shapely.Point(xy[0])
+        parts.append(geom.buffer(reach))
+    return shapely.union_all(parts)
 
 
 def read_polygon(value: str | os.PathLike[str] | None) -> Any:
