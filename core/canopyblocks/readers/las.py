@@ -270,7 +270,8 @@ def read_las(
         bbox = (box[0], box[1], box[2], box[3])
     area = _prepared_area(polygon)
     if area is not None:
-        pb = tuple(float(v) for v in area.bounds)
+        b0, b1, b2, b3 = (float(v) for v in area.bounds)
+        pb = (b0, b1, b2, b3)
         bbox = pb if bbox is None else (max(bbox[0], pb[0]), max(bbox[1], pb[1]),
                                         min(bbox[2], pb[2]), min(bbox[3], pb[3]))
     given = None if crs is None else as_crs(crs, "point cloud CRS")

@@ -41,7 +41,8 @@ from .lidar_points import cell_max_and_percentile, cell_neighbourhoods
 from .raster_grid import Grid
 
 __all__ = ["TileUnit", "TileResult", "SurveyGrids", "tile_surfaces", "merge_tiles",
-           "plausible_box", "cell_stats", "make_units", "serial_runner", "Runner"]
+           "plausible_box", "cell_stats", "make_units", "serial_runner", "Runner",
+           "cloud_kind", "cloud_reader", "window_units"]
 
 Box = tuple[float, float, float, float]
 _CHUNK = 2_000_000
@@ -67,6 +68,11 @@ class TileUnit:
         The area polygon (output CRS) widened by ``r``: points outside are dropped.
     ground : bool
         Whether to compute the DTM mean (class 2) too.
+    kind : {"las", "copc", "ept"}
+        A LAS/LAZ tile, or a window of one cloud-optimised source (``path``).
+    cells : (row0, row1, col0, col1) or None
+        For a window: the grid cells it owns (half-open ranges); it reads the points
+        within ``r`` of them and finishes exactly those cells.
     """
 
     path: str
@@ -77,6 +83,8 @@ class TileUnit:
     dst_wkt: str | None = None
     area_wkb: bytes | None = None
     ground: bool = True
+    kind: str = "las"
+    cells: tuple[int, int, int, int] | None = None
 
 
 @dataclass(frozen=True)
@@ -236,11 +244,99 @@ def _read_tile(unit: TileUnit) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     return pts, tally
 
 
+def cloud_kind(source: object) -> str | None:
+    """``"copc"`` for a ``*.copc.laz`` path/URL, ``"ept"`` for an ``ept.json`` one, else None."""
+    text = str(source).split("?", 1)[0].rstrip("/").lower()
+    if text.endswith(".copc.laz"):
+        return "copc"
+    if text.endswith("/ept.json") or text == "ept.json":
+        return "ept"
+    return None
+
+
+def cloud_reader(kind: str) -> tuple[Callable[..., Any], Callable[..., Any]]:
+    """``(extent, read)`` of the COPC or EPT reader, imported when first needed."""
+    from ..errors import DependencyError
+
+    try:
+        if kind == "copc":
+            from ..readers.copc import copc_extent, read_copc
+            return copc_extent, read_copc
+        from ..readers.ept import ept_extent, read_ept
+        return ept_extent, read_ept
+    except ImportError as exc:
+        raise DependencyError(f"reading a {kind.upper()} source needs canopyblocks' "
+                              f"{kind} reader ({exc}); update canopyblocks") from None
+
+
+def window_units(source: str, kind: str, grid: Grid, extent: Box, *, block: int = 512,
+                 area_wkb: bytes | None, ground: bool) -> list[TileUnit]:
+    """Units of ``block`` x ``block`` cells over the part of ``grid`` the source covers."""
+    r = grid.radius
+    res = grid.resolution
+    c0 = max(0, math.floor((extent[0] - r - grid.origin_x) / res))
+    c1 = min(grid.width, math.ceil((extent[2] + r - grid.origin_x) / res))
+    r0 = max(0, math.floor((grid.top_y - extent[3] - r) / res))
+    r1 = min(grid.height, math.ceil((grid.top_y - extent[1] + r) / res))
+    units = []
+    for row in range(r0, r1, block):  # a loop over windows (a few per km2 of survey)
+        for col in range(c0, c1, block):
+            box = (grid.origin_x + col * res, grid.top_y - min(row + block, r1) * res,
+                   grid.origin_x + min(col + block, c1) * res, grid.top_y - row * res)
+            units.append(TileUnit(path=source, grid=grid, box=box, neighbours=(),
+                                  area_wkb=area_wkb, ground=ground, kind=kind,
+                                  cells=(row, min(row + block, r1), col, min(col + block, c1))))
+    return units
+
+
+def _window_surfaces(unit: TileUnit) -> TileResult:
+    """A window of a COPC/EPT source: its points within ``r`` of its cells, its cells."""
+    import shapely
+
+    from ..errors import NoUsableDataError
+
+    _, read = cloud_reader(unit.kind)
+    g = unit.grid
+    r = g.radius
+    b = unit.box
+    try:
+        pts = read(unit.path, bounds=(b[0] - r, b[1] - r, b[2] + r, b[3] + r),
+                   polygon=None if unit.area_wkb is None else shapely.from_wkb(unit.area_wkb))
+        x, y, z = (np.asarray(a, dtype=np.float64) for a in (pts.x, pts.y, pts.z))
+        c = np.asarray(pts.classification, dtype=np.uint8)
+    except NoUsableDataError:
+        x = y = z = np.empty(0)
+        c = np.empty(0, np.uint8)
+    heights = HeightTally()
+    heights.add(z, c)
+    noise = np.isin(c, _NOISE)
+    cell, idx = cell_neighbourhoods(x[~noise], y[~noise], origin_x=g.origin_x, top_y=g.top_y,
+                                    resolution=g.resolution, width=g.width, height=g.height,
+                                    radius=r)
+    assert unit.cells is not None
+    row, col = cell // g.width, cell % g.width
+    r0, r1, c0, c1 = unit.cells
+    mine = (row >= r0) & (row < r1) & (col >= c0) & (col < c1)
+    zk, gk = z[~noise][idx[mine]], (c[~noise] == 2)[idx[mine]]
+    cells, dtm, top, p90 = cell_stats(cell[mine], zk, gk, g.width * g.height, unit.ground)
+    nan = float("nan")
+    ext = ((float(x.min()), float(y.min()), float(x.max()), float(y.max())) if x.size
+           else (nan, nan, nan, nan))
+    e = np.empty(0)
+    return TileResult(path=unit.path, cells=cells, dtm=dtm, top=top, p90=p90,
+                      pair_cell=np.empty(0, np.int64), pair_z=e, pair_ground=np.empty(0, bool),
+                      n_points=int(x.size), n_noise=int(noise.sum()),
+                      n_ground=int(np.count_nonzero(c == 2)), header_count=int(x.size),
+                      bounds=ext, header_bounds=ext, heights=heights)
+
+
 def tile_surfaces(unit: TileUnit) -> TileResult:
     """One unit: read the tile, finish its own cells, return the shared pairs.
 
     Runs in a worker process; everything it needs is in ``unit`` (picklable).
     """
+    if unit.kind != "las":
+        return _window_surfaces(unit)
     pts, t = _read_tile(unit)
     g = unit.grid
     cell, idx = cell_neighbourhoods(pts["x"], pts["y"], origin_x=g.origin_x, top_y=g.top_y,

@@ -34,12 +34,10 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import math
 import os
 import tempfile
 import warnings
 from collections.abc import Sequence
-from dataclasses import replace
 from pathlib import Path
 from typing import Any, cast
 
@@ -50,26 +48,21 @@ from ..atomic import atomic_output
 from ..errors import (
     CanopyBlocksWarning,
     CoverageError,
-    CRSError,
     FileFormatError,
     InputError,
     NoUsableDataError,
     PdalError,
 )
-from ..geo import as_crs, require_metric_crs
 from ..progress import Progress, as_progress
 from ..readers.cloud_checks import warn_if_normalised
-from ..readers.las_header import check_header_extent, check_las_file
-from ..readers.las_summary import LasSummary, las_summary
+from ..readers.las_header import check_header_extent
 from .dtm_fill import fill_and_write_dtm, rasterio_module, write_grid
 from .pdal import (
-    TileInfo,
     expand_readers,
     find_pdal,
     insert_after_readers,
     load_pipeline,
     run_pipeline,
-    tile_info,
     write_pipeline,
 )
 from .raster_grid import (
@@ -78,19 +71,17 @@ from .raster_grid import (
     GroundMethod,
     RasterParams,
     ReferenceRasters,
-    authority_crs,
     check_tile_crs,
     crs_label,
 )
 from .raster_grid import fmt_bounds as _fmt
-from .raster_grid import horizontal_crs as _horizontal
+from .raster_plan import _as_polygon, _names, cloud_plan, las_plan
 from .raster_tiles import (
     Runner,
     SurveyGrids,
     TileResult,
-    make_units,
+    cloud_kind,
     merge_tiles,
-    plausible_box,
     serial_runner,
     tile_surfaces,
 )
@@ -102,51 +93,6 @@ log = logging.getLogger(__name__)
 
 _SMRF_BUFFER = 20.0  # metres of extra context around the grid for SMRF's morphology
 _MAX_CELLS = 100_000_000
-
-
-def header_info(path: str | os.PathLike[str]) -> TileInfo:
-    """A tile's count, extent and CRS from its header alone (laspy; no point is read).
-
-    The same fields as :func:`~canopyblocks.reference.pdal.tile_info` without starting
-    PDAL (which reads every point for its summary); ``crs_wkt`` is None (the CRS is read
-    by :func:`~canopyblocks.reference.raster_grid.check_tile_crs`).
-    """
-    from ..readers.las_crs import _laspy
-
-    p = Path(path)
-    if not p.is_file():
-        raise FileFormatError(f"point-cloud file {p} does not exist")
-    check_las_file(p)
-    try:
-        with _laspy().open(p) as reader:
-            h = reader.header
-            n = int(h.point_count)
-            bounds = (float(h.mins[0]), float(h.mins[1]), float(h.maxs[0]), float(h.maxs[1]))
-            z_range = (float(h.mins[2]), float(h.maxs[2]))
-    except FileFormatError:
-        raise
-    except Exception as exc:  # laspy raises several types on a damaged header
-        raise FileFormatError(f"{p}: cannot read its header ({exc}); the file is damaged "
-                              "or not LAS/LAZ") from None
-    return TileInfo(path=p, n_points=n, bounds=bounds, z_range=z_range, crs_wkt=None,
-                    horizontal_wkt=None, dimensions=(), pdal_version="")
-
-
-def _trust_points(info: TileInfo, summary: LasSummary, resolution: float) -> TileInfo:
-    """``info`` with the extent and count of the points when the header disagrees."""
-    # a plausible header extent that disagrees with the points raises (it may be the
-    # scale/offset that is corrupt); an impossible one (NaN, 1e300, swapped) is replaced
-    agree = summary.n_points == 0 or check_header_extent(
-        info.path, summary.header_bounds, summary.bounds, tolerance=max(resolution, 1.0))
-    if not agree or summary.n_points != info.n_points:
-        warnings.warn(
-            f"tile {info.path}: its header says {info.n_points} points in "
-            f"{_fmt(summary.header_bounds)}, its points are {summary.n_points} in "
-            f"{_fmt(summary.bounds)}; using the points (the header is wrong: rewrite the file "
-            "with a LAS tool to fix it)", CanopyBlocksWarning, stacklevel=3)
-        return replace(info, bounds=summary.bounds, n_points=summary.n_points,
-                       z_range=summary.z_range)
-    return info
 
 
 def _intersects(a: Sequence[float], b: Sequence[float]) -> bool:
@@ -232,40 +178,13 @@ def make_reference_rasters(
     smrf = params.ground == "smrf"
     exe = find_pdal(pdal) if smrf else None
     prog.update(0.0, "reading tile headers")
-    infos = [tile_info(p, pdal=exe) if exe is not None else header_info(p) for p in paths]
-    infos = [_fix_broken_header(i, params.resolution) for i in infos]
-    names = _names(paths)
-    target_in = None if crs is None else require_metric_crs(as_crs(crs, "output crs"),
-                                                            "output crs")
-    checked = [check_tile_crs(i, target_in) for i in infos]
-    tile_crss = [c for c, _ in checked]
-    target = _target_crs(infos, tile_crss, target_in)
-    src_wkts = [None if _horizontal(c).equals(_horizontal(target), ignore_axis_order=True)
-                else _horizontal(c).to_wkt() for c in tile_crss]
-    out_wkt = target.to_wkt()
-    boxes = _boxes(infos, tile_crss, target)
-    live = [b for b, i in zip(boxes, infos) if i.n_points > 0]
-    if not live:
-        raise NoUsableDataError(f"the tiles {names} hold no points")
-    arr = np.asarray(live)
-    union = (float(arr[:, 0].min()), float(arr[:, 1].min()), float(arr[:, 2].max()),
-             float(arr[:, 3].max()))
-    area = _area(params.bounds, area_poly, union, target)
-    grid = Grid.from_bounds(area, params.resolution, out_wkt)
-    if grid.width * grid.height > _MAX_CELLS:
-        raise InputError(f"the grid over {names} would have {grid.width:.3g} x "
-                         f"{grid.height:.3g} cells at {params.resolution:g} m (limit "
-                         f"{_MAX_CELLS:.0e}); use a coarser resolution or smaller bounds")
-    log.info("grid %d x %d cells of %g m at (%.2f, %.2f)", grid.width, grid.height,
-             grid.resolution, grid.origin_x, grid.origin_y)
-    tol = max(params.resolution, 1.0)
-    wide = [(b[0] - tol, b[1] - tol, b[2] + tol, b[3] + tol) for b in boxes]
-    area_wkb = None if area_poly is None else area_poly.buffer(grid.radius).wkb
-    units = make_units(paths, wide, grid, src_wkts=src_wkts, dst_wkt=_horizontal(target).to_wkt(),
-                       area_wkb=area_wkb, ground=not smrf)
-    if not units:
-        raise CoverageError(f"no tile of {names} meets the area {_fmt(grid.bounds)} "
-                            f"({crs_label(target)}); check the bounds and the CRS")
+    kind = cloud_kind(las_paths[0]) if len(las_paths) == 1 else None
+    if kind is None and any(cloud_kind(p) for p in las_paths):
+        raise InputError("a COPC or EPT source is read alone: give it without other tiles "
+                         "or sources (or merge them first)")
+    plan = (cloud_plan(str(las_paths[0]), kind, params, crs, area_poly) if kind is not None
+            else las_plan(paths, params, crs, area_poly, exe))
+    units, grid, names, target = plan.units, plan.grid, plan.names, plan.target
     results = _run(units, runner, prog.sub(0.02, 0.8))
     _check_tally(results, params, names)
     surf = merge_tiles(results, grid, ground=not smrf)
@@ -274,13 +193,12 @@ def make_reference_rasters(
     if not np.isfinite(surf.top).any():
         raise CoverageError(f"no point of {names} lies in the grid {_fmt(grid.bounds)} "
                             f"({crs_label(target)}); check the bounds and the CRS")
-    # the tiles' own CRS as their header states it (with its vertical part), or the
-    # output CRS as given when tiles were reprojected
-    reprojected = any(w is not None for w in src_wkts)
-    out_crs = authority_crs(target if reprojected else tile_crss[0])
+    out_crs = plan.out_crs
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    stats: dict[str, Any] = {"tiles_read": len(units), "tiles": len(paths)}
+    stats: dict[str, Any] = {"tiles_read": len(units), "tiles": len(paths), "units": len(units)}
+    if kind is not None:
+        stats["tiles_read"], stats["tiles"] = 0, 0
     with contextlib.ExitStack() as stack:
         dtm_path = stack.enter_context(atomic_output(out / "dtm.tif"))
         max_path = stack.enter_context(atomic_output(out / "dsm_max.tif"))
@@ -289,8 +207,8 @@ def make_reference_rasters(
         if smrf:
             assert exe is not None
             used = [u.path for u in units]
-            _smrf_dtm(used, checked, [Path(p) for p in used], paths, grid, target,
-                      any(w is not None for w in src_wkts), exe, dtm_path, prog.sub(0.8, 0.9))
+            _smrf_dtm(used, plan.checked, [Path(p) for p in used], paths, grid, target,
+                      plan.reprojected, exe, dtm_path, prog.sub(0.8, 0.9))
             dtm = _read_band(dtm_path)
             if area_poly is not None:
                 dtm[~_inside(grid, area_poly)] = np.nan
@@ -310,88 +228,9 @@ def make_reference_rasters(
     prog.report(1.0, "done")  # outputs are committed: too late to cancel
     return ReferenceRasters(dtm=out / "dtm.tif", dsm_max=out / "dsm_max.tif",
                             dsm_p90=out / "dsm_p90.tif", grid=grid, crs=out_crs,
-                            tiles=tuple(paths), ground=params.ground,
-                            pdal_version=infos[0].pdal_version,
+                            tiles=() if kind is not None else tuple(paths),
+                            ground=params.ground, pdal_version=plan.pdal_version,
                             dtm_fill_mask=out / "dtm_fill_mask.tif", stats=stats)
-
-
-def _names(paths: Sequence[Path]) -> str:
-    """The tiles for a message: all of them when few, else the first and a count."""
-    if len(paths) <= 4:
-        return ", ".join(map(str, paths))
-    return f"{paths[0]}, {paths[1]} and {len(paths) - 2} more"
-
-
-def _as_polygon(polygon: object) -> Any:
-    """A shapely (multi)polygon from a geometry or WKT; None for None."""
-    if polygon is None:
-        return None
-    import shapely
-
-    geom = shapely.from_wkt(polygon) if isinstance(polygon, str) else polygon
-    if not isinstance(geom, shapely.Geometry) or geom.is_empty or \
-            geom.geom_type not in ("Polygon", "MultiPolygon"):
-        raise InputError(f"polygon must be a polygon or multipolygon (shapely or WKT) in the "
-                         f"output CRS; got {str(polygon)[:60]!r}")
-    return geom
-
-
-def _fix_broken_header(info: TileInfo, resolution: float) -> TileInfo:
-    """A tile whose header extent cannot be right gets its points' extent (one extra
-    pass over that tile only), with the warning the header deserves."""
-    if info.n_points == 0 or plausible_box(info.bounds):
-        return info
-    return _trust_points(info, las_summary(info.path), resolution)
-
-
-def _target_crs(infos: list[TileInfo], tile_crss: list[pyproj.CRS],
-                target_in: pyproj.CRS | None) -> pyproj.CRS:
-    if target_in is not None:
-        return target_in
-    first = tile_crss[0]
-    for info, c in zip(infos[1:], tile_crss[1:]):
-        if not _horizontal(c).equals(_horizontal(first), ignore_axis_order=True):
-            raise CRSError(f"tiles are in different CRSs: {infos[0].path} in "
-                           f"{crs_label(first)}, {info.path} in {crs_label(c)}; give --crs "
-                           "EPSG:XXXX (rasters; crs=... in Python) to reproject all of them "
-                           "to one")
-    return require_metric_crs(first, f"CRS of tile {infos[0].path}")
-
-
-def _boxes(infos: list[TileInfo], crss: list[pyproj.CRS],
-           target: pyproj.CRS) -> list[tuple[float, float, float, float]]:
-    """Each tile's extent in the output CRS (an empty tile gets an empty far box)."""
-    out: list[tuple[float, float, float, float]] = []
-    for info, crs in zip(infos, crss):
-        if info.n_points == 0:
-            out.append((math.inf, math.inf, -math.inf, -math.inf))
-            continue
-        src = _horizontal(crs)
-        if src.equals(_horizontal(target), ignore_axis_order=True):
-            out.append(info.bounds)
-        else:
-            t = pyproj.Transformer.from_crs(src, _horizontal(target), always_xy=True)
-            b = t.transform_bounds(*info.bounds, densify_pts=21)
-            out.append((float(b[0]), float(b[1]), float(b[2]), float(b[3])))
-    return out
-
-
-def _area(bounds: tuple[float, float, float, float] | None, poly: Any,
-          union: tuple[float, float, float, float],
-          target: pyproj.CRS) -> tuple[float, float, float, float]:
-    """The grid's area: the tiles' union, cut to the bounds and the polygon's box."""
-    area = union
-    for what, box in (("bounds", bounds), ("polygon", None if poly is None else poly.bounds)):
-        if box is None:
-            continue
-        if not _intersects(box, area):
-            raise CoverageError(
-                f"the {what} {_fmt(box)} do not overlap the tiles (their union is "
-                f"{_fmt(union)} in {crs_label(target)}); give an area over the tiles, in "
-                "the output CRS")
-        area = (max(area[0], box[0]), max(area[1], box[1]), min(area[2], box[2]),
-                min(area[3], box[3]))
-    return bounds if bounds is not None and poly is None else area
 
 
 def _run(units: list[Any], runner: Runner | None, prog: Progress) -> list[TileResult]:
