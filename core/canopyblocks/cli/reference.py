@@ -61,7 +61,7 @@ def rasters_cmd(ctx: click.Context, las: tuple[str, ...], out_dir: str, resoluti
     quiet = bool((ctx.obj or {}).get("quiet", False))
     with new_files_removed_on_failure(out_dir), progress_bar("rasters", quiet=quiet) as progress:
         result = make_survey_rasters(
-            [Path(p) for p in las], Path(out_dir), resolution=resolution, crs=crs,
+            list(las), Path(out_dir), resolution=resolution, crs=crs,
             bounds=bounds or None, polygon=read_polygon(polygon),
             ground="smrf" if smrf else "class2", pdal=pdal_exe, backend=backend,
             workers=workers, scheduler=scheduler, progress=progress)

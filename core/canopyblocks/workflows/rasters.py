@@ -28,8 +28,10 @@ _TILE_SUFFIXES = (".las", ".laz")
 
 
 def survey_tiles(sources: str | os.PathLike[str] | Sequence[str | os.PathLike[str]]
-                 ) -> list[Path]:
-    """The LAS/LAZ tiles of ``sources``: files as given, folders expanded (sorted).
+                 ) -> list[Any]:
+    """The LAS/LAZ tiles of ``sources``: files as given, folders expanded (sorted); a COPC
+    file or EPT dataset (``*.copc.laz``, ``ept.json``; a path or an ``https://``/``s3://``
+    URL) as its string.
 
     Raises
     ------
@@ -37,10 +39,14 @@ def survey_tiles(sources: str | os.PathLike[str] | Sequence[str | os.PathLike[st
         A folder holding no ``.las``/``.laz`` file, or no source at all.
     """
     from ..errors import InputError
+    from ..reference.raster_tiles import cloud_kind
 
     items = [sources] if isinstance(sources, (str, os.PathLike)) else list(sources)
-    out: list[Path] = []
+    out: list[Any] = []
     for item in items:
+        if cloud_kind(item) is not None or "://" in str(item):
+            out.append(str(item))  # a COPC/EPT source (a URL stays a string)
+            continue
         p = Path(item)
         if p.is_dir():
             found = sorted(q for q in p.iterdir()
