@@ -108,19 +108,6 @@ def test_raster_pipelines_run_as_they_are(name: str, tmp_path: Path, pdal_bin: s
         assert z[g].min() - 1e-3 <= valid.min() and valid.max() <= z[g].max() + 1e-3
 
 
-def test_points_for_p90_runs_as_it_is(tmp_path: Path, pdal_bin: str, sample) -> None:  # noqa: ANN001
-    out = tmp_path / "points.csv"
-    r = _cli(pdal_bin, "points_for_p90", f"--readers.las.filename={sample(TILE)}",
-             f"--writers.text.filename={out}", f"--filters.crop.bounds={CROP}")
-    assert r.returncode == 0, r.stderr
-    got = np.loadtxt(out, delimiter=",", skiprows=1)
-    x, y, z, c = _points(sample(TILE))
-    keep = ((x >= BOX[0]) & (x <= BOX[2]) & (y >= BOX[1]) & (y <= BOX[3])
-            & (c != 7) & (c != 18))
-    assert got.shape == (keep.sum(), 3)
-    np.testing.assert_allclose(np.sort(got[:, 2]), np.sort(z[keep]), atol=1e-6)
-
-
 def test_crop_corridor_runs_as_it_is(tmp_path: Path, pdal_bin: str, sample) -> None:  # noqa: ANN001
     shapely = pytest.importorskip("shapely")
     # a 2 m wide corridor along a diagonal line, as a WKT polygon

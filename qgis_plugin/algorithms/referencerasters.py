@@ -15,6 +15,7 @@ from qgis.core import (
     QgsProcessingParameterCrs,
     QgsProcessingParameterEnum,
     QgsProcessingParameterExtent,
+    QgsProcessingParameterFile,
     QgsProcessingParameterFolderDestination,
     QgsProcessingParameterMultipleLayers,
     QgsProcessingParameterNumber,
@@ -23,7 +24,7 @@ from qgis.core import (
 from ..core_bridge import import_core
 from ..layers import pyproj_crs
 from ..styles import load_raster_on_completion
-from .base import SEED_001, CanopyBlocksAlgorithm, input_label, las_files
+from .base import SEED_001, CanopyBlocksAlgorithm, input_label
 
 __all__ = ["ReferenceRastersAlgorithm", "pdal_status"]
 
@@ -81,6 +82,7 @@ class ReferenceRastersAlgorithm(CanopyBlocksAlgorithm):
     )
 
     INPUT = "INPUT"
+    SURVEY = "SURVEY"
     RESOLUTION = "RESOLUTION"
     GROUND = "GROUND"
     CRS = "CRS"
@@ -93,7 +95,10 @@ class ReferenceRastersAlgorithm(CanopyBlocksAlgorithm):
 
     def initAlgorithm(self, config: dict[str, Any] | None = None) -> None:  # noqa: N802
         self.addParameter(QgsProcessingParameterMultipleLayers(
-            self.INPUT, "LAS/LAZ files", QgsProcessing.TypeFile))
+            self.INPUT, "LAS/LAZ files", QgsProcessing.TypeFile, optional=True))
+        self.addParameter(QgsProcessingParameterFile(
+            self.SURVEY, "Folder of LAS/LAZ tiles (a survey; read tile by tile)",
+            behavior=QgsProcessingParameterFile.Folder, optional=True))
         self.addParameter(QgsProcessingParameterNumber(
             self.RESOLUTION, "Cell size (m)", type=QgsProcessingParameterNumber.Double,
             defaultValue=2.0, minValue=0.01))
@@ -125,8 +130,13 @@ class ReferenceRastersAlgorithm(CanopyBlocksAlgorithm):
 
     def execute(self, parameters: dict[str, Any], context: QgsProcessingContext,
                 feedback: QgsProcessingFeedback, progress: Any) -> dict[str, Any]:
-        rasters = import_core("canopyblocks.reference.rasters")
-        files = las_files(self, parameters, self.INPUT, context)
+        rasters = import_core("canopyblocks.workflows.rasters")
+        folder = self.parameterAsFile(parameters, self.SURVEY, context)
+        files = [str(f) for f in self.parameterAsFileList(parameters, self.INPUT, context)]
+        if folder:
+            files.append(folder)
+        if not files:
+            raise QgsProcessingException("no LAS/LAZ file or folder of tiles given")
         out_dir = self.parameterAsString(parameters, self.OUTPUT_DIR, context)
         qcrs = self.parameterAsCrs(parameters, self.CRS, context)
         crs = pyproj_crs(qcrs) if qcrs.isValid() else None
@@ -138,14 +148,16 @@ class ReferenceRastersAlgorithm(CanopyBlocksAlgorithm):
                    self.parameterAsExtent(parameters, self.EXTENT, context))
             if not ext.isNull():
                 bounds = (ext.xMinimum(), ext.yMinimum(), ext.xMaximum(), ext.yMaximum())
-        made = rasters.make_reference_rasters(
-            files, out_dir,
+        # tiles one after the other: QGIS's interpreter cannot start worker processes
+        made = rasters.make_survey_rasters(
+            files, out_dir, backend="serial",
             resolution=self.parameterAsDouble(parameters, self.RESOLUTION, context),
             crs=crs, bounds=bounds,
             ground=GROUND_OPTIONS[self.parameterAsEnum(parameters, self.GROUND, context)][1],
             progress=progress)
         filled, cells = made.stats.get("dtm_filled", 0), made.stats.get("cells", 0)
-        feedback.pushInfo(f"PDAL {made.pdal_version}: {made.grid.width} x {made.grid.height} "
+        feedback.pushInfo(f"{made.stats.get('tiles_read', 0)} of {len(made.tiles)} tiles read: "
+                          f"{made.grid.width} x {made.grid.height} "
                           f"cells of {made.grid.resolution:g} m; DTM cells filled by "
                           f"interpolation: {filled} of {cells}")
         source = input_label(files)

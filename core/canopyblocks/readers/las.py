@@ -211,6 +211,7 @@ def read_las(
     crs: pyproj.CRS | str | int | None = None,
     exclude_classes: Sequence[int] = (),
     progress: Progress | None = None,
+    polygon: Any = None,
 ) -> LasPoints:
     """Read points from one or several LAS/LAZ tiles.
 
@@ -229,6 +230,10 @@ def read_las(
         ASPRS classes to drop while reading (e.g. ``(7, 18)`` for noise).
     progress : Progress, optional
         Reports per tile/chunk; cancellable.
+    polygon : shapely (Multi)Polygon, optional
+        Keep only points inside (a corridor, footprints' discs), files' CRS; tiles whose
+        header extent misses it are skipped without decompressing.  With ``bbox``, both
+        apply.
 
     Returns
     -------
@@ -263,6 +268,12 @@ def read_las(
         if len(box) != 4 or not (box[0] <= box[2] and box[1] <= box[3]):
             raise InputError(f"bbox must be (xmin, ymin, xmax, ymax) with min <= max; got {box}")
         bbox = (box[0], box[1], box[2], box[3])
+    area = _prepared_area(polygon)
+    if area is not None:
+        b0, b1, b2, b3 = (float(v) for v in area.bounds)
+        pb = (b0, b1, b2, b3)
+        bbox = pb if bbox is None else (max(bbox[0], pb[0]), max(bbox[1], pb[1]),
+                                        min(bbox[2], pb[2]), min(bbox[3], pb[3]))
     given = None if crs is None else as_crs(crs, "point cloud CRS")
     excl = np.asarray(list(exclude_classes), dtype=np.int64)
     used_crs: pyproj.CRS | None = None
@@ -313,7 +324,8 @@ def read_las(
                          and hdr_ext[0] <= hdr_ext[2] and hdr_ext[1] <= hdr_ext[3])
             if bbox is not None and plausible:  # a header that cannot be right skips nothing
                 if (maxs[0] < bbox[0] or mins[0] > bbox[2] or maxs[1] < bbox[1]
-                        or mins[1] > bbox[3]):
+                        or mins[1] > bbox[3]) or (area is not None and
+                                                  not _meets(area, hdr_ext)):
                     log.debug("%s: outside the bbox, skipped", path)
                     offset += int(header.point_count)
                     continue
@@ -323,7 +335,8 @@ def read_las(
             heights = HeightTally()
             try:
                 for chunk in reader.chunk_iterator(_CHUNK):
-                    e = _append_chunk(chunk, parts, bbox, excl, offset + done, heights)
+                    e = _append_chunk(chunk, parts, bbox, excl, offset + done, heights,
+                                      area)
                     ext = [min(ext[0], e[0]), min(ext[1], e[1]), max(ext[2], e[2]),
                            max(ext[3], e[3])]
                     done += len(chunk)
@@ -360,9 +373,31 @@ def read_las(
     return pts
 
 
+def _prepared_area(polygon: Any) -> Any:
+    """``polygon`` (shapely or WKT) checked and prepared for fast point tests; None."""
+    if polygon is None:
+        return None
+    import shapely
+
+    geom = shapely.from_wkt(polygon) if isinstance(polygon, str) else polygon
+    if not isinstance(geom, shapely.Geometry) or geom.is_empty or \
+            geom.geom_type not in ("Polygon", "MultiPolygon"):
+        raise InputError(f"read_las: polygon must be a polygon or multipolygon in the files' "
+                         f"CRS; got {str(polygon)[:60]!r}")
+    shapely.prepare(geom)
+    return geom
+
+
+def _meets(area: Any, box: tuple[float, float, float, float]) -> bool:
+    import shapely
+
+    return bool(shapely.intersects(area, shapely.box(*box)))
+
+
 def _append_chunk(chunk: Any, parts: dict[str, list[np.ndarray]],
                   bbox: tuple[float, float, float, float] | None, excl: np.ndarray,
-                  first_row: int, heights: HeightTally) -> tuple[float, float, float, float]:
+                  first_row: int, heights: HeightTally,
+                  area: Any = None) -> tuple[float, float, float, float]:
     """Append the kept points of one laspy point record (untyped: ``Any``) to ``parts``;
     count its heights in ``heights``; return the extent of all its points (kept or not)."""
     x = np.asarray(chunk.x, dtype=np.float64)
@@ -377,6 +412,10 @@ def _append_chunk(chunk: Any, parts: dict[str, list[np.ndarray]],
         keep &= (x >= bbox[0]) & (x <= bbox[2]) & (y >= bbox[1]) & (y <= bbox[3])
     if excl.size:
         keep &= ~np.isin(c, excl)
+    if area is not None and keep.any():
+        import shapely
+
+        keep[keep] = shapely.contains_xy(area, x[keep], y[keep])
     row = np.arange(first_row, first_row + x.size, dtype=np.int64)
     arrays: tuple[np.ndarray, ...] = (x, y, z, c, r, n, row)
     for key, arr in zip(("x", "y", "z", "c", "r", "n", "row"), arrays):

@@ -24,7 +24,7 @@ try:  # scipy's C++ counting sort of COO entries into CSR (stable; optional spee
 except ImportError:  # pragma: no cover - private scipy API moved
     _coo_tocsr = None
 
-__all__ = ["FootprintPairs", "CloudIndex", "footprint_weights"]
+__all__ = ["FootprintPairs", "CloudIndex", "footprint_weights", "footprints_area"]
 
 log = logging.getLogger(__name__)
 
@@ -34,6 +34,27 @@ POINTS_PER_CELL = 24.0
 #: Shots farther than this from the line through a run's first and last shot (metres)
 #: make the run "bent": it is answered by the general (slower) method.
 _LINE_TOL = 1e-7
+
+
+def footprints_area(x: np.ndarray, y: np.ndarray, radius: float) -> object:
+    """The union of discs of ``radius`` metres around the positions ``(x, y)``.
+
+    The area whose points a footprint reference needs (a track's footprints make a
+    corridor; scattered ones, scattered discs), for reading the tiles by it rather than
+    by the positions' bounding box.  Each disc's polygon circumscribes the circle (its
+    sides lie outside it), so no point within ``radius`` is left out.  None when no
+    position is finite.
+    """
+    import shapely
+
+    x = np.asarray(x, dtype=np.float64)
+    y = np.asarray(y, dtype=np.float64)
+    ok = np.isfinite(x) & np.isfinite(y)
+    if not ok.any():
+        return None
+    quad = 8
+    r = float(radius) / math.cos(math.pi / (4 * quad))
+    return shapely.MultiPoint(np.c_[x[ok], y[ok]]).buffer(r, quad_segs=quad)
 
 
 def footprint_weights(r2: np.ndarray, radius: float) -> np.ndarray:

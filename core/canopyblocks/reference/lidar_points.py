@@ -1,8 +1,8 @@
-"""Airborne lidar points through PDAL: read/crop/reproject, then arrays in Python.
+"""The cell rule on points in Python, and corridor crops through PDAL.
 
-PDAL has no percentile writer, so :mod:`canopyblocks.reference.rasters` asks PDAL for the
-points (``points_for_p90.json``) and computes per-cell percentiles with numpy here.  Also
-cuts the points inside a corridor polygon (``crop_corridor.json``).
+PDAL has no percentile writer: :mod:`canopyblocks.reference.raster_tiles` pairs points with
+cells by PDAL's neighbourhood rule here and computes per-cell maxima and percentiles with
+numpy.  Also cuts the points inside a corridor polygon (``crop_corridor.json``).
 """
 
 from __future__ import annotations
@@ -16,11 +16,11 @@ from pathlib import Path
 import numpy as np
 
 from ..atomic import atomic_output
-from ..errors import FileFormatError, InputError, NoUsableDataError
+from ..errors import InputError, NoUsableDataError
 from ..progress import Progress
 from .pdal import expand_readers, load_pipeline, run_pipeline, tile_info, write_pipeline
 
-__all__ = ["LidarPoints", "read_points_csv", "cell_neighbourhoods", "cell_percentile",
+__all__ = ["LidarPoints", "cell_neighbourhoods", "cell_percentile",
            "cell_max_and_percentile",
            "crop_corridor"]
 
@@ -37,27 +37,6 @@ class LidarPoints:
 
     def __len__(self) -> int:
         return int(self.x.size)
-
-
-def read_points_csv(path: str | os.PathLike[str]) -> LidarPoints:
-    """x, y, z (float64) from the CSV that ``points_for_p90.json`` writes (``X,Y,Z``).
-
-    PDAL writes 8 decimals (10 nm), so positions keep PDAL's double precision for the
-    cell rule; a binary LAS would round them to its scale.
-
-    Raises
-    ------
-    FileFormatError
-        The file is missing or lacks the X, Y, Z columns.
-    """
-    import pandas as pd
-
-    p = Path(path)
-    try:
-        df = pd.read_csv(p, usecols=["X", "Y", "Z"], dtype="float64", engine="c")
-    except (OSError, ValueError, pd.errors.ParserError) as exc:
-        raise FileFormatError(f"cannot read the points PDAL wrote to {p}: {exc}") from None
-    return LidarPoints(x=df["X"].to_numpy(), y=df["Y"].to_numpy(), z=df["Z"].to_numpy())
 
 
 def cell_neighbourhoods(

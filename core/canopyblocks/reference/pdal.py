@@ -51,7 +51,7 @@ log = logging.getLogger(__name__)
 DEFAULT_PDAL = Path("/opt/canopyblocks-pdal/bin/pdal")
 """Where ``scripts/install_pdal.sh`` puts the wrapper by default."""
 
-PIPELINES = ("dtm", "dtm_smrf", "dsm_max", "points_for_p90", "crop_corridor")
+PIPELINES = ("dtm", "dtm_smrf", "dsm_max", "crop_corridor")
 """Names of the pipelines shipped in :mod:`canopyblocks.pdal_pipelines`."""
 
 _INSTALL_HINT = "install it with: bash scripts/install_pdal.sh (or put pdal on PATH)"

@@ -55,6 +55,7 @@ from ..progress import Progress, as_progress
 from ..readers.las import LasPoints, las_crs, read_las
 from ..reference.datum import apply_vertical_offset, check_vertical_datums
 from ..reference.footprint import FootprintCloud, block_footprint_reference, footprint_reference
+from ..reference.footprint_index import footprints_area
 from ..reference.footprint_params import (
     REFERENCE_FLAG_NO_GROUND,
     REFERENCE_FLAG_OK,
@@ -162,7 +163,8 @@ def _read_points(points: LasPoints | str | os.PathLike[str] | Sequence[str | os.
             float(y[fin].max() + m))
     try:
         pts = read_las(paths, bbox=bbox, crs=crs if points_crs is not None else None,
-                       exclude_classes=params.exclude_classes, progress=prog)
+                       exclude_classes=params.exclude_classes, progress=prog,
+                       polygon=footprints_area(x[fin], y[fin], m))  # discs, not the box
     except NoUsableDataError:
         raise NoUsableDataError(
             f"none of the {len(fp)} footprints lies over the airborne tiles "
@@ -448,7 +450,8 @@ def validate_blocks_footprint(
                 float(np.nanmax(yb) + m))
         pts = read_las(paths, bbox=bbox, exclude_classes=params.exclude_classes,
                        crs=tiles_crs if points_crs is not None else None,
-                       progress=prog.sub(0.0, 0.3))
+                       progress=prog.sub(0.0, 0.3),
+                       polygon=footprints_area(xb, yb, m))  # the corridor, not the box
     if not pts.crs.equals(blocks.crs, ignore_axis_order=True):
         blocks = blocks.to_crs(pts.crs)
         blocks = blocks.assign(x=blocks.geometry.x, y=blocks.geometry.y)

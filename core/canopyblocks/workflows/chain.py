@@ -179,8 +179,8 @@ def run_chain(
     check_paths(las_paths, "run_chain: las_paths", "a LAS/LAZ path or a non-empty list of them")
     check_path(out_dir, "run_chain: out_dir", "a folder path")
     from ..outputs.profile_plot import plot_profile  # noqa: F401  (fails early without matplotlib)
-    from ..reference.rasters import make_reference_rasters
     from ..validation.block_validation import validate_atl08, validate_blocks
+    from .rasters import corridor_area, make_survey_rasters
 
     if preset is not None:
         import warnings
@@ -230,10 +230,12 @@ def run_chain(
                                progress=prog.sub(0.25, 0.4))
         blocks = res.blocks
         width = corridor_width(width, res.track_ids, source=str(photons))
-        prog.update(0.4, "reference rasters (PDAL)")
-        rasters = make_reference_rasters(tiles, out / "rasters", resolution=resolution,
-                                         crs=blocks.crs, ground=ground,  # type: ignore[arg-type]
-                                         progress=prog.sub(0.4, 0.75))
+        prog.update(0.4, "reference rasters")
+        # over the corridors only: tiles away from the track are skipped by their headers
+        rasters = make_survey_rasters(tiles, out / "rasters", resolution=resolution,
+                                      crs=blocks.crs, ground=ground,  # type: ignore[arg-type]
+                                      polygon=corridor_area(blocks, width),
+                                      progress=prog.sub(0.4, 0.75))
         prog.update(0.75, "validation")
         # the rasters were made in the blocks' (horizontal) CRS: their heights keep the
         # tiles' vertical datum (ref_vcrs), which the one datum rule (DESIGN 2.6) must see

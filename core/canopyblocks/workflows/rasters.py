@@ -1,0 +1,196 @@
+"""Survey rasters: tiles (a list, a folder, a survey source) -> DTM, DSM max, DSM p90.
+
+The one place the ``rasters`` command, ``run``/``validate`` and the QGIS algorithm make
+reference rasters: the survey's tiles are listed (:func:`survey_tiles`), each tile is one
+unit of :mod:`canopyblocks.reference.raster_tiles` run on the shared process pool
+(:func:`~canopyblocks.workflows.backends.run_items`: serial, local processes, Dask) with
+progress and Ctrl-C, and the results are the same whatever the backend.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+from ..progress import Progress, as_progress
+from ..reference.raster_grid import GroundMethod, ReferenceRasters
+
+__all__ = ["CORRIDOR_MARGIN", "corridor_area", "make_survey_rasters", "pool_runner",
+           "read_polygon", "survey_tiles"]
+
+CORRIDOR_MARGIN = 30.0
+"""Metres kept around a corridor's half-width: the co-registration search (+-15 m),
+terrain slope and context for the DTM fill."""
+
+_TILE_SUFFIXES = (".las", ".laz")
+
+
+def survey_tiles(sources: str | os.PathLike[str] | Sequence[str | os.PathLike[str]]
+                 ) -> list[Any]:
+    """The LAS/LAZ tiles of ``sources``: files as given, folders expanded (sorted); a COPC
+    file or EPT dataset (``*.copc.laz``, ``ept.json``; a path or an ``https://``/``s3://``
+    URL) as its string.
+
+    Raises
+    ------
+    InputError
+        A folder holding no ``.las``/``.laz`` file, or no source at all.
+    """
+    from ..errors import InputError
+    from ..reference.raster_tiles import cloud_kind
+
+    items = [sources] if isinstance(sources, (str, os.PathLike)) else list(sources)
+    out: list[Any] = []
+    for item in items:
+        if cloud_kind(item) is not None or "://" in str(item):
+            out.append(str(item))  # a COPC/EPT source (a URL stays a string)
+            continue
+        p = Path(item)
+        if p.is_dir():
+            found = sorted(q for q in p.iterdir()
+                           if q.is_file() and q.suffix.lower() in _TILE_SUFFIXES)
+            if not found:
+                raise InputError(f"the folder {p} holds no .las or .laz file; give a folder "
+                                 "of LAS/LAZ tiles or the tiles themselves")
+            out.extend(found)
+        else:
+            out.append(p)
+    if not out:
+        raise InputError("no LAS/LAZ tile given")
+    return out
+
+
+def corridor_area(blocks: Any, width: float, *, margin: float = CORRIDOR_MARGIN) -> Any:
+    """The area of interest of a block table: the union of its tracks' corridors.
+
+    Each track's (``track`` column) line through its block centres, in ``s_start`` order,
+    buffered by half the corridor width, half the longest block and ``margin`` metres
+    (the blocks' CRS).  Rasters and points are read over this area only, not over the
+    track's bounding box.
+
+    Returns
+    -------
+    shapely (Multi)Polygon, or None when no block has a finite centre.
+    """
+    import numpy as np
+    import shapely
+
+    x = np.asarray(blocks["x"], dtype=float)
+    y = np.asarray(blocks["y"], dtype=float)
+    ok = np.isfinite(x) & np.isfinite(y)
+    if not ok.any():
+        return None
+    reach = 0.5 * float(width) + 0.5 * float(np.nanmax(blocks["length"])) + float(margin)
+    tracks = (np.asarray(blocks["track"]).astype(str) if "track" in blocks
+              else np.zeros(x.size, dtype=str))
+    order = np.argsort(np.asarray(blocks["s_start"], dtype=float), kind="stable") \
+        if "s_start" in blocks else np.arange(x.size)
+    parts = []
+    for t in np.unique(tracks[ok]):  # a loop over tracks, each a vectorised buffer
+        sel = order[(tracks[order] == t) & ok[order]]
+        xy = np.unique(np.c_[x[sel], y[sel]], axis=0) if sel.size < 2 else np.c_[x[sel], y[sel]]
+        geom = shapely.LineString(xy) if len(xy) >= 2 else shapely.Point(xy[0])
+        parts.append(geom.buffer(reach))
+    return shapely.union_all(parts)
+
+
+def read_polygon(value: str | os.PathLike[str] | None) -> Any:
+    """A polygon from WKT text or a vector file (the union of its polygons); None for None.
+
+    Raises
+    ------
+    InputError
+        Text that is neither WKT nor an existing file, or a file without polygons.
+    """
+    from ..errors import InputError
+
+    if value is None:
+        return None
+    import shapely
+
+    text = str(value).strip()
+    if text.upper().startswith(("POLYGON", "MULTIPOLYGON")):
+        try:
+            return shapely.from_wkt(text)
+        except shapely.errors.GEOSException as exc:
+            raise InputError(f"--polygon is not valid WKT ({exc}); give e.g. "
+                             "'POLYGON ((x0 y0, x1 y1, x2 y2, x0 y0))'") from None
+    p = Path(text)
+    if not p.is_file():
+        raise InputError(f"--polygon {text[:60]!r} is neither a WKT polygon nor an existing "
+                         "vector file (GeoPackage, GeoJSON, shapefile)")
+    import geopandas as gpd
+
+    try:
+        frame = gpd.read_file(p)
+    except Exception as exc:  # noqa: BLE001 - pyogrio/fiona raise several types
+        raise InputError(f"cannot read the polygon file {p}: {exc}") from None
+    polys = [g for g in frame.geometry if g is not None and
+             g.geom_type in ("Polygon", "MultiPolygon")]
+    if not polys:
+        raise InputError(f"{p} holds no polygon; give a file of polygons in the output CRS")
+    return shapely.union_all(polys)
+
+
+def pool_runner(backend: str = "processes", workers: int | None = None,
+                scheduler: str | None = None,
+                cancelled: Callable[[], bool] | None = None) -> Callable[..., list[Any]]:
+    """A ``runner(fn, units, done)`` over the shared pool (serial for a single unit)."""
+    from .backends import run_items
+
+    def run(fn: Callable[[Any], Any], items: Sequence[Any],
+            done: Callable[[Any], None]) -> list[Any]:
+        chosen = "serial" if len(items) <= 1 or workers == 1 else backend
+        return run_items(fn, items, backend=chosen,  # type: ignore[arg-type]
+                         workers=workers, scheduler=scheduler, done=done, cancelled=cancelled)
+    return run
+
+
+def make_survey_rasters(
+    sources: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
+    out_dir: str | os.PathLike[str],
+    *,
+    resolution: float = 2.0,
+    crs: object = None,
+    bounds: Sequence[float] | None = None,
+    polygon: object = None,
+    ground: GroundMethod = "class2",
+    pdal: str | os.PathLike[str] | None = None,
+    backend: str = "processes",
+    workers: int | None = None,
+    scheduler: str | None = None,
+    progress: Progress | None = None,
+) -> ReferenceRasters:
+    """DTM, DSM max, DSM p90 and the fill mask over a survey's tiles, tile by tile.
+
+    Parameters
+    ----------
+    sources : path or sequence of paths
+        LAS/LAZ tiles and/or folders of them.
+    out_dir : path
+        Output folder.
+    resolution, crs, bounds, polygon, ground, pdal
+        As :func:`~canopyblocks.reference.rasters.make_reference_rasters` (metres, the
+        output CRS).
+    backend : {"processes", "serial", "dask"}
+        Where the tiles are read (default local processes, one per core; a single tile
+        runs here).
+    workers : int, optional
+        Processes or Dask workers (default: the machine's cores).
+    scheduler : str, optional
+        A running Dask scheduler's address (implies ``backend="dask"``).
+    progress : Progress, optional
+        Per tile; cancellation stops the pool and writes nothing.
+    """
+    from ..reference.rasters import make_reference_rasters
+
+    prog = as_progress(progress)
+    if scheduler is not None:
+        backend = "dask"
+    cancelled = prog.cancelled
+    runner = pool_runner(backend, workers, scheduler, cancelled)
+    return make_reference_rasters(survey_tiles(sources), out_dir, resolution=resolution,
+                                  crs=crs, bounds=bounds, polygon=polygon, ground=ground,
+                                  pdal=pdal, progress=prog, runner=runner)
