@@ -88,7 +88,6 @@ def build_octree(points: laspy.LasData, capacity: int = 20_000, max_level: int =
     cube_lo = center - halfsize
     n = len(xyz)
     rng = np.random.default_rng(seed)
-    prio = rng.random(n)
     node_of = np.full(n, -1, np.int64)
     keys: list[np.ndarray] = []
     todo = np.arange(n)
@@ -97,7 +96,8 @@ def build_octree(points: laspy.LasData, capacity: int = 20_000, max_level: int =
         ijk = np.clip(((xyz[todo] - cube_lo) // side).astype(np.int64), 0, 2 ** level - 1)
         code = (ijk[:, 0] << 42) | (ijk[:, 1] << 21) | ijk[:, 2]
         uniq, inv = np.unique(code, return_inverse=True)
-        order = np.lexsort((prio[todo], inv))
+        perm = rng.permutation(todo.size)  # a random order inside each node
+        order = perm[np.argsort(inv[perm], kind="stable")]
         starts = np.searchsorted(inv[order], np.arange(uniq.size))
         rank = np.empty(todo.size, np.int64)
         rank[order] = np.arange(todo.size) - starts[inv[order]]
@@ -115,7 +115,11 @@ def build_octree(points: laspy.LasData, capacity: int = 20_000, max_level: int =
     remap[used] = np.arange(used.size)
     node = remap[node_of]
     order = np.argsort(node, kind="stable")
-    sorted_pts = laspy.LasData(points.header, points=points.points[order])
+    arr = points.points.array
+    rows = arr.view(np.uint8).reshape(arr.size, arr.dtype.itemsize)[order]  # fast row take
+    sorted_pts = laspy.LasData(points.header, points=laspy.ScaleAwarePointRecord(
+        rows.reshape(-1).view(arr.dtype), points.header.point_format, points.header.scales,
+        points.header.offsets))
     counts = np.bincount(node, minlength=used.size)
     return Octree(sorted_pts, all_keys[used], counts, center, halfsize,
                   spacing=2.0 * halfsize / 128.0)
@@ -150,13 +154,15 @@ def _entry(key: Sequence[int], offset: int, size: int, count: int) -> bytes:
 
 
 def write_copc(paths: Sequence[Path], out: Path, *, capacity: int = 20_000,
-               page_level: int | None = None, seed: int = 1) -> Octree:
+               page_level: int | None = None, seed: int = 1, tree: Octree | None = None
+               ) -> Octree:
     """Write the tiles' points as one COPC file; the octree written.
 
     ``page_level``: nodes at this level and below go into hierarchy pages of their own (one
-    per node of that level), so a reader must follow page entries.
+    per node of that level), so a reader must follow page entries.  ``tree``: an octree
+    already built from ``paths`` (the CRS is still read from ``paths``).
     """
-    tree = build_octree(tile_points(paths), capacity=capacity, seed=seed)
+    tree = tree or build_octree(tile_points(paths), capacity=capacity, seed=seed)
     pts = tree.points
     wkt = _full_crs(paths)
     wkt_data = (wkt.to_wkt().encode() + b"\0") if wkt is not None else b""
@@ -225,12 +231,13 @@ def _hierarchy(tree: Octree, offsets: np.ndarray, sizes: np.ndarray, base: int,
 
 
 def write_ept(paths: Sequence[Path], out_dir: Path, *, capacity: int = 20_000,
-              split_level: int | None = None, seed: int = 1) -> Octree:
+              split_level: int | None = None, seed: int = 1, tree: Octree | None = None
+              ) -> Octree:
     """Write the tiles' points as an EPT dataset (laszip nodes) under ``out_dir``.
 
     ``split_level``: nodes at this level and below are listed in sub-hierarchy files.
     """
-    tree = build_octree(tile_points(paths), capacity=capacity, seed=seed)
+    tree = tree or build_octree(tile_points(paths), capacity=capacity, seed=seed)
     pts = tree.points
     (out_dir / "ept-data").mkdir(parents=True, exist_ok=True)
     (out_dir / "ept-hierarchy").mkdir(exist_ok=True)
@@ -239,6 +246,7 @@ def write_ept(paths: Sequence[Path], out_dir: Path, *, capacity: int = 20_000,
     for name, c in zip(names, tree.counts):
         node = laspy.LasData(laspy.LasHeader(point_format=6, version="1.4"))
         node.header.scales, node.header.offsets = pts.header.scales, pts.header.offsets
+        node.header.global_encoding.wkt = True  # PDAL insists for point format 6
         node.points = laspy.ScaleAwarePointRecord(
             pts.points.array[first:first + int(c)].copy(), node.header.point_format,
             pts.header.scales, pts.header.offsets)
