@@ -30,7 +30,8 @@ import lazrs
 import numpy as np
 import pyproj
 
-__all__ = ["Octree", "build_octree", "write_copc", "write_ept", "tile_points"]
+__all__ = ["Octree", "build_octree", "write_copc", "write_ept", "tile_points",
+           "shifted_grid"]
 
 
 @dataclass(frozen=True)
@@ -68,6 +69,24 @@ def tile_points(paths: Sequence[Path]) -> laspy.LasData:
                 out.points[name][i:i + k] = d.points[name]
         i += k
     return out
+
+
+def shifted_grid(points: laspy.LasData, nx: int, ny: int, dx: float, dy: float
+                 ) -> laspy.LasData:
+    """``nx`` x ``ny`` copies of ``points`` shifted by ``dx``/``dy`` metres (whole integer
+    steps of the scale): a bigger survey made of the same forest."""
+    arr = points.points.array
+    sx, sy = (round(dx / points.header.scales[0]), round(dy / points.header.scales[1]))
+    copies = []
+    for i in range(nx):
+        for j in range(ny):
+            c = arr.copy()
+            c["X"] += np.int32(i * sx)
+            c["Y"] += np.int32(j * sy)
+            copies.append(c)
+    return laspy.LasData(points.header, points=laspy.ScaleAwarePointRecord(
+        np.concatenate(copies), points.header.point_format, points.header.scales,
+        points.header.offsets))
 
 
 def _full_crs(paths: Sequence[Path]) -> pyproj.CRS | None:

@@ -220,9 +220,12 @@ def read_header(src: ByteSource) -> CopcHeader:
     version = (head[24], head[25])
     offset_to_points, n_vlrs = struct.unpack_from("<II", head, 96)
     fmt, rec_len = head[104] & 0x3F, struct.unpack_from("<H", head, 105)[0]
-    if version != (1, 4) or offset_to_points > src.size or offset_to_points < _HEADER + 54:
+    if version != (1, 4):
         raise FileFormatError(f"{label}: not a COPC file (LAS {version[0]}.{version[1]}, "
                               "COPC is LAS 1.4); read it as a LAS/LAZ tile")
+    if offset_to_points < _HEADER + 54:
+        raise FileFormatError(f"{label}: not a COPC file (no VLR before the points); read it "
+                              "as a LAS/LAZ tile")
     vlr_bytes = src.fetch([(0, offset_to_points)], "the VLRs")[0]
     user, record = struct.unpack_from("<16sH", vlr_bytes, _HEADER + 2)
     if user.rstrip(b"\0") != b"copc" or record != 1:
