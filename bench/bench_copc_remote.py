@@ -12,7 +12,8 @@ footprints plus 15 m each side for the co-registration search).  ``read_copc`` r
 corridor over ``http://`` and from the local file, ``--repeat`` times each (medians); the
 points must be identical, and the server counts the bytes it sends.  The last line is
 ``copc_remote_bytes_share=<bytes sent / file size> remote_s=<median> local_s=<median>
-ratio=<remote / local>`` (the goal: a share below 0.20).
+ratio=<remote / local> peak_mib=<the process's peak memory>`` (the goal: a share below 0.20;
+the peak includes writing the survey on the first run).
 """
 
 from __future__ import annotations
@@ -104,9 +105,12 @@ def main() -> None:
                 raise SystemExit("the remote read differs from the local one")
     print(f"survey: {path.name}, {size / 1e6:.1f} MB; corridor {args.width:g} m wide: "
           f"{len(local):,} points; requests {server.tally.requests}")
+    import resource
+
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # MiB (Linux: KiB)
     r, lo = statistics.median(remote_t), statistics.median(local_t)
     print(f"copc_remote_bytes_share={statistics.median(shares):.4f} remote_s={r:.2f} "
-          f"local_s={lo:.2f} ratio={r / lo:.2f}")
+          f"local_s={lo:.2f} ratio={r / lo:.2f} peak_mib={peak:.0f}")
 
 
 if __name__ == "__main__":

@@ -232,6 +232,20 @@ class S3Server:
         self._thread.join()
 
 
+def use_s3_server(monkeypatch: Any, endpoint: str, tmp: Path, secret: str = "testing") -> None:
+    """Point the standard credential chain at a loopback S3 server (``monkeypatch``: pytest's):
+    a test key, the server as endpoint, nothing from the user's ~/.aws and no
+    instance-metadata lookup (that would leave the loopback address)."""
+    for var in ("AWS_PROFILE", "AWS_SESSION_TOKEN", "AWS_ENDPOINT_URL_S3"):
+        monkeypatch.delenv(var, raising=False)
+    for var, value in (("AWS_ACCESS_KEY_ID", "testing"), ("AWS_SECRET_ACCESS_KEY", secret),
+                       ("AWS_DEFAULT_REGION", "us-east-1"), ("AWS_ENDPOINT_URL", endpoint),
+                       ("AWS_EC2_METADATA_DISABLED", "true"),
+                       ("AWS_SHARED_CREDENTIALS_FILE", str(tmp / "no-credentials")),
+                       ("AWS_CONFIG_FILE", str(tmp / "no-config"))):
+        monkeypatch.setenv(var, value)
+
+
 # ---------------------------------------------------------------------------- a long track
 def write_track_granule(path: Path, length_km: float, per_metre: float = 2.0,
                         beams: tuple[str, ...] = ("gt1l", "gt2l", "gt3l"), seed: int = 3,

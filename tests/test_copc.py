@@ -26,7 +26,7 @@ from canopyblocks.readers.copc import copc_extent, read_copc
 from canopyblocks.readers.ept import ept_extent, read_ept
 from canopyblocks.readers.las import LasPoints, read_las
 from copc_data import build_octree, tile_points, write_copc, write_ept
-from loopback_servers import RangeHTTPServer, S3Server
+from loopback_servers import RangeHTTPServer, S3Server, use_s3_server
 
 TILES = ("als/lasR_bcts_1.laz", "als/lasR_bcts_2.laz")
 BOX = (885100.0, 629200.0, 885130.0, 629400.0)
@@ -142,15 +142,7 @@ def test_copc_over_https_same_points_fewer_bytes(store, http, laz):
 def test_copc_over_s3(store, laz, monkeypatch, tmp_path):
     with S3Server() as s3:
         url = s3.put("surveys", "bc/survey.copc.laz", store / "survey.copc.laz")
-        for var in ("AWS_PROFILE", "AWS_SESSION_TOKEN", "AWS_ENDPOINT_URL_S3"):
-            monkeypatch.delenv(var, raising=False)
-        monkeypatch.setenv("AWS_ACCESS_KEY_ID", "testing")
-        monkeypatch.setenv("AWS_SECRET_ACCESS_KEY", "testing-not-a-secret")
-        monkeypatch.setenv("AWS_DEFAULT_REGION", "us-east-1")
-        monkeypatch.setenv("AWS_ENDPOINT_URL", s3.endpoint)
-        monkeypatch.setenv("AWS_EC2_METADATA_DISABLED", "true")
-        monkeypatch.setenv("AWS_SHARED_CREDENTIALS_FILE", str(tmp_path / "none"))
-        monkeypatch.setenv("AWS_CONFIG_FILE", str(tmp_path / "none"))
+        use_s3_server(monkeypatch, s3.endpoint, tmp_path)
         remote.clear_cache()
         got = read_copc(url, bounds=BOX)
         assert s3.tally.nbytes < 0.2 * (store / "survey.copc.laz").stat().st_size
