@@ -2,7 +2,8 @@
 server application) and a static HTTP server with range requests.  Both count the requests
 and the body bytes they send, so a test or a benchmark can see what a read fetched.
 
-Used by tests/test_remote_read.py and bench/bench_remote.py.
+Used by tests/test_remote_read.py, tests/test_copc.py, bench/bench_remote.py and
+bench/bench_copc_remote.py.
 """
 
 from __future__ import annotations
@@ -92,6 +93,8 @@ class _RangeHandler(http.server.BaseHTTPRequestHandler):
             return
         size = p.stat().st_size
         rng = self.headers.get("Range")
+        if self.path.lstrip("/").startswith("norange/"):  # a server that ignores Range
+            rng = None
         a, b = 0, size - 1
         if rng and rng.startswith("bytes="):
             lo, _, hi = rng[6:].partition("-")
@@ -121,7 +124,8 @@ class _HTTPServer(http.server.ThreadingHTTPServer):
 class RangeHTTPServer:
     """Files under ``root`` at ``http://127.0.0.1:<port>/<name>``; ``private/...`` answers
     403, ``drop/...`` closes the connection without an answer, ``slow/...`` answers nothing
-    for ``delay`` seconds, others 404 when missing; after ``fail_after`` answered GETs every
+    for ``delay`` seconds, ``norange/...`` ignores ``Range`` (the whole file, 200), others
+    404 when missing; after ``fail_after`` answered GETs every
     GET gets 503 (a store that goes down in the middle of a read)."""
 
     def __init__(self, root: Path, fail_after: float = float("inf")) -> None:
@@ -226,6 +230,20 @@ class S3Server:
         self.server.shutdown()
         self.server.server_close()
         self._thread.join()
+
+
+def use_s3_server(monkeypatch: Any, endpoint: str, tmp: Path, secret: str = "testing") -> None:
+    """Point the standard credential chain at a loopback S3 server (``monkeypatch``: pytest's):
+    a test key, the server as endpoint, nothing from the user's ~/.aws and no
+    instance-metadata lookup (that would leave the loopback address)."""
+    for var in ("AWS_PROFILE", "AWS_SESSION_TOKEN", "AWS_ENDPOINT_URL_S3"):
+        monkeypatch.delenv(var, raising=False)
+    for var, value in (("AWS_ACCESS_KEY_ID", "testing"), ("AWS_SECRET_ACCESS_KEY", secret),
+                       ("AWS_DEFAULT_REGION", "us-east-1"), ("AWS_ENDPOINT_URL", endpoint),
+                       ("AWS_EC2_METADATA_DISABLED", "true"),
+                       ("AWS_SHARED_CREDENTIALS_FILE", str(tmp / "no-credentials")),
+                       ("AWS_CONFIG_FILE", str(tmp / "no-config"))):
+        monkeypatch.setenv(var, value)
 
 
 # ---------------------------------------------------------------------------- a long track

@@ -922,6 +922,7 @@ def url_cases() -> list[Case]:
 
 def all_cases() -> list[Case]:
     from .api_corpus import api_cases
+    from .copc_corpus import copc_cases
     from .coregistration_cases import coregistration_cases
     from .gedi_corpus import gedi_cases
     from .issue29_corpus import issue29_cases
@@ -929,7 +930,7 @@ def all_cases() -> list[Case]:
     cases = (baseline_cases() + atl03_cases() + atl08_cases() + las_cases() + raster_cases() + table_cases()
              + param_cases() + cli_cases() + gedi_cases()
              + coregistration_cases() + api_cases() + issue29_cases()
-             + url_cases())
+             + url_cases() + copc_cases())
     ids = [c.id for c in cases]
     dup = {i for i in ids if ids.count(i) > 1}
     if dup:

@@ -30,7 +30,7 @@ import pyproj
 
 from ..errors import CRSError, DependencyError, FileFormatError
 
-__all__ = ["LasCRS", "las_file_crs", "GEOKEY_PROJECTED", "GEOKEY_GEOGRAPHIC",
+__all__ = ["LasCRS", "las_file_crs", "crs_from_records", "GEOKEY_PROJECTED", "GEOKEY_GEOGRAPHIC",
            "GEOKEY_LINEAR_UNITS", "GEOKEY_VERTICAL", "GEOKEY_VERTICAL_UNITS"]
 
 log = logging.getLogger(__name__)
@@ -151,6 +151,13 @@ def _cached(path: str, size: int, mtime: int) -> LasCRS:  # noqa: ARG001 - cache
         raise FileFormatError(f"{p}: no such file") from None
     except Exception as exc:  # noqa: BLE001 - laspy raises several types for corrupt headers
         raise FileFormatError(f"{p}: not a readable LAS/LAZ file ({exc})") from None
+    return crs_from_records(p, vlrs, version, wkt_bit)
+
+
+def crs_from_records(p: Path, vlrs: list[Any], version: tuple[int, int],
+                     wkt_bit: bool) -> LasCRS:
+    """The CRS a file states by its (E)VLRs (laspy records), LAS ``version`` and the header's
+    WKT bit, read as :func:`las_file_crs` reads a file (COPC read by byte ranges uses it)."""
     wkt = _wkt_record(vlrs)
     keys = _geo_keys(vlrs)
     if wkt is not None and (version >= (1, 4) or wkt_bit or not keys):

@@ -342,6 +342,9 @@ class RemoteFile(io.RawIOBase):
         for k in range(RETRIES + 1):
             try:
                 return what()
+            except StorageError as exc:  # already one line, and not worth another try
+                self.error = exc
+                raise
             except Exception as exc:  # noqa: BLE001 -- mapped to one line below
                 if k < RETRIES and _transient(exc):
                     time.sleep(BACKOFF * 2 ** k)
@@ -398,6 +401,11 @@ class RemoteFile(io.RawIOBase):
             for (a, b), blob in zip(spans, got):
                 if isinstance(blob, BaseException):
                     raise blob
+                if len(blob) > b - a and b - a < self.size:
+                    raise StorageError(
+                        f"{self.label}: the server does not answer byte-range requests (it "
+                        f"sent {len(blob):,} bytes for a range of {b - a:,}); download the "
+                        "file, then pass the local copy")
                 if len(blob) != b - a:
                     raise EOFError(f"short read: {len(blob)} of {b - a} bytes")
             return list(got)
