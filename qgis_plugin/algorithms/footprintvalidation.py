@@ -31,8 +31,10 @@ class FootprintValidationAlgorithm(CanopyBlocksAlgorithm):
     GROUP_ID = "waveforms"
     HELP = (
         "Compares each footprint's ground, RH98, RH50 and cover with the airborne points "
-        "under it, weighted by a Gaussian footprint (22 m diameter for GEDI) and by point "
-        "density: the footprint-matched reference. Residual = footprint minus reference "
+        "under it formed into the waveform the sensor would record (a Gaussian footprint, "
+        "22 m diameter for GEDI, weighted by point density; the returns' energy and the "
+        "pulse) and read by the same algorithm: ground = its lowest mode, RH above it, "
+        "cover from its energy. Residual = footprint minus reference "
         "(m); statistics per beam, aspect, slope and cover class. GEDI elevations are "
         "ellipsoidal: give the vertical offset N = h_GEDI - H_airborne (0 for simulated "
         "waveforms, which keep the tiles' heights)."
@@ -71,7 +73,7 @@ class FootprintValidationAlgorithm(CanopyBlocksAlgorithm):
         offset = optional_number(self, parameters, self.OFFSET, context)
         if offset is not None:
             kwargs["offset"] = offset
-        params = ref.FootprintReferenceParams(
+        params = ref.FootprintReferenceParams.gedi(   # the command line's GEDI reference
             diameter=self.parameterAsDouble(parameters, self.DIAMETER, context))
         result = val.validate_footprints(footprints, tiles, params=params,
                                          progress=progress.sub(0.1, 0.9), **kwargs)

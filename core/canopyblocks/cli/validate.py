@@ -50,7 +50,9 @@ def register(group: click.Group) -> None:
               "formed into the waveform GEDI would record and read by the same algorithm "
               "(waveform, the default: ground = lowest mode, RH from the energy above it) or "
               "with the weighted points themselves (points: ground = weighted mean of the "
-              "ground points, RH = weighted percentiles of all returns).")
+              "ground points, RH = weighted percentiles of all returns). --cut and "
+              "--weighting shape the points definition; the waveform's beam has sigma = "
+              "--diameter / 4 and reaches 3 sigma.")
 @click.option("--points-crs", help="CRS of tiles that state none.")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Output .gpkg (layers residuals, stats), or .csv/.parquet.")
