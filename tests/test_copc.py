@@ -184,6 +184,42 @@ def test_ept_box_agrees_with_pdal(store, pdal_bin, tmp_path):
     assert (x["minimum"], x["maximum"]) == (float(got.x.min()), float(got.x.max()))
 
 
+def test_ept_over_s3_fetches_only_the_nodes_it_needs(store, laz, monkeypatch, tmp_path):
+    """Only the hierarchy files and nodes the corridor needs are in the bucket: a request for
+    any other would be a 404 and fail the read."""
+    from canopyblocks.readers.copc import Area
+    from canopyblocks.readers.ept import EptInfo, select_nodes
+
+    ept = store / "ept"
+    nodes = select_nodes(EptInfo(str(ept / "ept.json")), Area(None, corridor_polygon()))
+    needed = ["ept.json", *(f"ept-hierarchy/{p.name}" for p in (ept / "ept-hierarchy").iterdir()),
+              *(f"ept-data/{'-'.join(map(str, k))}.laz" for k, _ in nodes)]
+    assert len(nodes) < len(list((ept / "ept-data").iterdir())) / 3
+    with S3Server() as s3:
+        for rel in needed:
+            s3.put("surveys", f"ept/{rel}", ept / rel)
+        use_s3_server(monkeypatch, s3.endpoint, tmp_path)
+        remote.clear_cache()
+        got = read_ept("s3://surveys/ept/ept.json", polygon=corridor_polygon())
+    np.testing.assert_array_equal(table(got), table(laz.subset(in_corridor(laz.x, laz.y))))
+
+
+def test_cancel_stops_fetching(store, http, monkeypatch):
+    from canopyblocks.errors import CancelledError
+    from canopyblocks.progress import Progress
+    from canopyblocks.readers import copc
+
+    monkeypatch.setattr(copc, "BATCH_POINTS", 50_000)
+    remote.clear_cache()
+    http.tally.reset()
+    calls: list[float] = []
+    prog = Progress(lambda f, m: calls.append(f), cancelled=lambda: len(calls) >= 2)
+    with pytest.raises(CancelledError):
+        read_copc(f"{http.url}/survey.copc.laz", progress=prog)
+    assert len(calls) == 2 and calls[-1] < 0.2
+    assert http.tally.nbytes < 0.2 * (store / "survey.copc.laz").stat().st_size
+
+
 def test_progress_and_no_points(store):
     seen: list[float] = []
     read_copc(store / "survey.copc.laz", bounds=BOX, progress=lambda f, m: seen.append(f))
