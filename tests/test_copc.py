@@ -230,6 +230,43 @@ def test_progress_and_no_points(store):
         read_copc(store / "survey.copc.laz", bounds=(1, 2, 0, 3))
 
 
+def test_a_copc_written_by_pdal_decodes_as_laspy_reads_it(sample):
+    """A COPC file another writer made (PDAL, point format 7 with colour, 36-byte records,
+    hierarchy pages): every node and a quarter's nodes give laspy's points; the file's
+    heights are in US survey feet, refused as a LAZ tile's are."""
+    import laspy
+
+    from canopyblocks.errors import CRSError
+    from canopyblocks.readers import copc
+
+    path = sample("copc/simple_with_page.copc.laz")
+    ref = laspy.read(path)
+    with copc.ByteSource(path) as src:
+        h = copc.read_header(src)
+        assert (h.point_format, h.record_length, h.n_points) == (7, 36, 1065)
+        b = h.bounds
+        for box in (None, (b[0], b[1], (b[0] + b[2]) / 2, (b[1] + b[3]) / 2)):
+            area = copc.Area(box, None)
+            cols = copc.Columns(h.label)
+            nodes = copc.select_nodes(src, h, area)
+            for batch in copc._batches(nodes):
+                blobs = src.fetch([(n[1], n[1] + n[2]) for n in batch])
+                cols.add(copc._decompress(h, blobs, batch), h.scales, h.offsets, area)
+            got = LasPoints(*(np.concatenate(cols.parts[k]) for k in "xyzcrn"), crs=None)
+            x, y = np.asarray(ref.x), np.asarray(ref.y)
+            keep = np.ones(x.size, bool) if box is None else (
+                (x >= box[0]) & (x <= box[2]) & (y >= box[1]) & (y <= box[3]))
+            want = LasPoints(x[keep], y[keep], np.asarray(ref.z)[keep],
+                             np.asarray(ref.classification)[keep],
+                             np.asarray(ref.return_number)[keep],
+                             np.asarray(ref.number_of_returns)[keep], crs=None)
+            assert len(got) == int(keep.sum()) > 200
+            np.testing.assert_array_equal(table(got), table(want))
+        assert len(nodes) < 65
+    with pytest.raises(CRSError, match="US survey foot"):
+        read_copc(path)
+
+
 # ---- bad inputs: one line naming the source and what to do -----------------------------------
 
 def _one_line(exc: pytest.ExceptionInfo, *words: str) -> str:
