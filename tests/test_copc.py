@@ -139,6 +139,26 @@ def test_copc_over_https_same_points_fewer_bytes(store, http, laz):
     assert http.tally.range_requests == http.tally.requests
 
 
+def test_footprint_reference_from_https_copc_is_the_tiles(store, http, laz):
+    """13 m footprints every 15 m along the crossing track: the reference values from the
+    COPC over http:// equal those from the LAZ tiles (the same corridor cropped)."""
+    from canopyblocks.reference.footprint import footprint_reference
+
+    t = TRACK
+    along = np.arange(-90.0, 90.0, 15.0)  # inside the survey (x 885022-885217)
+    fx = t["x0"] + along * math.cos(t["angle"])
+    fy = t["y0"] + along * math.sin(t["angle"])
+    remote.clear_cache()
+    got = footprint_reference(read_copc(f"{http.url}/survey.copc.laz",
+                                        polygon=corridor_polygon()), fx, fy)
+    want = footprint_reference(laz.subset(in_corridor(laz.x, laz.y)), fx, fy)
+    assert (got["ref_flag"] == want["ref_flag"]).all() and len(got) == 12
+    num = [c for c in want.columns if want[c].dtype.kind == "f"]
+    assert np.isfinite(want[num].to_numpy()).any()
+    np.testing.assert_allclose(got[num].to_numpy(), want[num].to_numpy(), atol=1e-9,
+                               equal_nan=True)
+
+
 def test_copc_over_s3(store, laz, monkeypatch, tmp_path):
     with S3Server() as s3:
         url = s3.put("surveys", "bc/survey.copc.laz", store / "survey.copc.laz")
