@@ -139,6 +139,26 @@ def test_copc_over_https_same_points_fewer_bytes(store, http, laz):
     assert http.tally.range_requests == http.tally.requests
 
 
+def test_footprint_reference_from_https_copc_is_the_tiles(store, http, laz):
+    """13 m footprints every 15 m along the crossing track: the reference values from the
+    COPC over http:// equal those from the LAZ tiles (the same corridor cropped)."""
+    from canopyblocks.reference.footprint import footprint_reference
+
+    t = TRACK
+    along = np.arange(-90.0, 90.0, 15.0)  # inside the survey (x 885022-885217)
+    fx = t["x0"] + along * math.cos(t["angle"])
+    fy = t["y0"] + along * math.sin(t["angle"])
+    remote.clear_cache()
+    got = footprint_reference(read_copc(f"{http.url}/survey.copc.laz",
+                                        polygon=corridor_polygon()), fx, fy)
+    want = footprint_reference(laz.subset(in_corridor(laz.x, laz.y)), fx, fy)
+    assert (got["ref_flag"] == want["ref_flag"]).all() and len(got) == 12
+    num = [c for c in want.columns if want[c].dtype.kind == "f"]
+    assert np.isfinite(want[num].to_numpy()).any()
+    np.testing.assert_allclose(got[num].to_numpy(), want[num].to_numpy(), atol=1e-9,
+                               equal_nan=True)
+
+
 def test_copc_over_s3(store, laz, monkeypatch, tmp_path):
     with S3Server() as s3:
         url = s3.put("surveys", "bc/survey.copc.laz", store / "survey.copc.laz")
@@ -184,6 +204,42 @@ def test_ept_box_agrees_with_pdal(store, pdal_bin, tmp_path):
     assert (x["minimum"], x["maximum"]) == (float(got.x.min()), float(got.x.max()))
 
 
+def test_ept_over_s3_fetches_only_the_nodes_it_needs(store, laz, monkeypatch, tmp_path):
+    """Only the hierarchy files and nodes the corridor needs are in the bucket: a request for
+    any other would be a 404 and fail the read."""
+    from canopyblocks.readers.copc import Area
+    from canopyblocks.readers.ept import EptInfo, select_nodes
+
+    ept = store / "ept"
+    nodes = select_nodes(EptInfo(str(ept / "ept.json")), Area(None, corridor_polygon()))
+    needed = ["ept.json", *(f"ept-hierarchy/{p.name}" for p in (ept / "ept-hierarchy").iterdir()),
+              *(f"ept-data/{'-'.join(map(str, k))}.laz" for k, _ in nodes)]
+    assert len(nodes) < len(list((ept / "ept-data").iterdir())) / 3
+    with S3Server() as s3:
+        for rel in needed:
+            s3.put("surveys", f"ept/{rel}", ept / rel)
+        use_s3_server(monkeypatch, s3.endpoint, tmp_path)
+        remote.clear_cache()
+        got = read_ept("s3://surveys/ept/ept.json", polygon=corridor_polygon())
+    np.testing.assert_array_equal(table(got), table(laz.subset(in_corridor(laz.x, laz.y))))
+
+
+def test_cancel_stops_fetching(store, http, monkeypatch):
+    from canopyblocks.errors import CancelledError
+    from canopyblocks.progress import Progress
+    from canopyblocks.readers import copc
+
+    monkeypatch.setattr(copc, "BATCH_POINTS", 50_000)
+    remote.clear_cache()
+    http.tally.reset()
+    calls: list[float] = []
+    prog = Progress(lambda f, m: calls.append(f), cancelled=lambda: len(calls) >= 2)
+    with pytest.raises(CancelledError):
+        read_copc(f"{http.url}/survey.copc.laz", progress=prog)
+    assert len(calls) == 2 and calls[-1] < 0.2
+    assert http.tally.nbytes < 0.2 * (store / "survey.copc.laz").stat().st_size
+
+
 def test_progress_and_no_points(store):
     seen: list[float] = []
     read_copc(store / "survey.copc.laz", bounds=BOX, progress=lambda f, m: seen.append(f))
@@ -192,6 +248,43 @@ def test_progress_and_no_points(store):
         read_copc(store / "survey.copc.laz", bounds=(0, 0, 10, 10))
     with pytest.raises(InputError, match="bounds must be"):
         read_copc(store / "survey.copc.laz", bounds=(1, 2, 0, 3))
+
+
+def test_a_copc_written_by_pdal_decodes_as_laspy_reads_it(sample):
+    """A COPC file another writer made (PDAL, point format 7 with colour, 36-byte records,
+    hierarchy pages): every node and a quarter's nodes give laspy's points; the file's
+    heights are in US survey feet, refused as a LAZ tile's are."""
+    import laspy
+
+    from canopyblocks.errors import CRSError
+    from canopyblocks.readers import copc
+
+    path = sample("copc/simple_with_page.copc.laz")
+    ref = laspy.read(path)
+    with copc.ByteSource(path) as src:
+        h = copc.read_header(src)
+        assert (h.point_format, h.record_length, h.n_points) == (7, 36, 1065)
+        b = h.bounds
+        for box in (None, (b[0], b[1], (b[0] + b[2]) / 2, (b[1] + b[3]) / 2)):
+            area = copc.Area(box, None)
+            cols = copc.Columns(h.label)
+            nodes = copc.select_nodes(src, h, area)
+            for batch in copc._batches(nodes):
+                blobs = src.fetch([(n[1], n[1] + n[2]) for n in batch])
+                cols.add(copc._decompress(h, blobs, batch), h.scales, h.offsets, area)
+            got = LasPoints(*(np.concatenate(cols.parts[k]) for k in "xyzcrn"), crs=None)
+            x, y = np.asarray(ref.x), np.asarray(ref.y)
+            keep = np.ones(x.size, bool) if box is None else (
+                (x >= box[0]) & (x <= box[2]) & (y >= box[1]) & (y <= box[3]))
+            want = LasPoints(x[keep], y[keep], np.asarray(ref.z)[keep],
+                             np.asarray(ref.classification)[keep],
+                             np.asarray(ref.return_number)[keep],
+                             np.asarray(ref.number_of_returns)[keep], crs=None)
+            assert len(got) == int(keep.sum()) > 200
+            np.testing.assert_array_equal(table(got), table(want))
+        assert len(nodes) < 65
+    with pytest.raises(CRSError, match="US survey foot"):
+        read_copc(path)
 
 
 # ---- bad inputs: one line naming the source and what to do -----------------------------------
