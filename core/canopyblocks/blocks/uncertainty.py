@@ -133,24 +133,18 @@ class SigmaModel:
     day_background: float = 0.0048
 
     def __post_init__(self) -> None:
-        for name in ("hmax", "ground"):
+        vectors = (("hmax", len(FEATURES), "finite coefficients", np.isfinite),
+                   ("ground", len(FEATURES), "finite coefficients", np.isfinite),
+                   ("hmax_tail", len(REGIMES), "positive factors", lambda a: a > 0),
+                   ("ground_tail", len(REGIMES), "positive factors", lambda a: a > 0))
+        for name, size, what, good in vectors:
             v = getattr(self, name)
             try:
                 arr = np.asarray(v, dtype=float)
             except (TypeError, ValueError):
                 arr = np.array([np.nan])
-            if arr.shape != (len(FEATURES),) or not np.all(np.isfinite(arr)):
-                raise InputError(f"sigma model: {name} needs {len(FEATURES)} finite "
-                                 f"coefficients, got {v!r}")
-        for name in ("hmax_tail", "ground_tail"):
-            v = getattr(self, name)
-            try:
-                arr = np.asarray(v, dtype=float)
-            except (TypeError, ValueError):
-                arr = np.array([np.nan])
-            if arr.shape != (len(REGIMES),) or not np.all(arr > 0):
-                raise InputError(f"sigma model: {name} needs {len(REGIMES)} positive "
-                                 f"factors, got {v!r}")
+            if arr.shape != (size,) or not np.all(good(arr)):
+                raise InputError(f"sigma model: {name} needs {size} {what}, got {v!r}")
         for name in ("hmax_max", "ground_max", "floor", "weak_signal", "day_background"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and v > 0):
