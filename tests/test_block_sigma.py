@@ -83,9 +83,10 @@ def test_sigma_coverage_on_a_tile_never_fitted(simulated: pd.DataFrame) -> None:
     zh = np.abs(df["hmax"] - df["ref_hmax"]) / df["hmax_sigma"]
     zg = np.abs(df["ground"] - df["ref_ground"]) / df["ground_sigma"]
     # a tolerant band around 68 % / 95 % (bench/bench_block_sigma.py measures the shares
-    # on three unseen tiles). Measured here (191 blocks): Hmax 0.85 / 0.98, ground 0.79 /
-    # 0.98; strong 0.80 / 0.99, weak 0.91 / 0.98: on this open tile the model, fitted on
-    # the denser calibration forest, is cautious
+    # on three unseen tiles). Measured here (191 blocks, no position offset): Hmax 0.84 /
+    # 0.98, ground 0.82 / 0.99; strong 0.80 / 0.98, weak 0.87 / 0.98 (the model before the
+    # geolocation term: 0.85 / 0.98, 0.79 / 0.98): on this open tile the model, fitted on
+    # the denser calibration forest, is cautious, and the geolocation term widens ground
     assert 0.55 <= np.mean(zh <= 1) <= 0.93
     assert np.mean(zh <= 2) >= 0.88
     assert 0.50 <= np.mean(zg <= 1) <= 0.93
