@@ -15,8 +15,9 @@ A block's (or segment's) 1-sigma error, metres, predicted from what the block ho
 Three parts, added in quadrature (m):
 
 - the measurement: a log-linear ``log s = x . beta`` on the quantities above, times a
-  tail factor per regime (strong or weak beam, night or day: a weak beam by day has
-  heavier tails, so its 1-sigma needs more than a Gaussian's width to cover 68 %);
+  tail factor per regime (strong or weak beam, night or day), chosen so that 1 and 2 sigma
+  both cover as stated: the residuals' shape is not a Gaussian's and differs by regime
+  (a weak beam by day has the heaviest tails);
 - the geolocation, ground: ``G x slope``, where ``G`` is the horizontal geolocation
   1-sigma (m): the file's own ``geolocation/sigma_along`` and ``sigma_across`` (ATL03,
   per 20 m segment), ``G = sqrt(sigma_along^2 + sigma_across^2)``, else ICESat-2's
