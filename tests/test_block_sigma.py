@@ -294,6 +294,16 @@ def test_the_file_s_geolocation_uncertainty_is_read(tmp_path: Path) -> None:
     s = np.array([t.s.min() + 100.0]), np.array([t.s.min() + 125.0])
     f = block_features(t, classes, *s, np.array([10.0]))
     assert f["geo_sigma"][0] == pytest.approx(5.0)
+    # negative or absurd values are not stated values; a damaged shape states nothing
+    with h5py.File(path, "r+") as f:
+        g = f["gt1r/geolocation"]
+        g["sigma_along"][:] = np.where(np.arange(n) % 2, -1.0, 500.0)
+    assert not np.isfinite(read_atl03(path, "gt1r", crs=pts.crs)
+                           .extra.get(GEOLOCATION_SIGMA_COLUMN, [np.nan])).any()
+    with h5py.File(path, "r+") as f:
+        del f["gt1r/geolocation/sigma_along"]
+        f["gt1r/geolocation/sigma_along"] = np.full(n + 3, 3.0, np.float32)
+    assert GEOLOCATION_SIGMA_COLUMN not in read_atl03(path, "gt1r", crs=pts.crs).extra
     # and the real clip states 5 m along and across
     real = read_atl03(str(A03), "gt1r").extra[GEOLOCATION_SIGMA_COLUMN]
     assert np.allclose(real, np.hypot(5.0, 5.0))
