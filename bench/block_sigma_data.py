@@ -165,6 +165,7 @@ def site_blocks(name: str, tiles: tuple[Path, ...], seed: int, *,
     out["res_hmax"] = out["hmax"] - out["ref_hmax"]
     out["res_ground"] = out["ground"] - out["ref_ground"]
     if cache is not None:
+        Path(cache).parent.mkdir(parents=True, exist_ok=True)
         out.to_parquet(cache)
     return out
 

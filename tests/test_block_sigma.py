@@ -83,9 +83,10 @@ def test_sigma_coverage_on_a_tile_never_fitted(simulated: pd.DataFrame) -> None:
     zh = np.abs(df["hmax"] - df["ref_hmax"]) / df["hmax_sigma"]
     zg = np.abs(df["ground"] - df["ref_ground"]) / df["ground_sigma"]
     # a tolerant band around 68 % / 95 % (bench/bench_block_sigma.py measures the shares
-    # on three unseen tiles). Measured here (191 blocks): Hmax 0.85 / 0.98, ground 0.79 /
-    # 0.98; strong 0.80 / 0.99, weak 0.91 / 0.98: on this open tile the model, fitted on
-    # the denser calibration forest, is cautious
+    # on three unseen tiles). Measured here (191 blocks, no position offset): Hmax 0.84 /
+    # 0.98, ground 0.82 / 0.99; strong 0.80 / 0.98, weak 0.87 / 0.98 (the model before the
+    # geolocation term: 0.85 / 0.98, 0.79 / 0.98): on this open tile the model, fitted on
+    # the denser calibration forest, is cautious, and the geolocation term widens ground
     assert 0.55 <= np.mean(zh <= 1) <= 0.93
     assert np.mean(zh <= 2) >= 0.88
     assert 0.50 <= np.mean(zg <= 1) <= 0.93
@@ -293,6 +294,16 @@ def test_the_file_s_geolocation_uncertainty_is_read(tmp_path: Path) -> None:
     s = np.array([t.s.min() + 100.0]), np.array([t.s.min() + 125.0])
     f = block_features(t, classes, *s, np.array([10.0]))
     assert f["geo_sigma"][0] == pytest.approx(5.0)
+    # negative or absurd values are not stated values; a damaged shape states nothing
+    with h5py.File(path, "r+") as f:
+        g = f["gt1r/geolocation"]
+        g["sigma_along"][:] = np.where(np.arange(n) % 2, -1.0, 500.0)
+    assert not np.isfinite(read_atl03(path, "gt1r", crs=pts.crs)
+                           .extra.get(GEOLOCATION_SIGMA_COLUMN, [np.nan])).any()
+    with h5py.File(path, "r+") as f:
+        del f["gt1r/geolocation/sigma_along"]
+        f["gt1r/geolocation/sigma_along"] = np.full(n + 3, 3.0, np.float32)
+    assert GEOLOCATION_SIGMA_COLUMN not in read_atl03(path, "gt1r", crs=pts.crs).extra
     # and the real clip states 5 m along and across
     real = read_atl03(str(A03), "gt1r").extra[GEOLOCATION_SIGMA_COLUMN]
     assert np.allclose(real, np.hypot(5.0, 5.0))

@@ -15,8 +15,9 @@ A block's (or segment's) 1-sigma error, metres, predicted from what the block ho
 Three parts, added in quadrature (m):
 
 - the measurement: a log-linear ``log s = x . beta`` on the quantities above, times a
-  tail factor per regime (strong or weak beam, night or day: a weak beam by day has
-  heavier tails, so its 1-sigma needs more than a Gaussian's width to cover 68 %);
+  tail factor per regime (strong or weak beam, night or day), chosen so that 1 and 2 sigma
+  both cover as stated: the residuals' shape is not a Gaussian's and differs by regime
+  (a weak beam by day has the heaviest tails);
 - the geolocation, ground: ``G x slope``, where ``G`` is the horizontal geolocation
   1-sigma (m): the file's own ``geolocation/sigma_along`` and ``sigma_across`` (ATL03,
   per 20 m segment), ``G = sqrt(sigma_along^2 + sigma_across^2)``, else ICESat-2's
@@ -133,24 +134,18 @@ class SigmaModel:
     day_background: float = 0.0048
 
     def __post_init__(self) -> None:
-        for name in ("hmax", "ground"):
+        vectors = (("hmax", len(FEATURES), "finite coefficients", np.isfinite),
+                   ("ground", len(FEATURES), "finite coefficients", np.isfinite),
+                   ("hmax_tail", len(REGIMES), "positive factors", lambda a: a > 0),
+                   ("ground_tail", len(REGIMES), "positive factors", lambda a: a > 0))
+        for name, size, what, good in vectors:
             v = getattr(self, name)
             try:
                 arr = np.asarray(v, dtype=float)
             except (TypeError, ValueError):
                 arr = np.array([np.nan])
-            if arr.shape != (len(FEATURES),) or not np.all(np.isfinite(arr)):
-                raise InputError(f"sigma model: {name} needs {len(FEATURES)} finite "
-                                 f"coefficients, got {v!r}")
-        for name in ("hmax_tail", "ground_tail"):
-            v = getattr(self, name)
-            try:
-                arr = np.asarray(v, dtype=float)
-            except (TypeError, ValueError):
-                arr = np.array([np.nan])
-            if arr.shape != (len(REGIMES),) or not np.all(arr > 0):
-                raise InputError(f"sigma model: {name} needs {len(REGIMES)} positive "
-                                 f"factors, got {v!r}")
+            if arr.shape != (size,) or not np.all(good(arr)):
+                raise InputError(f"sigma model: {name} needs {size} {what}, got {v!r}")
         for name in ("hmax_max", "ground_max", "floor", "weak_signal", "day_background"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and v > 0):
