@@ -56,10 +56,12 @@ def compiled() -> ModuleType | None:
     """The compiled kernels' module (imported once, lazily: numba costs ~0.3 s to import),
     or None where numba is missing."""
     if "mod" not in _STATE:
+        mod: ModuleType | None
         try:
             _cache_dir()
-            from . import kernels_numba as mod
+            from . import kernels_numba
+            mod = kernels_numba
         except ImportError:
             mod = None
         _STATE["mod"] = mod
-    return _STATE["mod"]  # type: ignore[no-any-return]
+    return _STATE["mod"]

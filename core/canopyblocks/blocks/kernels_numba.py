@@ -99,8 +99,10 @@ def box_counts(ss: np.ndarray, zs: np.ndarray, starts: np.ndarray, ends: np.ndar
         cmax = 0
         rmax = 0
         for i in range(lo[k], hi[k]):
-            cmax = max(cmax, np.int32(np.floor((ss[i] - s0) / ds)))
-            rmax = max(rmax, np.int32(np.floor((zs[i] - zmin) / dz)))
+            c = int(np.int32(np.floor((ss[i] - s0) / ds)))
+            r = int(np.int32(np.floor((zs[i] - zmin) / dz)))
+            cmax = c if c > cmax else cmax
+            rmax = r if r > rmax else rmax
         if (cmax + 1) * (rmax + 1) > max_cells:
             return k, cmax + 1, rmax + 1
     width = int((hi - lo).max()) if nseg else 0
