@@ -30,7 +30,6 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError, NoUsableDataError
-from . import kernels
 from .ground_surface import (
     GroundSurface,
     _binned_sums,
@@ -40,6 +39,7 @@ from .ground_surface import (
     _node_bins,
 )
 from .grouped import percentile_by_group
+from .kernels import compiled, enabled
 
 __all__ = ["SurfaceParams", "fit_atl08_surface"]
 
@@ -175,7 +175,7 @@ def _pass(ss: np.ndarray, zz: np.ndarray, bins: np.ndarray, nodes: np.ndarray,
     ``near_within``, which photons lie within that of the surface (indices into ``cur``)."""
     n = ss.size if cur is None else cur.size
     m = nodes.size
-    mod = kernels.compiled() if p.footprint_radius <= 0 and kernels.enabled() else None
+    mod = compiled() if p.footprint_radius <= 0 and enabled() else None
     if mod is not None:  # one compiled pass, no chunks (the same bits)
         weighs = np.zeros(n, bool)
         sums2 = np.zeros((5, m))

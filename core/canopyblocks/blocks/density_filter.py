@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
-from . import kernels
+from .kernels import compiled, enabled
 
 __all__ = ["DensityParams", "DensityResult", "density_filter", "box_area", "poisson_quantile"]
 
@@ -122,7 +122,7 @@ def _box_counts(ss: np.ndarray, zs: np.ndarray, starts: np.ndarray, ends: np.nda
     with a box's width of empty cells on every side, so no box needs clipping.
     """
     out = np.empty(ss.size, np.int64)
-    mod = kernels.compiled() if kernels.enabled() else None
+    mod = compiled() if enabled() else None
     if mod is not None:  # one compiled pass: a running histogram of rows (the same counts)
         k, nc, nr = mod.box_counts(ss, zs, starts.astype(np.int64), ends.astype(np.int64),
                                    lo.astype(np.int64), hi.astype(np.int64),

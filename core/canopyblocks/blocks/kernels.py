@@ -14,6 +14,7 @@ temporary folder; ``NUMBA_CACHE_DIR``, when set, wins.
 
 from __future__ import annotations
 
+import importlib
 import os
 import tempfile
 from pathlib import Path
@@ -59,8 +60,7 @@ def compiled() -> ModuleType | None:
         mod: ModuleType | None
         try:
             _cache_dir()
-            from . import kernels_numba
-            mod = kernels_numba
+            mod = importlib.import_module(__name__ + "_numba")
         except ImportError:
             mod = None
         _STATE["mod"] = mod

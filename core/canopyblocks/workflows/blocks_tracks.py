@@ -87,8 +87,6 @@ def run_track_job(job: TrackJob) -> TrackOutcome:
             out = TrackOutcome(job, problem=str(exc))
         else:
             if job.segments is not None:
-                from .segments import segments_of_track
-
                 length, s0, classifier = job.segments
                 blocks = segments_of_track(t, classifier, length, s0,
                                            with_photons=job.keep_track)
@@ -100,6 +98,21 @@ def run_track_job(job: TrackJob) -> TrackOutcome:
                                track=t if job.keep_track else None)
     out.warnings = tuple((str(w.message), w.category) for w in caught)
     return out
+
+
+def segments_of_track(track: PhotonTrack, params: Any, length: float,
+                      s0: float | None, *, with_photons: bool = False) -> pd.DataFrame:
+    """One track's segment table (columns as :func:`segments_from_file`); with
+    ``with_photons`` its photons get their ``classed_pc_flag``."""
+    from ..blocks.atl08_classify import CLASS_COLUMN
+    from ..blocks.atl08_segments import atl08_segments
+    from ..blocks.background_check import classify_photons
+    from ..blocks.uncertainty import add_segment_sigma
+
+    classes = classify_photons(track, params)
+    if with_photons:
+        track.extra[CLASS_COLUMN] = classes.classes
+    return add_segment_sigma(atl08_segments(track, classes, length, s0), track, classes)
 
 
 def track_workers_for(photons_per_track: Sequence[int], workers: int | None = None) -> int:

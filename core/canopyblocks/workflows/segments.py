@@ -17,10 +17,7 @@ import geopandas as gpd
 import numpy as np
 import pandas as pd
 
-from ..blocks.atl08_classify import CLASS_COLUMN, Atl08Params
-from ..blocks.atl08_segments import atl08_segments
-from ..blocks.background_check import classify_photons
-from ..blocks.uncertainty import add_segment_sigma
+from ..blocks.atl08_classify import Atl08Params
 from ..errors import InputError
 from ..photons import PhotonTrack
 from ..progress import Progress, as_progress
@@ -104,16 +101,6 @@ def segments_from_file(
     return table
 
 
-def segments_of_track(track: PhotonTrack, params: Atl08Params | None, length: float,
-                      s0: float | None, *, with_photons: bool = False) -> pd.DataFrame:
-    """One track's segment table (columns as :func:`segments_from_file`); with
-    ``with_photons`` its photons get their ``classed_pc_flag``."""
-    classes = classify_photons(track, params)
-    if with_photons:
-        track.extra[CLASS_COLUMN] = classes.classes
-    return add_segment_sigma(atl08_segments(track, classes, length, s0), track, classes)
-
-
 def _classify_tracks(path: Any, beams: Sequence[str], channel: int | str | None,
                      bbox: Any, crs: Any, params: Atl08Params | None, length: float,
                      s0: float | None, with_photons: bool, workers: int | None,
@@ -122,6 +109,7 @@ def _classify_tracks(path: Any, beams: Sequence[str], channel: int | str | None,
     there are several (the pool and memory cap of ``blocks``), else one after another."""
     from ..readers.remote import is_file_object, source_arg
     from .blocks import _workers_for, read_tracks, select_tracks
+    from .blocks_tracks import segments_of_track
 
     n_workers = 1
     if not is_file_object(path) and workers != 1:
