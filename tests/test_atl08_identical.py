@@ -224,3 +224,20 @@ def test_an_oversized_grid_is_refused_the_same_way(monkeypatch):
     z = np.where(np.arange(s.size) == 7, 1e7, 10.0)  # a far outlier: a huge grid
     with pytest.raises(InputError, match="too large; the height range is huge"):
         density_filter(s, z)
+
+
+@pytest.mark.parametrize("q", [5.0, 50.0, 98.0, 0.0, 100.0])
+def test_percentiles_of_runs_equal_numpy(monkeypatch, path, q):
+    from canopyblocks.blocks.grouped import percentile_by_group
+
+    rng = np.random.default_rng(12)
+    g = np.sort(rng.integers(0, 400, 20_000))
+    g = g[g != 7]  # a group without values: NaN
+    v = np.round(rng.normal(0, 3, g.size), 1)  # many ties
+    got = percentile_by_group(g, v, q, 402)
+    want = np.array([np.percentile(v[g == k], q) if np.any(g == k) else np.nan
+                     for k in range(402)])
+    # (np.percentile interpolates from the upper value past the middle: last bits differ)
+    assert np.allclose(got, want, rtol=0, atol=1e-12, equal_nan=True)
+    a, b = _both(monkeypatch, lambda: percentile_by_group(g, v, q, 402))
+    assert np.array_equal(a, b, equal_nan=True)

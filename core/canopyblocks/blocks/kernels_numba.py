@@ -142,3 +142,26 @@ def box_counts(ss: np.ndarray, zs: np.ndarray, starts: np.ndarray, ends: np.ndar
                 cnt += hist[q]
             out[i] = cnt
     return -1, 0, 0
+
+
+@njit(cache=True, nogil=True)
+def run_percentile(group: np.ndarray, values: np.ndarray, q: float, out: np.ndarray) -> None:
+    """``grouped.percentile_by_group`` for groups in runs (``group`` non-decreasing): each
+    run's values sorted on their own, the percentile picked with numpy's linear formula
+    (``out`` NaN on entry; the groups without values stay NaN)."""
+    n = group.size
+    i = 0
+    while i < n:
+        g = group[i]
+        j = i + 1
+        while j < n and group[j] == g:
+            j += 1
+        v = np.sort(values[i:j])
+        c = j - i
+        pos = q / 100.0 * (c - 1)
+        lo = int(np.floor(pos))
+        hi = min(lo + 1, c - 1)
+        frac = pos - lo
+        a = v[lo]
+        out[g] = a + (v[hi] - a) * frac
+        i = j
