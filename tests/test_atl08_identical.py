@@ -241,3 +241,22 @@ def test_percentiles_of_runs_equal_numpy(monkeypatch, path, q):
     assert np.allclose(got, want, rtol=0, atol=1e-12, equal_nan=True)
     a, b = _both(monkeypatch, lambda: percentile_by_group(g, v, q, 402))
     assert np.array_equal(a, b, equal_nan=True)
+
+
+def test_compile_cache_goes_to_a_writable_folder(monkeypatch, tmp_path, path):
+    # an installed package's folder may be read-only: the cache then goes to the user's
+    import os
+    from pathlib import Path
+
+    from canopyblocks.blocks import kernels
+
+    if path == "numba":
+        pytest.skip("one check is enough")
+    monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    here = Path(kernels.__file__).resolve().parent
+    real = os.access
+    monkeypatch.setattr(os, "access", lambda p, m: False if Path(p) == here else real(p, m))
+    kernels._cache_dir()
+    assert os.environ["NUMBA_CACHE_DIR"] == str(tmp_path / "canopyblocks" / "numba")
+    assert (tmp_path / "canopyblocks" / "numba").is_dir()
