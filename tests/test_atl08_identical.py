@@ -7,6 +7,10 @@
 - the grouped sort equals ``np.lexsort``;
 - the classes of a small fixed-seed track equal those of the classifier before it was
   made fast (a hash of them, recorded from that version).
+
+Every test runs twice: with the compiled loops (numba; skipped where it is missing) and
+with the numpy code they replace (``CANOPYBLOCKS_NUMBA=0``); the last tests compare the two
+directly, on day and night tracks with known and estimated background.
 """
 
 from __future__ import annotations
@@ -29,6 +33,17 @@ from canopyblocks.photons import SPEED_OF_LIGHT, BackgroundRate, PhotonTrack
 from test_atl08_speed import _brute_counts  # the one brute-force box count
 
 UTM = pyproj.CRS.from_epsg(32612)
+
+
+@pytest.fixture(autouse=True, params=["numba", "numpy"])
+def path(request, monkeypatch):
+    """Each test with the compiled loops and with the numpy ones."""
+    if request.param == "numba":
+        pytest.importorskip("numba")
+        monkeypatch.setenv("CANOPYBLOCKS_NUMBA", "1")
+    else:
+        monkeypatch.setenv("CANOPYBLOCKS_NUMBA", "0")
+    return request.param
 
 
 def _forest(seed: int, n_shots: int = 4000, rate_mhz: float = 3.0
@@ -156,3 +171,92 @@ def test_block_rows_equal_a_sorted_search(far):
     pos = np.searchsorted(nums, bidx)
     hit = ok & (pos < len(nums)) & (nums[np.minimum(pos, len(nums) - 1)] == bidx)
     assert np.array_equal(_row_of_block(nums, bidx, ok), np.where(hit, pos, -1))
+
+
+def _both(monkeypatch, fn):
+    """fn() with the numpy loops, then with the compiled ones."""
+    monkeypatch.setenv("CANOPYBLOCKS_NUMBA", "0")
+    a = fn()
+    monkeypatch.setenv("CANOPYBLOCKS_NUMBA", "1")
+    return a, fn()
+
+
+@pytest.mark.parametrize("rate_mhz", [0.15, 3.0])
+def test_compiled_loops_give_the_numpy_bits(monkeypatch, path, rate_mhz):
+    pytest.importorskip("numba")
+    from canopyblocks.blocks import kernels
+
+    if path == "numpy":
+        pytest.skip("one comparison is enough")
+    assert kernels.enabled()
+    s, z = _forest(11, n_shots=5000, rate_mhz=rate_mhz)
+    for p in (DensityParams(), DensityParams(along=40.0, height=4.0, cells=3,
+                                             edge_correction=True)):
+        a, b = _both(monkeypatch, lambda p=p: density_filter(s, z, p))
+        for x, y in zip((a.keep, a.count, a.rate, a.threshold),
+                        (b.keep, b.count, b.rate, b.threshold)):
+            assert np.array_equal(x, y)
+        if not p.edge_correction:  # (the brute force counts without it)
+            assert np.array_equal(b.count, _brute_counts(s, z, p))
+    for sp in (SurfaceParams(), SurfaceParams(bands=(0.6, 2.0, 0.3)),
+               SurfaceParams(footprint_radius=6.5)):
+        a, b = _both(monkeypatch, lambda sp=sp: fit_atl08_surface(s, z, sp))
+        for x, y in zip((a.s, a.z, a.supported, a.candidates),
+                        (b.s, b.z, b.supported, b.candidates)):
+            assert np.array_equal(x, y)
+    o = np.argsort(s, kind="stable")
+    t = s[o] / 7000.0
+    n = s.size
+    for rate in (rate_mhz * 1e6, None):
+        bg = (None if rate is None
+              else BackgroundRate(np.array([0.0, float(t.max()) + 1.0]), np.array([rate] * 2)))
+        track = PhotonTrack(time=t, lat=np.zeros(n), lon=np.zeros(n), h=z[o], x=s[o].copy(),
+                            y=np.zeros(n), s=s[o], track="gt1l", crs=UTM, background=bg)
+        a, b = _both(monkeypatch, lambda track=track: classify_photons(track))
+        assert np.array_equal(a.classes, b.classes)
+        assert np.array_equal(a.height, b.height, equal_nan=True)
+
+
+def test_an_oversized_grid_is_refused_the_same_way(monkeypatch):
+    from canopyblocks.errors import InputError
+
+    s = np.arange(0.0, 300.0, 0.5)
+    z = np.where(np.arange(s.size) == 7, 1e7, 10.0)  # a far outlier: a huge grid
+    with pytest.raises(InputError, match="too large; the height range is huge"):
+        density_filter(s, z)
+
+
+@pytest.mark.parametrize("q", [5.0, 50.0, 98.0, 0.0, 100.0])
+def test_percentiles_of_runs_equal_numpy(monkeypatch, path, q):
+    from canopyblocks.blocks.grouped import percentile_by_group
+
+    rng = np.random.default_rng(12)
+    g = np.sort(rng.integers(0, 400, 20_000))
+    g = g[g != 7]  # a group without values: NaN
+    v = np.round(rng.normal(0, 3, g.size), 1)  # many ties
+    got = percentile_by_group(g, v, q, 402)
+    want = np.array([np.percentile(v[g == k], q) if np.any(g == k) else np.nan
+                     for k in range(402)])
+    # (np.percentile interpolates from the upper value past the middle: last bits differ)
+    assert np.allclose(got, want, rtol=0, atol=1e-12, equal_nan=True)
+    a, b = _both(monkeypatch, lambda: percentile_by_group(g, v, q, 402))
+    assert np.array_equal(a, b, equal_nan=True)
+
+
+def test_compile_cache_goes_to_a_writable_folder(monkeypatch, tmp_path, path):
+    # an installed package's folder may be read-only: the cache then goes to the user's
+    import os
+    from pathlib import Path
+
+    from canopyblocks.blocks import kernels
+
+    if path == "numba":
+        pytest.skip("one check is enough")
+    monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    here = Path(kernels.__file__).resolve().parent
+    real = os.access
+    monkeypatch.setattr(os, "access", lambda p, m: False if Path(p) == here else real(p, m))
+    kernels._cache_dir()
+    assert os.environ["NUMBA_CACHE_DIR"] == str(tmp_path / "canopyblocks" / "numba")
+    assert (tmp_path / "canopyblocks" / "numba").is_dir()

@@ -39,6 +39,7 @@ from .ground_surface import (
     _node_bins,
 )
 from .grouped import percentile_by_group
+from .kernels import compiled, enabled
 
 __all__ = ["SurfaceParams", "fit_atl08_surface"]
 
@@ -174,6 +175,18 @@ def _pass(ss: np.ndarray, zz: np.ndarray, bins: np.ndarray, nodes: np.ndarray,
     ``near_within``, which photons lie within that of the surface (indices into ``cur``)."""
     n = ss.size if cur is None else cur.size
     m = nodes.size
+    mod = compiled() if p.footprint_radius <= 0 and enabled() else None
+    if mod is not None:  # one compiled pass, no chunks (the same bits)
+        weighs = np.zeros(n, bool)
+        sums2 = np.zeros((5, m))
+        near_ix = np.empty(n if near_within is not None else 0, np.int64)
+        k = mod.surface_pass(ss, zz, bins, nodes, surf,
+                             cur if cur is not None else np.empty(0, np.int64),
+                             cur is not None, band, float(p.above_weight), last,
+                             -1.0 if near_within is None else near_within,
+                             weighs, sums2, near_ix)
+        return (weighs, tuple(sums2) if weighs.any() else None,
+                near_ix[:k] if near_within is not None else None)
     # chunks cut where a new node starts
     cuts = [0]
     for j in range(_CHUNK, n, _CHUNK):

@@ -56,6 +56,9 @@ class TrackJob:
     min_signal_conf: int | None = None
     labels: bool = False
     keep_track: bool = False
+    #: (length m, s0 m or None, Atl08Params or None): the track's ATL08-style segments
+    #: instead of its blocks (:func:`~canopyblocks.workflows.segments.segments_of_track`)
+    segments: tuple[float, float | None, Any] | None = None
 
 
 @dataclass
@@ -83,12 +86,33 @@ def run_track_job(job: TrackJob) -> TrackOutcome:
         except NoUsableDataError as exc:
             out = TrackOutcome(job, problem=str(exc))
         else:
-            blocks, labels = blocks_of_track(t, job.params, labels=job.labels,
-                                             estimators=job.estimators)
+            if job.segments is not None:
+                length, s0, classifier = job.segments
+                blocks = segments_of_track(t, classifier, length, s0,
+                                           with_photons=job.keep_track)
+                labels = None
+            else:
+                blocks, labels = blocks_of_track(t, job.params, labels=job.labels,
+                                                 estimators=job.estimators)
             out = TrackOutcome(job, track_id=t.track, crs=t.crs, blocks=blocks, labels=labels,
                                track=t if job.keep_track else None)
     out.warnings = tuple((str(w.message), w.category) for w in caught)
     return out
+
+
+def segments_of_track(track: PhotonTrack, params: Any, length: float,
+                      s0: float | None, *, with_photons: bool = False) -> pd.DataFrame:
+    """One track's segment table (columns as :func:`segments_from_file`); with
+    ``with_photons`` its photons get their ``classed_pc_flag``."""
+    from ..blocks.atl08_classify import CLASS_COLUMN
+    from ..blocks.atl08_segments import atl08_segments
+    from ..blocks.background_check import classify_photons
+    from ..blocks.uncertainty import add_segment_sigma
+
+    classes = classify_photons(track, params)
+    if with_photons:
+        track.extra[CLASS_COLUMN] = classes.classes
+    return add_segment_sigma(atl08_segments(track, classes, length, s0), track, classes)
 
 
 def track_workers_for(photons_per_track: Sequence[int], workers: int | None = None) -> int:
@@ -123,6 +147,7 @@ def blocks_in_workers(
     min_signal_conf: int | None = None,
     labels: bool = False,
     keep_tracks: bool = False,
+    segments: tuple[float, float | None, Any] | None = None,
     progress: Progress | None = None,
 ) -> tuple[gpd.GeoDataFrame, list[str], list[PhotonTrack], dict[str, dict[float, np.ndarray]]]:
     """Blocks of the tracks ``selections`` of ``path`` (see :func:`select_tracks`), read and
@@ -141,6 +166,9 @@ def blocks_in_workers(
     labels : dict
         ``labels[track_id][length]`` with ``labels``.
 
+    With ``segments`` (see :class:`TrackJob`), each track's ATL08-style segment table
+    instead of its blocks.
+
     Raises
     ------
     NoUsableDataError
@@ -149,14 +177,16 @@ def blocks_in_workers(
     prog = as_progress(progress)
     jobs = [TrackJob(path=str(path), selection=dict(sel), params=params, estimators=estimators,
                      atl08=None if atl08 is None else str(atl08), bbox=bbox, crs=crs,
-                     min_signal_conf=min_signal_conf, labels=labels, keep_track=keep_tracks)
+                     min_signal_conf=min_signal_conf, labels=labels, keep_track=keep_tracks,
+                     segments=segments)
             for sel in selections]
     finished = [0]
 
     def done(out: TrackOutcome) -> None:  # raises CancelledError when asked to stop
         finished[0] += 1
         prog.update(finished[0] / max(1, len(jobs)),
-                    f"{out.track_id or out.job.selection}: blocked")
+                    f"{out.track_id or out.job.selection}: "
+                    f"{'classified' if segments else 'blocked'}")
 
     order = (sorted(range(len(jobs)), key=lambda i: -sizes[i]) if len(sizes) == len(jobs)
              else list(range(len(jobs))))

@@ -1,0 +1,167 @@
+"""The numba loops behind :mod:`.kernels` (imported only through it: needs numba).
+
+Each loop does, in one pass, what its numpy twin does in several, with the same floating
+point operations in the same order, so the results are the same bits (integers where
+counting; IEEE operations without fused multiply-adds or reassociation: no fastmath).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+__all__ = ["box_counts", "surface_pass"]
+
+
+@njit(cache=True, nogil=True)
+def _interp_at(x: float, j: int, nodes: np.ndarray, surf: np.ndarray) -> float:
+    """``np.interp(x, nodes, surf)`` for ``nodes[j] <= x < nodes[j + 1]`` (or j the last
+    node), with numpy's formula and its special cases."""
+    m = nodes.size
+    if j < 0:
+        return surf[0]
+    if j >= m - 1:
+        return surf[m - 1]
+    if nodes[j] == x:
+        return surf[j]
+    slope = (surf[j + 1] - surf[j]) / (nodes[j + 1] - nodes[j])
+    v = slope * (x - nodes[j]) + surf[j]
+    if np.isnan(v):
+        v = slope * (x - nodes[j + 1]) + surf[j + 1]
+        if np.isnan(v) and surf[j] == surf[j + 1]:
+            v = surf[j]
+    return v
+
+
+@njit(cache=True, nogil=True)
+def surface_pass(ss: np.ndarray, zz: np.ndarray, bins: np.ndarray, nodes: np.ndarray,
+                 surf: np.ndarray, cur: np.ndarray, use_cur: bool, band: float,
+                 above_weight: float, last: bool, near_within: float,
+                 weighs: np.ndarray, sums: np.ndarray, near: np.ndarray) -> int:
+    """One surface pass over the photons ``cur`` (all with ``use_cur`` False; s sorted):
+    per photon whether its biweight is > 0 (``weighs``), the nodes' five binned sums
+    (``sums``, 5 x nodes, zero on entry) and, with ``near_within`` >= 0, the positions
+    of the photons within that of the surface (``near``; their number is returned)."""
+    n = cur.size if use_cur else ss.size
+    m = nodes.size
+    j = -1
+    k = 0
+    for t in range(n):
+        i = cur[t] if use_cur else t
+        x = ss[i]
+        if j < 0 or x < nodes[j]:
+            j = np.searchsorted(nodes, x, side="right") - 1
+        while j + 1 < m and nodes[j + 1] <= x:
+            j += 1
+        r = zz[i] - _interp_at(x, j, nodes, surf)
+        if near_within >= 0.0 and abs(r) < near_within:
+            near[k] = t
+            k += 1
+        u = r / band
+        w = u * u
+        w = 1.0 - w
+        w = w * w
+        if not abs(u) < 1.0:
+            w = 0.0
+        if not last and r > 0:
+            w *= above_weight
+        if w > 0:
+            weighs[t] = True
+            b = bins[i]
+            ds = x - nodes[b]
+            wds = w * ds
+            wz = w * zz[i]
+            sums[0, b] += w
+            sums[1, b] += wds
+            sums[2, b] += wz
+            sums[3, b] += wds * ds
+            sums[4, b] += wz * ds
+    return k
+
+
+@njit(cache=True, nogil=True)
+def box_counts(ss: np.ndarray, zs: np.ndarray, starts: np.ndarray, ends: np.ndarray,
+               lo: np.ndarray, hi: np.ndarray, ds: float, dz: float, sub: int,
+               max_cells: int, out: np.ndarray) -> tuple[int, int, int]:
+    """The density filter's box counts (see ``density_filter._box_counts``): per segment
+    k, the photons ``lo[k]:hi[k]`` on a grid of cells ``ds`` x ``dz`` with origin at their
+    lowest s and z; each of the photons ``starts[k]:ends[k]`` gets the number of photons
+    in the (2 sub + 1)^2 cells around its own. A running histogram of rows over the
+    columns within ``sub`` of the photon's (the columns rise with s): each photon enters
+    and leaves it once. Returns (-1, 0, 0), or the first segment whose grid exceeds
+    ``max_cells`` with its columns and rows (nothing counted then)."""
+    nseg = starts.size
+    for k in range(nseg):  # the grid sizes first, as the numpy code checks them
+        s0 = ss[lo[k]]
+        zmin = np.inf
+        for i in range(lo[k], hi[k]):
+            zmin = min(zmin, zs[i])
+        cmax = 0
+        rmax = 0
+        for i in range(lo[k], hi[k]):
+            c = int(np.int32(np.floor((ss[i] - s0) / ds)))
+            r = int(np.int32(np.floor((zs[i] - zmin) / dz)))
+            cmax = c if c > cmax else cmax
+            rmax = r if r > rmax else rmax
+        if (cmax + 1) * (rmax + 1) > max_cells:
+            return k, cmax + 1, rmax + 1
+    width = int((hi - lo).max()) if nseg else 0
+    ci = np.empty(width, np.int64)
+    ri = np.empty(width, np.int64)
+    hist = np.zeros(1, np.int64)
+    for k in range(nseg):
+        a, b = lo[k], hi[k]
+        s0 = ss[a]
+        zmin = np.inf
+        for i in range(a, b):
+            zmin = min(zmin, zs[i])
+        nr = 0
+        for i in range(a, b):
+            ci[i - a] = np.int32(np.floor((ss[i] - s0) / ds))
+            ri[i - a] = np.int32(np.floor((zs[i] - zmin) / dz))
+            nr = max(nr, ri[i - a] + 1)
+        if hist.size < nr:
+            hist = np.zeros(nr, np.int64)
+        else:
+            hist[:nr] = 0
+        add = 0  # next entry to enter the histogram
+        rem = 0  # next entry to leave it
+        n = b - a
+        for i in range(starts[k], ends[k]):
+            e = i - a
+            c = ci[e]
+            while add < n and ci[add] <= c + sub:
+                hist[ri[add]] += 1
+                add += 1
+            while rem < n and ci[rem] < c - sub:
+                hist[ri[rem]] -= 1
+                rem += 1
+            r = ri[e]
+            cnt = 0
+            for q in range(max(r - sub, 0), min(r + sub + 1, nr)):
+                cnt += hist[q]
+            out[i] = cnt
+    return -1, 0, 0
+
+
+@njit(cache=True, nogil=True)
+def run_percentile(group: np.ndarray, values: np.ndarray, q: float, out: np.ndarray) -> None:
+    """``grouped.percentile_by_group`` for groups in runs (``group`` non-decreasing): each
+    run's values sorted on their own, the percentile picked with numpy's linear formula
+    (``out`` NaN on entry; the groups without values stay NaN)."""
+    n = group.size
+    i = 0
+    while i < n:
+        g = group[i]
+        j = i + 1
+        while j < n and group[j] == g:
+            j += 1
+        v = np.sort(values[i:j])
+        c = j - i
+        pos = q / 100.0 * (c - 1)
+        lo = int(np.floor(pos))
+        hi = min(lo + 1, c - 1)
+        frac = pos - lo
+        a = v[lo]
+        out[g] = a + (v[hi] - a) * frac
+        i = j
