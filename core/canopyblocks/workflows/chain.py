@@ -25,7 +25,9 @@ from ..progress import Progress, as_progress
 from ..readers.remote import is_file_object, is_url, source_label, source_name
 from ..reference.sensor_width import corridor_width
 from ..schema import LAYER_RESIDUALS, LAYER_STATS
+from ..validation.facts import terrain_of
 from .blocks import blocks_from_file
+from .chain_facts import one_terrain, photon_facts, shared_terrain
 from .chain_figures import BiasOffer, EstimatorSet, chain_figures
 from .chain_photon_report import photon_report
 from .chain_report import datum_sentence, lead_result, summary_lines
@@ -269,11 +271,13 @@ def run_chain(
             if footprint_reference:
                 vfo = validate_blocks_footprint(sets[other].blocks, tiles, **fkw)
                 sets[other] = sets[other].with_footprint(vfo.residuals, vfo.stats)
+        sets = one_terrain(sets, terrain_of(sets[primary].corridor_residuals))
         for s in sets.values():
             layers.update(s.layers())
         lead = sets.get(RECOMMENDED_PRESET) or sets[primary]
         bias = _lead_bias_calibration(lead, photons, res.tracks, width, out)
         cutoffs, edges = None, None
+        extra: dict[str, tuple[str, str, pd.DataFrame]] = {}
         if calibrate:
             from .blocks import run_blocks
 
@@ -282,15 +286,20 @@ def run_chain(
             blocks_c, _ = run_blocks(res.tracks, cutoffs.params, estimators=named_preset("paper"))
             val_c = validate_blocks(blocks_c, dtm=rasters.dtm, dsm_max=rasters.dsm_max,
                                     dsm_p90=rasters.dsm_p90, **vkw)
-            layers.update({f"{LAYER_RESIDUALS}_calibrated": val_c.residuals,
-                           f"{LAYER_STATS}_calibrated": val_c.stats})
+            res_c, stats_c = shared_terrain(val_c.residuals,
+                                            terrain_of(sets[primary].corridor_residuals))
+            layers.update({f"{LAYER_RESIDUALS}_calibrated": res_c,
+                           f"{LAYER_STATS}_calibrated": stats_c})
+            extra[f"{LAYER_STATS}_calibrated"] = ("paper, calibrated cut-offs", "corridor",
+                                                 res_c)
             write_table(cutoffs.table, out / "calibration.csv", layer="calibration")
         if atl08 is not None:
             v8 = validate_atl08(blocks, atl08, width=width)
             layers.update({f"{LAYER_RESIDUALS}_atl08": v8.residuals,
                            f"{LAYER_STATS}_atl08": v8.stats})
         validation = write_layers(layers, out / "validation.gpkg")
-        write_table(val.stats, out / "stats.csv", layer=LAYER_STATS)
+        write_table(sets[primary].corridor_stats, out / "stats.csv", layer=LAYER_STATS)
+        facts = photon_facts(sets, out, extra)
         datum = _vertical_name(ref_vcrs)
         paper = sets.get("paper")
         figures = chain_figures(lead, paper, res.tracks[0], plots_dir, dtm=rasters.dtm,
@@ -304,14 +313,14 @@ def run_chain(
             diameter=diameter, photon_rate=photon_rate, seed=seed, bias=bias,
             calibration=None if cutoffs is None else cutoffs.table, cutoff_edges=edges,
             truth_table=seed002, truth_png=seed002_png, offsets=offsets_doc,
-            tracks=res.tracks)
+            tracks=res.tracks, facts=facts)
         prog.update(1.0, "done")
         return ChainResult(out_dir=out, photons=_as_path(photons), blocks=out / "blocks.gpkg",
                            rasters={"dtm": rasters.dtm, "dsm_max": rasters.dsm_max,
                                     "dsm_p90": rasters.dsm_p90},
                            validation=validation, report=report, plots=figures.all(),
-                           stats=val.stats, simulated=simulated,
-                           summary=summary_lines(lead_result(lead)))
+                           stats=sets[primary].corridor_stats, simulated=simulated,
+                           summary=summary_lines(lead_result(lead, facts)))
 
 
 def _other_preset(primary: str, compare_preset: str | None, calibration: Any) -> str | None:

@@ -46,9 +46,52 @@ def sensor_summary_lines(stats: pd.DataFrame, product: str) -> list[str]:
             continue
         r = row.iloc[0]
         lines.append(f"{words}: RMSE {_fmt(r['rmse'])} m, bias {_fmt(r['bias'], True)} m, "
-                     f"SD {_fmt(r.get('sd', np.nan))} m, r2 {_fmt(r['r2'])} "
+                     f"SD {_fmt(r.get('sd', np.nan))} m, R² {_fmt(r['r2'])} "
                      f"(n = {int(r['n'])}), against {ref}")
     return lines
+
+
+_SENSOR_WORDS = {"height": "canopy height", "ground": "ground elevation",
+                 "top": "canopy top elevation"}
+
+
+def _sensor_summary(val: Any, product: str, out: Path, source: str, *,
+                    simulated: tuple[float, int] | None, words: str
+                    ) -> tuple[pd.DataFrame, list[str], Any]:
+    """The facts of an ESFL/dual run (``facts.csv``), its terminal lines and its
+    report's summary section, all from the one table."""
+    from ..outputs.report import ReportSection
+    from .chain_waveform_report import (
+        facts_lines,
+        facts_sentence,
+        footprint_counts,
+        footprint_facts,
+        simulated_words,
+    )
+
+    pairs = {m: f"ref_{m}" for m in ("height", "ground", "top")
+             if m in val.residuals.columns and f"ref_{m}" in val.residuals.columns}
+    diameter = float(val.stats["length"].iloc[0]) if "length" in val.stats and \
+        len(val.stats) else float("nan")
+    facts = footprint_facts(val.residuals, pairs=pairs, metrics=tuple(pairs),
+                            diameter=diameter, estimators=product,
+                            layer="stats_footprints", out=out)
+    ref = ("the airborne points under each 5 m cell's pixels" if product == "ESFL" else
+           "the footprint-matched airborne points (22 m Gaussian footprint; height "
+           "against its RH98)")
+    lines = facts_lines(facts, _SENSOR_WORDS, ref)
+    paras = []
+    if simulated is not None:
+        paras.append(simulated_words(words, source, azimuth=simulated[0],
+                                     seed=simulated[1]))
+    said = facts_sentence(facts, _SENSOR_WORDS)
+    paras.append(f"Against {ref}: {said}." if said else
+                 "No footprint could be validated against the airborne reference.")
+    paras.append(footprint_counts(facts, "height"))
+    paras.append("Residual = value minus reference value, metres. 95 % intervals: bootstrap "
+                 "over the footprints (2,000 resamples). facts.csv holds every number of "
+                 "this summary.")
+    return facts, lines, ReportSection("Summary", [p for p in paras if p])
 
 
 def run_sensor_chain(
@@ -101,7 +144,7 @@ def run_sensor_chain(
     """
     from ..arguments import check_paths
     from ..outputs.footprint_maps import plot_footprint_map
-    from ..outputs.report import ReportSection, write_report
+    from ..outputs.report import write_report
     from ..outputs.tables import write_layers, write_table
     from ..readers.flash_dual import waveform_product
     from ..readers.las import las_crs
@@ -163,13 +206,18 @@ def run_sensor_chain(
         maps = [plot_footprint_map(val.residuals, c, plots_dir / f"footprints_{c}.png")
                 for c in ("res_height", "res_ground")]
         prog.update(0.95, "report")
-        lines = sensor_summary_lines(val.stats, product)
         words = SENSOR_NAMES["esfl" if product == "ESFL" else "dual"][1]
+        facts, lines, summary = _sensor_summary(val, product, out, Path(path).name,
+                                                simulated=(azimuth, seed) if simulated
+                                                else None, words=words)
+        from .chain_glossary import glossary_section
         from .waveform_report import sensor_report_sections
 
-        sections = [ReportSection("Summary", lines), *sensor_report_sections(
+        sections = [summary, *sensor_report_sections(
             fp, val, product=product, source=Path(path).name, simulated=simulated,
-            tiles=[t.name for t in tiles], words=words, maps=maps)]
+            tiles=[t.name for t in tiles], words=words, maps=maps),
+            glossary_section(["bias", "RMSE", "95 % interval", "R²", "random seed",
+                              "reference outside"])]
         report = write_report(out / "report.html", f"canopyblocks: {words} and validation",
                               sections)
         prog.update(1.0, "done")
@@ -206,7 +254,8 @@ def waveform_chain(las_paths: Sequence[Any], out_dir: Any, photons: Any, sensor:
         l1b = out / "gedi_l1b.h5"
         simulate_sensor_over_tiles(list(las_paths), "gedi", l1b, azimuth=azimuth, seed=seed,
                                    progress=progress.sub(0.0, 0.2))
-        return run_waveform_chain(las_paths, out_dir, l1b, progress=progress.sub(0.2, 1.0))
+        return run_waveform_chain(las_paths, out_dir, l1b, progress=progress.sub(0.2, 1.0),
+                                  simulated=(azimuth, seed))
     if photons is not None and str(photons).lower().endswith((".h5", ".hdf5")):
         from ..readers.flash_dual import flash_dual_sensor
         from ..readers.gedi import is_gedi_l1b

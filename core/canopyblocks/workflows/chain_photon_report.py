@@ -22,13 +22,15 @@ from ..outputs.report import ReportSection, calibration_table, report_stats_tabl
 from ..readers.remote import source_label, source_name
 from ..schema import FLAG_OK, FLAGS, LAYER_BLOCKS
 from .chain_figures import BiasOffer, EstimatorSet, Figures, estimator_words, reference_short
+from .chain_glossary import glossary_section, training_sentence
 from .chain_report import (
-    CORRIDOR_WORDS,
-    FOOTPRINT_WORDS,
     bias_offer_part,
+    counts_sentence,
     details_stats,
+    lead_numbers,
     lead_result,
     low_confidence_sentence,
+    numbers_table,
     paper_section,
     summary_section,
     truth_report_table,
@@ -49,13 +51,16 @@ def photon_report(out: Path, *, tiles: list[Path], photons: Any, simulated: bool
                   calibration: pd.DataFrame | None = None,
                   cutoff_edges: list[str] | None = None,
                   truth_table: pd.DataFrame | None = None, truth_png: Path | None = None,
-                  offsets: dict[str, Any] | None = None) -> Path:
-    """Write ``report.html`` in ``out`` (see the module notes for its order)."""
-    lr = lead_result(lead)
+                  offsets: dict[str, Any] | None = None,
+                  facts: pd.DataFrame | None = None) -> Path:
+    """Write ``report.html`` in ``out`` (see the module notes for its order); every
+    count, n, bias and RMSE of its text comes from ``facts`` (``facts.csv``)."""
+    lr = lead_result(lead, facts)
     blocks = primary.blocks
     source = (f"ICESat-2 photons simulated over the airborne tiles: track azimuth "
-              f"{azimuth:g} degrees, {diameter:g} m footprints, '{photon_rate}' photon rate, "
-              f"seed {seed}; written in the ATL03 layout to {source_name(photons)} and read "
+              f"{azimuth:g} degrees, {diameter:g} m footprints, '{photon_rate}' photon rate "
+              f"(photons per shot of a temperate forest; see the glossary), random seed {seed} "
+              "(the same seed draws the same photons); written in the ATL03 layout to {source_name(photons)} and read "
               "back."
               if simulated else f"Photons read from {source_label(photons)}.")
     beams = [str(t.track) for t in tracks]
@@ -64,16 +69,15 @@ def photon_report(out: Path, *, tiles: list[Path], photons: Any, simulated: bool
         n_tracks=len(tracks), n_photons=int(sum(len(t) for t in tracks)), beams=beams,
         lengths=params.lengths, tiles=tiles, n_blocks=len(lead.blocks),
         map_png=figures.residual_map)
-    extra = [low_confidence_sentence(lead.blocks, lead.name)]
-    extra.append(bias_offer_part(bias, short=True)[0])
-    summary.paragraphs = [*summary.paragraphs, *[e for e in extra if e]]
+    extra = [low_confidence_sentence(lead.blocks, lead.name, lr.facts),
+             bias_offer_part(bias, short=True)[0]]
+    first, *rest = summary.paragraphs
+    summary.paragraphs = [first, training_sentence(tiles), *rest, *[e for e in extra if e]]
     summary.images = [*summary.images, *([figures.profile] if figures.profile else [])]
     sections = [summary]
     if paper is not None and paper is not lead:
         ref_kind = "footprint" if paper.fp_stats is not None else "corridor"
-        sections.append(paper_section(
-            paper.lead_stats, reference=FOOTPRINT_WORDS if ref_kind == "footprint"
-            else CORRIDOR_WORDS, layer=paper.lead_layer, lead=lr))
+        sections.append(paper_section(lead_result(paper, facts, ref_kind), lead=lr))
     sections.append(ReportSection("Inputs", [
         source,
         "Airborne tiles: " + ", ".join(t.name for t in tiles) + ".",
@@ -112,22 +116,31 @@ def photon_report(out: Path, *, tiles: list[Path], photons: Any, simulated: bool
             "single highest crown of a corridor, so this reference sits above what photons "
             "can see: it is not the like-with-like reference of the summary. Residual = "
             "photon value minus reference value, per block, over blocks flagged ok whose "
-            "corridor lies inside the rasters. r2 and slope are of the OLS fit of the "
+            "corridor lies inside the rasters. R² and slope are of the least-squares fit of the "
             f"photon values on the reference values (layer '{paper.corridor_layer}'). No "
-            "correction is fitted against this reference: the report scores heights "
-            "against the " + ("footprint-matched reference." if lead.fp_stats is not None
-                              else "corridor maximum only for comparison.")],
-            details_stats(paper.corridor_stats),
+            "bias correction of the heights is fitted against this reference (the paper's "
+            "own cut-offs are fitted against it, as the paper did, in the section "
+            "'Calibrated cut-offs of the paper's method' when asked for); the report "
+            "scores heights against the "
+            + ("footprint-matched reference." if lead.fp_stats is not None
+               else "corridor maximum only for comparison."),
+            counts_sentence(lead_numbers(lead_result(paper, facts, "corridor").facts))],
+            {"the blocks used, all aspects and slopes together: n, bias and RMSE with "
+             "their 95 % intervals": numbers_table(lead_numbers(
+                 lead_result(paper, facts, "corridor").facts)),
+             **details_stats(paper.corridor_stats)},
             [*figures.paper_scatter, *figures.paper_aspect]))
     if lead.name != "paper" and lead.fp_stats is not None:
         sections.append(ReportSection(f"{_cap(who)} against the corridor maximum", [
             f"Layer '{lead.corridor_layer}', for comparison with the paper's method on the "
             "paper's reference. The corridor maximum sits above what photons can see, so "
             f"{who} looks metres low against it while it is close to the footprint-matched "
-            "reference of the summary; no correction is fitted against it (one would make "
-            "the heights as much too tall against the like-with-like reference)."],
+            "reference of the summary; no bias correction of the heights is fitted against "
+            "it (one would make the heights as much too tall against the like-with-like "
+            "reference).", counts_sentence(lead_numbers(lead_result(lead, facts,
+                                                                    "corridor").facts))],
             {f"{who} against the {reference_short('corridor')}, the blocks used":
-             report_stats_table(lead.corridor_stats[lead.corridor_stats["group"] == "all"])}))
+             numbers_table(lead_numbers(lead_result(lead, facts, "corridor").facts))}))
     if truth_table is not None:
         sections.append(ReportSection("Simulated photons against truth", [
             "A study of the simulation itself, not of the block estimators above. Each "
@@ -140,7 +153,10 @@ def photon_report(out: Path, *, tiles: list[Path], photons: Any, simulated: bool
             "17 m (at its end, as the footprint grows), plus the diameter simulated for the "
             "blocks above if it is another: the rows show how the footprint size changes the "
             "errors. "
-            "Residual = photon minus truth, metres; cover as a fraction of the footprint."],
+            "Residual = photon minus truth, metres; cover as a fraction of the footprint. "
+            "In the figure, each point is the mean residual of the photons of one cover "
+            "class and its error bar plus and minus one standard deviation of those "
+            "photons' residuals (their spread, not the uncertainty of the mean)."],
             {"residuals against truth per footprint diameter": truth_report_table(truth_table)},
             [truth_png] if truth_png is not None else []))
     if calibration is not None:
@@ -162,6 +178,7 @@ def photon_report(out: Path, *, tiles: list[Path], photons: Any, simulated: bool
              calibration_table(calibration)}))
     if offsets is not None:
         sections.append(_offsets_section(offsets))
+    sections.append(glossary_section())
     return write_report(out / "report.html", "canopyblocks: block heights and validation",
                         sections)
 

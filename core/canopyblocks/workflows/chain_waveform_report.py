@@ -16,7 +16,15 @@ import pandas as pd
 
 from ..outputs.report import ReportSection, footprint_stats_table
 
-__all__ = ["waveform_summary_section", "waveform_stats_tables", "MIN_GROUP"]
+__all__ = ["waveform_summary_section", "waveform_stats_tables", "MIN_GROUP",
+           "footprint_facts", "facts_sentence", "facts_lines", "footprint_counts",
+           "GEDI_FOOTPRINT_WORDS", "simulated_words"]
+
+#: Where the GEDI footprint's 22 m comes from (the reference weights the points so).
+GEDI_FOOTPRINT_WORDS = (
+    "Footprint diameter 22 m: GEDI's nominal footprint, the 1/e² diameter of its Gaussian "
+    "beam (sigma 5.5 m); the reference weights the airborne points by the same Gaussian, "
+    "out to 1.5 radii.")
 
 #: Groups with fewer footprints than this are left out of the tables.
 MIN_GROUP = 3
@@ -57,6 +65,77 @@ def waveform_stats_tables(stats: pd.DataFrame) -> dict[str, pd.DataFrame]:
     return out
 
 
+def footprint_facts(residuals: pd.DataFrame, *, pairs: dict[str, str], metrics: Sequence[str],
+                    diameter: float, estimators: str, layer: str,
+                    out: Path | None = None) -> pd.DataFrame:
+    """The run's table of facts of footprint residuals (one row per metric; ``length``
+    = the footprint diameter, m), written to ``facts.csv`` in ``out`` when given."""
+    from ..outputs.tables import write_table
+    from ..validation.facts import fact_rows, facts_table
+
+    table = facts_table(fact_rows(residuals, estimators=estimators, reference="footprint",
+                                  layer=layer, pairs=pairs, metrics=metrics,
+                                  length=diameter))
+    if out is not None:
+        write_table(table, out / "facts.csv", layer="facts")
+    return table
+
+
+def _unit(metric: str) -> str:
+    return "" if metric == "cover" else " m"
+
+
+def facts_sentence(facts: pd.DataFrame, words: dict[str, str], what: str = "footprints"
+                   ) -> str:
+    """Each metric's bias and RMSE with their 95 % intervals, R² and n, from the facts."""
+    parts = []
+    for r in facts.itertuples():
+        if not np.isfinite(r.bias):
+            continue
+        u = _unit(str(r.metric))
+        ci_b = (f" (95 % interval {r.bias_lo:+.2f} to {r.bias_hi:+.2f}{u})"
+                if np.isfinite(r.bias_lo) else "")
+        ci_r = (f" ({r.rmse_lo:.2f} to {r.rmse_hi:.2f}{u})" if np.isfinite(r.rmse_lo) else "")
+        r2 = f", R² {r.r2:.2f}" if np.isfinite(r.r2) else ""
+        parts.append(f"{words.get(str(r.metric), r.metric)} bias {r.bias:+.2f}{u}{ci_b}, "
+                     f"RMSE {r.rmse:.2f}{u}{ci_r}{r2} (n = {int(r.n)} {what})")
+    return "; ".join(parts)
+
+
+def footprint_counts(facts: pd.DataFrame, metric: str, what: str = "footprints") -> str:
+    """Every footprint counted for ``metric``: used, and left out by reason."""
+    row = facts[facts["metric"] == metric]
+    if not len(row):
+        return ""
+    r = row.iloc[0]
+    left = str(r["left_out"]) if isinstance(r["left_out"], str) and r["left_out"] else "none"
+    return (f"Counts: the statistics of {metric} use {int(r['n'])} of the "
+            f"{int(r['n_blocks'])} {what}; left out, by reason: {left}.")
+
+
+def facts_lines(facts: pd.DataFrame, words: dict[str, str], reference: str,
+                what: str = "footprints") -> list[str]:
+    """The terminal summary of a waveform run, from the facts (the report's numbers)."""
+    out = [f"against {reference} (95 % intervals in brackets; every number in facts.csv):"]
+    for r in facts.itertuples():
+        u = _unit(str(r.metric))
+        out.append(f"  {words.get(str(r.metric), r.metric)}: n={int(r.n)} of "
+                   f"{int(r.n_blocks)} {what}  bias={r.bias:+.2f}{u} "
+                   f"[{r.bias_lo:+.2f} to {r.bias_hi:+.2f}]  rmse={r.rmse:.2f}{u} "
+                   f"[{r.rmse_lo:.2f} to {r.rmse_hi:.2f}]  R²={r.r2:.2f}")
+    return out
+
+
+def simulated_words(sensor: str, source: str, *, azimuth: float | None,
+                    seed: int | None) -> str:
+    """The sentence saying a file was simulated over the tiles (not an acquisition)."""
+    how = "" if azimuth is None else f" along a line at azimuth {azimuth:g} degrees"
+    rnd = "" if seed is None else f", random seed {seed}"
+    return (f"{source} ({sensor}) is not an acquisition: it was simulated from the airborne "
+            f"tiles below{how}{rnd}, so the validation checks the processing chain against "
+            "the very points the waveforms were made from.")
+
+
 def _said(stats: pd.DataFrame, metric: str) -> str | None:
     row = stats[(stats["group"] == "all") & (stats["metric"] == metric)]
     if not len(row):
@@ -71,24 +150,28 @@ def _said(stats: pd.DataFrame, metric: str) -> str | None:
 
 def waveform_summary_section(stats: pd.DataFrame, *, source: str, n_footprints: int,
                              beams: Sequence[str], tiles: Sequence[Path],
-                             setting: str) -> ReportSection:
-    """The GEDI report's first section."""
-    alls = stats[stats["group"] == "all"] if len(stats) else stats
-    n_used = int(alls["n"].max()) if len(alls) else 0
+                             setting: str, facts: pd.DataFrame | None = None,
+                             simulated: str = "") -> ReportSection:
+    """The GEDI report's first section (numbers from ``facts`` when given)."""
     paras = [f"{n_footprints} GEDI footprints of {len(beams)} "
              f"{'beam' if len(beams) == 1 else 'beams'} ({', '.join(beams) or 'none'}) of "
              f"{source}, processed with the GEDI L2A algorithm (setting {setting}), "
              f"validated against the airborne lidar tiles {', '.join(t.name for t in tiles)}."]
-    parts = [s for s in (_said(stats, m) for m in ("ground", "rh98", "rh50", "cover")) if s]
-    if parts:
-        paras.append(f"Against the footprint-matched airborne reference (the airborne points "
-                     f"weighted by the footprint's Gaussian), over {n_used} footprints: "
-                     + "; ".join(parts) + ". Cover is a fraction of the footprint (0..1): "
-                     "the weighted share of returns more than 2 m above the ground, for the "
-                     "waveforms from their canopy and ground energy.")
+    if simulated:
+        paras.append(simulated)
+    said = facts_sentence(facts, _WORDS) if facts is not None and len(facts) else ""
+    if said:
+        paras.append("Against the footprint-matched airborne reference (the airborne points "
+                     f"weighted by the footprint's Gaussian): {said}. Cover is a fraction of "
+                     "the footprint (0..1): the weighted share of returns more than 2 m above "
+                     "the ground, for the waveforms from their canopy and ground energy.")
+        paras.append(footprint_counts(facts, "rh98"))
     else:
         paras.append("No footprint could be validated against the airborne reference.")
-    paras.append("Residual = waveform value minus reference value; the tables below are "
-                 "layer 'stats_footprints' of validation.gpkg.")
+    paras.append(GEDI_FOOTPRINT_WORDS)
+    paras.append("Residual = waveform value minus reference value. 95 % intervals: bootstrap "
+                 "over the footprints (2,000 resamples). facts.csv holds every number of "
+                 "this summary; the tables below are layer 'stats_footprints' of "
+                 "validation.gpkg (also stats.csv, its footprint_diameter column in m).")
     tables = {k: v for k, v in waveform_stats_tables(stats).items() if "all footprints" in k}
     return ReportSection("Summary", paras, tables)

@@ -31,6 +31,7 @@ def run_waveform_chain(
     offset: float | None = None,
     photon_vertical_crs: Any = None,
     progress: Progress | None = None,
+    simulated: tuple[float, int] | None = None,
 ) -> Any:
     """GEDI L1B + airborne tiles -> ``footprints.gpkg``, ``validation.gpkg`` (layers
     ``residuals_footprints``, ``stats_footprints``), ``stats.csv``, ``plots/`` (footprint
@@ -46,6 +47,9 @@ def run_waveform_chain(
     geoid, offset, photon_vertical_crs
         The datum rule: GEDI elevations are WGS84-ellipsoidal; a simulated file states the
         tiles' datum it keeps (``photon_vertical_crs`` None: the file's own).
+    simulated : (azimuth, seed), optional
+        The L1B file was simulated over the tiles (``run --sensor gedi``): the report says
+        so first.
 
     Returns
     -------
@@ -55,14 +59,20 @@ def run_waveform_chain(
     from ..outputs.report import ReportSection, write_report
     from ..outputs.tables import write_layers, write_table
     from ..validation.footprints import (
+        FOOTPRINT_METRICS,
         LAYER_RESIDUALS_FOOTPRINTS,
         LAYER_STATS_FOOTPRINTS,
         validate_footprints,
     )
+    from .chain_glossary import glossary_section
     from .chain_report import datum_sentence
     from .chain_result import ChainResult
     from .chain_waveform_report import (
+        _WORDS,
         MIN_GROUP,
+        facts_lines,
+        footprint_facts,
+        simulated_words,
         waveform_stats_tables,
         waveform_summary_section,
     )
@@ -89,7 +99,13 @@ def run_waveform_chain(
         validation = write_layers({LAYER_RESIDUALS_FOOTPRINTS: val.residuals,
                                    LAYER_STATS_FOOTPRINTS: val.stats},
                                   out / "validation.gpkg")
-        write_table(val.stats, out / "stats.csv", layer="stats")
+        write_table(val.stats.rename(columns={"length": "footprint_diameter"}),
+                    out / "stats.csv", layer="stats")
+        diameter = float(val.stats["length"].iloc[0]) if len(val.stats) else 22.0
+        facts = footprint_facts(val.residuals, pairs=FOOTPRINT_METRICS,
+                                metrics=tuple(FOOTPRINT_METRICS), diameter=diameter,
+                                estimators=f"GEDI L2A {getattr(params, 'setting', 'a1')}",
+                                layer=LAYER_STATS_FOOTPRINTS, out=out)
         from .chain_tiles import _tiles_crs, _vertical_name
 
         tiles_datum = _vertical_name(_tiles_crs(tiles))
@@ -99,8 +115,11 @@ def run_waveform_chain(
         setting = getattr(params, "setting", "a1")
         beams_used = sorted(str(b) for b in fp["beam"].unique()) if "beam" in fp else []
         sections = [
-            waveform_summary_section(val.stats, source=Path(l1b).name, n_footprints=len(fp),
-                                     beams=beams_used, tiles=tiles, setting=setting),
+            waveform_summary_section(
+                val.stats, source=Path(l1b).name, n_footprints=len(fp), beams=beams_used,
+                tiles=tiles, setting=setting, facts=facts,
+                simulated="" if simulated is None else simulated_words(
+                    "GEDI", Path(l1b).name, azimuth=simulated[0], seed=simulated[1])),
             ReportSection("Inputs", [
                 f"GEDI L1B waveforms from {source_name(l1b)}, processed with the GEDI L2A "
                 f"algorithm (setting {setting}).",
@@ -115,13 +134,20 @@ def run_waveform_chain(
                 "Each footprint is compared with the airborne points weighted by a Gaussian "
                 "footprint: ground, RH98, RH50 (m) and cover (fraction). Residual = waveform "
                 "value minus reference value. Groups by beam, aspect, slope (degrees) and "
-                f"reference cover class (percent of the footprint); groups of fewer than {MIN_GROUP} footprints are left out of "
-                "the tables (the maps show every footprint)."],
+                "reference cover class (a fraction of the footprint); groups of fewer than "
+                f"{MIN_GROUP} footprints are left out of the tables (the maps show every "
+                "footprint)."],
                 waveform_stats_tables(val.stats), maps),
+            glossary_section(["RH98", "footprint-matched airborne reference", "bias", "RMSE",
+                              "95 % interval", "R²", "L1B / L2A", "cover", "aspect class",
+                              "slope class", "reference outside", "random seed"]),
         ]
         report = write_report(out / "report.html", "canopyblocks: GEDI footprints and "
                               "validation", sections)
         prog.update(1.0, "done")
         return ChainResult(out_dir=out, photons=str(l1b) if is_url(l1b) else Path(l1b), blocks=footprints, rasters={},
                            validation=validation, report=report,
-                           plots=[*wave_plots, *maps], stats=val.stats, simulated=False)
+                           plots=[*wave_plots, *maps], stats=val.stats,
+                           simulated=simulated is not None,
+                           summary=facts_lines(facts, _WORDS,
+                                               "the footprint-matched airborne reference"))

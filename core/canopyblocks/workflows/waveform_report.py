@@ -43,7 +43,11 @@ def sensor_report_sections(fp: pd.DataFrame, val: Any, *, product: str, source: 
            "Reference: the airborne points weighted by a Gaussian footprint of sigma 5.5 m "
            "(22 m): ground = the weighted mean of the ground points, height = RH98 above "
            "it, top = ground + height.")
-    stats = val.stats.copy()
+    from ..outputs.report import footprint_stats_table
+
+    stats = footprint_stats_table(val.stats).rename(
+        columns={"n (blocks)": "n (footprints)", "sd": "SD (m)",
+                 "footprint diameter (m)": "footprint or cell size (m)"})
     return [
         ReportSection("Inputs and method", [
             f"{words.capitalize()} {kind}: {source}. Airborne tiles: {', '.join(tiles)}; "
@@ -55,5 +59,5 @@ def sensor_report_sections(fp: pd.DataFrame, val: Any, *, product: str, source: 
         ReportSection("Validation against the airborne lidar", [
             ref, "Residual = estimate minus reference (m), over the rows flagged ok whose "
             "reference is ok; SD = the residuals' standard deviation."],
-            {"statistics": stats}, list(maps)),
+            {"statistics (heights in m)": stats}, list(maps)),
     ]
