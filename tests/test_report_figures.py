@@ -325,14 +325,23 @@ def test_no_bias_correction_offered_when_it_does_not_improve_the_held_out_error(
     assert "A bias correction" not in page
 
 
-def test_low_confidence_blocks_are_counted_and_said() -> None:
+def test_sigma_sentence_puts_the_observed_coverage_beside_the_prediction() -> None:
+    from canopyblocks.validation.facts import fact_rows, facts_table
+    from canopyblocks.validation.residuals import RESIDUAL_PAIRS
     from canopyblocks.workflows.chain_report import low_confidence_sentence
 
     blocks = pd.DataFrame({"flag": ["ok", "ok", "low_confidence", "low_confidence", "sparse"],
                            "hmax_sigma": [1.0, 2.0, 9.0, 12.0, np.nan]})
-    said = low_confidence_sentence(blocks, "atl08")
-    assert "2 of 5 blocks of 'atl08' are flagged low_confidence" in said
-    assert "left out of the headline" in said and "median 1.5 m" in said
+    # residuals 0.5 and 3.0 against sigmas 1 and 2: one within 1 sigma, both within 2
+    res = pd.DataFrame({"length": 25.0, "flag": blocks["flag"], "ref_flag": "ok",
+                        "use": blocks["flag"] == "ok", "hmax": [10.5, 13.0, 1, 1, np.nan],
+                        "ref_hmax": [10.0, 10.0, 1, 1, 1], "hmax_sigma": blocks["hmax_sigma"]})
+    facts = facts_table(fact_rows(res, estimators="atl08", reference="footprint", layer="s",
+                                  pairs=RESIDUAL_PAIRS, metrics=("hmax",)))
+    assert facts["left_out"].iloc[0] == "low_confidence 2; sparse 1"
+    said = low_confidence_sentence(blocks, "atl08", facts)
+    assert "median sigma 1.50 m" in said and "50% within 1 sigma" in said
+    assert "100% within 2 sigma" in said and "flagged low_confidence" in said
     assert low_confidence_sentence(pd.DataFrame({"flag": ["ok"]}), "atl08") == ""
 
 

@@ -22,7 +22,8 @@ from ..validation.residuals import RESIDUAL_PAIRS
 from ..validation.stats import block_stats
 from .chain_figures import EstimatorSet
 
-__all__ = ["one_terrain", "photon_facts", "lead_facts", "FACTS_FILE", "shared_terrain"]
+__all__ = ["one_terrain", "photon_facts", "lead_facts", "FACTS_FILE", "shared_terrain",
+           "pooled_facts_part"]
 
 #: The file holding every number of a report.
 FACTS_FILE = "facts.csv"
@@ -78,3 +79,20 @@ def lead_facts(facts: pd.DataFrame, s: EstimatorSet, reference: str | None = Non
     """The facts rows of set ``s`` against ``reference`` (default its lead reference)."""
     ref = reference or ("footprint" if s.fp_stats is not None else "corridor")
     return facts[(facts["estimators"] == s.name) & (facts["reference"] == ref)]
+
+
+def pooled_facts_part(residuals: pd.DataFrame, *, name: str, reference: str, layer: str,
+                      out: Path) -> tuple[list[str], dict[str, pd.DataFrame]]:
+    """The facts of pooled residuals (``batch``): written to ``facts.csv`` in ``out``;
+    the report's words (counts by reason, interval method) and its table."""
+    from .chain_report import counts_sentence, lead_numbers, numbers_table
+
+    facts = facts_table(fact_rows(residuals, estimators=name, reference=reference,
+                                  layer=layer, pairs=RESIDUAL_PAIRS, metrics=_METRICS))
+    write_table(facts, out / FACTS_FILE, layer="facts")
+    table = lead_numbers(facts)
+    words = [counts_sentence(table),
+             "95 % intervals: bootstrap over the blocks (2,000 resamples; the analytic "
+             "interval above 5,000 blocks). facts.csv holds these numbers."]
+    return [w for w in words if w], {"ground and canopy height (Hmax), all units pooled, "
+                                     "with 95 % intervals": numbers_table(table)}
