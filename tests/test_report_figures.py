@@ -239,11 +239,12 @@ def test_scatter_and_aspect_titles_name_the_estimator_and_the_reference(monkeypa
     hmax_ax = scatter.axes[[a.get_title() for a in scatter.axes].index("hmax")]
     assert hmax_ax.get_ylabel().startswith("atl08 Hmax")
     # per-block sigmas drawn as error bars of exactly their length (hmax and ground panels)
-    bars = [c for c in hmax_ax.containers if c.get_label() == "1 sigma"]
+    bars = [c for c in hmax_ax.containers
+            if c.get_label() == "predicted 1-sigma error of the block"]
     assert len(bars) == 1
     spans = [abs(seg[1][1] - seg[0][1]) for seg in bars[0].lines[2][0].get_segments()]
     assert np.allclose(spans, 3.0)  # +-1.5 m
-    assert "1 sigma" in [t.get_text() for t in scatter.legends[0].get_texts()]
+    assert "predicted 1-sigma error of the block" in [t.get_text() for t in scatter.legends[0].get_texts()]
     vp.write_validation_plots(res, stats, tmp_path, estimator="paper",
                               reference="corridor maximum", prefix="paper_corridor_")
     assert seen[2]._suptitle.get_text().startswith("The paper's method vs the corridor maximum")
