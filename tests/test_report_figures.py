@@ -109,7 +109,7 @@ def _page(tmp_path: Path, sections) -> str:
 
 def test_no_bias_calibration_says_why_instead_of_an_empty_table(tmp_path) -> None:
     from canopyblocks.outputs.report import ReportSection
-    from canopyblocks.workflows.chain_report import bias_calibration_part
+    from canopyblocks.workflows.chain.report import bias_calibration_part
 
     empty = pd.DataFrame()
     empty.attrs["why"] = "5 usable 50 m blocks of strong beams; at least 6 are needed"
@@ -122,7 +122,7 @@ def test_no_bias_calibration_says_why_instead_of_an_empty_table(tmp_path) -> Non
 
 def test_calibration_tables_have_words_and_units_and_keep_the_correction(tmp_path) -> None:
     from canopyblocks.outputs.report import ReportSection, calibration_table
-    from canopyblocks.workflows.chain_report import bias_calibration_part
+    from canopyblocks.workflows.chain.report import bias_calibration_part
 
     bias = pd.DataFrame({"metric": ["hmax"], "length": [25.0], "strength": ["strong"],
                          "slope": [1.0], "intercept": [7.18], "n": [9.0],
@@ -145,7 +145,7 @@ def test_calibration_tables_have_words_and_units_and_keep_the_correction(tmp_pat
 
 
 def test_datum_sentence_names_the_conversion() -> None:
-    from canopyblocks.workflows.chain_report import datum_sentence
+    from canopyblocks.workflows.chain.report import datum_sentence
 
     s = datum_sentence("differ", offset=0.0, tiles="CGVD28 height")
     assert s == ("the photons' heights were converted to the tiles' (CGVD28 height) datum "
@@ -274,8 +274,8 @@ def test_profile_shows_the_lead_estimators_with_the_paper_overlaid(monkeypatch,
 
 def _offer(tmp_path, monkeypatch, residuals: pd.DataFrame, reference: str = "footprint"):
     from canopyblocks.workflows import blocks as wblocks
-    from canopyblocks.workflows.chain import _lead_bias_calibration
-    from canopyblocks.workflows.chain_figures import EstimatorSet
+    from canopyblocks.workflows.chain.figures import EstimatorSet
+    from canopyblocks.workflows.chain.run import _lead_bias_calibration
 
     monkeypatch.setattr(wblocks, "track_strengths", lambda *a, **k: {})
     corridor = residuals.assign(ref_hmax=residuals["ref_hmax"] + 6.0)  # a taller reference
@@ -292,7 +292,7 @@ def test_bias_correction_offered_when_fitted_on_the_scored_reference_and_it_help
     is about -4 m, is written and offered."""
     import json
 
-    from canopyblocks.workflows.chain_report import bias_offer_part
+    from canopyblocks.workflows.chain.report import bias_offer_part
 
     offer = _offer(tmp_path, monkeypatch, _residuals(offset=4.0, sd=0.5))
     assert offer.offered and offer.reference == "footprint"
@@ -311,7 +311,7 @@ def test_no_bias_correction_offered_when_it_does_not_improve_the_held_out_error(
     """Unbiased blocks (noise only): a fitted correction cannot improve the held-out error,
     so none is offered or written, and the report says why with the numbers."""
     from canopyblocks.outputs.report import ReportSection
-    from canopyblocks.workflows.chain_report import bias_offer_part
+    from canopyblocks.workflows.chain.report import bias_offer_part
 
     offer = _offer(tmp_path, monkeypatch, _residuals(offset=0.0, sd=1.5, seed=3))
     assert not offer.offered
@@ -329,7 +329,7 @@ def test_no_bias_correction_offered_when_it_does_not_improve_the_held_out_error(
 def test_sigma_sentence_puts_the_observed_coverage_beside_the_prediction() -> None:
     from canopyblocks.validation.facts import fact_rows, facts_table
     from canopyblocks.validation.residuals import RESIDUAL_PAIRS
-    from canopyblocks.workflows.chain_report import low_confidence_sentence
+    from canopyblocks.workflows.chain.report import low_confidence_sentence
 
     blocks = pd.DataFrame({"flag": ["ok", "ok", "low_confidence", "low_confidence", "sparse"],
                            "hmax_sigma": [1.0, 2.0, 9.0, 12.0, np.nan]})
@@ -348,7 +348,7 @@ def test_sigma_sentence_puts_the_observed_coverage_beside_the_prediction() -> No
 
 def test_numbers_and_simulation_headers_as_a_reader_reads_them(tmp_path) -> None:
     from canopyblocks.outputs.report import ReportSection, format_number
-    from canopyblocks.workflows.chain_report import truth_report_table
+    from canopyblocks.workflows.chain.report import truth_report_table
 
     assert [format_number(v) for v in (13.0, 1.23456, -0.039, 100.0)] == \
         ["13", "1.23", "-0.04", "100"]

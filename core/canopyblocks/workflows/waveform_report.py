@@ -1,5 +1,5 @@
 """The report sections of the flash-lidar (ESFL) and dual-wavelength chains, after the
-summary that leads with the answer (:mod:`canopyblocks.workflows.chain_flash_dual`):
+summary that leads with the answer (:mod:`canopyblocks.workflows.chain.flash_dual`):
 inputs and method, footprints per flag, the statistics and the maps."""
 
 from __future__ import annotations

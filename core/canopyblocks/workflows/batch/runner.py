@@ -300,8 +300,8 @@ def _reduce(out: Path, units: list[Unit], manifest: dict[str, dict], cfg: BatchC
                                     *(e for e in manifest.values()
                                       if e["status"] == "skipped")]])
     who = "the paper's method" if cfg.preset == "paper" else f"the '{cfg.preset}' estimator"
-    from ..chain_facts import pooled_facts_part
-    from ..chain_glossary import glossary_section
+    from ..chain.facts import pooled_facts_part
+    from ..chain.glossary import glossary_section
 
     fwords, ftables = pooled_facts_part(pd.DataFrame(residuals), name=cfg.preset,
                                         reference="corridor", layer="stats.csv", out=out)

@@ -16,11 +16,11 @@ from pathlib import Path
 
 import pandas as pd
 
-from ..outputs.tables import write_table
-from ..validation.facts import fact_rows, facts_table, share_terrain
-from ..validation.residuals import RESIDUAL_PAIRS
-from ..validation.stats import block_stats
-from .chain_figures import EstimatorSet
+from ...outputs.tables import write_table
+from ...validation.facts import fact_rows, facts_table, share_terrain
+from ...validation.residuals import RESIDUAL_PAIRS
+from ...validation.stats import block_stats
+from .figures import EstimatorSet
 
 __all__ = ["one_terrain", "photon_facts", "lead_facts", "FACTS_FILE", "shared_terrain",
            "pooled_facts_part"]
@@ -85,7 +85,7 @@ def pooled_facts_part(residuals: pd.DataFrame, *, name: str, reference: str, lay
                       out: Path) -> tuple[list[str], dict[str, pd.DataFrame]]:
     """The facts of pooled residuals (``batch``): written to ``facts.csv`` in ``out``;
     the report's words (counts by reason, interval method) and its table."""
-    from .chain_report import counts_sentence, lead_numbers, numbers_table
+    from .report import counts_sentence, lead_numbers, numbers_table
 
     facts = facts_table(fact_rows(residuals, estimators=name, reference=reference,
                                   layer=layer, pairs=RESIDUAL_PAIRS, metrics=_METRICS))

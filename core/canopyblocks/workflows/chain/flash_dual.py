@@ -15,9 +15,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from ..atomic import check_writable, new_files_removed_on_failure
-from ..errors import InputError
-from ..progress import Progress, as_progress
+from ...atomic import check_writable, new_files_removed_on_failure
+from ...errors import InputError
+from ...progress import Progress, as_progress
 
 __all__ = ["run_sensor_chain", "waveform_chain", "SENSOR_NAMES", "sensor_summary_lines"]
 
@@ -60,8 +60,8 @@ def _sensor_summary(val: Any, product: str, out: Path, source: str, *,
                     ) -> tuple[pd.DataFrame, list[str], Any]:
     """The facts of an ESFL/dual run (``facts.csv``), its terminal lines and its
     report's summary section, all from the one table."""
-    from ..outputs.report import ReportSection
-    from .chain_waveform_report import (
+    from ...outputs.report import ReportSection
+    from .waveform_report import (
         facts_lines,
         facts_sentence,
         footprint_counts,
@@ -142,17 +142,17 @@ def run_sensor_chain(
     -------
     ChainResult
     """
-    from ..arguments import check_paths
-    from ..outputs.footprint_maps import plot_footprint_map
-    from ..outputs.report import write_report
-    from ..outputs.tables import write_layers, write_table
-    from ..readers.flash_dual import waveform_product
-    from ..readers.las import las_crs
-    from ..schema import LAYER_FOOTPRINTS
-    from ..validation.flash_footprints import validate_sensor_footprints
-    from ..validation.footprints import LAYER_RESIDUALS_FOOTPRINTS, LAYER_STATS_FOOTPRINTS
-    from .chain_result import ChainResult
-    from .waveforms_flash_dual import LAYER_PIXELS, sensor_footprints
+    from ...arguments import check_paths
+    from ...outputs.footprint_maps import plot_footprint_map
+    from ...outputs.report import write_report
+    from ...outputs.tables import write_layers, write_table
+    from ...readers.flash_dual import waveform_product
+    from ...readers.las import las_crs
+    from ...schema import LAYER_FOOTPRINTS
+    from ...validation.flash_footprints import validate_sensor_footprints
+    from ...validation.footprints import LAYER_RESIDUALS_FOOTPRINTS, LAYER_STATS_FOOTPRINTS
+    from ..waveforms_flash_dual import LAYER_PIXELS, sensor_footprints
+    from .result import ChainResult
 
     check_paths(las_paths, "run_sensor_chain: las_paths", "a LAS/LAZ path or a list of them")
     if path is None and sensor not in SENSOR_NAMES:
@@ -165,16 +165,16 @@ def run_sensor_chain(
         out.mkdir(parents=True, exist_ok=True)
         simulated = path is None
         if path is None:
-            from ..simulate.sensor_files import simulate_sensor_over_tiles
+            from ...simulate.sensor_files import simulate_sensor_over_tiles
 
             params: Any = None
             if noise is not None:
                 if sensor == "esfl":
-                    from ..simulate.flash_cubes import FlashSimParams
+                    from ...simulate.flash_cubes import FlashSimParams
 
                     params = FlashSimParams(noise_sd=float(noise))
                 else:
-                    from ..simulate.sensor_files import DualAlsParams
+                    from ...simulate.sensor_files import DualAlsParams
 
                     params = DualAlsParams(noise=float(noise))
             path = out / f"{sensor}.h5"
@@ -210,8 +210,8 @@ def run_sensor_chain(
         facts, lines, summary = _sensor_summary(val, product, out, Path(path).name,
                                                 simulated=(azimuth, seed) if simulated
                                                 else None, words=words)
-        from .chain_glossary import glossary_section
-        from .waveform_report import sensor_report_sections
+        from ..waveform_report import sensor_report_sections
+        from .glossary import glossary_section
 
         sections = [summary, *sensor_report_sections(
             fp, val, product=product, source=Path(path).name, simulated=simulated,
@@ -244,10 +244,10 @@ def waveform_chain(las_paths: Sequence[Any], out_dir: Any, photons: Any, sensor:
     if noise is not None or options is not None:
         raise InputError("the noise level and the flash-lidar / dual-wavelength options "
                          "apply to --sensor esfl and dual (or their files) only")
-    from .chain_waveforms import run_waveform_chain
+    from .waveforms import run_waveform_chain
 
     if sensor == "gedi":
-        from ..simulate.sensor_files import simulate_sensor_over_tiles
+        from ...simulate.sensor_files import simulate_sensor_over_tiles
 
         out = check_writable(out_dir, folder=True)
         out.mkdir(parents=True, exist_ok=True)
@@ -257,8 +257,8 @@ def waveform_chain(las_paths: Sequence[Any], out_dir: Any, photons: Any, sensor:
         return run_waveform_chain(las_paths, out_dir, l1b, progress=progress.sub(0.2, 1.0),
                                   simulated=(azimuth, seed))
     if photons is not None and str(photons).lower().endswith((".h5", ".hdf5")):
-        from ..readers.flash_dual import flash_dual_sensor
-        from ..readers.gedi import is_gedi_l1b
+        from ...readers.flash_dual import flash_dual_sensor
+        from ...readers.gedi import is_gedi_l1b
 
         if flash_dual_sensor(photons) is not None:
             return run_sensor_chain(las_paths, out_dir, path=photons, geoid=geoid,

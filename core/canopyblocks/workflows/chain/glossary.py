@@ -10,7 +10,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from pathlib import Path
 
-from ..outputs.report import ReportSection
+from ...outputs.report import ReportSection
 
 __all__ = ["GLOSSARY", "glossary_section", "training_sentence", "CALIBRATION_TILES",
            "UNSEEN_FIGURES"]

@@ -17,13 +17,13 @@ from typing import Any
 
 import pandas as pd
 
-from ..blocks import BlockParams
-from ..outputs.report import ReportSection, calibration_table, report_stats_table, write_report
-from ..readers.remote import source_label, source_name
-from ..schema import FLAG_OK, FLAGS, LAYER_BLOCKS
-from .chain_figures import BiasOffer, EstimatorSet, Figures, estimator_words, reference_short
-from .chain_glossary import glossary_section, training_sentence
-from .chain_report import (
+from ...blocks import BlockParams
+from ...outputs.report import ReportSection, calibration_table, report_stats_table, write_report
+from ...readers.remote import source_label, source_name
+from ...schema import FLAG_OK, FLAGS, LAYER_BLOCKS
+from .figures import BiasOffer, EstimatorSet, Figures, estimator_words, reference_short
+from .glossary import glossary_section, training_sentence
+from .report import (
     bias_offer_part,
     counts_sentence,
     details_stats,

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from ..outputs.report import ReportSection, report_stats_table
+from ...outputs.report import ReportSection, report_stats_table
 
 __all__ = ["LeadResult", "estimators_sentence", "lead_numbers", "summary_section",
            "paper_section", "summary_lines", "datum_sentence", "bias_calibration_part",
@@ -195,7 +195,7 @@ def summary_section(lead: LeadResult, *, source: str, n_tracks: int, n_photons: 
 
 def paper_section(paper: LeadResult, *, lead: LeadResult | None) -> ReportSection:
     """The paper's method with one paragraph on its known bias (numbers from the facts)."""
-    from ..blocks.estimators import preset
+    from ...blocks.estimators import preset
 
     table = lead_numbers(paper.facts)
     length = _headline_length(table)
@@ -253,7 +253,7 @@ def bias_calibration_part(table: pd.DataFrame, preset: str
                           ) -> tuple[str, dict[str, pd.DataFrame]]:
     """Words and tables of the bias calibration fitted in the chain: its table with the
     held-out error, or why there is none (``table.attrs['why']``)."""
-    from ..outputs.report import calibration_table
+    from ...outputs.report import calibration_table
 
     if table is None or not len(table):
         why = getattr(table, "attrs", {}).get("why", "too few validated blocks")
@@ -287,10 +287,10 @@ def details_stats(stats: pd.DataFrame) -> dict[str, pd.DataFrame]:
 
 def lead_result(s: Any, facts: pd.DataFrame | None = None,
                 reference: str | None = None) -> LeadResult:
-    """The :class:`LeadResult` of an :class:`~canopyblocks.workflows.chain_figures.EstimatorSet`
+    """The :class:`LeadResult` of an :class:`~canopyblocks.workflows.chain.figures.EstimatorSet`
     against ``reference`` (``footprint``/``corridor``; default the footprint-matched one
     when computed), with its rows of the run's ``facts``."""
-    from ..blocks.estimators import RECOMMENDED_PRESET
+    from ...blocks.estimators import RECOMMENDED_PRESET
 
     kind = reference or ("footprint" if s.fp_stats is not None else "corridor")
     ref = FOOTPRINT_WORDS if kind == "footprint" else CORRIDOR_WORDS
@@ -349,7 +349,7 @@ def bias_offer_part(offer: Any, short: bool = False) -> tuple[str, dict[str, pd.
     """Words (and the table) of the lead estimators' bias calibration: offered only when
     fitted against the reference the estimators are scored on and improving every
     held-out error; else why not.  ``short``: one sentence for the summary."""
-    from ..outputs.report import calibration_table
+    from ...outputs.report import calibration_table
 
     who = "the paper's method" if offer.name == "paper" else f"the '{offer.name}' estimator"
     ref = ("footprint-matched reference" if offer.reference == "footprint"

@@ -15,24 +15,24 @@ from typing import Any
 
 import pandas as pd
 
-from ..atomic import check_writable, new_files_removed_on_failure
-from ..blocks import BlockParams
-from ..blocks.estimators import RECOMMENDED_PRESET
-from ..blocks.estimators import preset as named_preset
-from ..errors import FileFormatError, InputError
-from ..outputs.tables import write_layers, write_table
-from ..progress import Progress, as_progress
-from ..readers.remote import is_file_object, is_url, source_label, source_name
-from ..reference.sensor_width import corridor_width
-from ..schema import LAYER_RESIDUALS, LAYER_STATS
-from ..validation.facts import terrain_of
-from .blocks import blocks_from_file
-from .chain_facts import one_terrain, photon_facts, shared_terrain
-from .chain_figures import BiasOffer, EstimatorSet, chain_figures
-from .chain_photon_report import photon_report
-from .chain_report import datum_sentence, lead_result, summary_lines
-from .chain_result import ChainResult
-from .chain_tiles import _tiles_crs, _vertical_name
+from ...atomic import check_writable, new_files_removed_on_failure
+from ...blocks import BlockParams
+from ...blocks.estimators import RECOMMENDED_PRESET
+from ...blocks.estimators import preset as named_preset
+from ...errors import FileFormatError, InputError
+from ...outputs.tables import write_layers, write_table
+from ...progress import Progress, as_progress
+from ...readers.remote import is_file_object, is_url, source_label, source_name
+from ...reference.sensor_width import corridor_width
+from ...schema import LAYER_RESIDUALS, LAYER_STATS
+from ...validation.facts import terrain_of
+from ..blocks import blocks_from_file
+from .facts import one_terrain, photon_facts, shared_terrain
+from .figures import BiasOffer, EstimatorSet, chain_figures
+from .photon_report import photon_report
+from .report import datum_sentence, lead_result, summary_lines
+from .result import ChainResult
+from .tiles import _tiles_crs, _vertical_name
 
 __all__ = ["ChainResult", "run_chain"]
 
@@ -44,10 +44,10 @@ def _simulate(las_paths: Sequence[Path], out: Path, *, azimuth: float, diameter:
               ) -> tuple[Path, Any, pd.DataFrame | None, Path | None]:
     """Simulate one beam over the tiles; with ``realisations`` > 0 also the study of the
     simulated photons against truth (13 and 17 m footprints) with its table and figure."""
-    from ..readers.las import read_las
-    from ..simulate import SimParams, line_through, seed002_experiment, simulate_photons
-    from ..simulate.plots import plot_cover_residuals
-    from ..simulate.writers import write_simulation_atl03
+    from ...readers.las import read_las
+    from ...simulate import SimParams, line_through, seed002_experiment, simulate_photons
+    from ...simulate.plots import plot_cover_residuals
+    from ...simulate.writers import write_simulation_atl03
 
     try:
         points = read_las(list(las_paths), progress=progress.sub(0.0, 0.2))
@@ -115,7 +115,7 @@ def run_chain(
         ``stats``), ``stats.csv``, ``plots/*.png``, ``report.html``.
     photons : path, optional
         ATL03 / MABEL / table photon file, or a GEDI L1B file (then the chain is
-        :func:`~canopyblocks.workflows.chain_waveforms.run_waveform_chain`: footprints validated
+        :func:`~canopyblocks.workflows.chain.waveforms.run_waveform_chain`: footprints validated
         against the tiles).  When None, ICESat-2 photons are simulated
         over the tiles along a line at ``azimuth`` degrees through the survey centre,
         with ``diameter`` m footprints and the ``photon_rate`` (``boreal``, ``temperate``,
@@ -169,20 +169,20 @@ def run_chain(
     sensor : {"icesat2", "gedi", "esfl", "dual"}
         What to simulate without ``photons``: ICESat-2 photons (default), GEDI waveforms,
         flash-lidar (ESFL) cubes or dual-wavelength pairs; the waveform sensors go
-        through :func:`~canopyblocks.workflows.chain_waveforms.run_waveform_chain` or
-        :func:`~canopyblocks.workflows.chain_flash_dual.run_sensor_chain` (as does an
+        through :func:`~canopyblocks.workflows.chain.waveforms.run_waveform_chain` or
+        :func:`~canopyblocks.workflows.chain.flash_dual.run_sensor_chain` (as does an
         ESFL or dual file given as ``photons``).
     sensor_options : SensorOptions, optional
         ESFL and dual: the chain's options (``canopyblocks waveforms``'s).
     noise : float, optional
         ESFL and dual simulations: noise sd as a share of the peak (default 0.05).
     """
-    from ..arguments import check_path, check_paths
+    from ...arguments import check_path, check_paths
     check_paths(las_paths, "run_chain: las_paths", "a LAS/LAZ path or a non-empty list of them")
     check_path(out_dir, "run_chain: out_dir", "a folder path")
-    from ..outputs.profile_plot import plot_profile  # noqa: F401  (fails early without matplotlib)
-    from ..reference.rasters import make_reference_rasters
-    from ..validation.block_validation import validate_atl08, validate_blocks
+    from ...outputs.profile_plot import plot_profile  # noqa: F401  (fails early without matplotlib)
+    from ...reference.rasters import make_reference_rasters
+    from ...validation.block_validation import validate_atl08, validate_blocks
 
     if preset is not None:
         import warnings
@@ -191,7 +191,7 @@ def run_chain(
                       stacklevel=2)
         photon_rate = preset
     prog = as_progress(progress)
-    from .chain_flash_dual import waveform_chain
+    from .flash_dual import waveform_chain
 
     waveform = waveform_chain(las_paths, out_dir, photons, sensor, beams=beams,
                                azimuth=azimuth, seed=seed, geoid=geoid, offset=offset,
@@ -221,7 +221,7 @@ def run_chain(
             width = diameter if width is None else width
         ref_vcrs = _tiles_crs(tiles)
         if not simulated:  # the one datum rule, before minutes of work (validate applies it too)
-            from ..reference.datum import check_vertical_datums
+            from ...reference.datum import check_vertical_datums
 
             check_vertical_datums("EPSG:4979", ref_vcrs, geoid=geoid, offset=offset)
         plots_dir = out / "plots"
@@ -260,7 +260,7 @@ def run_chain(
         sets = {primary: EstimatorSet(primary, blocks, res.labels, "",
                                       val.residuals, val.stats)}
         if footprint_reference:
-            from ..validation.footprints import validate_blocks_footprint
+            from ...validation.footprints import validate_blocks_footprint
 
             vf = validate_blocks_footprint(blocks, tiles, **fkw)
             sets[primary] = sets[primary].with_footprint(vf.residuals, vf.stats)
@@ -279,7 +279,7 @@ def run_chain(
         cutoffs, edges = None, None
         extra: dict[str, tuple[str, str, pd.DataFrame]] = {}
         if calibrate:
-            from .blocks import run_blocks
+            from ..blocks import run_blocks
 
             prog.update(0.9, "calibrating cut-offs")
             cutoffs, edges = _calibrated_cutoffs(res.tracks[0], val.residuals, params)
@@ -341,8 +341,8 @@ def _calibrated_cutoffs(track: Any, residuals: pd.DataFrame, params: BlockParams
     and cut-off); and the words naming those edge cut-offs for the report."""
     import warnings
 
-    from ..blocks.calibration import DEFAULT_GRID, CutoffEdgeWarning
-    from ..validation.calibration import calibrate_against_reference
+    from ...blocks.calibration import DEFAULT_GRID, CutoffEdgeWarning
+    from ...validation.calibration import calibrate_against_reference
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", CutoffEdgeWarning)
@@ -384,12 +384,16 @@ def _coregistered(blocks: Any, tracks: Any, rasters: Any, out: Path, vkw: dict[s
     uncorrected statistics."""
     from dataclasses import replace
 
-    from ..reference.datum import check_vertical_datums
-    from ..reference.raster_sampling import read_surface
-    from ..validation.block_validation import validate_blocks
-    from ..validation.coregistration import coregister
-    from ..validation.coregistration_targets import CoregTargets, apply_offset, targets_from_photons
-    from .coregister import offset_to_apply, vertical_shift, write_offsets
+    from ...reference.datum import check_vertical_datums
+    from ...reference.raster_sampling import read_surface
+    from ...validation.block_validation import validate_blocks
+    from ...validation.coregistration import coregister
+    from ...validation.coregistration_targets import (
+        CoregTargets,
+        apply_offset,
+        targets_from_photons,
+    )
+    from ..coregister import offset_to_apply, vertical_shift, write_offsets
 
     dtm = read_surface(rasters.dtm, what="DTM")
     dsm = read_surface(rasters.dsm_max, what="DSM")
@@ -415,8 +419,8 @@ def _compare_preset(name: str, tracks: Any, params: BlockParams, rasters: Any,
                     vkw: dict[str, Any], prog: Progress) -> EstimatorSet:
     """The blocks made with preset ``name`` (with their photon labels), validated against
     the corridor maximum."""
-    from ..validation.block_validation import validate_blocks
-    from .blocks import run_blocks
+    from ...validation.block_validation import validate_blocks
+    from ..blocks import run_blocks
 
     est = named_preset(name)
     blocks, labels = run_blocks(tracks, params, estimators=est, labels=True,
@@ -437,9 +441,9 @@ def _lead_bias_calibration(lead: EstimatorSet, photons: Any, tracks: Any, width:
     """A bias calibration of the lead estimators fitted against the reference they are
     scored on, with its held-out error; written (``bias_calibration_<name>.json``) and
     offered only when it improves the held-out error of every length and metric."""
-    from ..errors import NoUsableDataError
-    from ..validation.bias_calibration import fit_bias_calibration, write_bias_calibration
-    from .blocks import track_strengths
+    from ...errors import NoUsableDataError
+    from ...validation.bias_calibration import fit_bias_calibration, write_bias_calibration
+    from ..blocks import track_strengths
 
     residuals = lead.lead_residuals
     if "estimators" not in residuals.columns:

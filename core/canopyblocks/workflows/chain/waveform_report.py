@@ -1,4 +1,4 @@
-"""The HTML report's sections of a GEDI run (:mod:`~canopyblocks.workflows.chain_waveforms`).
+"""The HTML report's sections of a GEDI run (:mod:`~canopyblocks.workflows.chain.waveforms`).
 
 It opens with a summary like the photon report's: what was computed, and the footprints'
 errors against the footprint-matched airborne reference.  Counts are of footprints;
@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from ..outputs.report import ReportSection, footprint_stats_table
+from ...outputs.report import ReportSection, footprint_stats_table
 
 __all__ = ["waveform_summary_section", "waveform_stats_tables", "MIN_GROUP",
            "footprint_facts", "facts_sentence", "facts_lines", "footprint_counts",
@@ -70,8 +70,8 @@ def footprint_facts(residuals: pd.DataFrame, *, pairs: dict[str, str], metrics: 
                     out: Path | None = None) -> pd.DataFrame:
     """The run's table of facts of footprint residuals (one row per metric; ``length``
     = the footprint diameter, m), written to ``facts.csv`` in ``out`` when given."""
-    from ..outputs.tables import write_table
-    from ..validation.facts import fact_rows, facts_table
+    from ...outputs.tables import write_table
+    from ...validation.facts import fact_rows, facts_table
 
     table = facts_table(fact_rows(residuals, estimators=estimators, reference="footprint",
                                   layer=layer, pairs=pairs, metrics=metrics,

@@ -11,9 +11,9 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from ..atomic import check_writable, new_files_removed_on_failure
-from ..progress import Progress, as_progress
-from ..readers.remote import is_url, source_name
+from ...atomic import check_writable, new_files_removed_on_failure
+from ...progress import Progress, as_progress
+from ...readers.remote import is_url, source_name
 
 __all__ = ["run_waveform_chain"]
 
@@ -55,19 +55,20 @@ def run_waveform_chain(
     -------
     ChainResult
     """
-    from ..outputs.footprint_maps import write_footprint_plots
-    from ..outputs.report import ReportSection, write_report
-    from ..outputs.tables import write_layers, write_table
-    from ..validation.footprints import (
+    from ...outputs.footprint_maps import write_footprint_plots
+    from ...outputs.report import ReportSection, write_report
+    from ...outputs.tables import write_layers, write_table
+    from ...validation.footprints import (
         FOOTPRINT_METRICS,
         LAYER_RESIDUALS_FOOTPRINTS,
         LAYER_STATS_FOOTPRINTS,
         validate_footprints,
     )
-    from .chain_glossary import glossary_section
-    from .chain_report import datum_sentence
-    from .chain_result import ChainResult
-    from .chain_waveform_report import (
+    from ..waveforms import footprints_from_l1b
+    from .glossary import glossary_section
+    from .report import datum_sentence
+    from .result import ChainResult
+    from .waveform_report import (
         _WORDS,
         MIN_GROUP,
         facts_lines,
@@ -76,7 +77,6 @@ def run_waveform_chain(
         waveform_stats_tables,
         waveform_summary_section,
     )
-    from .waveforms import footprints_from_l1b
 
     prog = as_progress(progress)
     out = check_writable(out_dir, folder=True)
@@ -85,7 +85,7 @@ def run_waveform_chain(
         out.mkdir(parents=True, exist_ok=True)
         plots_dir = out / "plots"
         plots_dir.mkdir(exist_ok=True)
-        from ..readers.las import las_crs
+        from ...readers.las import las_crs
 
         crs = las_crs(tiles[0])
         fp, wave_plots = footprints_from_l1b(l1b, beams=beams or None, params=params, crs=crs,
@@ -106,7 +106,7 @@ def run_waveform_chain(
                                 metrics=tuple(FOOTPRINT_METRICS), diameter=diameter,
                                 estimators=f"GEDI L2A {getattr(params, 'setting', 'a1')}",
                                 layer=LAYER_STATS_FOOTPRINTS, out=out)
-        from .chain_tiles import _tiles_crs, _vertical_name
+        from .tiles import _tiles_crs, _vertical_name
 
         tiles_datum = _vertical_name(_tiles_crs(tiles))
         maps = write_footprint_plots(val.residuals, plots_dir, datum=tiles_datum)
