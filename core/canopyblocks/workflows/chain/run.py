@@ -20,19 +20,11 @@ from ...blocks import BlockParams
 from ...blocks.estimators import RECOMMENDED_PRESET
 from ...blocks.estimators import preset as named_preset
 from ...errors import FileFormatError, InputError
-from ...outputs.tables import write_layers, write_table
+from ...outputs.tables import write_table
 from ...progress import Progress, as_progress
 from ...readers.remote import is_file_object, is_url, source_label, source_name
-from ...reference.sensor_width import corridor_width
-from ...schema import LAYER_RESIDUALS, LAYER_STATS
-from ...validation.facts import terrain_of
-from ..blocks import blocks_from_file
-from .facts import one_terrain, photon_facts, shared_terrain
-from .figures import BiasOffer, EstimatorSet, chain_figures
-from .photon_report import photon_report
-from .report import datum_sentence, lead_result, summary_lines
+from .figures import BiasOffer, EstimatorSet
 from .result import ChainResult
-from .tiles import _tiles_crs, _vertical_name
 
 __all__ = ["ChainResult", "run_chain"]
 
@@ -181,8 +173,16 @@ def run_chain(
     check_paths(las_paths, "run_chain: las_paths", "a LAS/LAZ path or a non-empty list of them")
     check_path(out_dir, "run_chain: out_dir", "a folder path")
     from ...outputs.profile_plot import plot_profile  # noqa: F401  (fails early without matplotlib)
-    from ...reference.rasters import make_reference_rasters
-    from ...validation.block_validation import validate_atl08, validate_blocks
+    from .stages import (
+        RunState,
+        blocks_stage,
+        calibration_stage,
+        photons_stage,
+        rasters_stage,
+        report_stage,
+        validation_stage,
+        write_stage,
+    )
 
     if preset is not None:
         import warnings
@@ -203,124 +203,22 @@ def run_chain(
                         ("diameter", diameter)):
         if value is not None and not (math.isfinite(value) and value > 0):
             raise InputError(f"{name} must be a positive number of metres; got {value!r}")
+    options = {"photons": photons, "beams": beams, "channel": channel, "atl08": atl08,
+               "azimuth": azimuth, "diameter": diameter, "photon_rate": photon_rate,
+               "seed": seed, "width": width, "resolution": resolution, "ground": ground,
+               "geoid": geoid, "offset": offset, "calibrate": calibrate,
+               "realisations": realisations, "estimators": estimators,
+               "calibration": calibration, "compare_preset": compare_preset,
+               "coregister": coregister, "footprint_reference": footprint_reference}
     with new_files_removed_on_failure(out):
         out.mkdir(parents=True, exist_ok=True)
-        tiles = [Path(p) for p in las_paths]
-        params = params or BlockParams(lengths=(10.0, 25.0, 50.0))
-        simulated = photons is None
-        crs: Any = None
-        photon_vcrs = None
-        seed002: pd.DataFrame | None = None
-        seed002_png: Path | None = None
-        if photons is None:
-            photons, crs, seed002, seed002_png = _simulate(
-                tiles, out, azimuth=azimuth, diameter=diameter, preset=photon_rate, seed=seed,
-                realisations=realisations, progress=prog.sub(0.0, 0.25))
-            # simulated heights are the tiles' own heights: same vertical datum by construction
-            offset, geoid, photon_vcrs = 0.0, None, _tiles_crs(tiles) or crs
-            width = diameter if width is None else width
-        ref_vcrs = _tiles_crs(tiles)
-        if not simulated:  # the one datum rule, before minutes of work (validate applies it too)
-            from ...reference.datum import check_vertical_datums
-
-            check_vertical_datums("EPSG:4979", ref_vcrs, geoid=geoid, offset=offset)
-        plots_dir = out / "plots"
-        prog.update(0.25, "block heights")
-        res = blocks_from_file(photons, params, estimators=estimators, calibration=calibration,
-                               beams=beams, channel=channel, atl08=atl08,
-                               crs=crs, output=out / "blocks.gpkg", with_photons=True,
-                               progress=prog.sub(0.25, 0.4))
-        blocks = res.blocks
-        width = corridor_width(width, res.track_ids, source=str(photons))
-        prog.update(0.4, "reference rasters (PDAL)")
-        rasters = make_reference_rasters(tiles, out / "rasters", resolution=resolution,
-                                         crs=blocks.crs, ground=ground,  # type: ignore[arg-type]
-                                         progress=prog.sub(0.4, 0.75))
-        prog.update(0.75, "validation")
-        # the rasters were made in the blocks' (horizontal) CRS: their heights keep the
-        # tiles' vertical datum (ref_vcrs), which the one datum rule (DESIGN 2.6) must see
-        vkw: dict[str, Any] = {"width": width, "geoid": geoid, "offset": offset,
-                               "photon_vertical_crs": photon_vcrs,
-                               "reference_vertical_crs": ref_vcrs}
-        layers: dict[str, pd.DataFrame] = {}
-        offsets_doc = None
-        if coregister:
-            blocks, offsets_doc, before = _coregistered(
-                blocks, res.tracks, rasters, out, vkw, prog.sub(0.75, 0.8),
-                source=source_name(photons))
-            if before is not None:
-                layers[f"{LAYER_STATS}_uncorrected"] = before
-        val = validate_blocks(blocks, dtm=rasters.dtm, dsm_max=rasters.dsm_max,
-                              dsm_p90=rasters.dsm_p90, **vkw, progress=prog.sub(0.8, 0.85))
-        layers = {LAYER_RESIDUALS: val.residuals, LAYER_STATS: val.stats, **layers}
-        fkw: dict[str, Any] = {"geoid": geoid, "offset": offset,
-                               "photon_vertical_crs": photon_vcrs,
-                               "reference_vertical_crs": ref_vcrs}
-        primary = RECOMMENDED_PRESET if estimators is None else (estimators.name or "custom")
-        sets = {primary: EstimatorSet(primary, blocks, res.labels, "",
-                                      val.residuals, val.stats)}
-        if footprint_reference:
-            from ...validation.footprints import validate_blocks_footprint
-
-            vf = validate_blocks_footprint(blocks, tiles, **fkw)
-            sets[primary] = sets[primary].with_footprint(vf.residuals, vf.stats)
-        other = _other_preset(primary, compare_preset, calibration)
-        if other is not None:
-            sets[other] = _compare_preset(other, res.tracks, params, rasters, vkw,
-                                          prog.sub(0.85, 0.9))
-            if footprint_reference:
-                vfo = validate_blocks_footprint(sets[other].blocks, tiles, **fkw)
-                sets[other] = sets[other].with_footprint(vfo.residuals, vfo.stats)
-        sets = one_terrain(sets, terrain_of(sets[primary].corridor_residuals))
-        for s in sets.values():
-            layers.update(s.layers())
-        lead = sets.get(RECOMMENDED_PRESET) or sets[primary]
-        bias = _lead_bias_calibration(lead, photons, res.tracks, width, out)
-        cutoffs, edges = None, None
-        extra: dict[str, tuple[str, str, pd.DataFrame]] = {}
-        if calibrate:
-            from ..blocks import run_blocks
-
-            prog.update(0.9, "calibrating cut-offs")
-            cutoffs, edges = _calibrated_cutoffs(res.tracks[0], val.residuals, params)
-            blocks_c, _ = run_blocks(res.tracks, cutoffs.params, estimators=named_preset("paper"))
-            val_c = validate_blocks(blocks_c, dtm=rasters.dtm, dsm_max=rasters.dsm_max,
-                                    dsm_p90=rasters.dsm_p90, **vkw)
-            res_c, stats_c = shared_terrain(val_c.residuals,
-                                            terrain_of(sets[primary].corridor_residuals))
-            layers.update({f"{LAYER_RESIDUALS}_calibrated": res_c,
-                           f"{LAYER_STATS}_calibrated": stats_c})
-            extra[f"{LAYER_STATS}_calibrated"] = ("paper, calibrated cut-offs", "corridor",
-                                                 res_c)
-            write_table(cutoffs.table, out / "calibration.csv", layer="calibration")
-        if atl08 is not None:
-            v8 = validate_atl08(blocks, atl08, width=width)
-            layers.update({f"{LAYER_RESIDUALS}_atl08": v8.residuals,
-                           f"{LAYER_STATS}_atl08": v8.stats})
-        validation = write_layers(layers, out / "validation.gpkg")
-        write_table(sets[primary].corridor_stats, out / "stats.csv", layer=LAYER_STATS)
-        facts = photon_facts(sets, out, extra)
-        datum = _vertical_name(ref_vcrs)
-        paper = sets.get("paper")
-        figures = chain_figures(lead, paper, res.tracks[0], plots_dir, dtm=rasters.dtm,
-                                datum=datum, lead_reference=_lead_reference(lead))
-        prog.update(0.95, "report")
-        report = photon_report(
-            out, tiles=tiles, photons=photons, simulated=simulated, params=params,
-            width=width, resolution=resolution, primary=sets[primary], lead=lead,
-            paper=paper, figures=figures, azimuth=azimuth,
-            datum=datum_sentence(val.datum, geoid=geoid, offset=offset, tiles=datum),
-            diameter=diameter, photon_rate=photon_rate, seed=seed, bias=bias,
-            calibration=None if cutoffs is None else cutoffs.table, cutoff_edges=edges,
-            truth_table=seed002, truth_png=seed002_png, offsets=offsets_doc,
-            tracks=res.tracks, facts=facts)
-        prog.update(1.0, "done")
-        return ChainResult(out_dir=out, photons=_as_path(photons), blocks=out / "blocks.gpkg",
-                           rasters={"dtm": rasters.dtm, "dsm_max": rasters.dsm_max,
-                                    "dsm_p90": rasters.dsm_p90},
-                           validation=validation, report=report, plots=figures.all(),
-                           stats=sets[primary].corridor_stats, simulated=simulated,
-                           summary=summary_lines(lead_result(lead, facts)))
+        st = RunState(out=out, tiles=[Path(p) for p in las_paths],
+                      params=params or BlockParams(lengths=(10.0, 25.0, 50.0)),
+                      options=options, prog=prog)
+        for stage in (photons_stage, blocks_stage, rasters_stage, validation_stage,
+                      calibration_stage, write_stage):
+            stage(st)
+        return report_stage(st)
 
 
 def _other_preset(primary: str, compare_preset: str | None, calibration: Any) -> str | None:
