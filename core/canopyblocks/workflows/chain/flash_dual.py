@@ -94,6 +94,28 @@ def _sensor_summary(val: Any, product: str, out: Path, source: str, *,
     return facts, lines, ReportSection("Summary", [p for p in paras if p])
 
 
+def _simulate_file(las_paths: Sequence[Any], out: Path, sensor: str, *, azimuth: float,
+                   seed: int, noise: float | None, progress: Progress) -> Path:
+    """An ESFL or dual file simulated over the tiles (``noise``: sd as a share of the
+    peak; default the simulator's), ``out/<sensor>.h5``."""
+    from ...simulate.sensor_files import simulate_sensor_over_tiles
+
+    params: Any = None
+    if noise is not None:
+        if sensor == "esfl":
+            from ...simulate.flash_cubes import FlashSimParams
+
+            params = FlashSimParams(noise_sd=float(noise))
+        else:
+            from ...simulate.sensor_files import DualAlsParams
+
+            params = DualAlsParams(noise=float(noise))
+    path = out / f"{sensor}.h5"
+    simulate_sensor_over_tiles(list(las_paths), sensor, path, azimuth=azimuth, seed=seed,
+                               params=params, progress=progress)
+    return path
+
+
 def run_sensor_chain(
     las_paths: Sequence[str | os.PathLike[str]],
     out_dir: str | os.PathLike[str],
@@ -165,21 +187,8 @@ def run_sensor_chain(
         out.mkdir(parents=True, exist_ok=True)
         simulated = path is None
         if path is None:
-            from ...simulate.sensor_files import simulate_sensor_over_tiles
-
-            params: Any = None
-            if noise is not None:
-                if sensor == "esfl":
-                    from ...simulate.flash_cubes import FlashSimParams
-
-                    params = FlashSimParams(noise_sd=float(noise))
-                else:
-                    from ...simulate.sensor_files import DualAlsParams
-
-                    params = DualAlsParams(noise=float(noise))
-            path = out / f"{sensor}.h5"
-            simulate_sensor_over_tiles(list(las_paths), str(sensor), path, azimuth=azimuth, seed=seed,
-                                       params=params, progress=prog.sub(0.0, 0.3))
+            path = _simulate_file(las_paths, out, str(sensor), azimuth=azimuth, seed=seed,
+                                  noise=noise, progress=prog.sub(0.0, 0.3))
             if geoid is None and offset is None:
                 offset = 0.0   # simulated heights are the tiles' own: one datum by construction
         elif noise is not None:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -18,7 +19,7 @@ from ...outputs.report import ReportSection, footprint_stats_table
 
 __all__ = ["waveform_summary_section", "waveform_stats_tables", "MIN_GROUP",
            "footprint_facts", "facts_sentence", "facts_lines", "footprint_counts",
-           "GEDI_FOOTPRINT_WORDS", "simulated_words"]
+           "GEDI_FOOTPRINT_WORDS", "simulated_words", "gedi_sections"]
 
 #: Where the GEDI footprint's 22 m comes from (the reference weights the points so).
 GEDI_FOOTPRINT_WORDS = (
@@ -175,3 +176,47 @@ def waveform_summary_section(stats: pd.DataFrame, *, source: str, n_footprints: 
                  "validation.gpkg (also stats.csv, its footprint_diameter column in m).")
     tables = {k: v for k, v in waveform_stats_tables(stats).items() if "all footprints" in k}
     return ReportSection("Summary", paras, tables)
+
+
+def gedi_sections(fp: pd.DataFrame, val: Any, facts: pd.DataFrame, *, l1b: Any,
+                  tiles: Sequence[Path], params: Any, simulated: tuple[float, int] | None,
+                  geoid: Any, offset: float | None, tiles_datum: str | None,
+                  wave_plots: Sequence[Path], maps: Sequence[Path]) -> list[ReportSection]:
+    """The sections of the GEDI report: summary (from the facts), inputs, footprints,
+    validation, glossary."""
+    from ...readers.remote import source_name
+    from .glossary import glossary_section
+    from .report import datum_sentence
+
+    flags = fp["flag"].value_counts().rename_axis("flag").reset_index(name="footprints")
+    setting = getattr(params, "setting", "a1")
+    beams_used = sorted(str(b) for b in fp["beam"].unique()) if "beam" in fp else []
+    sections = [
+        waveform_summary_section(
+            val.stats, source=Path(l1b).name, n_footprints=len(fp), beams=beams_used,
+            tiles=tiles, setting=setting, facts=facts,
+            simulated="" if simulated is None else simulated_words(
+                "GEDI", Path(l1b).name, azimuth=simulated[0], seed=simulated[1])),
+        ReportSection("Inputs", [
+            f"GEDI L1B waveforms from {source_name(l1b)}, processed with the GEDI L2A "
+            f"algorithm (setting {setting}).",
+            "Airborne tiles: " + ", ".join(t.name for t in tiles) + "; vertical datums: "
+            + datum_sentence(val.datum, geoid=geoid, offset=offset, tiles=tiles_datum,
+                             what="waveforms")]),
+        ReportSection("Footprints", [
+            f"{len(fp)} footprints (layer 'footprints' of footprints.gpkg: ground, top, "
+            "RH25-RH100, cover (fraction), penetration, flags)."],
+            {"footprints per flag": flags}, list(wave_plots)[:6]),
+        ReportSection("Validation against the airborne lidar", [
+            "Each footprint is compared with the airborne points weighted by a Gaussian "
+            "footprint: ground, RH98, RH50 (m) and cover (fraction). Residual = waveform "
+            "value minus reference value. Groups by beam, aspect, slope (degrees) and "
+            "reference cover class (a fraction of the footprint); groups of fewer than "
+            f"{MIN_GROUP} footprints are left out of the tables (the maps show every "
+            "footprint)."],
+            waveform_stats_tables(val.stats), list(maps)),
+        glossary_section(["RH98", "footprint-matched airborne reference", "bias", "RMSE",
+                          "95 % interval", "R²", "L1B / L2A", "cover", "aspect class",
+                          "slope class", "reference outside", "random seed"]),
+    ]
+    return sections

@@ -13,7 +13,7 @@ from typing import Any
 
 from ...atomic import check_writable, new_files_removed_on_failure
 from ...progress import Progress, as_progress
-from ...readers.remote import is_url, source_name
+from ...readers.remote import is_url
 
 __all__ = ["run_waveform_chain"]
 
@@ -56,7 +56,7 @@ def run_waveform_chain(
     ChainResult
     """
     from ...outputs.footprint_maps import write_footprint_plots
-    from ...outputs.report import ReportSection, write_report
+    from ...outputs.report import write_report
     from ...outputs.tables import write_layers, write_table
     from ...validation.footprints import (
         FOOTPRINT_METRICS,
@@ -65,18 +65,8 @@ def run_waveform_chain(
         validate_footprints,
     )
     from ..waveforms import footprints_from_l1b
-    from .glossary import glossary_section
-    from .report import datum_sentence
     from .result import ChainResult
-    from .waveform_report import (
-        _WORDS,
-        MIN_GROUP,
-        facts_lines,
-        footprint_facts,
-        simulated_words,
-        waveform_stats_tables,
-        waveform_summary_section,
-    )
+    from .waveform_report import _WORDS, facts_lines, footprint_facts, gedi_sections
 
     prog = as_progress(progress)
     out = check_writable(out_dir, folder=True)
@@ -111,37 +101,9 @@ def run_waveform_chain(
         tiles_datum = _vertical_name(_tiles_crs(tiles))
         maps = write_footprint_plots(val.residuals, plots_dir, datum=tiles_datum)
         prog.update(0.95, "report")
-        flags = fp["flag"].value_counts().rename_axis("flag").reset_index(name="footprints")
-        setting = getattr(params, "setting", "a1")
-        beams_used = sorted(str(b) for b in fp["beam"].unique()) if "beam" in fp else []
-        sections = [
-            waveform_summary_section(
-                val.stats, source=Path(l1b).name, n_footprints=len(fp), beams=beams_used,
-                tiles=tiles, setting=setting, facts=facts,
-                simulated="" if simulated is None else simulated_words(
-                    "GEDI", Path(l1b).name, azimuth=simulated[0], seed=simulated[1])),
-            ReportSection("Inputs", [
-                f"GEDI L1B waveforms from {source_name(l1b)}, processed with the GEDI L2A "
-                f"algorithm (setting {setting}).",
-                "Airborne tiles: " + ", ".join(t.name for t in tiles) + "; vertical datums: "
-                + datum_sentence(val.datum, geoid=geoid, offset=offset, tiles=tiles_datum,
-                                 what="waveforms")]),
-            ReportSection("Footprints", [
-                f"{len(fp)} footprints (layer 'footprints' of footprints.gpkg: ground, top, "
-                "RH25-RH100, cover (fraction), penetration, flags)."],
-                {"footprints per flag": flags}, wave_plots[:6]),
-            ReportSection("Validation against the airborne lidar", [
-                "Each footprint is compared with the airborne points weighted by a Gaussian "
-                "footprint: ground, RH98, RH50 (m) and cover (fraction). Residual = waveform "
-                "value minus reference value. Groups by beam, aspect, slope (degrees) and "
-                "reference cover class (a fraction of the footprint); groups of fewer than "
-                f"{MIN_GROUP} footprints are left out of the tables (the maps show every "
-                "footprint)."],
-                waveform_stats_tables(val.stats), maps),
-            glossary_section(["RH98", "footprint-matched airborne reference", "bias", "RMSE",
-                              "95 % interval", "R²", "L1B / L2A", "cover", "aspect class",
-                              "slope class", "reference outside", "random seed"]),
-        ]
+        sections = gedi_sections(fp, val, facts, l1b=l1b, tiles=tiles, params=params,
+                                 simulated=simulated, geoid=geoid, offset=offset,
+                                 tiles_datum=tiles_datum, wave_plots=wave_plots, maps=maps)
         report = write_report(out / "report.html", "canopyblocks: GEDI footprints and "
                               "validation", sections)
         prog.update(1.0, "done")
