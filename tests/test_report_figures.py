@@ -275,7 +275,7 @@ def test_profile_shows_the_lead_estimators_with_the_paper_overlaid(monkeypatch,
 def _offer(tmp_path, monkeypatch, residuals: pd.DataFrame, reference: str = "footprint"):
     from canopyblocks.workflows import blocks as wblocks
     from canopyblocks.workflows.chain.figures import EstimatorSet
-    from canopyblocks.workflows.chain.run import _lead_bias_calibration
+    from canopyblocks.workflows.chain.parts import _lead_bias_calibration
 
     monkeypatch.setattr(wblocks, "track_strengths", lambda *a, **k: {})
     corridor = residuals.assign(ref_hmax=residuals["ref_hmax"] + 6.0)  # a taller reference

@@ -93,7 +93,7 @@ class RunState:
 def photons_stage(st: RunState) -> None:
     """Simulated photons (their heights are the tiles' own: one datum by construction),
     or the file's, checked against the tiles' datum before minutes of work."""
-    from .run import _simulate
+    from .parts import _simulate
 
     o = st.options
     st.photons, st.geoid, st.offset, st.width = (o["photons"], o["geoid"], o["offset"],
@@ -142,7 +142,7 @@ def rasters_stage(st: RunState) -> None:
 def validation_stage(st: RunState) -> None:
     """Every estimator set against every reference, with one terrain per block."""
     from ...validation.block_validation import validate_blocks
-    from .run import _compare_preset, _coregistered, _other_preset
+    from .parts import _compare_preset, _coregistered, _other_preset
 
     o, r = st.options, st.rasters
     st.prog.update(0.75, "validation")
@@ -184,7 +184,7 @@ def calibration_stage(st: RunState) -> None:
     """The lead's bias calibration; the paper's cut-offs fitted to the corridor maximum
     (``calibrate``); ATL08's own heights against the rasters (``atl08``)."""
     from ...validation.block_validation import validate_atl08, validate_blocks
-    from .run import _calibrated_cutoffs, _lead_bias_calibration
+    from .parts import _calibrated_cutoffs, _lead_bias_calibration
 
     o, r = st.options, st.rasters
     assert st.width is not None   # set by blocks_stage
@@ -222,8 +222,8 @@ def write_stage(st: RunState) -> None:
 
 def report_stage(st: RunState) -> ChainResult:
     """Figures, ``report.html`` and the result (its terminal summary from the facts)."""
+    from .parts import _as_path, _lead_reference
     from .photon_report import photon_report
-    from .run import _as_path, _lead_reference
 
     o, lead, r = st.options, st.lead, st.rasters
     datum = _vertical_name(st.ref_vcrs)
