@@ -154,7 +154,7 @@ def plot_aspect_errors(stats: pd.DataFrame, path: str | os.PathLike[str], *, len
         ax.set_xticklabels([f"{c}\nn={k}" for c, k in zip(classes, ns)], fontsize=6)
         for x, v, sh in zip(xs, vals, shown):
             if sh:
-                ax.text(x, v, f"{v:.1f}", ha="center",
+                ax.text(x, v, f"{v:.2f}", ha="center",
                         va="bottom" if v >= 0 else "top", fontsize=6)
         ax.set_ylabel(f"{words} (m)", fontsize=8)
         ax.set_title(f"{m}: {words} by aspect class", fontsize=9)

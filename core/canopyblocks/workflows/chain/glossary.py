@@ -84,6 +84,7 @@ GLOSSARY: dict[str, str] = {
             "(or canopy-top) window.",
     "held out": "scored on blocks not used for the fit: fitted on the even blocks, "
             "scored on the odd ones, and the other way round.",
+    "ALS": "airborne laser scanning: the airborne lidar tiles the reference comes from.",
     "L1B / L2A": "GEDI's waveform product (L1B) and its heights product (L2A), whose "
             "algorithm the chain applies to the waveforms.",
     "cover": "canopy cover: the share of the footprint's returns more than 2 m above the "

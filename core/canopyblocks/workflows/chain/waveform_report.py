@@ -216,7 +216,7 @@ def gedi_sections(fp: pd.DataFrame, val: Any, facts: pd.DataFrame, *, l1b: Any,
             "footprint)."],
             waveform_stats_tables(val.stats), list(maps)),
         glossary_section(["RH98", "footprint-matched airborne reference", "bias", "RMSE",
-                          "95 % interval", "R²", "L1B / L2A", "cover", "aspect class",
+                          "95 % interval", "R²", "L1B / L2A", "ALS", "cover", "aspect class",
                           "slope class", "reference outside", "random seed"]),
     ]
     return sections
