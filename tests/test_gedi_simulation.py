@@ -170,10 +170,10 @@ def test_run_with_gedi_waveforms(scenes: dict[str, Path], tmp_path: Path) -> Non
     page = html.unescape((out / "report.html").read_text())
     first = page.split("<h2>")[1]
     assert first.startswith("Summary") and "GEDI footprints" in first
-    assert re.search(r"ground bias [-+]\d+\.\d\d m, RMSE", first)
+    assert re.search(r"ground bias [-+]\d+\.\d\d m \(95 % interval [^)]*\), RMSE", first)
     assert "<th>n (footprints)</th>" in page and "n (blocks)" not in page
     assert "<th>bias (fraction)</th>" in page
-    groups = re.findall(r"<td>((?:beam|aspect|slope|cover):[^<]*)</td>\s*<td>(\d+)</td>",
+    groups = re.findall(r"<td>((?:beam|aspect|slope|cover) [^<]*)</td>\s*<td>(\d+)</td>",
                         page)
     assert groups and min(int(n) for _, n in groups) >= 3
     # run's reference is simulate's noise-free truth, the same function: equal per footprint

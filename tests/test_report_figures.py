@@ -109,7 +109,7 @@ def _page(tmp_path: Path, sections) -> str:
 
 def test_no_bias_calibration_says_why_instead_of_an_empty_table(tmp_path) -> None:
     from canopyblocks.outputs.report import ReportSection
-    from canopyblocks.workflows.chain_report import bias_calibration_part
+    from canopyblocks.workflows.chain.report import bias_calibration_part
 
     empty = pd.DataFrame()
     empty.attrs["why"] = "5 usable 50 m blocks of strong beams; at least 6 are needed"
@@ -122,7 +122,7 @@ def test_no_bias_calibration_says_why_instead_of_an_empty_table(tmp_path) -> Non
 
 def test_calibration_tables_have_words_and_units_and_keep_the_correction(tmp_path) -> None:
     from canopyblocks.outputs.report import ReportSection, calibration_table
-    from canopyblocks.workflows.chain_report import bias_calibration_part
+    from canopyblocks.workflows.chain.report import bias_calibration_part
 
     bias = pd.DataFrame({"metric": ["hmax"], "length": [25.0], "strength": ["strong"],
                          "slope": [1.0], "intercept": [7.18], "n": [9.0],
@@ -145,7 +145,7 @@ def test_calibration_tables_have_words_and_units_and_keep_the_correction(tmp_pat
 
 
 def test_datum_sentence_names_the_conversion() -> None:
-    from canopyblocks.workflows.chain_report import datum_sentence
+    from canopyblocks.workflows.chain.report import datum_sentence
 
     s = datum_sentence("differ", offset=0.0, tiles="CGVD28 height")
     assert s == ("the photons' heights were converted to the tiles' (CGVD28 height) datum "
@@ -239,11 +239,12 @@ def test_scatter_and_aspect_titles_name_the_estimator_and_the_reference(monkeypa
     hmax_ax = scatter.axes[[a.get_title() for a in scatter.axes].index("hmax")]
     assert hmax_ax.get_ylabel().startswith("atl08 Hmax")
     # per-block sigmas drawn as error bars of exactly their length (hmax and ground panels)
-    bars = [c for c in hmax_ax.containers if c.get_label() == "1 sigma"]
+    bars = [c for c in hmax_ax.containers
+            if c.get_label() == "predicted 1-sigma error of the block"]
     assert len(bars) == 1
     spans = [abs(seg[1][1] - seg[0][1]) for seg in bars[0].lines[2][0].get_segments()]
     assert np.allclose(spans, 3.0)  # +-1.5 m
-    assert "1 sigma" in [t.get_text() for t in scatter.legends[0].get_texts()]
+    assert "predicted 1-sigma error of the block" in [t.get_text() for t in scatter.legends[0].get_texts()]
     vp.write_validation_plots(res, stats, tmp_path, estimator="paper",
                               reference="corridor maximum", prefix="paper_corridor_")
     assert seen[2]._suptitle.get_text().startswith("The paper's method vs the corridor maximum")
@@ -273,8 +274,8 @@ def test_profile_shows_the_lead_estimators_with_the_paper_overlaid(monkeypatch,
 
 def _offer(tmp_path, monkeypatch, residuals: pd.DataFrame, reference: str = "footprint"):
     from canopyblocks.workflows import blocks as wblocks
-    from canopyblocks.workflows.chain import _lead_bias_calibration
-    from canopyblocks.workflows.chain_figures import EstimatorSet
+    from canopyblocks.workflows.chain.figures import EstimatorSet
+    from canopyblocks.workflows.chain.parts import _lead_bias_calibration
 
     monkeypatch.setattr(wblocks, "track_strengths", lambda *a, **k: {})
     corridor = residuals.assign(ref_hmax=residuals["ref_hmax"] + 6.0)  # a taller reference
@@ -291,7 +292,7 @@ def test_bias_correction_offered_when_fitted_on_the_scored_reference_and_it_help
     is about -4 m, is written and offered."""
     import json
 
-    from canopyblocks.workflows.chain_report import bias_offer_part
+    from canopyblocks.workflows.chain.report import bias_offer_part
 
     offer = _offer(tmp_path, monkeypatch, _residuals(offset=4.0, sd=0.5))
     assert offer.offered and offer.reference == "footprint"
@@ -310,7 +311,7 @@ def test_no_bias_correction_offered_when_it_does_not_improve_the_held_out_error(
     """Unbiased blocks (noise only): a fitted correction cannot improve the held-out error,
     so none is offered or written, and the report says why with the numbers."""
     from canopyblocks.outputs.report import ReportSection
-    from canopyblocks.workflows.chain_report import bias_offer_part
+    from canopyblocks.workflows.chain.report import bias_offer_part
 
     offer = _offer(tmp_path, monkeypatch, _residuals(offset=0.0, sd=1.5, seed=3))
     assert not offer.offered
@@ -325,20 +326,29 @@ def test_no_bias_correction_offered_when_it_does_not_improve_the_held_out_error(
     assert "A bias correction" not in page
 
 
-def test_low_confidence_blocks_are_counted_and_said() -> None:
-    from canopyblocks.workflows.chain_report import low_confidence_sentence
+def test_sigma_sentence_puts_the_observed_coverage_beside_the_prediction() -> None:
+    from canopyblocks.validation.facts import fact_rows, facts_table
+    from canopyblocks.validation.residuals import RESIDUAL_PAIRS
+    from canopyblocks.workflows.chain.report import low_confidence_sentence
 
     blocks = pd.DataFrame({"flag": ["ok", "ok", "low_confidence", "low_confidence", "sparse"],
                            "hmax_sigma": [1.0, 2.0, 9.0, 12.0, np.nan]})
-    said = low_confidence_sentence(blocks, "atl08")
-    assert "2 of 5 blocks of 'atl08' are flagged low_confidence" in said
-    assert "left out of the headline" in said and "median 1.5 m" in said
+    # residuals 0.5 and 3.0 against sigmas 1 and 2: one within 1 sigma, both within 2
+    res = pd.DataFrame({"length": 25.0, "flag": blocks["flag"], "ref_flag": "ok",
+                        "use": blocks["flag"] == "ok", "hmax": [10.5, 13.0, 1, 1, np.nan],
+                        "ref_hmax": [10.0, 10.0, 1, 1, 1], "hmax_sigma": blocks["hmax_sigma"]})
+    facts = facts_table(fact_rows(res, estimators="atl08", reference="footprint", layer="s",
+                                  pairs=RESIDUAL_PAIRS, metrics=("hmax",)))
+    assert facts["left_out"].iloc[0] == "low_confidence 2; sparse 1"
+    said = low_confidence_sentence(blocks, "atl08", facts)
+    assert "median sigma 1.50 m" in said and "50% within 1 sigma" in said
+    assert "100% within 2 sigma" in said and "flagged low_confidence" in said
     assert low_confidence_sentence(pd.DataFrame({"flag": ["ok"]}), "atl08") == ""
 
 
 def test_numbers_and_simulation_headers_as_a_reader_reads_them(tmp_path) -> None:
     from canopyblocks.outputs.report import ReportSection, format_number
-    from canopyblocks.workflows.chain_report import truth_report_table
+    from canopyblocks.workflows.chain.report import truth_report_table
 
     assert [format_number(v) for v in (13.0, 1.23456, -0.039, 100.0)] == \
         ["13", "1.23", "-0.04", "100"]

@@ -114,8 +114,8 @@ if TYPE_CHECKING:  # loaded on first use, see __getattr__
     from .workflows.batch import BatchConfig, BatchResult, run_batch
     from .workflows.blocks import BlocksResult, blocks_from_file, read_tracks
     from .workflows.calibrate import calibrate_bias_file
-    from .workflows.chain import run_chain
-    from .workflows.chain_result import ChainResult
+    from .workflows.chain.result import ChainResult
+    from .workflows.chain.run import run_chain
     from .workflows.coregister import coregister_file, write_offsets
     from .workflows.segments import segments_from_file
     from .workflows.validate import FileValidation, validate_file
@@ -201,8 +201,8 @@ _LAZY: dict[str, str] = {
     "validate_footprints": ".validation",
     "write_bias_calibration": ".validation",
     "write_offsets": ".workflows.coregister",
-    "ChainResult": ".workflows.chain_result",
-    "run_chain": ".workflows.chain",
+    "ChainResult": ".workflows.chain.result",
+    "run_chain": ".workflows.chain.run",
     "Estimators": ".blocks.estimators",
     "PRESETS": ".blocks.estimators",
     "preset": ".blocks.estimators",

@@ -101,7 +101,7 @@ def run_cmd(ctx: click.Context, tiles: tuple[str, ...], out_dir: str, photons: s
     from ..blocks import BlockParams
     from ..blocks.estimators import RECOMMENDED_PRESET
     from ..blocks.estimators import preset as named_preset
-    from ..workflows.chain import run_chain
+    from ..workflows.chain.run import run_chain
 
     if simulate and photons:
         raise click.UsageError("give either --photons or --simulate, not both")

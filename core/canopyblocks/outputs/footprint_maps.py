@@ -31,9 +31,9 @@ __all__ = ["plot_footprint_map", "plot_footprint_scatter", "write_footprint_plot
 
 log = logging.getLogger(__name__)
 
-_LABELS = {"rh98": "RH98 (m)", "ground": "ground (m)", "rh50": "RH50 (m)", "cover": "cover",
+_LABELS = {"rh98": "RH98 (m)", "ground": "ground (m)", "rh50": "RH50 (m)", "cover": "cover (fraction)",
            "res_rh98": "RH98 residual (m)", "res_ground": "ground residual (m)",
-           "res_rh50": "RH50 residual (m)", "res_cover": "cover residual",
+           "res_rh50": "RH50 residual (m)", "res_cover": "cover residual (fraction)",
            "res_hmax": "Hmax residual (m)", "res_top": "canopy-top residual (m)",
            "res_h90": "H90 residual (m)", "hmax": "Hmax (m)", "ref_hmax": "reference Hmax (m)"}
 
@@ -238,7 +238,9 @@ def plot_footprint_scatter(residuals: pd.DataFrame, path: str | os.PathLike[str]
             label = f"ground (m, {datum})"
         ax.set_xlabel(f"ALS reference {label}")
         ax.set_ylabel(f"footprint {label}")
-        ax.text(0.03, 0.97, f"n = {st['n']}\nRMSE = {st['rmse']:.2f}\nbias = {st['bias']:+.2f}",
+        unit = "" if m == "cover" else " m"   # cover is a fraction of the footprint
+        ax.text(0.03, 0.97, f"n = {st['n']}\nRMSE = {st['rmse']:.2f}{unit}\n"
+                f"bias = {st['bias']:+.2f}{unit}",
                 transform=ax.transAxes, va="top", ha="left", fontsize=8,
                 bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "0.8"})
     fig.suptitle("Footprints vs footprint-matched ALS reference")

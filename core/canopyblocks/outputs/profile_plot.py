@@ -97,7 +97,8 @@ def plot_profile(
             if m.any():
                 ax.scatter(s_plot[idx][m], track.h[idx][m], s=1.5, c=colour, lw=0, label=what,
                            rasterized=True)
-    styles = ("-", "--", ":", "-.")
+    # the blocks' own lines are solid (thinner for longer blocks): dashes are the
+    # overlay's alone, so a title or caption saying "dashed" names only the overlay
     for i, ln in enumerate(lengths):  # every block length, thinner for longer blocks
         bl = tb[(tb["length"] == ln) & (tb["flag"] == FLAG_OK)]
         if not len(bl):
@@ -109,9 +110,9 @@ def plot_profile(
         lw = max(0.8, 2.0 - 0.4 * i)
         who = "" if name is None else ("the paper's method, " if name == "paper"
                                        else f"{name}, ")
-        ax.plot(xs, top, color="#00a000", lw=lw, ls=styles[i % 4],
+        ax.plot(xs, top, color="#00a000", lw=lw, ls="-", alpha=max(0.4, 1.0 - 0.2 * i),
                 label=f"canopy top ({who}{float(ln):g} m blocks)")
-        ax.plot(xs, gr, color="#8c510a", lw=lw, ls=styles[i % 4],
+        ax.plot(xs, gr, color="#8c510a", lw=lw, ls="-", alpha=max(0.4, 1.0 - 0.2 * i),
                 label=f"ground ({who}{float(ln):g} m blocks)")
     if overlay is not None and len(overlay) and lengths:
         ob = overlay[overlay["track"] == track.track] if "track" in overlay else overlay

@@ -15,7 +15,7 @@ from ..atomic import atomic_output, atomic_outputs, will_exist
 from ..progress import Progress
 
 __all__ = ["ReportSection", "write_report", "report_stats_table", "footprint_stats_table",
-           "format_number",
+           "format_number", "group_words",
            "calibration_table", "STATS_HEADERS", "CALIBRATION_HEADERS"]
 
 log = logging.getLogger(__name__)
@@ -46,8 +46,25 @@ td:first-child,th:first-child{text-align:left}img{max-width:100%;border:1px soli
 STATS_HEADERS: dict[str, str] = {
     "length": "length (m)", "metric": "metric", "group": "group", "n": "n (blocks)",
     "bias": "bias (m)", "rmse": "RMSE (m)", "mae": "MAE (m)", "slope": "slope (m/m)",
-    "r2": "r2",
+    "r2": "R²",
 }
+
+
+def group_words(group: str) -> str:
+    """A statistics group as the report names it, with its unit: ``slope:0-5`` ->
+    ``slope 0-5 degrees``, ``aspect:flat`` -> ``aspect flat (slope below 2 degrees)``,
+    ``cover:0.25-0.5`` -> ``cover 0.25-0.5 (fraction)``, ``all`` -> ``all``."""
+    kind, _, cls = str(group).partition(":")
+    if not cls:
+        return str(group)
+    if kind == "slope":
+        return f"slope {cls} degrees" if cls != "unknown" else "slope unknown"
+    if kind == "aspect":
+        return ("aspect flat (slope below 2 degrees)" if cls == "flat"
+                else f"aspect {cls}")
+    if kind == "cover":
+        return f"cover {cls} (fraction)" if cls != "unknown" else "cover unknown"
+    return f"{kind} {cls}"
 
 
 #: Report headers of the calibration tables (cut-offs and bias), with units.
@@ -88,6 +105,8 @@ def report_stats_table(stats: pd.DataFrame) -> pd.DataFrame:
     for c in ("length", "n"):
         if c in df.columns:
             df[c] = pd.to_numeric(df[c], errors="coerce").round().astype("Int64")
+    if "group" in df.columns:
+        df["group"] = df["group"].map(group_words)
     return df.rename(columns=STATS_HEADERS)
 
 

@@ -3,8 +3,8 @@
 * :func:`plot_validation_scatter`: one panel per metric (ground, top, Hmax, H90) with
   the 1:1 line, the OLS fit of photon on reference and n / r^2 / RMSE / bias (as in
   seed 001 figure 5); blocks with ``use`` only.
-* :func:`plot_aspect_errors`: polar bars of RMSE (or bias) per aspect class, one panel
-  per metric (seed 001 found the largest errors on easterly aspects).
+* :func:`plot_aspect_errors`: bars of RMSE (or bias) per aspect class (flat included),
+  one panel per metric, classes of fewer than 3 blocks named without a bar.
 * :func:`write_validation_plots`: both, per block length, into a folder.
 
 All PNGs are written atomically (Agg backend, no display).
@@ -85,7 +85,8 @@ def plot_validation_scatter(residuals: pd.DataFrame, path: str | os.PathLike[str
         if sig_col is not None and sig_col in sub.columns:
             sig = sub[sig_col].to_numpy(float)[ok]
             ax.errorbar(x, y, yerr=np.where(np.isfinite(sig), sig, 0.0), fmt="none",
-                        ecolor="0.6", elinewidth=0.7, capsize=0, label="1 sigma")
+                        ecolor="0.6", elinewidth=0.7, capsize=0,
+                        label="predicted 1-sigma error of the block")
         ax.scatter(x, y, s=12, alpha=0.7, color="tab:green", edgecolor="none")
         if x.size:
             lo = float(min(x.min(), y.min()))
@@ -103,7 +104,7 @@ def plot_validation_scatter(residuals: pd.DataFrame, path: str | os.PathLike[str
         ax.set_ylabel(f"{estimator or 'photon'} {_axis_title(m, datum)}", fontsize=8)
         ax.set_title(m, fontsize=10)
         ax.text(0.03, 0.97,
-                f"n = {st['n']}\nr² = {st['r2']:.2f}\nRMSE = {st['rmse']:.2f} m\n"
+                f"n = {st['n']}\nR² = {st['r2']:.2f}\nRMSE = {st['rmse']:.2f} m\n"
                 f"bias = {st['bias']:+.2f} m",
                 transform=ax.transAxes, va="top", ha="left", fontsize=8,
                 bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "0.8"})
@@ -124,46 +125,44 @@ def _who(estimator: str | None) -> str:
 
 def plot_aspect_errors(stats: pd.DataFrame, path: str | os.PathLike[str], *, length: float,
                        value: str = "rmse", metrics: Sequence[str] = METRICS,
-                       estimator: str | None = None, reference: str | None = None) -> Path:
-    """Polar bars of ``value`` (``rmse``, ``bias`` or ``mae``) per aspect class.
+                       estimator: str | None = None, reference: str | None = None,
+                       min_n: int = 3) -> Path:
+    """Bars of ``value`` (``rmse``, ``bias`` or ``mae``, metres) per aspect class.
 
-    The bar length is the statistic (metres; negative biases are drawn in red by
-    their magnitude); the class's n is written at the bar end.
+    Every class N..NW and ``flat`` (terrain slope below the flat threshold) with at
+    least ``min_n`` blocks gets a bar, its n written on it; classes with fewer blocks
+    are named below the axis with their n and drawn without a bar.
     """
     if value not in ("rmse", "bias", "mae"):
         raise InputError(f"value must be rmse, bias or mae, got {value!r}")
     st = stats[np.isclose(stats["length"].to_numpy(float), float(length))]
-    fig, axes = new_figure(figsize=(3.4 * len(metrics), 3.8), ncols=len(metrics), squeeze=False,
-                           subplot_kw={"projection": "polar"})
-    theta = np.radians(np.arange(8) * 45.0)
+    classes = (*_ASPECTS, "flat")
+    fig, axes = new_figure(figsize=(3.6 * len(metrics), 3.4), ncols=len(metrics),
+                           squeeze=False)
+    words = {"rmse": "RMSE", "bias": "bias", "mae": "MAE"}[value]
+    xs = np.arange(len(classes))
     for ax, m in zip(axes[0], metrics):
         sm = st[st["metric"] == m].set_index("group")
-        vals = np.array([sm[value].get(f"aspect:{c}", np.nan) for c in _ASPECTS], dtype=float)
-        ns = [int(sm["n"].get(f"aspect:{c}", 0)) for c in _ASPECTS]
-        ax.set_theta_zero_location("N")
-        ax.set_theta_direction(-1)
-        # classes with fewer than 3 blocks are greyed (too few to say anything)
-        colours = ["0.8" if k < 3 else "tab:red" if v < 0 else "tab:blue"
-                   for v, k in zip(np.nan_to_num(vals), ns)]
-        ax.bar(theta, np.abs(np.nan_to_num(vals)), width=np.radians(40), color=colours,
-               alpha=0.75)
-        ax.set_xticks(theta)
-        ax.set_xticklabels(_ASPECTS)
-        top = np.nanmax(np.abs(vals)) if np.isfinite(vals).any() and np.nanmax(
-            np.abs(vals)) > 0 else 1.0
-        ax.set_ylim(0, 1.2 * top)
-        ax.set_rlabel_position(202.5)
-        ax.tick_params(axis="y", labelsize=6)
-        for th, v, k in zip(theta, vals, ns):
-            if np.isfinite(v):
-                ax.text(th, abs(v) + 0.08 * top, f"n={k}", ha="center", fontsize=6)
-        ax.set_title(f"{m}: {value} by aspect (m)", fontsize=9, pad=16)
-    note = "red: negative bias; " if value == "bias" else ""
+        vals = np.array([sm[value].get(f"aspect:{c}", np.nan) for c in classes], dtype=float)
+        ns = np.array([int(sm["n"].get(f"aspect:{c}", 0)) for c in classes])
+        shown = (ns >= min_n) & np.isfinite(vals)
+        colours = ["tab:red" if v < 0 else "tab:blue" for v in np.nan_to_num(vals)]
+        ax.bar(xs[shown], vals[shown], color=[c for c, k in zip(colours, shown) if k],
+               alpha=0.8)
+        ax.axhline(0.0, color="0.4", lw=0.8)
+        ax.set_xticks(xs)
+        ax.set_xticklabels([f"{c}\nn={k}" for c, k in zip(classes, ns)], fontsize=6)
+        for x, v, sh in zip(xs, vals, shown):
+            if sh:
+                ax.text(x, v, f"{v:.2f}", ha="center",
+                        va="bottom" if v >= 0 else "top", fontsize=6)
+        ax.set_ylabel(f"{words} (m)", fontsize=8)
+        ax.set_title(f"{m}: {words} by aspect class", fontsize=9)
     whose = (f"{_who(estimator)} vs the {reference or 'reference'}: "
              if estimator or reference else "")
-    fig.suptitle(f"{whose}errors by aspect, {length:g} m blocks ({note}grey: fewer than "
-                 "3 blocks)",
-                 fontsize=10, y=1.06)  # above the panel titles (saved with a tight box)
+    fig.suptitle(f"{whose}{words} (m) by aspect class, {length:g} m blocks (bars: classes "
+                 f"of {min_n} or more blocks; flat = terrain slope below 2 degrees)",
+                 fontsize=9)
     return save_figure(fig, path)
 
 

@@ -70,6 +70,7 @@ def _holdout_residuals(track: PhotonTrack, params: BlockParams, length: float,
         b = compute_blocks(track, replace(params, lengths=(length,)))
     j = b[b["flag"] == FLAG_OK].merge(ref, on="block")
     return pd.DataFrame({
+        "block": j["block"],
         "top": j["top"] - j["ref_top"],
         "ground": j["ground"] - j["ref_ground"],
         "hmax": j["hmax"] - (j["ref_top"] - j["ref_ground"]),
@@ -147,9 +148,15 @@ def calibrate_against_reference(
             held_d.append(_holdout_residuals(track, params, length, test))
             held_c.append(_holdout_residuals(track, cal, length, test))
         sub.update(1.0, f"{length:g} m calibrated")
-        empty = pd.DataFrame({k: pd.Series(dtype=float) for k in ("top", "ground", "hmax")})
+        empty = pd.DataFrame({k: pd.Series(dtype=float)
+                              for k in ("block", "top", "ground", "hmax")})
         rd = pd.concat(held_d, ignore_index=True) if held_d else empty
         rc = pd.concat(held_c, ignore_index=True) if held_c else empty
+        # both cut-offs scored on the same held-out blocks (those ok under both), so the
+        # two RMSEs and the n beside them are of one set of blocks
+        both = np.intersect1d(rd["block"].to_numpy(), rc["block"].to_numpy())
+        rd = rd[rd["block"].isin(both)]
+        rc = rc[rc["block"].isin(both)]
         td, gd = params.cutoffs_for(length)
         f = fits[length]
         rows.append((length, f.top_cutoff, f.ground_cutoff, td, gd, len(rc),

@@ -13,8 +13,8 @@ weighted percentiles of all returns). Residuals footprint minus reference of ``g
 (m, absolute, after the vertical-datum conversion), ``rh98``, ``rh50`` (m above ground)
 and ``cover`` (0..1), and statistics (``validation.stats.error_stats``) per metric and
 group: ``all``, ``beam:<beam>``, ``aspect:<class>``, ``slope:<class>`` and
-``cover:<class>`` (classes of the reference cover: ``0-25``, ``25-50``, ``50-75``,
-``75-100`` per cent).  Slope and aspect are the ground plane's through the class-2 points
+``cover:<class>`` (classes of the reference cover, a fraction: ``0-0.25``, ``0.25-0.5``,
+``0.5-0.75``, ``0.75-1``).  Slope and aspect are the ground plane's through the class-2 points
 (both definitions).
 
 A footprint enters the statistics (``use``) when its own ``flag`` is ``ok`` and the
@@ -92,7 +92,7 @@ LAYER_STATS_FOOTPRINTS = "stats_footprints"
 #: GEDI elevations: WGS84 ellipsoidal heights.
 GEDI_VERTICAL_CRS = "EPSG:4979"
 _SETTINGS = ("a1", "a2", "a3", "a4", "a5", "a6")
-COVER_CLASSES: tuple[str, ...] = ("0-25", "25-50", "50-75", "75-100")
+COVER_CLASSES: tuple[str, ...] = ("0-0.25", "0.25-0.5", "0.5-0.75", "0.75-1")
 _ABSOLUTE = ("ground", "top")
 
 
@@ -110,7 +110,8 @@ class FootprintValidation:
 
 
 def cover_class(cover: np.ndarray | float) -> np.ndarray:
-    """Cover classes ``0-25``, ``25-50``, ``50-75``, ``75-100`` (per cent; ``unknown`` NaN)."""
+    """Cover classes ``0-0.25``, ``0.25-0.5``, ``0.5-0.75``, ``0.75-1`` (cover is a fraction;
+    ``unknown`` NaN)."""
     c = np.atleast_1d(np.asarray(cover, dtype=float))
     k = np.clip(np.floor(np.nan_to_num(c) * 4.0).astype(int), 0, 3)
     out = np.asarray(COVER_CLASSES, dtype=object)[k]

@@ -1,5 +1,5 @@
 """The report sections of the flash-lidar (ESFL) and dual-wavelength chains, after the
-summary that leads with the answer (:mod:`canopyblocks.workflows.chain_flash_dual`):
+summary that leads with the answer (:mod:`canopyblocks.workflows.chain.flash_dual`):
 inputs and method, footprints per flag, the statistics and the maps."""
 
 from __future__ import annotations
@@ -46,7 +46,11 @@ def sensor_report_sections(fp: pd.DataFrame, val: Any, *, product: str, source: 
            "with the simulated noise level's thresholds: ground = its ground centre, "
            "height = its tree height (first return above noise to the ground start), top = "
            "its first return above noise.")
-    stats = val.stats.copy()
+    from ..outputs.report import footprint_stats_table
+
+    stats = footprint_stats_table(val.stats).rename(
+        columns={"n (blocks)": "n (footprints)", "sd": "SD (m)",
+                 "footprint diameter (m)": "footprint or cell size (m)"})
     return [
         ReportSection("Inputs and method", [
             f"{words.capitalize()} {kind}: {source}. Airborne tiles: {', '.join(tiles)}; "
@@ -58,5 +62,5 @@ def sensor_report_sections(fp: pd.DataFrame, val: Any, *, product: str, source: 
         ReportSection("Validation against the airborne lidar", [
             ref, "Residual = estimate minus reference (m), over the rows flagged ok whose "
             "reference is ok; SD = the residuals' standard deviation."],
-            {"statistics": stats}, list(maps)),
+            {"statistics (heights in m)": stats}, list(maps)),
     ]

@@ -300,6 +300,11 @@ def _reduce(out: Path, units: list[Unit], manifest: dict[str, dict], cfg: BatchC
                                     *(e for e in manifest.values()
                                       if e["status"] == "skipped")]])
     who = "the paper's method" if cfg.preset == "paper" else f"the '{cfg.preset}' estimator"
+    from ..chain.facts import pooled_facts_part
+    from ..chain.glossary import glossary_section
+
+    fwords, ftables = pooled_facts_part(pd.DataFrame(residuals), name=cfg.preset,
+                                        reference="corridor", layer="stats.csv", out=out)
     write_report(out / "report.html", "canopyblocks batch validation", [
         ReportSection("Units", [f"{len(units)} units (granule, beam, tiles); block lengths "
                                 f"{', '.join(f'{v:g}' for v in cfg.lengths)} m, corridor "
@@ -311,9 +316,12 @@ def _reduce(out: Path, units: list[Unit], manifest: dict[str, dict], cfg: BatchC
             "residual = block value minus reference value, metres, all units pooled. The "
             "corridor maximum sits above what sparse photons can see, so canopy heights "
             "look low against it; `run` also validates against the footprint-matched "
-            "reference, the like-with-like one."],
-            {f"{who} against the corridor maximum, all units pooled":
-             report_stats_table(stats)}),
+            "reference, the like-with-like one.", *fwords],
+            {**ftables, f"{who} against the corridor maximum, all units pooled, every "
+             "metric and group": report_stats_table(stats)}),
+        glossary_section(["block", "Hmax", "corridor maximum", "bias", "RMSE",
+                          "95 % interval", "R²", "low_confidence", "sparse",
+                          "reference outside", "aspect class", "slope class"]),
     ])
     return stats
 

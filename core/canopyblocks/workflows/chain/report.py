@@ -22,12 +22,13 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from ..outputs.report import ReportSection, report_stats_table
+from ...outputs.report import ReportSection, report_stats_table
 
 __all__ = ["LeadResult", "estimators_sentence", "lead_numbers", "summary_section",
            "paper_section", "summary_lines", "datum_sentence", "bias_calibration_part",
            "SUMMARY_METRICS", "FOOTPRINT_WORDS", "CORRIDOR_WORDS", "lead_result",
-           "low_confidence_sentence", "bias_offer_part", "truth_report_table", "details_stats"]
+           "low_confidence_sentence", "bias_offer_part", "truth_report_table", "details_stats",
+           "numbers_table", "counts_sentence"]
 
 #: How the report names its two references.
 FOOTPRINT_WORDS = "footprint-matched airborne reference (footprint RH98 and ground)"
@@ -63,7 +64,7 @@ def estimators_sentence(est: Any) -> str:
 
 @dataclass(frozen=True)
 class LeadResult:
-    """The estimators the report leads with and their statistics against a reference."""
+    """The estimators the report leads with and their facts against a reference."""
 
     name: str
     estimators: Any
@@ -71,6 +72,7 @@ class LeadResult:
     reference: str          # words naming the reference, e.g. "footprint-matched RH98"
     layer: str              # the validation.gpkg layer holding ``stats``
     recommended: bool
+    facts: pd.DataFrame | None = None   # its rows of the run's table of facts
 
 
 def _fmt(v: float, signed: bool = False) -> str:
@@ -79,14 +81,43 @@ def _fmt(v: float, signed: bool = False) -> str:
     return f"{v:+.2f}" if signed else f"{v:.2f}"
 
 
-def lead_numbers(stats: pd.DataFrame) -> pd.DataFrame:
-    """The summary table: per block length, ground and Hmax n, bias, RMSE, r2 (group all)."""
-    if stats is None or not len(stats):
-        return pd.DataFrame(columns=["length", "metric", "n", "bias", "rmse", "r2"])
-    s = stats[(stats["group"] == "all") & stats["metric"].isin(SUMMARY_METRICS)]
-    s = s[["length", "metric", "n", "bias", "rmse", "r2"]].copy()
+def _span(lo: float, hi: float, signed: bool = False) -> str:
+    if not (np.isfinite(lo) and np.isfinite(hi)):
+        return "n/a"
+    return f"{_fmt(lo, signed)} to {_fmt(hi, signed)}"
+
+
+def lead_numbers(facts: pd.DataFrame) -> pd.DataFrame:
+    """The summary table from the facts: per block length, ground and Hmax n (of the
+    blocks, with the left-out ones by reason), bias and RMSE with their 95 % intervals,
+    R²."""
+    cols = ["length", "metric", "n", "bias", "bias_lo", "bias_hi", "rmse", "rmse_lo",
+            "rmse_hi", "r2", "n_blocks", "left_out"]
+    if facts is None or not len(facts):
+        return pd.DataFrame(columns=cols)
+    s = facts[facts["metric"].isin(SUMMARY_METRICS)][cols].copy()
     s["metric"] = pd.Categorical(s["metric"], SUMMARY_METRICS, ordered=True)
     return s.sort_values(["length", "metric"]).reset_index(drop=True)
+
+
+def numbers_table(table: pd.DataFrame) -> pd.DataFrame:
+    """:func:`lead_numbers` as the report shows it (intervals as text, units)."""
+    if not len(table):
+        return pd.DataFrame()
+    return pd.DataFrame({
+        "length (m)": table["length"].round().astype("Int64"),
+        "metric": table["metric"].astype(str).map(lambda m: _METRIC_WORDS.get(m, m)),
+        "n (blocks)": table["n"].astype("Int64"),
+        "bias (m)": table["bias"],
+        "bias, 95 % interval (m)": [_span(a, b, True) for a, b in
+                                    zip(table["bias_lo"], table["bias_hi"], strict=True)],
+        "RMSE (m)": table["rmse"],
+        "RMSE, 95 % interval (m)": [_span(a, b) for a, b in
+                                    zip(table["rmse_lo"], table["rmse_hi"], strict=True)],
+        "R²": table["r2"],
+        "blocks of this length": table["n_blocks"].astype("Int64"),
+        "left out (reason blocks)": table["left_out"].fillna("").replace("", "none"),
+    })
 
 
 def _headline_length(table: pd.DataFrame) -> float | None:
@@ -103,16 +134,38 @@ def _sentence(table: pd.DataFrame, length: float) -> str:
         if not len(row):
             continue
         r = row.iloc[0]
-        parts.append(f"{_METRIC_WORDS[m]} bias {_fmt(r['bias'], True)} m, RMSE "
-                     f"{_fmt(r['rmse'])} m, r2 {_fmt(r['r2'])} (n = {int(r['n'])})")
+        parts.append(f"{_METRIC_WORDS[m]} bias {_fmt(r['bias'], True)} m (95 % interval "
+                     f"{_span(r['bias_lo'], r['bias_hi'], True)} m), RMSE {_fmt(r['rmse'])} m "
+                     f"({_span(r['rmse_lo'], r['rmse_hi'])} m), R² {_fmt(r['r2'])} "
+                     f"(n = {int(r['n'])} blocks)")
     return "; ".join(parts)
+
+
+def counts_sentence(table: pd.DataFrame, what: str = "blocks") -> str:
+    """Every block of the headline metric (Hmax) counted: used per length, and those
+    left out by reason, adding up to all blocks."""
+    hm = table[table["metric"].astype(str) == SUMMARY_METRICS[-1]]
+    if not len(hm):
+        return ""
+    total: dict[str, int] = {}
+    for lo in hm["left_out"].fillna(""):
+        for part in filter(None, str(lo).split("; ")):
+            k, v = part.rsplit(" ", 1)
+            total[k] = total.get(k, 0) + int(v)
+    per = ", ".join(f"{r.length:g} m: {int(r.n)} of {int(r.n_blocks)}"
+                    for r in hm.itertuples())
+    left = "; ".join(f"{k} {v}" for k, v in sorted(total.items())) or "none"
+    return (f"Counts ({_METRIC_WORDS[SUMMARY_METRICS[-1]]}): the statistics use "
+            f"{int(hm['n'].sum())} of the {int(hm['n_blocks'].sum())} {what} ({per}); left "
+            f"out, by reason: {left} ({sum(total.values())} {what}). Each length's row "
+            "of the table below adds up the same way.")
 
 
 def summary_section(lead: LeadResult, *, source: str, n_tracks: int, n_photons: int,
                     beams: Sequence[str], lengths: Sequence[float], tiles: Sequence[Path],
                     n_blocks: int, map_png: Path | None) -> ReportSection:
     """The report's first section."""
-    table = lead_numbers(lead.stats)
+    table = lead_numbers(lead.facts)
     length = _headline_length(table)
     what = (f"Block heights of {', '.join(f'{v:g}' for v in lengths)} m blocks ({n_blocks} "
             f"blocks) from {n_photons:,} photons of {n_tracks} "
@@ -125,23 +178,26 @@ def summary_section(lead: LeadResult, *, source: str, n_tracks: int, n_photons: 
              f"{lead.reference}:"]
     if length is not None:
         paras.append(f"At {length:g} m: {_sentence(table, length)}.")
+        paras.append(counts_sentence(table))
     else:
         paras.append("No block could be validated against this reference.")
-    paras.append("Residual = block value minus reference value, metres; the table below is "
-                 f"layer '{lead.layer}' of validation.gpkg (the blocks used, all aspects and "
-                 "slopes together).")
+    paras.append("Residual = block value minus reference value, metres. 95 % intervals: "
+                 "bootstrap over the blocks (2,000 resamples; the analytic interval above "
+                 "5,000 blocks). The table below holds the rows of facts.csv for these "
+                 f"estimators and this reference (statistics layer '{lead.layer}' of "
+                 "validation.gpkg; the blocks used, all aspects and slopes together); "
+                 "facts.csv holds every number of this report.")
     return ReportSection("Summary", paras,
                          {f"'{lead.name}' against the {lead.reference}":
-                          report_stats_table(table)},
+                          numbers_table(table)},
                          [map_png] if map_png is not None else [])
 
 
-def paper_section(paper_stats: pd.DataFrame, *, reference: str, layer: str,
-                  lead: LeadResult | None) -> ReportSection:
-    """The paper's method with one paragraph on its known bias (numbers from its table)."""
-    from ..blocks.estimators import preset
+def paper_section(paper: LeadResult, *, lead: LeadResult | None) -> ReportSection:
+    """The paper's method with one paragraph on its known bias (numbers from the facts)."""
+    from ...blocks.estimators import preset
 
-    table = lead_numbers(paper_stats)
+    table = lead_numbers(paper.facts)
     length = _headline_length(table)
     said = _sentence(table, length) if length is not None else "no block validated"
     text = (f"The paper's method ({estimators_sentence(preset('paper'))}) was built for dense "
@@ -149,22 +205,31 @@ def paper_section(paper_stats: pd.DataFrame, *, reference: str, layer: str,
             "ground window above the lowest photon, its canopy top at least the top window "
             "below the highest kept photon, and its 2.5-sigma filter removes real tree-top "
             "photons in many blocks, so its canopy height comes out metres low. Against the "
-            f"{reference}, at {length if length is None else f'{length:g}'} m: {said}.")
+            f"{paper.reference}, at {length if length is None else f'{length:g}'} m: {said}.")
     if lead is not None and lead.name != "paper":
         text += f" The '{lead.name}' estimators of the summary avoid these floors."
     return ReportSection("The paper's method and its known bias", [
-        text, f"Layer '{layer}' of validation.gpkg; the blocks used, all aspects and slopes together:"],
-        {f"the paper's method against the {reference}": report_stats_table(table)})
+        text, counts_sentence(table),
+        f"Statistics layer '{paper.layer}' of validation.gpkg; the blocks used, all aspects "
+        "and slopes together:"],
+        {f"the paper's method against the {paper.reference}": numbers_table(table)})
 
 
 def summary_lines(lead: LeadResult) -> list[str]:
-    """The terminal's summary: the same numbers as the report's first section."""
-    table = lead_numbers(lead.stats)
+    """The terminal's summary: the same numbers as the report's first section (the
+    facts)."""
+    table = lead_numbers(lead.facts)
     who = "recommended" if lead.recommended else "estimators"
-    out = [f"{who} '{lead.name}' against the {lead.reference}:"]
+    out = [f"{who} '{lead.name}' against the {lead.reference} (95 % intervals in brackets; "
+           "every number in facts.csv):"]
     for r in table.itertuples():
         out.append(f"  {r.length:>5g} m  {str(r.metric):<6}  n={int(r.n):<4} "
-                   f"bias={_fmt(r.bias, True)} m  rmse={_fmt(r.rmse)} m  r2={_fmt(r.r2)}")
+                   f"bias={_fmt(r.bias, True)} m [{_span(r.bias_lo, r.bias_hi, True)}]  "
+                   f"rmse={_fmt(r.rmse)} m [{_span(r.rmse_lo, r.rmse_hi)}]  "
+                   f"R²={_fmt(r.r2)}")
+    c = counts_sentence(table)
+    if c:
+        out.append("  " + c.split(" Each length")[0])
     return out
 
 
@@ -188,7 +253,7 @@ def bias_calibration_part(table: pd.DataFrame, preset: str
                           ) -> tuple[str, dict[str, pd.DataFrame]]:
     """Words and tables of the bias calibration fitted in the chain: its table with the
     held-out error, or why there is none (``table.attrs['why']``)."""
-    from ..outputs.report import calibration_table
+    from ...outputs.report import calibration_table
 
     if table is None or not len(table):
         why = getattr(table, "attrs", {}).get("why", "too few validated blocks")
@@ -220,14 +285,21 @@ def details_stats(stats: pd.DataFrame) -> dict[str, pd.DataFrame]:
     return out
 
 
-def lead_result(s: Any) -> LeadResult:
-    """The :class:`LeadResult` of an :class:`~canopyblocks.workflows.chain_figures.EstimatorSet`
-    (its statistics against the footprint-matched reference when computed)."""
-    from ..blocks.estimators import RECOMMENDED_PRESET
+def lead_result(s: Any, facts: pd.DataFrame | None = None,
+                reference: str | None = None) -> LeadResult:
+    """The :class:`LeadResult` of an :class:`~canopyblocks.workflows.chain.figures.EstimatorSet`
+    against ``reference`` (``footprint``/``corridor``; default the footprint-matched one
+    when computed), with its rows of the run's ``facts``."""
+    from ...blocks.estimators import RECOMMENDED_PRESET
 
-    ref = FOOTPRINT_WORDS if s.fp_stats is not None else CORRIDOR_WORDS
-    return LeadResult(s.name, s.est(), s.lead_stats, ref, s.lead_layer,
-                      s.name == RECOMMENDED_PRESET)
+    kind = reference or ("footprint" if s.fp_stats is not None else "corridor")
+    ref = FOOTPRINT_WORDS if kind == "footprint" else CORRIDOR_WORDS
+    stats = s.lead_stats if kind == "footprint" else s.corridor_stats
+    layer = s.lead_layer if kind == "footprint" else s.corridor_layer
+    rows = None
+    if facts is not None:
+        rows = facts[(facts["estimators"] == s.name) & (facts["reference"] == kind)]
+    return LeadResult(s.name, s.est(), stats, ref, layer, s.name == RECOMMENDED_PRESET, rows)
 
 
 def _sigma_thresholds() -> tuple[float, float] | None:
@@ -243,28 +315,33 @@ def _sigma_thresholds() -> tuple[float, float] | None:
         return None
 
 
-def low_confidence_sentence(blocks: pd.DataFrame, name: str) -> str:
-    """How many blocks the per-block uncertainty left out of the headline and why ("" when
-    the blocks carry no ``low_confidence`` flag)."""
-    if blocks is None or "flag" not in blocks.columns:
+def low_confidence_sentence(blocks: pd.DataFrame, name: str,
+                            facts: pd.DataFrame | None = None) -> str:
+    """What the per-block uncertainty (sigma) says and how often it held: the predicted
+    sigma beside its observed coverage (share of residuals within 1 and 2 sigma) per
+    length, from the facts; and the ``low_confidence`` rule ("" without sigma)."""
+    if blocks is None or "flag" not in blocks.columns or "hmax_sigma" not in blocks.columns:
         return ""
-    low = blocks["flag"].astype(str) == "low_confidence"
-    n_low = int(low.sum())
-    parts = []
-    if "hmax_sigma" in blocks.columns:
-        ok = blocks["flag"].astype(str) == "ok"
-        sig = pd.to_numeric(blocks.loc[ok, "hmax_sigma"], errors="coerce").dropna()
-        if len(sig):
-            parts.append(f"The blocks kept carry a predicted 1-sigma Hmax error (column "
-                         f"hmax_sigma; median {sig.median():.1f} m, ground_sigma for the "
-                         "ground).")
-    if n_low:
-        th = _sigma_thresholds()
-        why = (f"Hmax sigma wider than {th[0]:g} m or ground sigma wider than {th[1]:g} m"
-               if th else "their predicted sigma is too wide to be useful")
-        parts.append(f"{n_low} of {len(blocks)} blocks of '{name}' are flagged "
-                     f"low_confidence ({why}) and left out of the headline statistics "
-                     "(column use = false); they are still written.")
+    parts = ["Each block carries a predicted 1-sigma error (columns hmax_sigma and "
+             "ground_sigma, m): a Gaussian error of that sigma would put 68 % of the "
+             "residuals within 1 sigma and 95 % within 2 sigma."]
+    if facts is not None and len(facts):
+        obs = []
+        for m in ("hmax", "ground"):
+            f = facts[(facts["metric"] == m) & facts["within_1sigma"].notna()]
+            for r in f.itertuples():
+                obs.append(f"{_METRIC_WORDS[m]} {r.length:g} m: median sigma "
+                           f"{r.median_sigma:.2f} m against an RMSE of {r.rmse:.2f} m, "
+                           f"{r.within_1sigma:.0%} within 1 sigma and {r.within_2sigma:.0%} "
+                           f"within 2 sigma (n = {int(r.n)})")
+        if obs:
+            parts.append("Observed on these blocks: " + "; ".join(obs) + ".")
+    th = _sigma_thresholds()
+    why = (f"Hmax sigma wider than {th[0]:g} m or ground sigma wider than {th[1]:g} m"
+           if th else "a predicted sigma too wide to be useful")
+    parts.append(f"Blocks of '{name}' with {why} are flagged low_confidence and left out "
+                 "of the statistics (column use = false; counted above); they are still "
+                 "written.")
     return " ".join(parts)
 
 
@@ -272,7 +349,7 @@ def bias_offer_part(offer: Any, short: bool = False) -> tuple[str, dict[str, pd.
     """Words (and the table) of the lead estimators' bias calibration: offered only when
     fitted against the reference the estimators are scored on and improving every
     held-out error; else why not.  ``short``: one sentence for the summary."""
-    from ..outputs.report import calibration_table
+    from ...outputs.report import calibration_table
 
     who = "the paper's method" if offer.name == "paper" else f"the '{offer.name}' estimator"
     ref = ("footprint-matched reference" if offer.reference == "footprint"

@@ -18,7 +18,7 @@ from typing import Any
 
 import pandas as pd
 
-from ..schema import LAYER_RESIDUALS, LAYER_STATS
+from ...schema import LAYER_RESIDUALS, LAYER_STATS
 
 __all__ = ["EstimatorSet", "BiasOffer", "Figures", "chain_figures", "reference_short",
            "estimator_words"]
@@ -89,7 +89,7 @@ class EstimatorSet:
 
     def est(self) -> Any:
         """The :class:`Estimators` object (the paper's when none was given)."""
-        from ..blocks.estimators import Estimators, preset
+        from ...blocks.estimators import Estimators, preset
 
         if self.estimators is not None:
             return self.estimators
@@ -137,9 +137,9 @@ def chain_figures(lead: EstimatorSet, paper: EstimatorSet | None, track: Any, fo
     """Draw the profile (the lead estimators, the paper's method overlaid), the lead's
     scatter and aspect figures and residual map against its reference, and the paper's
     method against the corridor maximum (when computed)."""
-    from ..outputs.footprint_maps import plot_footprint_map
-    from ..outputs.profile_plot import plot_profile
-    from ..outputs.validation_plots import write_validation_plots
+    from ...outputs.footprint_maps import plot_footprint_map
+    from ...outputs.profile_plot import plot_profile
+    from ...outputs.validation_plots import write_validation_plots
 
     figs = Figures()
     overlay = paper.blocks if paper is not None and paper is not lead else None

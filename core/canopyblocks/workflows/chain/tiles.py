@@ -27,6 +27,6 @@ def _tiles_crs(tiles: Sequence[Path]) -> Any:
     """The tiles' full (compound) CRS as their header states it (WKT or GeoTIFF keys,
     read by the one LAS CRS reader): the vertical datum of every raster made from them,
     also after reprojection; None when unstated."""
-    from ..readers.las_crs import las_file_crs
+    from ...readers.las_crs import las_file_crs
 
     return las_file_crs(tiles[0]).crs

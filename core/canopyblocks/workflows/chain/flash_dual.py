@@ -15,9 +15,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from ..atomic import check_writable, new_files_removed_on_failure
-from ..errors import InputError
-from ..progress import Progress, as_progress
+from ...atomic import check_writable, new_files_removed_on_failure
+from ...errors import InputError
+from ...progress import Progress, as_progress
 
 __all__ = ["run_sensor_chain", "waveform_chain", "SENSOR_NAMES", "sensor_summary_lines"]
 
@@ -46,9 +46,74 @@ def sensor_summary_lines(stats: pd.DataFrame, product: str) -> list[str]:
             continue
         r = row.iloc[0]
         lines.append(f"{words}: RMSE {_fmt(r['rmse'])} m, bias {_fmt(r['bias'], True)} m, "
-                     f"SD {_fmt(r.get('sd', np.nan))} m, r2 {_fmt(r['r2'])} "
+                     f"SD {_fmt(r.get('sd', np.nan))} m, R² {_fmt(r['r2'])} "
                      f"(n = {int(r['n'])}), against {ref}")
     return lines
+
+
+_SENSOR_WORDS = {"height": "canopy height", "ground": "ground elevation",
+                 "top": "canopy top elevation"}
+
+
+def _sensor_summary(val: Any, product: str, out: Path, source: str, *,
+                    simulated: tuple[float, int] | None, words: str
+                    ) -> tuple[pd.DataFrame, list[str], Any]:
+    """The facts of an ESFL/dual run (``facts.csv``), its terminal lines and its
+    report's summary section, all from the one table."""
+    from ...outputs.report import ReportSection
+    from .waveform_report import (
+        facts_lines,
+        facts_sentence,
+        footprint_counts,
+        footprint_facts,
+        simulated_words,
+    )
+
+    pairs = {m: f"ref_{m}" for m in ("height", "ground", "top")
+             if m in val.residuals.columns and f"ref_{m}" in val.residuals.columns}
+    diameter = float(val.stats["length"].iloc[0]) if "length" in val.stats and \
+        len(val.stats) else float("nan")
+    facts = footprint_facts(val.residuals, pairs=pairs, metrics=tuple(pairs),
+                            diameter=diameter, estimators=product,
+                            layer="stats_footprints", out=out)
+    ref = ("the airborne points under each 5 m cell's pixels" if product == "ESFL" else
+           "the footprint-matched airborne points (22 m Gaussian footprint; height "
+           "against its RH98)")
+    lines = facts_lines(facts, _SENSOR_WORDS, ref)
+    paras = []
+    if simulated is not None:
+        paras.append(simulated_words(words, source, azimuth=simulated[0],
+                                     seed=simulated[1]))
+    said = facts_sentence(facts, _SENSOR_WORDS)
+    paras.append(f"Against {ref}: {said}." if said else
+                 "No footprint could be validated against the airborne reference.")
+    paras.append(footprint_counts(facts, "height"))
+    paras.append("Residual = value minus reference value, metres. 95 % intervals: bootstrap "
+                 "over the footprints (2,000 resamples). facts.csv holds every number of "
+                 "this summary.")
+    return facts, lines, ReportSection("Summary", [p for p in paras if p])
+
+
+def _simulate_file(las_paths: Sequence[Any], out: Path, sensor: str, *, azimuth: float,
+                   seed: int, noise: float | None, progress: Progress) -> Path:
+    """An ESFL or dual file simulated over the tiles (``noise``: sd as a share of the
+    peak; default the simulator's), ``out/<sensor>.h5``."""
+    from ...simulate.sensor_files import simulate_sensor_over_tiles
+
+    params: Any = None
+    if noise is not None:
+        if sensor == "esfl":
+            from ...simulate.flash_cubes import FlashSimParams
+
+            params = FlashSimParams(noise_sd=float(noise))
+        else:
+            from ...simulate.sensor_files import DualAlsParams
+
+            params = DualAlsParams(noise=float(noise))
+    path = out / f"{sensor}.h5"
+    simulate_sensor_over_tiles(list(las_paths), sensor, path, azimuth=azimuth, seed=seed,
+                               params=params, progress=progress)
+    return path
 
 
 def run_sensor_chain(
@@ -99,17 +164,17 @@ def run_sensor_chain(
     -------
     ChainResult
     """
-    from ..arguments import check_paths
-    from ..outputs.footprint_maps import plot_footprint_map
-    from ..outputs.report import ReportSection, write_report
-    from ..outputs.tables import write_layers, write_table
-    from ..readers.flash_dual import waveform_product
-    from ..readers.las import las_crs
-    from ..schema import LAYER_FOOTPRINTS
-    from ..validation.flash_footprints import validate_sensor_footprints
-    from ..validation.footprints import LAYER_RESIDUALS_FOOTPRINTS, LAYER_STATS_FOOTPRINTS
-    from .chain_result import ChainResult
-    from .waveforms_flash_dual import LAYER_PIXELS, sensor_footprints
+    from ...arguments import check_paths
+    from ...outputs.footprint_maps import plot_footprint_map
+    from ...outputs.report import write_report
+    from ...outputs.tables import write_layers, write_table
+    from ...readers.flash_dual import waveform_product
+    from ...readers.las import las_crs
+    from ...schema import LAYER_FOOTPRINTS
+    from ...validation.flash_footprints import validate_sensor_footprints
+    from ...validation.footprints import LAYER_RESIDUALS_FOOTPRINTS, LAYER_STATS_FOOTPRINTS
+    from ..waveforms_flash_dual import LAYER_PIXELS, sensor_footprints
+    from .result import ChainResult
 
     check_paths(las_paths, "run_sensor_chain: las_paths", "a LAS/LAZ path or a list of them")
     if path is None and sensor not in SENSOR_NAMES:
@@ -122,21 +187,8 @@ def run_sensor_chain(
         out.mkdir(parents=True, exist_ok=True)
         simulated = path is None
         if path is None:
-            from ..simulate.sensor_files import simulate_sensor_over_tiles
-
-            params: Any = None
-            if noise is not None:
-                if sensor == "esfl":
-                    from ..simulate.flash_cubes import FlashSimParams
-
-                    params = FlashSimParams(noise_sd=float(noise))
-                else:
-                    from ..simulate.sensor_files import DualAlsParams
-
-                    params = DualAlsParams(noise=float(noise))
-            path = out / f"{sensor}.h5"
-            simulate_sensor_over_tiles(list(las_paths), str(sensor), path, azimuth=azimuth, seed=seed,
-                                       params=params, progress=prog.sub(0.0, 0.3))
+            path = _simulate_file(las_paths, out, str(sensor), azimuth=azimuth, seed=seed,
+                                  noise=noise, progress=prog.sub(0.0, 0.3))
             if geoid is None and offset is None:
                 offset = 0.0   # simulated heights are the tiles' own: one datum by construction
         elif noise is not None:
@@ -163,13 +215,18 @@ def run_sensor_chain(
         maps = [plot_footprint_map(val.residuals, c, plots_dir / f"footprints_{c}.png")
                 for c in ("res_height", "res_ground")]
         prog.update(0.95, "report")
-        lines = sensor_summary_lines(val.stats, product)
         words = SENSOR_NAMES["esfl" if product == "ESFL" else "dual"][1]
-        from .waveform_report import sensor_report_sections
+        facts, lines, summary = _sensor_summary(val, product, out, Path(path).name,
+                                                simulated=(azimuth, seed) if simulated
+                                                else None, words=words)
+        from ..waveform_report import sensor_report_sections
+        from .glossary import glossary_section
 
-        sections = [ReportSection("Summary", lines), *sensor_report_sections(
+        sections = [summary, *sensor_report_sections(
             fp, val, product=product, source=Path(path).name, simulated=simulated,
-            tiles=[t.name for t in tiles], words=words, maps=maps)]
+            tiles=[t.name for t in tiles], words=words, maps=maps),
+            glossary_section(["bias", "RMSE", "95 % interval", "R²", "random seed",
+                              "reference outside"])]
         report = write_report(out / "report.html", f"canopyblocks: {words} and validation",
                               sections)
         prog.update(1.0, "done")
@@ -196,20 +253,21 @@ def waveform_chain(las_paths: Sequence[Any], out_dir: Any, photons: Any, sensor:
     if noise is not None or options is not None:
         raise InputError("the noise level and the flash-lidar / dual-wavelength options "
                          "apply to --sensor esfl and dual (or their files) only")
-    from .chain_waveforms import run_waveform_chain
+    from .waveforms import run_waveform_chain
 
     if sensor == "gedi":
-        from ..simulate.sensor_files import simulate_sensor_over_tiles
+        from ...simulate.sensor_files import simulate_sensor_over_tiles
 
         out = check_writable(out_dir, folder=True)
         out.mkdir(parents=True, exist_ok=True)
         l1b = out / "gedi_l1b.h5"
         simulate_sensor_over_tiles(list(las_paths), "gedi", l1b, azimuth=azimuth, seed=seed,
                                    progress=progress.sub(0.0, 0.2))
-        return run_waveform_chain(las_paths, out_dir, l1b, progress=progress.sub(0.2, 1.0))
+        return run_waveform_chain(las_paths, out_dir, l1b, progress=progress.sub(0.2, 1.0),
+                                  simulated=(azimuth, seed))
     if photons is not None and str(photons).lower().endswith((".h5", ".hdf5")):
-        from ..readers.flash_dual import flash_dual_sensor
-        from ..readers.gedi import is_gedi_l1b
+        from ...readers.flash_dual import flash_dual_sensor
+        from ...readers.gedi import is_gedi_l1b
 
         if flash_dual_sensor(photons) is not None:
             return run_sensor_chain(las_paths, out_dir, path=photons, geoid=geoid,

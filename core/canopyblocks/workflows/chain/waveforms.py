@@ -11,9 +11,9 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from ..atomic import check_writable, new_files_removed_on_failure
-from ..progress import Progress, as_progress
-from ..readers.remote import is_url, source_name
+from ...atomic import check_writable, new_files_removed_on_failure
+from ...progress import Progress, as_progress
+from ...readers.remote import is_url
 
 __all__ = ["run_waveform_chain"]
 
@@ -31,6 +31,7 @@ def run_waveform_chain(
     offset: float | None = None,
     photon_vertical_crs: Any = None,
     progress: Progress | None = None,
+    simulated: tuple[float, int] | None = None,
 ) -> Any:
     """GEDI L1B + airborne tiles -> ``footprints.gpkg``, ``validation.gpkg`` (layers
     ``residuals_footprints``, ``stats_footprints``), ``stats.csv``, ``plots/`` (footprint
@@ -46,28 +47,26 @@ def run_waveform_chain(
     geoid, offset, photon_vertical_crs
         The datum rule: GEDI elevations are WGS84-ellipsoidal; a simulated file states the
         tiles' datum it keeps (``photon_vertical_crs`` None: the file's own).
+    simulated : (azimuth, seed), optional
+        The L1B file was simulated over the tiles (``run --sensor gedi``): the report says
+        so first.
 
     Returns
     -------
     ChainResult
     """
-    from ..outputs.footprint_maps import write_footprint_plots
-    from ..outputs.report import ReportSection, write_report
-    from ..outputs.tables import write_layers, write_table
-    from ..validation.footprints import (
+    from ...outputs.footprint_maps import write_footprint_plots
+    from ...outputs.report import write_report
+    from ...outputs.tables import write_layers, write_table
+    from ...validation.footprints import (
+        FOOTPRINT_METRICS,
         LAYER_RESIDUALS_FOOTPRINTS,
         LAYER_STATS_FOOTPRINTS,
-        reference_words,
         validate_footprints,
     )
-    from .chain_report import datum_sentence
-    from .chain_result import ChainResult
-    from .chain_waveform_report import (
-        MIN_GROUP,
-        waveform_stats_tables,
-        waveform_summary_section,
-    )
-    from .waveforms import footprints_from_l1b
+    from ..waveforms import footprints_from_l1b
+    from .result import ChainResult
+    from .waveform_report import _WORDS, facts_lines, footprint_facts, gedi_sections
 
     prog = as_progress(progress)
     out = check_writable(out_dir, folder=True)
@@ -76,7 +75,7 @@ def run_waveform_chain(
         out.mkdir(parents=True, exist_ok=True)
         plots_dir = out / "plots"
         plots_dir.mkdir(exist_ok=True)
-        from ..readers.las import las_crs
+        from ...readers.las import las_crs
 
         crs = las_crs(tiles[0])
         fp, wave_plots = footprints_from_l1b(l1b, beams=beams or None, params=params, crs=crs,
@@ -90,42 +89,30 @@ def run_waveform_chain(
         validation = write_layers({LAYER_RESIDUALS_FOOTPRINTS: val.residuals,
                                    LAYER_STATS_FOOTPRINTS: val.stats},
                                   out / "validation.gpkg")
-        write_table(val.stats, out / "stats.csv", layer="stats")
-        from .chain_tiles import _tiles_crs, _vertical_name
+        write_table(val.stats.rename(columns={"length": "footprint_diameter"}),
+                    out / "stats.csv", layer="stats")
+        diameter = float(val.stats["length"].iloc[0]) if len(val.stats) else 22.0
+        facts = footprint_facts(val.residuals, pairs=FOOTPRINT_METRICS,
+                                metrics=tuple(FOOTPRINT_METRICS), diameter=diameter,
+                                estimators=f"GEDI L2A {getattr(params, 'setting', 'a1')}",
+                                layer=LAYER_STATS_FOOTPRINTS, out=out)
+        from .tiles import _tiles_crs, _vertical_name
 
         tiles_datum = _vertical_name(_tiles_crs(tiles))
         maps = write_footprint_plots(val.residuals, plots_dir, datum=tiles_datum)
         prog.update(0.95, "report")
         reference = str(val.residuals["reference"].iloc[0]) \
             if "reference" in val.residuals and len(val.residuals) else "points"
-        flags = fp["flag"].value_counts().rename_axis("flag").reset_index(name="footprints")
-        setting = getattr(params, "setting", "a1")
-        beams_used = sorted(str(b) for b in fp["beam"].unique()) if "beam" in fp else []
-        sections = [
-            waveform_summary_section(val.stats, source=Path(l1b).name, n_footprints=len(fp),
-                                     beams=beams_used, tiles=tiles, setting=setting,
-                                     reference=reference),
-            ReportSection("Inputs", [
-                f"GEDI L1B waveforms from {source_name(l1b)}, processed with the GEDI L2A "
-                f"algorithm (setting {setting}).",
-                "Airborne tiles: " + ", ".join(t.name for t in tiles) + "; vertical datums: "
-                + datum_sentence(val.datum, geoid=geoid, offset=offset, tiles=tiles_datum,
-                                 what="waveforms")]),
-            ReportSection("Footprints", [
-                f"{len(fp)} footprints (layer 'footprints' of footprints.gpkg: ground, top, "
-                "RH25-RH100, cover (fraction), penetration, flags)."],
-                {"footprints per flag": flags}, wave_plots[:6]),
-            ReportSection("Validation against the airborne lidar", [
-                "Each footprint is compared with " + reference_words(reference) + ": ground, "
-                "RH98, RH50 (m) and cover (fraction). Residual = waveform "
-                "value minus reference value. Groups by beam, aspect, slope (degrees) and "
-                f"reference cover class (percent of the footprint); groups of fewer than {MIN_GROUP} footprints are left out of "
-                "the tables (the maps show every footprint)."],
-                waveform_stats_tables(val.stats), maps),
-        ]
+        sections = gedi_sections(fp, val, facts, l1b=l1b, tiles=tiles, params=params,
+                                 reference=reference,
+                                 simulated=simulated, geoid=geoid, offset=offset,
+                                 tiles_datum=tiles_datum, wave_plots=wave_plots, maps=maps)
         report = write_report(out / "report.html", "canopyblocks: GEDI footprints and "
                               "validation", sections)
         prog.update(1.0, "done")
         return ChainResult(out_dir=out, photons=str(l1b) if is_url(l1b) else Path(l1b), blocks=footprints, rasters={},
                            validation=validation, report=report,
-                           plots=[*wave_plots, *maps], stats=val.stats, simulated=False)
+                           plots=[*wave_plots, *maps], stats=val.stats,
+                           simulated=simulated is not None,
+                           summary=facts_lines(facts, _WORDS,
+                                               "the footprint-matched airborne reference"))
