@@ -79,6 +79,17 @@ def _grid(area: Sequence[float], params: RasterParams, wkt: str, names: str) -> 
     return grid
 
 
+def with_vertical(crs: pyproj.CRS) -> pyproj.CRS:
+    """``crs`` with an "unknown" vertical part when it states none, as PDAL's rasters
+    carried it: the datum rules see the heights' datum stated as unknown, and
+    :func:`~canopyblocks.reference.raster_grid.authority_crs` names it "+ unknown height"."""
+    if crs.is_compound:
+        return crs
+    return pyproj.CRS.from_wkt(
+        f'COMPD_CS["unknown",{crs.to_wkt("WKT1_GDAL")},VERT_CS["unknown",'
+        'VERT_DATUM["unknown",2005],UNIT["metre",1,AUTHORITY["EPSG","9001"]],AXIS["Up",UP]]]')
+
+
 def las_plan(paths: list[Path], params: RasterParams, crs: object, area_poly: Any,
              exe: Path | None) -> Plan:
     """One unit per LAS/LAZ tile meeting the grid (``exe``: PDAL, for SMRF's CRS reading)."""
@@ -112,7 +123,9 @@ def las_plan(paths: list[Path], params: RasterParams, crs: object, area_poly: An
     # the tiles' own CRS as their header states it (with its vertical part), or the
     # output CRS as given when tiles were reprojected
     reprojected = any(w is not None for w in src_wkts)
-    out_crs = authority_crs(target if reprojected else tile_crss[0])
+    assigned = tile_crss[0] is target_in  # a tile without a CRS, read as the given one
+    out_crs = authority_crs(target if reprojected or assigned
+                            else with_vertical(tile_crss[0]))
     return Plan(units, grid, names, target, out_crs, checked, reprojected,
                 infos[0].pdal_version)
 
