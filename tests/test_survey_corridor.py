@@ -17,11 +17,13 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from test_survey_rasters import catalog  # noqa: F401  (the module-scoped fixture)
 
 gpd = pytest.importorskip("geopandas")
+pytestmark = pytest.mark.slow  # a simulation and two runs: minutes
 
 LINE = "885040,629180,885200,629680"
 
@@ -56,7 +58,7 @@ def test_survey_run_equals_run_on_the_tiles_under_the_track(runs) -> None:  # no
     out, _ = runs
     a, b = _residuals(out / "survey"), _residuals(out / "under")
     assert len(a) == len(b) > 20
-    num = [c for c in a.columns if c != "geometry" and np.issubdtype(a[c].dtype, np.number)]
+    num = [c for c in a.columns if c != "geometry" and pd.api.types.is_numeric_dtype(a[c])]
     for c in num:
         np.testing.assert_allclose(a[c].to_numpy(float), b[c].to_numpy(float), atol=1e-6,
                                    equal_nan=True, err_msg=c)
