@@ -226,9 +226,10 @@ def _as_polygon(polygon: object) -> Any:
 
 
 def _fix_broken_header(info: TileInfo, resolution: float) -> TileInfo:
-    """A tile whose header extent cannot be right gets its points' extent (one extra
-    pass over that tile only), with the warning the header deserves."""
-    if info.n_points == 0 or plausible_box(info.bounds):
+    """A tile whose header extent cannot be right, or which says it holds no point, gets its
+    points' extent and count (one extra pass over that tile only), with the warning the
+    header deserves."""
+    if info.n_points > 0 and plausible_box(info.bounds):
         return info
     return _trust_points(info, las_summary(info.path), resolution)
 
