@@ -211,20 +211,6 @@ def _names(paths: Sequence[Path]) -> str:
     return f"{paths[0]}, {paths[1]} and {len(paths) - 2} more"
 
 
-def _as_polygon(polygon: object) -> Any:
-    """A shapely (multi)polygon from a geometry or WKT; None for None."""
-    if polygon is None:
-        return None
-    import shapely
-
-    geom = shapely.from_wkt(polygon) if isinstance(polygon, str) else polygon
-    if not isinstance(geom, shapely.Geometry) or geom.is_empty or \
-            geom.geom_type not in ("Polygon", "MultiPolygon"):
-        raise InputError(f"polygon must be a polygon or multipolygon (shapely or WKT) in the "
-                         f"output CRS; got {str(polygon)[:60]!r}")
-    return geom
-
-
 def _fix_broken_header(info: TileInfo, resolution: float) -> TileInfo:
     """A tile whose header extent cannot be right, or which says it holds no point, gets its
     points' extent and count (one extra pass over that tile only), with the warning the
