@@ -108,6 +108,13 @@ def las_plan(paths: list[Path], params: RasterParams, crs: object, area_poly: An
     if not live:
         raise NoUsableDataError(f"the tiles {names} hold no points")
     arr = np.asarray(live)
+    if area_poly is not None:  # the union of the tiles that meet the area, so that a run
+        # over a survey has the grid of a run given only the tiles under its area
+        import shapely
+
+        meets = shapely.intersects(area_poly, shapely.box(arr[:, 0], arr[:, 1], arr[:, 2],
+                                                          arr[:, 3]))
+        arr = arr[meets] if meets.any() else arr
     union = (float(arr[:, 0].min()), float(arr[:, 1].min()), float(arr[:, 2].max()),
              float(arr[:, 3].max()))
     grid = _grid(_area(params.bounds, area_poly, union, target), params, target.to_wkt(), names)
