@@ -188,8 +188,10 @@ def main() -> None:
     print({"read_s": plain["wall"], "read_peak_mib": plain["peak_mib"]}, flush=True)
     rast = measure([*cb, "rasters", *map(str, allp), "-o", str(work / "rasters")],
                    [work / "rasters", tmp])
-    figures.update(read_s=plain["wall"], read_peak_mib=plain["peak_mib"],
+    figures.update(read_s=plain["wall"], read_cpu_s=plain["cpu"],
+                   read_peak_mib=plain["peak_mib"],
                    rasters_s=rast["wall"], rasters_cpu_s=rast["cpu"],
+                   rasters_cpu_ratio=rast["cpu"] / plain["cpu"],
                    rasters_ratio=rast["wall"] / plain["wall"],
                    rasters_peak_mib=rast["peak_mib"],
                    rasters_largest_file_mib=rast["largest_file_mib"])
