@@ -133,6 +133,19 @@ def _residuals(folder: Path):  # noqa: ANN202
     return r.sort_values(keys).reset_index(drop=True)
 
 
+def residual_difference(a: Path, b: Path) -> float:
+    """The largest difference of the residual columns (``res_*``) of two runs, metres."""
+    import numpy as np
+
+    ra, rb = _residuals(a), _residuals(b)
+    if len(ra) != len(rb):
+        return float("inf")
+    cols = [c for c in ra.columns if c.startswith("res_")]
+    d = [np.nanmax(np.abs(ra[c].to_numpy(float) - rb[c].to_numpy(float)), initial=0.0)
+         for c in cols]
+    return float(max(d, default=0.0))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cols", type=int, default=5)
@@ -140,8 +153,6 @@ def main() -> None:
     ap.add_argument("--data", type=Path, default=Path("/work/benchdata/survey"))
     ap.add_argument("--skip-run", action="store_true", help="only the rasters part")
     args = ap.parse_args()
-    import numpy as np
-
     data = args.data
     allp, mid = make_survey(data, args.cols, args.rows)
     cb = [sys.executable, "-m", "canopyblocks", "-q"]
@@ -168,16 +179,19 @@ def main() -> None:
                      "-o", str(work / "run_all")], [work / "run_all", tmp])
         b = measure([*cb, "run", *map(str, mid), "--photons", str(track), "--offset", "0",
                      "-o", str(work / "run_under")], [work / "run_under", tmp])
-        ra, rb = _residuals(work / "run_all"), _residuals(work / "run_under")
-        diff = np.abs(ra["residual"].to_numpy(float) - rb["residual"].to_numpy(float))
         figures.update(run_s=a["wall"], run_under_s=b["wall"], run_ratio=a["wall"] / b["wall"],
-                       run_peak_mib=a["peak_mib"], run_under_peak_mib=b["peak_mib"],
-                       run_residual_max_diff_m=float(np.nanmax(diff)) if diff.size else 0.0)
+                       run_peak_mib=a["peak_mib"], run_under_peak_mib=b["peak_mib"])
+        print(figures, flush=True)
+        figures["run_residual_max_diff_m"] = residual_difference(work / "run_all",
+                                                                 work / "run_under")
     plain = measure([sys.executable, "-c", READ, *map(str, allp)])
+    print({"read_s": plain["wall"], "read_peak_mib": plain["peak_mib"]}, flush=True)
     rast = measure([*cb, "rasters", *map(str, allp), "-o", str(work / "rasters")],
                    [work / "rasters", tmp])
-    figures.update(read_s=plain["wall"], read_peak_mib=plain["peak_mib"],
+    figures.update(read_s=plain["wall"], read_cpu_s=plain["cpu"],
+                   read_peak_mib=plain["peak_mib"],
                    rasters_s=rast["wall"], rasters_cpu_s=rast["cpu"],
+                   rasters_cpu_ratio=rast["cpu"] / plain["cpu"],
                    rasters_ratio=rast["wall"] / plain["wall"],
                    rasters_peak_mib=rast["peak_mib"],
                    rasters_largest_file_mib=rast["largest_file_mib"])

@@ -131,8 +131,10 @@ class ReferenceRastersAlgorithm(CanopyBlocksAlgorithm):
     def execute(self, parameters: dict[str, Any], context: QgsProcessingContext,
                 feedback: QgsProcessingFeedback, progress: Any) -> dict[str, Any]:
         rasters = import_core("canopyblocks.workflows.rasters")
-        folder = self.parameterAsFile(parameters, self.SURVEY, context)
-        files = [str(f) for f in self.parameterAsFileList(parameters, self.INPUT, context)]
+        folder = (self.parameterAsFile(parameters, self.SURVEY, context) or "").strip()
+        folder = folder if parameters.get(self.SURVEY) not in (None, "") else ""
+        files = [str(f) for f in self.parameterAsFileList(parameters, self.INPUT, context)
+                 if str(f).strip()]
         if folder:
             files.append(folder)
         if not files:

@@ -106,3 +106,32 @@ def test_unknown_vertical_crs_is_not_an_unknown_crs(run_alg, sample, pdal_bin, t
     finally:
         del layer
         gc.collect()
+
+
+def test_a_folder_of_tiles_is_a_survey(run_alg, sample, tmp_path) -> None:  # noqa: ANN001
+    """The algorithm takes a folder of tiles (read tile by tile) and gives the rasters of the
+    same tiles given as files, with progress per tile."""
+    import shutil
+
+    from qgis.core import QgsProcessingFeedback
+
+    folder = tmp_path / "survey"
+    folder.mkdir()
+    for p in BCTS:
+        shutil.copy(sample(p), folder)
+    ext = f"{BOUNDS[0]},{BOUNDS[2]},{BOUNDS[1]},{BOUNDS[3]} [EPSG:3005]"
+    seen: list[float] = []
+    fb = QgsProcessingFeedback()
+    fb.progressChanged.connect(seen.append)
+    a = run_alg("canopyblocks:referencerasters", {
+        "SURVEY": str(folder), "RESOLUTION": 2.0, "EXTENT": ext,
+        "OUTPUT_DIR": str(tmp_path / "a")}, feedback=fb)
+    b = run_alg("canopyblocks:referencerasters", {
+        "INPUT": [str(sample(p)) for p in BCTS], "RESOLUTION": 2.0, "EXTENT": ext,
+        "OUTPUT_DIR": str(tmp_path / "b")})
+    import rasterio
+
+    for key in ("DTM", "DSM_MAX", "DSM_P90"):
+        with rasterio.open(a[key]) as x, rasterio.open(b[key]) as y:
+            assert np.array_equal(x.read(1), y.read(1)), key
+    assert len(seen) > 3 and max(seen) == 100

@@ -26,7 +26,7 @@ log = logging.getLogger(__name__)
 @click.option("--bounds", nargs=4, type=float, default=None,
               metavar="MINX MINY MAXX MAXY",
               help="Area to rasterise, metres in the output CRS (default: all tiles).")
-@click.option("--polygon", default=None,
+@click.option("--polygon", type=click.Path(dir_okay=False), default=None,
               help="Area to rasterise: a WKT polygon, or a GeoPackage/GeoJSON/shapefile of "
                    "polygons, in the output CRS; cells whose centre is outside are nodata.")
 @click.option("--backend", type=click.Choice(["serial", "processes", "dask"]),

@@ -37,7 +37,7 @@ from .las_header import (
     check_nothing_beyond_count,
 )
 
-__all__ = ["LasPoints", "read_las", "las_crs", "las_bounds"]
+__all__ = ["LasPoints", "read_las", "las_crs", "las_bounds", "as_area"]
 
 log = logging.getLogger(__name__)
 
@@ -268,7 +268,7 @@ def read_las(
         if len(box) != 4 or not (box[0] <= box[2] and box[1] <= box[3]):
             raise InputError(f"bbox must be (xmin, ymin, xmax, ymax) with min <= max; got {box}")
         bbox = (box[0], box[1], box[2], box[3])
-    area = _prepared_area(polygon)
+    area = as_area(polygon)
     if area is not None:
         b0, b1, b2, b3 = (float(v) for v in area.bounds)
         pb = (b0, b1, b2, b3)
@@ -373,17 +373,26 @@ def read_las(
     return pts
 
 
-def _prepared_area(polygon: Any) -> Any:
-    """``polygon`` (shapely or WKT) checked and prepared for fast point tests; None."""
+def as_area(polygon: Any, what: str = "read_las: polygon") -> Any:
+    """``polygon`` (shapely or WKT) checked and prepared for fast point tests; None for None.
+
+    Raises
+    ------
+    InputError
+        Not a non-empty polygon or multipolygon.
+    """
     if polygon is None:
         return None
     import shapely
 
-    geom = shapely.from_wkt(polygon) if isinstance(polygon, str) else polygon
+    try:
+        geom = shapely.from_wkt(polygon) if isinstance(polygon, str) else polygon
+    except shapely.errors.GEOSException as exc:
+        raise InputError(f"{what} is not valid WKT ({exc})") from None
     if not isinstance(geom, shapely.Geometry) or geom.is_empty or \
             geom.geom_type not in ("Polygon", "MultiPolygon"):
-        raise InputError(f"read_las: polygon must be a polygon or multipolygon in the files' "
-                         f"CRS; got {str(polygon)[:60]!r}")
+        raise InputError(f"{what} must be a polygon or multipolygon (shapely or WKT) in the "
+                         f"points' CRS; got {str(polygon)[:60]!r}")
     shapely.prepare(geom)
     return geom
 

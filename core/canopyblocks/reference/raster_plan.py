@@ -79,6 +79,17 @@ def _grid(area: Sequence[float], params: RasterParams, wkt: str, names: str) -> 
     return grid
 
 
+def with_vertical(crs: pyproj.CRS) -> pyproj.CRS:
+    """``crs`` with an "unknown" vertical part when it states none, as PDAL's rasters
+    carried it: the datum rules see the heights' datum stated as unknown, and
+    :func:`~canopyblocks.reference.raster_grid.authority_crs` names it "+ unknown height"."""
+    if crs.is_compound:
+        return crs
+    return pyproj.CRS.from_wkt(
+        f'COMPD_CS["unknown",{crs.to_wkt("WKT1_GDAL")},VERT_CS["unknown",'
+        'VERT_DATUM["unknown",2005],UNIT["metre",1,AUTHORITY["EPSG","9001"]],AXIS["Up",UP]]]')
+
+
 def las_plan(paths: list[Path], params: RasterParams, crs: object, area_poly: Any,
              exe: Path | None) -> Plan:
     """One unit per LAS/LAZ tile meeting the grid (``exe``: PDAL, for SMRF's CRS reading)."""
@@ -97,6 +108,13 @@ def las_plan(paths: list[Path], params: RasterParams, crs: object, area_poly: An
     if not live:
         raise NoUsableDataError(f"the tiles {names} hold no points")
     arr = np.asarray(live)
+    if area_poly is not None:  # the union of the tiles that meet the area, so that a run
+        # over a survey has the grid of a run given only the tiles under its area
+        import shapely
+
+        meets = shapely.intersects(area_poly, shapely.box(arr[:, 0], arr[:, 1], arr[:, 2],
+                                                          arr[:, 3]))
+        arr = arr[meets] if meets.any() else arr
     union = (float(arr[:, 0].min()), float(arr[:, 1].min()), float(arr[:, 2].max()),
              float(arr[:, 3].max()))
     grid = _grid(_area(params.bounds, area_poly, union, target), params, target.to_wkt(), names)
@@ -112,7 +130,9 @@ def las_plan(paths: list[Path], params: RasterParams, crs: object, area_poly: An
     # the tiles' own CRS as their header states it (with its vertical part), or the
     # output CRS as given when tiles were reprojected
     reprojected = any(w is not None for w in src_wkts)
-    out_crs = authority_crs(target if reprojected else tile_crss[0])
+    assigned = tile_crss[0] is target_in  # a tile without a CRS, read as the given one
+    out_crs = authority_crs(target if reprojected or assigned
+                            else with_vertical(tile_crss[0]))
     return Plan(units, grid, names, target, out_crs, checked, reprojected,
                 infos[0].pdal_version)
 
@@ -198,24 +218,11 @@ def _names(paths: Sequence[Path]) -> str:
     return f"{paths[0]}, {paths[1]} and {len(paths) - 2} more"
 
 
-def _as_polygon(polygon: object) -> Any:
-    """A shapely (multi)polygon from a geometry or WKT; None for None."""
-    if polygon is None:
-        return None
-    import shapely
-
-    geom = shapely.from_wkt(polygon) if isinstance(polygon, str) else polygon
-    if not isinstance(geom, shapely.Geometry) or geom.is_empty or \
-            geom.geom_type not in ("Polygon", "MultiPolygon"):
-        raise InputError(f"polygon must be a polygon or multipolygon (shapely or WKT) in the "
-                         f"output CRS; got {str(polygon)[:60]!r}")
-    return geom
-
-
 def _fix_broken_header(info: TileInfo, resolution: float) -> TileInfo:
-    """A tile whose header extent cannot be right gets its points' extent (one extra
-    pass over that tile only), with the warning the header deserves."""
-    if info.n_points == 0 or plausible_box(info.bounds):
+    """A tile whose header extent cannot be right, or which says it holds no point, gets its
+    points' extent and count (one extra pass over that tile only), with the warning the
+    header deserves."""
+    if info.n_points > 0 and plausible_box(info.bounds):
         return info
     return _trust_points(info, las_summary(info.path), resolution)
 

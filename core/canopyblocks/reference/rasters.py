@@ -55,6 +55,7 @@ from ..errors import (
 )
 from ..progress import Progress, as_progress
 from ..readers.cloud_checks import warn_if_normalised
+from ..readers.las import as_area
 from ..readers.las_header import check_header_extent
 from .dtm_fill import fill_and_write_dtm, rasterio_module, write_grid
 from .pdal import (
@@ -75,7 +76,7 @@ from .raster_grid import (
     crs_label,
 )
 from .raster_grid import fmt_bounds as _fmt
-from .raster_plan import _as_polygon, _names, cloud_plan, las_plan
+from .raster_plan import _names, cloud_plan, las_plan
 from .raster_tiles import (
     Runner,
     SurveyGrids,
@@ -174,7 +175,7 @@ def make_reference_rasters(
     paths = [Path(p) for p in las_paths]
     if not paths:
         raise InputError("no LAS/LAZ tiles given")
-    area_poly = _as_polygon(polygon)
+    area_poly = as_area(polygon, "make_reference_rasters: polygon")
     smrf = params.ground == "smrf"
     exe = find_pdal(pdal) if smrf else None
     prog.update(0.0, "reading tile headers")
