@@ -105,6 +105,22 @@ def _footprint_ref(pts: LasPoints, x: np.ndarray, y: np.ndarray,
                          "ref_flag": ref["ref_flag"].to_numpy(object)})
 
 
+def _own_centres(footprints: pd.DataFrame, pts: LasPoints, x: np.ndarray,
+                 y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The layer's own point geometry when it is in the points' CRS (the centres the file
+    holds, not their round trip through lon/lat: the noise-free pair's reading moves by
+    decimetres with nanometres of centre), else ``x, y``."""
+    crs = getattr(footprints, "crs", None)
+    geom = getattr(footprints, "geometry", None) if isinstance(footprints, gpd.GeoDataFrame) \
+        else None
+    if geom is None or crs is None or pts.crs is None \
+            or not pyproj.CRS(crs).equals(pts.crs, ignore_axis_order=True):
+        return x, y
+    gx, gy = shapely.get_x(geom.to_numpy()), shapely.get_y(geom.to_numpy())
+    ok = np.isfinite(gx) & np.isfinite(gy)
+    return np.where(ok, gx, x), np.where(ok, gy, y)
+
+
 def _dual_read(attrs: dict[str, object]) -> tuple[object, object]:
     """The formation and ground-finder parameters the footprints' pairs were read with
     (the layer's ``noise``, ``bin_size`` and ``dual_params``, from its file); the
@@ -237,7 +253,8 @@ def validate_sensor_footprints(
             raise InputError(f"definition={definition!r}; use 'waveform' or 'points'")
         ref = _footprint_ref(pts, x, y, ref_params, prog.sub(0.3, 0.9))
         if definition == "waveform":
-            ref = _dual_formed(ref, pts, x, y, dict(footprints.attrs))
+            ox, oy = _own_centres(footprints, pts, x, y)
+            ref = _dual_formed(ref, pts, ox, oy, dict(footprints.attrs))
         size = ref_params.diameter
     values = {"ground": heights["ground"].to_numpy(float),
               "top": heights["top"].to_numpy(float),
