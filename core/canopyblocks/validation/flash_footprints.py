@@ -133,7 +133,9 @@ def _dual_read(attrs: dict[str, object]) -> tuple[object, object]:
         noise = float("nan")
     if not (np.isfinite(noise) and noise >= 0):
         log.warning("the dual-wavelength footprints do not say their file's noise level: "
-                    "the reference reads its pairs with the paper's 5 %% noise")
+                    "the reference reads its pairs with the paper's 5 % noise; for a file "
+                    "of another noise level, validate it with `canopyblocks run --photons "
+                    "FILE` (its pairs' noise is read from the file)")
         noise = PAPER_NOISE
     kw: dict[str, float] = {"noise": noise}
     try:
