@@ -8,8 +8,11 @@ compared with what the airborne points show where the instrument looked:
   the row's pixels (:func:`~canopyblocks.reference.pixel_reference.pixel_reference`):
   ``ref_ground`` the class-2 TIN averaged over the pixel centres, ``ref_top`` the
   highest point under the pixels, ``ref_height = ref_top - ref_ground``;
-- dual (a Gaussian footprint of sigma 5.5 m, as GEDI's): the footprint-matched
-  reference of DESIGN 2.7 (:func:`~canopyblocks.reference.footprint.footprint_reference`
+- dual (a Gaussian footprint of sigma 5.5 m, as GEDI's): by default the points formed
+  into the noise-free visible/near-infrared pair and read as the footprints' pairs were
+  (the file's noise level, the ground finder's parameters, the layer's own centres;
+  :mod:`~canopyblocks.reference.dual_reference`); ``definition="points"``: the
+  footprint-matched weighted points (:func:`~canopyblocks.reference.footprint.footprint_reference`
   with :meth:`FootprintReferenceParams.gedi`): ``ref_ground`` the weighted mean of the
   ground points, ``ref_height`` its RH98, ``ref_top = ref_ground + ref_height``.
 
