@@ -355,6 +355,11 @@ CASES = {
         [opt.strip("-").replace("-", "_")])
        for opt, v in (("--diameter", "0"), ("--diameter", "nan"), ("--shot-spacing", "0"),
                       ("--mean-photons", "nan"), ("--noise-rate", "-1"))},
+    "simulate-gedi-diameter": (lambda i, o: ["simulate", i["topo"], "--sensor", "gedi",
+                                             "--azimuth", "10", "--diameter", "30", "-o",
+                                             o / "s.h5"], ["--diameter", "22 m"]),
+    "run-gedi-diameter": (lambda i, o: ["run", i["topo"], "--sensor", "gedi", "--diameter",
+                                        "30", "-o", o / "run"], ["--diameter", "22 m"]),
     "simulate-azimuth-nan": (lambda i, o: ["simulate", i["topo"], "--azimuth", "nan", "-o",
                                            o / "s.h5"], ["azimuth"]),
     "simulate-line-off-tiles": (lambda i, o: ["simulate", i["topo"], "--line", "0,0,1,1", "-o",

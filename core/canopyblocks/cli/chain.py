@@ -48,7 +48,8 @@ from .vocabulary import deprecated_option, say_deprecated, take_alias
 @click.option("--azimuth", type=float, default=0.0, show_default=True,
               help="Simulated track direction, degrees clockwise from north.")
 @click.option("--diameter", type=float, default=13.0, show_default=True,
-              help="Simulated footprint diameter, m.")
+              help="Simulated ICESat-2 footprint diameter, m (GEDI, flash-lidar and "
+                   "dual-wavelength footprints are their instruments').")
 @click.option("--photon-rate", "photon_rate",
               type=click.Choice(["boreal", "temperate", "tropical"]), default="temperate",
               show_default=True, help="Simulated photon rate (as simulate --photon-rate).")
@@ -108,6 +109,13 @@ def run_cmd(ctx: click.Context, tiles: tuple[str, ...], out_dir: str, photons: s
     if sensor != "icesat2" and photons:
         raise click.UsageError(f"--sensor {sensor} simulates; give either --photons or "
                                "--sensor")
+    if sensor != "icesat2" and explicit_value(ctx, "diameter", diameter) is not None:
+        from .simulate import WAVEFORM_FOOTPRINT
+
+        raise click.BadParameter(
+            f"applies to --sensor icesat2 only: the {WAVEFORM_FOOTPRINT[sensor]} is the "
+            "instrument's, simulated and validated alike; leave it out",
+            param_hint="--diameter")
     for name, value, want in (("--esfl-noise", esfl_noise, "esfl"),
                               ("--dual-noise", dual_noise, "dual")):
         if value is not None and sensor != want:

@@ -19,6 +19,12 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 
 
+#: What fixes each waveform sensor's footprint (``--diameter`` is refused for them).
+WAVEFORM_FOOTPRINT = {"gedi": "GEDI footprint (22 m Gaussian, sigma 5.5 m)",
+                      "dual": "dual-wavelength footprint (22 m Gaussian, sigma 5.5 m)",
+                      "esfl": "flash-lidar footprint (its pixel array)"}
+
+
 @click.command("simulate")
 @click.argument("las", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("--sensor", type=click.Choice(["icesat2", "gedi", "esfl", "dual"]),
@@ -39,7 +45,8 @@ log = logging.getLogger(__name__)
 @click.option("--diameter", "diameters", multiple=True, type=float,
               help="Footprint diameter, m; repeat (e.g. 13 and 17) for the report table. "
                    "Default: the instrument's (ICESat-2 13 m, MABEL 2 m). The output file "
-                   "holds the first diameter.")
+                   "holds the first diameter. Photons only: GEDI, flash-lidar and "
+                   "dual-wavelength footprints are their instruments'.")
 @click.option("--instrument", type=click.Choice(["icesat2", "mabel"]), default="icesat2",
               show_default=True, help="Sets footprint, shot spacing and pulse rate defaults.")
 @click.option("--shot-spacing", type=float, default=None,
@@ -115,6 +122,11 @@ def simulate_cmd(ctx: click.Context, las: tuple[str, ...], sensor: str, azimuth:
         raise click.UsageError(
             "give exactly one of --azimuth DEG, --line x0,y0,x1,y1 or --polyline 'x,y;x,y;...'")
     if sensor != "icesat2":
+        if diameters:
+            raise click.BadParameter(
+                f"applies to --sensor icesat2 only: the {WAVEFORM_FOOTPRINT[sensor]} is the "
+                "instrument's, simulated and validated alike; leave it out",
+                param_hint="--diameter")
         _waveform_sensor(ctx, las, sensor, azimuth, line, polyline, centre, seed, crs,
                          output, report, shot_spacing, dual_noise, esfl_noise)
         return

@@ -19,7 +19,9 @@ Reading
     The dual-wavelength ground finder of
     :func:`~canopyblocks.waveforms.dual_wavelength.dual_wavelength_ground` with the noise
     level the simulator draws (sd = ``noise`` x the pair's near-infrared peak, both bands;
-    0: a floor of 0.25 % of each band's peak): ``ref_ground`` = its ground centre,
+    0: a floor of 0.25 % of each band's peak) and its parameters, on the pair rounded to
+    the 32-bit floats a sensor file stores (the noise-free pair's reading moves by metres
+    with that rounding): ``ref_ground`` = its ground centre,
     ``ref_top`` = the first sample above the noise threshold, ``ref_height`` = the paper's
     tree height (that first sample to the ground start).
 """
@@ -109,7 +111,8 @@ def dual_noise_sd(bands: list[np.ndarray], noise: float) -> tuple[np.ndarray, np
 
 
 def dual_reference(points: LasPoints, x: np.ndarray, y: np.ndarray,
-                   form: DualFormParams | None = None, params: object = None) -> pd.DataFrame:
+                   form: DualFormParams | None = None, params: object = None, *,
+                   stored: type = np.float32) -> pd.DataFrame:
     """The noise-free pair of each footprint read by the dual-wavelength ground finder.
 
     Parameters
@@ -121,7 +124,11 @@ def dual_reference(points: LasPoints, x: np.ndarray, y: np.ndarray,
     form : DualFormParams, optional
         Default: the simulator's.
     params : DualParams, optional
-        The ground finder's parameters (default: the paper's method).
+        The ground finder's parameters (default: the paper's method); give the ones the
+        footprints were read with.
+    stored : numpy float type
+        The pair is rounded to this type before it is read, as the sensor file stores it
+        (``simulate --sensor dual`` writes float32; np.float64 leaves it unrounded).
 
     Returns
     -------
@@ -148,8 +155,10 @@ def dual_reference(points: LasPoints, x: np.ndarray, y: np.ndarray,
         return out
     top, _, bands = dual_bands(ret, form)
     zeros = np.zeros(ids.size)
-    g = dual_wavelength_ground(bands[0], bands[1], noise_mean=(zeros, zeros.copy()),
-                               noise_sd=dual_noise_sd(bands, form.noise),
+    sd = dual_noise_sd(bands, form.noise)   # as the simulator writes it, before rounding
+    read = [np.asarray(b, stored).astype(float) for b in bands]
+    g = dual_wavelength_ground(read[0], read[1], noise_mean=(zeros, zeros.copy()),
+                               noise_sd=sd,
                                params=params)  # type: ignore[arg-type]
     first = g.first if g.first is not None else np.full(ids.size, np.nan)
     ok = np.isfinite(top) & g.found & np.isfinite(first)

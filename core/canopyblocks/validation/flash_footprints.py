@@ -8,8 +8,11 @@ compared with what the airborne points show where the instrument looked:
   the row's pixels (:func:`~canopyblocks.reference.pixel_reference.pixel_reference`):
   ``ref_ground`` the class-2 TIN averaged over the pixel centres, ``ref_top`` the
   highest point under the pixels, ``ref_height = ref_top - ref_ground``;
-- dual (a Gaussian footprint of sigma 5.5 m, as GEDI's): the footprint-matched
-  reference of DESIGN 2.7 (:func:`~canopyblocks.reference.footprint.footprint_reference`
+- dual (a Gaussian footprint of sigma 5.5 m, as GEDI's): by default the points formed
+  into the noise-free visible/near-infrared pair and read as the footprints' pairs were
+  (the file's noise level, the ground finder's parameters, the layer's own centres;
+  :mod:`~canopyblocks.reference.dual_reference`); ``definition="points"``: the
+  footprint-matched weighted points (:func:`~canopyblocks.reference.footprint.footprint_reference`
   with :meth:`FootprintReferenceParams.gedi`): ``ref_ground`` the weighted mean of the
   ground points, ``ref_height`` its RH98, ``ref_top = ref_ground + ref_height``.
 
@@ -105,14 +108,58 @@ def _footprint_ref(pts: LasPoints, x: np.ndarray, y: np.ndarray,
                          "ref_flag": ref["ref_flag"].to_numpy(object)})
 
 
-def _dual_formed(ref: pd.DataFrame, pts: LasPoints, x: np.ndarray,
-                 y: np.ndarray) -> pd.DataFrame:
-    """``ref`` with the dual-wavelength reference's ground, top and height; footprints whose
-    noise-free pair the ground finder reads no ground in are flagged ``no_ground``."""
+def _own_centres(footprints: pd.DataFrame, pts: LasPoints, x: np.ndarray,
+                 y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The layer's own point geometry when it is in the points' CRS (the centres the file
+    holds, not their round trip through lon/lat: the noise-free pair's reading moves by
+    decimetres with nanometres of centre), else ``x, y``."""
+    crs = getattr(footprints, "crs", None)
+    geom = getattr(footprints, "geometry", None) if isinstance(footprints, gpd.GeoDataFrame) \
+        else None
+    if geom is None or crs is None or pts.crs is None \
+            or not pyproj.CRS(crs).equals(pts.crs, ignore_axis_order=True):
+        return x, y
+    gx, gy = shapely.get_x(geom.to_numpy()), shapely.get_y(geom.to_numpy())
+    ok = np.isfinite(gx) & np.isfinite(gy)
+    return np.where(ok, gx, x), np.where(ok, gy, y)
+
+
+def _dual_read(attrs: dict[str, object]) -> tuple[object, object]:
+    """The formation and ground-finder parameters the footprints' pairs were read with
+    (the layer's ``noise``, ``bin_size`` and ``dual_params``, from its file); the
+    paper's 5 % noise and default reading, with a warning, when the layer does not say."""
+    from ..reference.dual_reference import PAPER_NOISE, DualFormParams
+
+    try:
+        noise = float(attrs.get("noise", np.nan))  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        noise = float("nan")
+    if not (np.isfinite(noise) and noise >= 0):
+        log.warning("the dual-wavelength footprints do not say their file's noise level: "
+                    "the reference reads its pairs with the paper's 5 % noise; for a file "
+                    "of another noise level, validate it with `canopyblocks run --photons "
+                    "FILE` (its pairs' noise is read from the file)")
+        noise = PAPER_NOISE
+    kw: dict[str, float] = {"noise": noise}
+    try:
+        bin_size = float(attrs.get("bin_size", np.nan))  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        bin_size = float("nan")
+    if np.isfinite(bin_size) and bin_size > 0:
+        kw["bin_size"] = bin_size
+    return DualFormParams(**kw), attrs.get("dual_params")  # type: ignore[arg-type]
+
+
+def _dual_formed(ref: pd.DataFrame, pts: LasPoints, x: np.ndarray, y: np.ndarray,
+                 attrs: dict[str, object]) -> pd.DataFrame:
+    """``ref`` with the dual-wavelength reference's ground, top and height, its pairs read
+    as the footprints' were (:func:`_dual_read`); footprints whose pair the ground finder
+    reads no ground in are flagged ``no_ground``."""
     from ..reference.dual_reference import dual_reference
     from ..reference.footprint_params import REFERENCE_FLAG_NO_GROUND
 
-    d = dual_reference(pts, x, y)
+    form, params = _dual_read(attrs)
+    d = dual_reference(pts, x, y, form, params)  # type: ignore[arg-type]
     ref = ref.copy()
     for c in ("ref_ground", "ref_top", "ref_height"):
         ref[c] = d[c].to_numpy(float)
@@ -155,7 +202,10 @@ def validate_sensor_footprints(
         CRS of tiles that state none.
     definition : {"waveform", "points"}
         Dual rows: ``waveform`` (default) compares them with the points formed into the
-        noise-free visible/near-infrared pair and read by the same ground finder
+        noise-free visible/near-infrared pair and read by the same ground finder with the
+        file's noise level and the footprints' parameters (the layer's ``attrs`` ``noise``,
+        ``bin_size``, ``dual_params``, which ``canopyblocks waveforms`` sets; the paper's
+        5 % noise, with a warning, when absent)
         (:mod:`~canopyblocks.reference.dual_reference`); ``points`` with the weighted points
         (class-2 weighted mean ground, height = RH98 of all returns). ESFL rows: the points
         under their pixels either way.
@@ -208,7 +258,8 @@ def validate_sensor_footprints(
             raise InputError(f"definition={definition!r}; use 'waveform' or 'points'")
         ref = _footprint_ref(pts, x, y, ref_params, prog.sub(0.3, 0.9))
         if definition == "waveform":
-            ref = _dual_formed(ref, pts, x, y)
+            ox, oy = _own_centres(footprints, pts, x, y)
+            ref = _dual_formed(ref, pts, ox, oy, dict(footprints.attrs))
         size = ref_params.diameter
     values = {"ground": heights["ground"].to_numpy(float),
               "top": heights["top"].to_numpy(float),

@@ -200,6 +200,8 @@ def dual_footprints(path: str | os.PathLike[str], params: Any = None, *, crs: An
         "ground_end": elevation(g.end), "smoothing_width": np.asarray(g.width, float),
         "flag": flag})
     gdf = _layer(frame, f.x, f.y, src, crs, f.vertical_datum)
+    # how the pairs were read: the like-with-like reference reads its own pairs alike
+    gdf.attrs.update({"noise": f.noise, "bin_size": f.bin_size, "dual_params": p})
     prog.update(1.0, f"{n} dual-wavelength footprints")
     return gdf
 
