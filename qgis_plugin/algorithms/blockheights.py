@@ -20,22 +20,33 @@ from qgis.core import (
 from ..core_bridge import import_core
 from ..layers import pyproj_crs, write_frame
 from ..styles import style_on_load
-from .base import SEED_001, CanopyBlocksAlgorithm, input_label, optional_number, parse_lengths
+from .base import (
+    SEED_001,
+    CanopyBlocksAlgorithm,
+    input_label,
+    optional_number,
+    parse_lengths,
+    table_choices,
+)
 
 __all__ = ["BlockHeightsAlgorithm"]
 
 NOISE_OPTIONS = ("sigma", "none")
-#: (menu label, preset name): the presets of the CLI's --preset, in its order, the
-#: default (the recommended atl08) first
-PRESET_OPTIONS = (
-    ("atl08 (recommended): photons classified as ATL08 does, its ground surface, 98th "
-     "percentile of the canopy heights", "atl08"),
-    ("paper: the paper's method (k-sigma noise filter, top and ground windows)", "paper"),
-    ("icesat2: density noise filter, the paper's ground window, 98th-percentile top",
-     "icesat2"),
-    ("mabel: density noise filter, ground surface, 98th-percentile top", "mabel"),
-)
-DEFAULT_PRESET_INDEX = 0
+#: What each estimator preset computes, in the dialog's words (the names, their order and
+#: the default come from the core's one vocabulary: ``canopyblocks.options``)
+PRESET_LABELS = {
+    "atl08": "atl08 (recommended): photons classified as ATL08 does, its ground surface, "
+             "98th percentile of the canopy heights",
+    "paper": "paper: the paper's method (k-sigma noise filter, top and ground windows)",
+    "icesat2": "icesat2: density noise filter, the paper's ground window, 98th-percentile top",
+    "mabel": "mabel: density noise filter, ground surface, 98th-percentile top",
+}
+
+
+def preset_options() -> tuple[tuple[tuple[str, str], ...], int]:
+    """((menu label, preset name), ...) in the core's order, and the default's index."""
+    names, default = table_choices("--preset")
+    return tuple((PRESET_LABELS.get(n, n), n) for n in names), default
 
 
 def parse_track(text: str) -> dict[str, Any]:
@@ -132,9 +143,10 @@ class BlockHeightsAlgorithm(CanopyBlocksAlgorithm):
             self.ATL08, "Matching ATL08 file (adds photon classes)",
             behavior=QgsProcessingParameterFile.File, optional=True,
             fileFilter="HDF5 (*.h5 *.hdf5);;All files (*.*)"))
+        presets, default = preset_options()
         self.addParameter(QgsProcessingParameterEnum(
-            self.PRESET, "Estimators", options=[label for label, _ in PRESET_OPTIONS],
-            defaultValue=DEFAULT_PRESET_INDEX))
+            self.PRESET, "Estimators", options=[label for label, _ in presets],
+            defaultValue=default))
         self.addParameter(QgsProcessingParameterFile(
             self.CALIBRATION, "Bias calibration (JSON from Calibrate, bias method)",
             behavior=QgsProcessingParameterFile.File, fileFilter="Calibration (*.json)",
@@ -188,7 +200,7 @@ class BlockHeightsAlgorithm(CanopyBlocksAlgorithm):
         feedback.pushInfo(f"reading {path} {track_kw or ''}")
         track = readers.open_track(path, progress=progress.sub(0.0, 0.2), **track_kw)
         progress.update(0.2, f"{len(track)} photons read")
-        preset = PRESET_OPTIONS[self.parameterAsEnum(parameters, self.PRESET, context)][1]
+        preset = preset_options()[0][self.parameterAsEnum(parameters, self.PRESET, context)][1]
         calibration = self.parameterAsFile(parameters, self.CALIBRATION, context) or None
         track_mod = import_core("canopyblocks.workflows.blocks")
         est = import_core("canopyblocks.blocks.estimators").preset(preset)

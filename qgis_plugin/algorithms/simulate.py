@@ -21,11 +21,10 @@ from qgis.core import (
 from ..core_bridge import import_core
 from ..layers import qgs_crs, write_frame
 from ..styles import style_on_load
-from .base import SEED_002, CanopyBlocksAlgorithm, input_label, las_files
+from .base import SEED_002, CanopyBlocksAlgorithm, input_label, las_files, table_choices
 
 __all__ = ["SimulateAlgorithm", "track_vertices", "add_tiles_and_track_parameters"]
 
-PRESETS = ("boreal", "temperate", "tropical")
 BEAMS = ("strong", "weak")
 
 
@@ -54,7 +53,7 @@ class SimulateAlgorithm(CanopyBlocksAlgorithm):
     TRACK_LINE = "TRACK_LINE"
     AZIMUTH = "AZIMUTH"
     DIAMETER = "DIAMETER"
-    PRESET = "PRESET"
+    PHOTON_RATE = "PHOTON_RATE"
     BEAM = "BEAM"
     BACKGROUND_RATE = "BACKGROUND_RATE"
     SEED = "SEED"
@@ -66,8 +65,10 @@ class SimulateAlgorithm(CanopyBlocksAlgorithm):
         self.addParameter(QgsProcessingParameterNumber(
             self.DIAMETER, "Footprint diameter (m; 13 start, 17 end of mission)",
             type=QgsProcessingParameterNumber.Double, defaultValue=13.0, minValue=0.1))
+        rates, default = table_choices("--photon-rate")
         self.addParameter(QgsProcessingParameterEnum(
-            self.PRESET, "Ecosystem photon rate", options=list(PRESETS), defaultValue=1))
+            self.PHOTON_RATE, "Ecosystem photon rate", options=list(rates),
+            defaultValue=default))
         self.addParameter(QgsProcessingParameterEnum(
             self.BEAM, "Beam", options=list(BEAMS), defaultValue=0))
         self.addParameter(QgsProcessingParameterNumber(
@@ -90,7 +91,7 @@ class SimulateAlgorithm(CanopyBlocksAlgorithm):
         diameter = self.parameterAsDouble(parameters, self.DIAMETER, context)
         params = sim_mod.SimParams(
             diameter=diameter,
-            preset=PRESETS[self.parameterAsEnum(parameters, self.PRESET, context)],
+            photon_rate=self._photon_rate(parameters, context),
             beam=BEAMS[self.parameterAsEnum(parameters, self.BEAM, context)],
             background_rate_mhz=self.parameterAsDouble(parameters, self.BACKGROUND_RATE,
                                                        context))
@@ -109,6 +110,20 @@ class SimulateAlgorithm(CanopyBlocksAlgorithm):
             style_on_load(context, results[self.PHOTONS], "truth", "noise",
                           name=f"Simulated photons - {input_label(out)}")
         return results
+
+    def _photon_rate(self, parameters: dict[str, Any], context: QgsProcessingContext) -> str:
+        """PHOTON_RATE's name; a model saved with the old parameter name PRESET still runs
+        (with a warning in the log)."""
+        rates = table_choices("--photon-rate")[0]
+        if "PRESET" in parameters and self.PHOTON_RATE not in parameters:
+            import warnings
+
+            from ..core_bridge import import_core
+            warnings.warn("the parameter PRESET is deprecated and will be removed; use "
+                          "PHOTON_RATE", import_core("canopyblocks.errors")
+                          .CanopyBlocksDeprecationWarning, stacklevel=2)
+            return rates[self.parameterAsEnum(parameters, "PRESET", context)]
+        return rates[self.parameterAsEnum(parameters, self.PHOTON_RATE, context)]
 
     def _track(self, parameters: dict[str, Any], context: QgsProcessingContext,
                sim_mod: Any, points: Any, diameter: float) -> Any:

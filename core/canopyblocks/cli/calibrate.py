@@ -145,7 +145,7 @@ def _bias(photons: str, params: object, *, quiet: bool, output: str | None,
     from ..blocks.estimators import PRESETS
     from ..validation.bias_calibration import write_bias_calibration
     from ..workflows.calibrate import calibrate_bias_file
-    from .blocks import estimators_from_options
+    from ..workflows.choices import estimators_from_options
 
     est = estimators_from_options(preset, noise, ground_estimator, top_estimator,
                                   min_signal_conf)

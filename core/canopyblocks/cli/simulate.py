@@ -8,7 +8,9 @@ from typing import TYPE_CHECKING, cast
 
 import click
 
+from ..options import PHOTON_RATES
 from .common import parse_floats as _floats
+from .options import option
 from .progress_bars import progress_bar
 from .vocabulary import deprecated_option, take_alias
 
@@ -44,14 +46,9 @@ log = logging.getLogger(__name__)
               show_default=True, help="Sets footprint, shot spacing and pulse rate defaults.")
 @click.option("--shot-spacing", type=float, default=None,
               help="Metres between footprint centres (ICESat-2 0.7, MABEL 0.04, GEDI 60).")
-@click.option("--photon-rate", "preset", type=click.Choice(["boreal", "temperate", "tropical"]),
-              default="temperate", show_default=True,
-              help="Poisson mean photons per strong-beam shot: 1.0 / 1.9 / 0.6.")
-@deprecated_option("--preset", "old_preset", type=click.Choice(["boreal", "temperate",
-                                                                 "tropical"]))
-@click.option("--beam-strength", "beam", type=click.Choice(["strong", "weak"]),
-              default="strong", show_default=True,
-              help="The weak beam gets a quarter of the photons.")
+@option("--photon-rate")
+@deprecated_option("--preset", "old_preset", type=click.Choice(list(PHOTON_RATES)))
+@option("--beam-strength", "beam")
 @deprecated_option("--beam", "old_beam", type=click.Choice(["strong", "weak"]))
 @click.option("--mean-photons", type=float, default=None,
               help="Poisson mean photons per shot (overrides --photon-rate/--beam-strength).")
@@ -77,14 +74,15 @@ log = logging.getLogger(__name__)
 @click.option("--realisations", type=click.IntRange(min=1), default=100, show_default=True,
               help="Photon draws per diameter for the statistics (the file holds the first).")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Random seed.")
-@click.option("--crs", default=None, help="CRS of LAS files that state none (e.g. 3005).")
+@option("--points-crs", "crs")
+@deprecated_option("--crs", "old_crs")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Photons: .h5 (ATL03 layout, or MABEL with --format mabel), or a "
                    ".parquet/.gpkg/.csv table with truth columns.")
 @click.option("--format", "fmt", type=click.Choice(["atl03", "mabel"]), default=None,
               help="HDF5 layout (default: atl03 for icesat2, mabel for mabel).")
-@click.option("--photons", "photon_table", type=click.Path(dir_okay=False), default=None,
-              help="Also write every realisation's photons with truth (.parquet/.gpkg/.csv).")
+@option("--photon-table")
+@deprecated_option("--photons", "old_photon_table", type=click.Path(dir_okay=False))
 @click.option("--report", type=click.Path(file_okay=False), default=None,
               help="Folder for the table of errors against truth (CSV), residuals by cover (CSV), the "
                    "cover plot (PNG) and the per-footprint truth (CSV).")
@@ -92,12 +90,13 @@ log = logging.getLogger(__name__)
 def simulate_cmd(ctx: click.Context, las: tuple[str, ...], sensor: str, azimuth: float | None,
                  line: str | None, polyline: str | None, centre: str | None,
                  diameters: tuple[float, ...],
-                 instrument: Instrument, shot_spacing: float | None, preset: Ecosystem,
+                 instrument: Instrument, shot_spacing: float | None, photon_rate: Ecosystem,
                  old_preset: Ecosystem | None, beam: Beam, old_beam: Beam | None,
                  mean_photons: float | None, background_rate: float, night: bool, day: bool,
                  telemetry_window: float, noise_rate: float | None, geolocation_sigma: float,
-                 dual_noise: float | None, esfl_noise: float | None, realisations: int, seed: int, crs: str | None, output: str, fmt: str | None,
-                 photon_table: str | None, report: str | None) -> None:
+                 dual_noise: float | None, esfl_noise: float | None, realisations: int, seed: int, crs: str | None, old_crs: str | None, output: str,
+                 fmt: str | None, photon_table: str | None, old_photon_table: str | None,
+                 report: str | None) -> None:
     """Simulate lidar along a track over airborne LAS/LAZ tiles: ICESat-2/MABEL photons
     (default), GEDI waveforms, flash-array cubes or dual-wavelength pairs.
 
@@ -108,7 +107,10 @@ def simulate_cmd(ctx: click.Context, las: tuple[str, ...], sensor: str, azimuth:
     from ..simulate import SimParams, SimTrack, line_through, seed002_experiment
     from ..simulate.writers import check_simulation_outputs, write_simulation_outputs
 
-    preset = take_alias(preset, old_preset, old="--preset", new="--photon-rate",
+    crs = take_alias(crs, old_crs, old="--crs", new="--points-crs")
+    photon_table = take_alias(photon_table, old_photon_table, old="--photons",
+                              new="--photon-table")
+    photon_rate = take_alias(photon_rate, old_preset, old="--preset", new="--photon-rate",
                         default="temperate")
     beam = take_alias(beam, old_beam, old="--beam", new="--beam-strength", default="strong")
     if sum(v is not None for v in (azimuth, line, polyline)) != 1:
@@ -129,7 +131,7 @@ def simulate_cmd(ctx: click.Context, las: tuple[str, ...], sensor: str, azimuth:
         ctx.obj and ctx.obj.get("quiet")))
     params = SimParams(instrument=instrument,
                        diameter=diameters[0] if diameters else None,
-                       shot_spacing=shot_spacing, preset=preset,
+                       shot_spacing=shot_spacing, photon_rate=photon_rate,
                        beam=beam, mean_photons=mean_photons,
                        background_rate_mhz=background_rate if noise_rate is None else 0.0,
                        noise_rate=noise_rate, telemetry_window=telemetry_window,

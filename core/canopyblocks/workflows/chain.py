@@ -52,7 +52,7 @@ def _simulate(las_paths: Sequence[Path], out: Path, *, azimuth: float, diameter:
     except FileFormatError:
         progress.check()  # read_las reports a cancellation as a read error
         raise
-    params = SimParams(diameter=diameter, preset=preset)  # type: ignore[arg-type]
+    params = SimParams(diameter=diameter, photon_rate=preset)  # type: ignore[arg-type]
     track = line_through(points.bounds, azimuth, inset=max(diameter, 17.0) / 2.0)
     sim = simulate_photons(points, track, params, realisations=1, seed=seed,
                            progress=progress.sub(0.2, 0.4))

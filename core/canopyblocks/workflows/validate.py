@@ -147,7 +147,7 @@ def validate_file(
     path: str | os.PathLike[str],
     output: str | os.PathLike[str],
     *,
-    reference: ReferenceKind = "corridor",
+    reference: ReferenceKind | None = None,
     dtm: str | os.PathLike[str] | None = None,
     dsm_max: str | os.PathLike[str] | None = None,
     dsm_p90: str | os.PathLike[str] | None = None,
@@ -180,8 +180,9 @@ def validate_file(
         ``.gpkg`` (layers ``residuals``/``stats``, plus ``stats_uncorrected`` with
         ``coregister``; footprints: ``residuals_footprints``/``stats_footprints``) or
         ``.csv``/``.parquet``.  Must differ from ``path``.
-    reference : {"corridor", "atl08", "footprint"}
-        Blocks only: the corridor maximum of the rasters (``dtm``, ``dsm_max``,
+    reference : {"corridor", "atl08", "footprint"}, optional
+        Blocks only (default: ``atl08`` when an ``atl08`` file is given, ``footprint``
+        when ``points`` are given without a ``dtm``, else ``corridor``): the corridor maximum of the rasters (``dtm``, ``dsm_max``,
         ``dsm_p90``; ``"rasters"``, its former name, is still accepted), ATL08
         land segments (``atl08``), or the footprint-matched ALS reference (``points``).
         Footprint tables are always validated against the footprint reference.
@@ -226,6 +227,9 @@ def validate_file(
                          "not both")
     if reference == "rasters":
         reference = "corridor"
+    if reference is None:  # the one place the reference is chosen from what was given
+        reference = "atl08" if atl08 is not None else (
+            "footprint" if points and dtm is None else "corridor")
     if reference not in REFERENCE_KINDS:
         raise InputError(f"reference must be one of {', '.join(REFERENCE_KINDS)}; "
                          f"got {reference!r}")
@@ -269,10 +273,11 @@ def validate_file(
     if getattr(table, "crs", None) is None and not (footprints and {"lon", "lat"}
                                                      <= set(table.columns)):
         if table_crs is None:
-            raise CRSError(f"{path} carries no CRS (CSV); give its CRS (--crs EPSG:...)")
+            raise CRSError(f"{path} carries no CRS (CSV); give its CRS (--table-crs "
+                           "EPSG:...)")
         from ..geo import as_crs
 
-        table = table.set_crs(as_crs(table_crs, "--crs"))
+        table = table.set_crs(as_crs(table_crs, "--table-crs"))
 
     coreg = None
     applied = ""
