@@ -42,6 +42,8 @@ from typing import TYPE_CHECKING, Literal, overload
 import numpy as np
 
 from ..errors import InputError, NoUsableDataError, SparseBlockWarning
+from ..options import ESTIMATOR_PRESETS as _PRESET_NAMES
+from ..options import RECOMMENDED_PRESET as _RECOMMENDED
 from ..schema import LABEL_BETWEEN, LABEL_CANOPY, LABEL_GROUND, LABEL_NOISE
 from .atl08_classify import CLASS_COLUMN, Atl08Params
 from .background_check import classify_photons
@@ -149,11 +151,15 @@ PRESETS: dict[str, Estimators] = {
     "atl08": Estimators(noise="atl08", ground="atl08", top="atl08", name="atl08"),
 }
 
-RECOMMENDED_PRESET = "atl08"
-"""The estimator preset the project recommends, the default of every front end."""
+RECOMMENDED_PRESET = _RECOMMENDED
+"""The estimator preset the project recommends, the default of every front end (declared
+once with the preset names in the one vocabulary, ``canopyblocks.options``)."""
 
 #: The preset names every front end offers (CLI ``--preset``, QGIS, Python), in one order.
-PRESET_NAMES: tuple[str, ...] = tuple(PRESETS)
+PRESET_NAMES: tuple[str, ...] = _PRESET_NAMES
+if set(PRESET_NAMES) != set(PRESETS):  # pragma: no cover - a preset added on one side only
+    raise ImportError(f"blocks.estimators.PRESETS {sorted(PRESETS)} and "
+                      f"options.ESTIMATOR_PRESETS {sorted(PRESET_NAMES)} differ")
 
 
 def default_estimators(track: str | None = None) -> Estimators:

@@ -29,7 +29,7 @@ log = logging.getLogger(__name__)
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of text.")
 def info_cmd(path: str, as_json: bool) -> None:
     """Describe a photon file: product, beams or channels, photon counts, extent."""
-    from ..readers import file_info, format_info
+    from ..workflows.inputs import file_info, format_info
 
     info = file_info(path)
     if as_json:
@@ -113,9 +113,9 @@ def blocks_cmd(ctx: click.Context, paths: tuple[str, ...], output: str,
     Several PATHs (granules) give one table with a 'granule' column, filtered by
     --bbox, --polygon and --time.
     """
-    from ..blocks import BlockParams
     from ..workflows.blocks import blocks_from_file
     from ..workflows.choices import estimators_from_options
+    from ..workflows.params import BlockParams
 
     with_photons = take_alias(with_photons, old_photons, old="--photons", new="--photon-layer")
     k_sigma = take_alias(k_sigma, old_k, old="--k", new="--k-sigma", default=2.5)

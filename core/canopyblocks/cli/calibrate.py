@@ -79,8 +79,8 @@ def calibrate_cmd(ctx: click.Context, photons: str, method: str, dtm: str | None
     the chosen estimators (--preset), with its held-out error; apply it with
     `canopyblocks blocks ... --preset P --calibration cal.json`.
     """
-    from ..blocks import BlockParams
     from ..errors import InputError
+    from ..workflows.params import BlockParams
 
     if output is not None:
         if method == "bias":
@@ -91,7 +91,7 @@ def calibrate_cmd(ctx: click.Context, photons: str, method: str, dtm: str | None
 
             check_writable(output)
         else:
-            from ..outputs.tables import check_output_path
+            from ..workflows.inputs import check_output_path
 
             check_output_path(output)  # fail before the work, not after it
     params = BlockParams(lengths=tuple(lengths) or (10.0, 25.0, 50.0),
@@ -127,9 +127,9 @@ def calibrate_cmd(ctx: click.Context, photons: str, method: str, dtm: str | None
                    f"  held-out Hmax RMSE {row.rmse_hmax_default:.2f} -> "
                    f"{row.rmse_hmax_calibrated:.2f} m (n={row.n_holdout})")
     if output is not None:
-        from ..outputs.tables import write_table
+        from ..workflows.calibrate import write_cutoff_calibration
 
-        write_table(cal.table, output, layer="calibration")
+        write_cutoff_calibration(cal, output)
     if not quiet:
         click.echo("canopyblocks: use them one length at a time, e.g.", err=True)
         for row in cal.table.itertuples():
@@ -142,9 +142,8 @@ def _bias(photons: str, params: object, *, quiet: bool, output: str | None,
           preset: str | None, noise: str | None, ground_estimator: str | None,
           top_estimator: str | None, min_signal_conf: int | None, channel: str | None,
           photon_vcrs: str | None, **kw: Any) -> None:
-    from ..blocks.estimators import PRESETS
-    from ..validation.bias_calibration import write_bias_calibration
-    from ..workflows.calibrate import calibrate_bias_file
+    from ..options import ESTIMATOR_PRESETS
+    from ..workflows.calibrate import calibrate_bias_file, write_bias_calibration
     from ..workflows.choices import estimators_from_options
 
     est = estimators_from_options(preset, noise, ground_estimator, top_estimator,
@@ -162,7 +161,7 @@ def _bias(photons: str, params: object, *, quiet: bool, output: str | None,
         write_bias_calibration(cal, output)
         if not quiet:
             click.echo(f"canopyblocks: apply it with `canopyblocks blocks PHOTONS --preset "
-                       f"{est.name if est.name in PRESETS else '...'} "
+                       f"{est.name if est.name in ESTIMATOR_PRESETS else '...'} "
                        f"--calibration {output}`", err=True)
 
 

@@ -94,10 +94,10 @@ def run_cmd(ctx: click.Context, tiles: tuple[str, ...], out_dir: str, photons: s
             footprint_reference: bool, sensor: str, esfl_noise: float | None,
             dual_noise: float | None) -> None:
     """Photons + airborne TILES -> blocks, reference rasters, validation, plots, report."""
-    from ..blocks import BlockParams
-    from ..blocks.estimators import RECOMMENDED_PRESET
-    from ..blocks.estimators import preset as named_preset
+    from ..options import RECOMMENDED_PRESET
     from ..workflows.chain import run_chain
+    from ..workflows.params import BlockParams
+    from ..workflows.params import preset as named_preset
 
     if simulate and photons:
         raise click.UsageError("give either --photons or --simulate, not both")

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
-from typing import TYPE_CHECKING, cast
 
 import click
 
@@ -13,10 +12,6 @@ from .common import parse_floats as _floats
 from .options import option
 from .progress_bars import progress_bar
 from .vocabulary import deprecated_option, take_alias
-
-if TYPE_CHECKING:
-    from ..simulate import SimTrack
-    from ..simulate.params import Beam, Ecosystem, Instrument
 
 log = logging.getLogger(__name__)
 
@@ -90,8 +85,8 @@ log = logging.getLogger(__name__)
 def simulate_cmd(ctx: click.Context, las: tuple[str, ...], sensor: str, azimuth: float | None,
                  line: str | None, polyline: str | None, centre: str | None,
                  diameters: tuple[float, ...],
-                 instrument: Instrument, shot_spacing: float | None, photon_rate: Ecosystem,
-                 old_preset: Ecosystem | None, beam: Beam, old_beam: Beam | None,
+                 instrument: str, shot_spacing: float | None, photon_rate: str,
+                 old_preset: str | None, beam: str, old_beam: str | None,
                  mean_photons: float | None, background_rate: float, night: bool, day: bool,
                  telemetry_window: float, noise_rate: float | None, geolocation_sigma: float,
                  dual_noise: float | None, esfl_noise: float | None, realisations: int, seed: int, crs: str | None, old_crs: str | None, output: str,
@@ -103,15 +98,14 @@ def simulate_cmd(ctx: click.Context, las: tuple[str, ...], sensor: str, azimuth:
     Heights keep the LAS files' CRS (converted to WGS84 lat/lon in HDF5 files) and
     vertical datum; the truth (footprint ground, top, RH, cover) travels with them.
     """
-    from ..readers.las import las_bounds, read_las
-    from ..simulate import SimParams, SimTrack, line_through, seed002_experiment
-    from ..simulate.writers import check_simulation_outputs, write_simulation_outputs
+    from ..workflows.params import SimParams
+    from ..workflows.simulate import simulate_photons_over_tiles
 
     crs = take_alias(crs, old_crs, old="--crs", new="--points-crs")
     photon_table = take_alias(photon_table, old_photon_table, old="--photons",
                               new="--photon-table")
     photon_rate = take_alias(photon_rate, old_preset, old="--preset", new="--photon-rate",
-                        default="temperate")
+                             default="temperate")
     beam = take_alias(beam, old_beam, old="--beam", new="--beam-strength", default="strong")
     if sum(v is not None for v in (azimuth, line, polyline)) != 1:
         raise click.UsageError(
@@ -129,48 +123,23 @@ def simulate_cmd(ctx: click.Context, las: tuple[str, ...], sensor: str, azimuth:
     light = "night" if night else "day" if day else None
     background_rate = _background_rate(background_rate, light, noise_rate, quiet=bool(
         ctx.obj and ctx.obj.get("quiet")))
-    params = SimParams(instrument=instrument,
+    params = SimParams(instrument=instrument,  # type: ignore[arg-type]
                        diameter=diameters[0] if diameters else None,
                        shot_spacing=shot_spacing, photon_rate=photon_rate,
                        beam=beam, mean_photons=mean_photons,
                        background_rate_mhz=background_rate if noise_rate is None else 0.0,
                        noise_rate=noise_rate, telemetry_window=telemetry_window,
                        geolocation_sigma=geolocation_sigma)
-    # SimParams.__post_init__ fills diameter from the instrument when it is None.
-    diams = tuple(diameters) or (float(cast(float, params.diameter)),)
     out = Path(output)
-    # every output checked before the work; written all or none after it
-    check_simulation_outputs(out, photon_table=photon_table, report=report)
     quiet = bool(ctx.obj and ctx.obj.get("quiet"))
     with progress_bar("simulate", quiet=quiet) as progress:
-        if line is not None:
-            x0, y0, x1, y1 = _parse(line, 4, "x0,y0,x1,y1")
-            track = SimTrack.line(x0, y0, x1, y1)
-        elif polyline is not None:
-            track = _polyline(polyline)
-        elif azimuth is not None:
-            c = None if centre is None else _pair(centre, "x,y")
-            track = line_through(las_bounds(list(las)), float(azimuth),
-                                 inset=max(diams) / 2.0, centre=c)
-        else:  # excluded by the check above
-            raise click.UsageError("give one of --azimuth, --line or --polyline")
-        # read only the corridor the footprints can reach
-        reach = max(diams) / 2.0 + 1.0
-        vx, vy = zip(*track.vertices)
-        bbox = (min(vx) - reach, min(vy) - reach, max(vx) + reach, max(vy) + reach)
-        pts = read_las(list(las), crs=crs, bbox=bbox, progress=progress.sub(0.0, 0.2))
-        from ..readers.cloud_checks import refuse_all_noise
-
-        refuse_all_noise(pts.classification, ", ".join(las), params.exclude_classes)
-        result = seed002_experiment(pts, track, params, diameters=diams,
-                                    realisations=realisations, seed=seed,
-                                    progress=progress.sub(0.2, 0.9))
-        sim = result.simulations[float(diams[0])]
-        layout = fmt or ("mabel" if instrument == "mabel" else "atl03")
-        write_simulation_outputs(result, out, layout=layout, diameter=float(diams[0]),
-                                 photon_table=photon_table, report=report,
-                                 progress=progress.sub(0.9, 1.0))
-        progress.report(1.0, "done")
+        result, _ = simulate_photons_over_tiles(
+            las, out, params, vertices=_vertices(line, polyline), azimuth=azimuth,
+            centre=None if centre is None else _pair(centre, "x,y"), diameters=diameters,
+            realisations=realisations, seed=seed, crs=crs,
+            layout=fmt or ("mabel" if instrument == "mabel" else "atl03"),
+            photon_table=photon_table, report=report, progress=progress)
+    sim = result.simulations[float(diameters[0]) if diameters else float(params.diameter)]
     if quiet:
         return
     t = result.table
@@ -194,9 +163,8 @@ def _waveform_sensor(ctx: click.Context, las: tuple[str, ...], sensor: str,
                      dual_noise: float | None = None,
                      esfl_noise: float | None = None) -> None:
     """``--sensor gedi|esfl|dual``: one core call writing the HDF5 (and the report)."""
-    from ..simulate import SimTrack
-    from ..simulate.gedi_waveforms import GediSimParams
-    from ..simulate.sensor_files import simulate_sensor_over_tiles
+    from ..workflows.params import DualAlsParams, FlashSimParams, GediSimParams
+    from ..workflows.simulate import simulate_sensor_over_tiles
 
     params: object = None
     if shot_spacing is not None:   # the footprint spacing of GEDI; the others have theirs
@@ -208,27 +176,18 @@ def _waveform_sensor(ctx: click.Context, las: tuple[str, ...], sensor: str,
         if sensor != "dual":
             raise click.BadParameter(f"applies to --sensor dual only, not {sensor}",
                                      param_hint="--dual-noise")
-        from ..simulate.sensor_files import DualAlsParams
-
         params = DualAlsParams(noise=dual_noise)
     if esfl_noise is not None:
         if sensor != "esfl":
             raise click.BadParameter(f"applies to --sensor esfl only, not {sensor}",
                                      param_hint="--esfl-noise")
-        from ..simulate.flash_cubes import FlashSimParams
-
         params = FlashSimParams(noise_sd=esfl_noise)
 
-    track = None
-    if line is not None:
-        x0, y0, x1, y1 = _parse(line, 4, "x0,y0,x1,y1")
-        track = SimTrack.line(x0, y0, x1, y1)
-    elif polyline is not None:
-        track = _polyline(polyline)
     quiet = bool(ctx.obj and ctx.obj.get("quiet"))
     with progress_bar("simulate", quiet=quiet) as progress:
         track, summary = simulate_sensor_over_tiles(
-            list(las), sensor, output, track=track, azimuth=float(azimuth or 0.0),
+            list(las), sensor, output, vertices=_vertices(line, polyline),
+            azimuth=float(azimuth or 0.0),
             centre=None if centre is None else _pair(centre, "x,y"), seed=seed, crs=crs,
             report_dir=report, params=params, progress=progress)
     if quiet:
@@ -246,7 +205,7 @@ def _background_rate(rate: float, light: str | None, noise_rate: float | None, *
                      quiet: bool) -> float:
     """The background rate (MHz) from ``--background-rate``, ``--night``/``--day`` or the
     deprecated ``--noise-rate`` (given to SimParams as is, which converts and checks it)."""
-    from ..simulate.params import BACKGROUND_PRESETS_MHZ
+    from ..workflows.params import BACKGROUND_PRESETS_MHZ
 
     given = [name for name, on in (("--background-rate", rate != 0.0),
                                    (f"--{light}", light is not None),
@@ -275,15 +234,18 @@ def _pair(value: str, what: str) -> tuple[float, float]:
     return x, y
 
 
-def _polyline(value: str) -> SimTrack:
-    from ..simulate import SimTrack
-
-    verts: list[tuple[float, float]] = []
-    for part in value.split(";"):
-        verts.append(_pair(part, "'x0,y0;x1,y1;...'"))
+def _vertices(line: str | None, polyline: str | None) -> list[tuple[float, float]] | None:
+    """The track's vertices (metres) from ``--line x0,y0,x1,y1`` or ``--polyline
+    'x0,y0;x1,y1;...'``; None when neither is given (then ``--azimuth``)."""
+    if line is not None:
+        x0, y0, x1, y1 = _parse(line, 4, "x0,y0,x1,y1")
+        return [(x0, y0), (x1, y1)]
+    if polyline is None:
+        return None
+    verts = [_pair(part, "'x0,y0;x1,y1;...'") for part in polyline.split(";")]
     if len(verts) < 2:
-        raise click.BadParameter(f"a polyline needs at least two vertices; got {value!r}")
-    return SimTrack(tuple(verts))
+        raise click.BadParameter(f"a polyline needs at least two vertices; got {polyline!r}")
+    return verts
 
 
 def register(group: click.Group) -> None:

@@ -91,8 +91,7 @@ def validate(ctx: click.Context, blocks_path: str, dtm: str | None, dsm_max: str
     Writes per-block residuals and statistics per block length, metric, aspect and slope
     class (footprints: per beam, aspect, slope and cover class).
     """
-    from ..reference.footprint_params import FootprintReferenceParams
-    from ..validation.coregistration import CoregParams
+    from ..workflows.params import CoregParams, FootprintReferenceParams
     from ..workflows.validate import is_footprint_table, validate_file
     from .progress_bars import progress_bar
 

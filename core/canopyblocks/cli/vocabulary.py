@@ -29,6 +29,7 @@ DEPRECATED_OPTIONS: dict[tuple[str, str], str] = {
     ("blocks", "--k"): "--k-sigma",
     ("blocks", "--atl08"): "--atl08-classes",
     ("blocks", "--profile"): "--plot",
+    ("waveforms", "--noise-threshold"): "--k-sigma",
     ("run", "--estimators"): "--preset",
     ("blocks", "--photons"): "--photon-layer",
     ("segments", "--photons"): "--photon-layer",
