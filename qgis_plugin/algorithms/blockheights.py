@@ -171,12 +171,12 @@ class BlockHeightsAlgorithm(CanopyBlocksAlgorithm):
 
     def execute(self, parameters: dict[str, Any], context: QgsProcessingContext,
                 feedback: QgsProcessingFeedback, progress: Any) -> dict[str, Any]:
-        blocks_mod = import_core("canopyblocks.blocks")
-        readers = import_core("canopyblocks.readers")
+        params_mod = import_core("canopyblocks.workflows.params")
+        layers = import_core("canopyblocks.workflows.layers")
         path = self.parameterAsFile(parameters, self.INPUT, context)
         track_kw = parse_track(self.parameterAsString(parameters, self.TRACK, context))
         lengths = parse_lengths(self.parameterAsString(parameters, self.LENGTHS, context))
-        params = blocks_mod.BlockParams(
+        params = params_mod.BlockParams(
             lengths=lengths,
             s0=optional_number(self, parameters, self.S0, context),
             k_sigma=self.parameterAsDouble(parameters, self.K_SIGMA, context),
@@ -192,25 +192,20 @@ class BlockHeightsAlgorithm(CanopyBlocksAlgorithm):
         atl08 = self.parameterAsFile(parameters, self.ATL08, context) or None
         if atl08:
             track_kw["atl08"] = atl08
-        want_photons = parameters.get(self.PHOTONS) is not None
         profile = self.parameterAsFileOutput(parameters, self.PROFILE, context) \
             if parameters.get(self.PROFILE) is not None else ""
-        want_labels = want_photons or bool(profile)
-
         feedback.pushInfo(f"reading {path} {track_kw or ''}")
-        track = readers.open_track(path, progress=progress.sub(0.0, 0.2), **track_kw)
-        progress.update(0.2, f"{len(track)} photons read")
-        preset = preset_options()[0][self.parameterAsEnum(parameters, self.PRESET, context)][1]
-        calibration = self.parameterAsFile(parameters, self.CALIBRATION, context) or None
-        track_mod = import_core("canopyblocks.workflows.blocks")
-        est = import_core("canopyblocks.blocks.estimators").preset(preset)
-        blocks, all_labels = track_mod.run_blocks([track], params, labels=want_labels,
-                                                  estimators=est,
-                                                  progress=progress.sub(0.2, 0.85))
-        labels = all_labels.get(track.track) if want_labels else None
-        if calibration:
-            blocks = track_mod.calibrate_blocks(
-                blocks, calibration, track_mod.track_strengths(path, [track]))
+        made = layers.block_layers(
+            path, params,
+            preset=preset_options()[0][self.parameterAsEnum(parameters, self.PRESET,
+                                                            context)][1],
+            track=track_kw,
+            calibration=self.parameterAsFile(parameters, self.CALIBRATION, context) or None,
+            photon_layer=parameters.get(self.PHOTONS) is not None,
+            segment_length=self.parameterAsDouble(parameters, self.SEGMENT_LENGTH, context)
+            if parameters.get(self.SEGMENTS) is not None else None,
+            profile=profile or None, progress=progress)
+        blocks, track, labels = made.blocks, made.track, made.labels
         feedback.pushInfo(
             f"{len(blocks)} blocks, {int((blocks['flag'] == 'ok').sum())} flagged ok")
         results: dict[str, Any] = {}
@@ -219,25 +214,16 @@ class BlockHeightsAlgorithm(CanopyBlocksAlgorithm):
         lengths_text = ", ".join(f"{v:g}" for v in lengths) + " m"
         source = input_label(path, str(track.track), lengths_text)
         style_on_load(context, dest, "height", "hmax", name=f"Blocks - {source}")
-        if want_photons and labels is not None:
-            pipeline = import_core("canopyblocks.workflows.blocks")
-            photons = pipeline.photon_layer([track], {track.track: labels})
-            pdest = write_frame(self, parameters, self.PHOTONS, context, photons, feedback)
+        if made.photons is not None and labels is not None:
+            pdest = write_frame(self, parameters, self.PHOTONS, context, made.photons,
+                                feedback)
             results[self.PHOTONS] = pdest
             style_on_load(context, pdest, "label", f"label_{min(labels):g}m",
                           name=f"Photons with labels - {source}")
-        if parameters.get(self.SEGMENTS) is not None:
-            a8 = import_core("canopyblocks.blocks.atl08_classify")
-            a8seg = import_core("canopyblocks.blocks.atl08_segments")
-            seg_len = self.parameterAsDouble(parameters, self.SEGMENT_LENGTH, context)
-            segments = a8seg.atl08_segments(track, a8.classify_photons(track), seg_len,
-                                            params.s0)
+        if made.segments is not None:
             results[self.SEGMENTS] = write_frame(self, parameters, self.SEGMENTS, context,
-                                                 segments, feedback)
-        progress.update(0.95, "written")
+                                                 made.segments, feedback)
         if profile:
-            plots = import_core("canopyblocks.outputs.profile_plot")
-            plots.plot_profile(track, blocks, profile, labels=labels)
             results[self.PROFILE] = profile
         if feedback.isCanceled():
             raise QgsProcessingException("cancelled by the user")

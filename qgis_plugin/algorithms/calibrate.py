@@ -84,7 +84,7 @@ class CalibrateAlgorithm(CanopyBlocksAlgorithm):
 
     def execute(self, parameters: dict[str, Any], context: QgsProcessingContext,
                 feedback: QgsProcessingFeedback, progress: Any) -> dict[str, Any]:
-        blocks_mod = import_core("canopyblocks.blocks")
+        blocks_mod = import_core("canopyblocks.workflows.params")
         calibration = import_core("canopyblocks.workflows.calibrate")
         params = blocks_mod.BlockParams(
             lengths=parse_lengths(self.parameterAsString(parameters, self.LENGTHS, context)),
@@ -114,8 +114,7 @@ class CalibrateAlgorithm(CanopyBlocksAlgorithm):
               track: dict[str, Any], offset: float | None) -> dict[str, Any]:
         """The bias method: one core call, the table as a layer, the JSON as a file."""
         files = import_core("canopyblocks.workflows.calibrate")
-        bias = import_core("canopyblocks.validation.bias_calibration")
-        est_mod = import_core("canopyblocks.blocks.estimators")
+        est_mod = import_core("canopyblocks.workflows.params")
         name = preset_options()[0][self.parameterAsEnum(parameters, self.PRESET, context)][1]
         cal = files.calibrate_bias_file(
             self.parameterAsFile(parameters, self.INPUT, context), params,
@@ -136,7 +135,7 @@ class CalibrateAlgorithm(CanopyBlocksAlgorithm):
             self.OUTPUT: write_frame(self, parameters, self.OUTPUT, context, table, feedback)}
         if parameters.get(self.CALIBRATION) not in (None, ""):
             path = self.parameterAsFileOutput(parameters, self.CALIBRATION, context)
-            bias.write_bias_calibration(cal, path)
+            files.write_bias_calibration(cal, path)
             results[self.CALIBRATION] = path
             # the summary table written beside the JSON
             results[self.CALIBRATION_TABLE] = str(Path(path).with_suffix(".csv"))

@@ -84,24 +84,23 @@ class SimulateAlgorithm(CanopyBlocksAlgorithm):
 
     def execute(self, parameters: dict[str, Any], context: QgsProcessingContext,
                 feedback: QgsProcessingFeedback, progress: Any) -> dict[str, Any]:
-        sim_mod = import_core("canopyblocks.simulate")
-        las = import_core("canopyblocks.readers.las")
-        writers = import_core("canopyblocks.simulate.writers")
+        params_mod = import_core("canopyblocks.workflows.params")
+        workflow = import_core("canopyblocks.workflows.simulate")
+        inputs = import_core("canopyblocks.workflows.inputs")
         files = las_files(self, parameters, self.INPUT, context)
-        diameter = self.parameterAsDouble(parameters, self.DIAMETER, context)
-        params = sim_mod.SimParams(
-            diameter=diameter,
+        params = params_mod.SimParams(
+            diameter=self.parameterAsDouble(parameters, self.DIAMETER, context),
             photon_rate=self._photon_rate(parameters, context),
             beam=BEAMS[self.parameterAsEnum(parameters, self.BEAM, context)],
             background_rate_mhz=self.parameterAsDouble(parameters, self.BACKGROUND_RATE,
                                                        context))
-        points = las.read_las(files, progress=progress.sub(0.0, 0.3))
-        track = self._track(parameters, context, sim_mod, points, diameter)
-        sim = sim_mod.simulate_photons(
-            points, track, params, seed=self.parameterAsInt(parameters, self.SEED, context),
-            progress=progress.sub(0.3, 0.85))
         out = self.parameterAsFileOutput(parameters, self.OUTPUT, context)
-        writers.write_simulation_atl03(sim, out)
+        sim = workflow.simulate_photon_file(
+            files, out, params,
+            vertices=track_vertices(self, parameters, self.TRACK_LINE, context,
+                                    inputs.las_crs(files[0])),
+            azimuth=self.parameterAsDouble(parameters, self.AZIMUTH, context),
+            seed=self.parameterAsInt(parameters, self.SEED, context), progress=progress)
         results: dict[str, Any] = {self.OUTPUT: out}
         if parameters.get(self.PHOTONS) is not None:
             photons = sim.photon_track().to_geodataframe()
@@ -124,14 +123,6 @@ class SimulateAlgorithm(CanopyBlocksAlgorithm):
                           .CanopyBlocksDeprecationWarning, stacklevel=2)
             return rates[self.parameterAsEnum(parameters, "PRESET", context)]
         return rates[self.parameterAsEnum(parameters, self.PHOTON_RATE, context)]
-
-    def _track(self, parameters: dict[str, Any], context: QgsProcessingContext,
-               sim_mod: Any, points: Any, diameter: float) -> Any:
-        line = track_vertices(self, parameters, self.TRACK_LINE, context, points.crs)
-        if line is None:
-            azimuth = self.parameterAsDouble(parameters, self.AZIMUTH, context)
-            return sim_mod.line_through(points.bounds, azimuth, inset=diameter / 2.0)
-        return sim_mod.polyline_from_points(line)
 
 
 def add_tiles_and_track_parameters(alg: Any) -> None:

@@ -12,11 +12,12 @@ if TYPE_CHECKING:
     from ..outputs.tables import check_output_path
     from ..readers import file_info, format_info
     from ..readers.atl03 import atl03_beams
+    from ..readers.flash_dual import waveform_product
     from ..readers.las import las_crs
     from ..readers.remote import is_url
 
 __all__ = ["file_info", "format_info", "is_url", "atl03_beams", "las_crs",
-           "check_output_path"]
+           "check_output_path", "waveform_product"]
 
 _OWNER = {
     "file_info": "..readers",
@@ -25,6 +26,7 @@ _OWNER = {
     "atl03_beams": "..readers.atl03",
     "las_crs": "..readers.las",
     "check_output_path": "..outputs.tables",
+    "waveform_product": "..readers.flash_dual",
 }
 
 
