@@ -162,14 +162,10 @@ if set(PRESET_NAMES) != set(PRESETS):  # pragma: no cover - a preset added on on
                       f"options.ESTIMATOR_PRESETS {sorted(PRESET_NAMES)} differ")
 
 
-def default_estimators(track: str | None = None) -> Estimators:
+def default_estimators() -> Estimators:
     """The estimators used when none are given: the recommended preset
-    (:data:`RECOMMENDED_PRESET`, ``atl08``) for every sensor.
-
-    ``track`` (a beam or channel id) is accepted so that a sensor-specific default has one
-    place to live; measured on simulated MABEL photons (DESIGN 1.12) the ``atl08`` preset
-    is the better one there too.
-    """
+    (:data:`RECOMMENDED_PRESET`, ``atl08``) for every sensor (measured on simulated MABEL
+    photons, DESIGN 1.12, the ``atl08`` preset is the better one there too)."""
     return PRESETS[RECOMMENDED_PRESET]
 
 
@@ -251,7 +247,7 @@ def estimate_blocks(track: PhotonTrack, params: BlockParams | None = None,
     from .engine import compute_blocks
 
     params = BlockParams() if params is None else params
-    est = default_estimators(track.track) if estimators is None else estimators
+    est = default_estimators() if estimators is None else estimators
     if not isinstance(est, Estimators):
         raise InputError(f"estimators must be an Estimators (or a preset name via preset()); "
                          f"got {type(est).__name__}")

@@ -35,7 +35,7 @@ from ..errors import CanopyBlocksWarning, DependencyError, InputError
 from ..geo import require_metric_crs, to_metric
 from ..progress import Progress, as_progress
 from ..schema import FOOTPRINT_COLUMNS
-from .arguments import check_waveform_args
+from .waveform_checks import check_waveform_args
 from .batch import WaveformBatch
 from .cover import cover_and_penetration
 from .details import ShotDetails

@@ -95,7 +95,7 @@ def calibrate_bias_file(
     tracks = read_tracks(photons, beams=beams, channel=channel, crs=crs,
                          min_signal_conf=params.min_signal_conf, progress=prog.sub(0.0, 0.2))
     if estimators is None:
-        estimators = default_estimators(tracks[0].track if tracks else None)
+        estimators = default_estimators()
     if reference == "corridor":
         width = corridor_width(width, [t.track for t in tracks], source=str(photons))
     blocks, _ = run_blocks(tracks, params, estimators=estimators, progress=prog.sub(0.2, 0.5))

@@ -136,10 +136,10 @@ def aspect_statistics(residuals: pd.DataFrame, groups: Any
     """Statistics of a residuals layer per class (``groups`` as
     :func:`~canopyblocks.validation.stats.block_stats`) and the rows they use (``use``
     as stored by a layer: 0/1 or NULL, read as a bool)."""
+    from ..blocks.uncertainty import upgrade_table
     from ..validation.stats import block_stats
 
-    if "use" in residuals.columns:  # a layer stores booleans as 0/1 or NULL
-        residuals["use"] = residuals["use"].fillna(False).astype(bool)
+    upgrade_table(residuals)  # a layer stores booleans as 0/1 or NULL; older ones lack use
     stats = block_stats(residuals, groups=groups)
     used = residuals[residuals["use"]] if "use" in residuals.columns else residuals
     return stats, used

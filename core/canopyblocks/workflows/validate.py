@@ -82,7 +82,7 @@ class FileValidation:
     @property
     def n_used(self) -> int:
         """Blocks or footprints that entered the statistics."""
-        return int(self.residuals["use"].sum()) if "use" in self.residuals else 0
+        return int(self.residuals["use"].sum())
 
 
 def is_footprint_table(path: str | os.PathLike[str]) -> bool:
@@ -312,7 +312,7 @@ def validate_file(
                                         reference_vertical_crs, photon_vertical_crs,
                                         slope_threshold, points_crs,
                                         prog.sub(0.6 if coregister else 0.0, 0.9), pixels)
-    if "use" in residuals.columns and int(residuals["use"].sum()) == 0:
+    if int(residuals["use"].sum()) == 0:
         raise _no_results(kind, path, residuals)
     prog.update(0.9, "writing")
     offsets_path = None
