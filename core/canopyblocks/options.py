@@ -63,6 +63,8 @@ class Option:
         The allowed values of a ``choice``, the default first.
     multiple : bool
         Repeatable on the command line.
+    qgis : str, optional
+        The QGIS parameter name when it is not ``keyword.upper()``.
     """
 
     name: str
@@ -74,6 +76,12 @@ class Option:
     default: Any = None
     choices: tuple[str, ...] | None = None
     multiple: bool = False
+    qgis: str | None = None
+
+    @property
+    def qgis_name(self) -> str:
+        """The QGIS Processing parameter of this meaning."""
+        return self.qgis or self.keyword.upper()
 
 
 _PRESET_HELP = ("Block estimators: atl08 (the recommended: photons classified as ATL08 does; "
@@ -90,6 +98,8 @@ _TABLE: tuple[Option, ...] = (
            "temperate 1.9, tropical 0.6.", default=DEFAULT_PHOTON_RATE, choices=PHOTON_RATES),
     Option("--length", "lengths", "block or segment length along the track", "number",
            "Block length, m; repeat for several.", unit="m", multiple=True),
+    Option("--plot", "plot", "one figure (PNG file)", "file", "Write a figure (PNG).",
+           qgis="PLOT"),
     Option("--k-sigma", "k_sigma", "a threshold in standard deviations", "number",
            "Noise filter threshold k, in standard deviations.", unit="standard deviations"),
     Option("--crs", "crs", "the CRS of the output x/y", "crs",
@@ -99,17 +109,17 @@ _TABLE: tuple[Option, ...] = (
     Option("--table-crs", "table_crs", "the CRS of an input table that carries none", "crs",
            "CRS of the x/y of an input CSV table (CSV carries none)."),
     Option("--photons", "photons", "the input photon file", "file",
-           "ATL03 / MABEL / table photon file."),
+           "ATL03 / MABEL / table photon file.", qgis="INPUT"),
     Option("--photon-table", "photon_table", "also write the simulated photons as a table",
            "file", "Also write every realisation's photons with truth (.parquet/.gpkg/.csv)."),
     Option("--photon-layer", "with_photons", "also write the photon layer", "switch",
-           "Also write layer 'photons' with per-photon labels (GeoPackage output)."),
+           "Also write layer 'photons' with per-photon labels (GeoPackage output).",
+           qgis="PHOTONS"),
     Option("--atl08", "atl08", "the matching ATL08 file as a reference", "file",
            "Matching ATL08 file: validate against its land segments."),
     Option("--atl08-classes", "atl08_classes", "the matching ATL08 file's photon classes",
            "file", "Matching ATL08 file: adds its photon classes (classed_pc_flag) to the "
            "photons layer."),
-    Option("--plot", "plot", "one figure (PNG file)", "file", "Write a figure (PNG)."),
     Option("--plots", "plots", "a folder of figures", "folder", "Folder for the figures (PNG)."),
     Option("--width", "width", "corridor width", "number",
            "Corridor width, m (default: the footprint of the photons' sensor: ICESat-2 13, "

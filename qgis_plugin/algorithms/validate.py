@@ -80,9 +80,9 @@ class ValidateAlgorithm(CanopyBlocksAlgorithm):
             self.INPUT, "Blocks", [QgsProcessing.TypeVectorPoint]))
         self.addParameter(QgsProcessingParameterEnum(
             self.REFERENCE, "Reference", options=[
-                "rasters: corridor statistics of the DTM and DSMs (as in the paper)",
-                "footprint-matched: Gaussian-weighted airborne points in each footprint "
-                "(needs the LAS/LAZ tiles)"], defaultValue=0))
+                "corridor: corridor statistics of the DTM and DSMs (as in the paper)",
+                "footprint: the footprint-matched reference, Gaussian-weighted airborne "
+                "points in each footprint (needs the LAS/LAZ tiles)"], defaultValue=0))
         self.add_reference_parameters(optional=True)
         self.addParameter(QgsProcessingParameterMultipleLayers(
             self.POINTS, "Airborne LAS/LAZ tiles (footprint-matched reference)",
