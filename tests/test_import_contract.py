@@ -365,3 +365,51 @@ def test_a_relative_import_is_resolved(tmp_path):
     g = import_graph(modules(tmp_path))
     assert g["canopyblocks.readers"] == {"canopyblocks.readers.las": 1}
     assert g["canopyblocks.readers.las"] == {"canopyblocks.errors": 2}
+
+
+# ---- the map (docs/ARCHITECTURE.md) states what the code is --------------------------------
+
+def _doc() -> str:
+    return (ROOT / "docs" / "ARCHITECTURE.md").read_text(encoding="utf-8")
+
+
+def test_every_file_the_map_names_exists():
+    """A ``.py`` path in ARCHITECTURE.md is a file: from the package, the plugin, or the
+    repository root (a bare name: somewhere in the package, the plugin or the tests)."""
+    import re
+
+    names = set(re.findall(r"`((?:[A-Za-z_0-9]+/)*[A-Za-z_0-9*]+\.py)`", _doc()))
+    assert len(names) > 40, names
+    bases = (ROOT / "core" / "canopyblocks", ROOT / "qgis_plugin", ROOT, ROOT / "core",
+             ROOT / "core" / "canopyblocks" / "workflows")
+    everywhere = {p.name for b in (ROOT / "core", ROOT / "qgis_plugin", ROOT / "tests")
+                  for p in b.rglob("*.py")}
+    missing = []
+    for n in sorted(names):
+        if "*" in n:  # a family, e.g. chain_*.py
+            if not any(p.match(n) for b in bases for p in b.rglob("*.py")):
+                missing.append(n)
+        elif "/" in n:
+            if not any((b / n).is_file() for b in bases):
+                missing.append(n)
+        elif n not in everywhere:
+            missing.append(n)
+    assert missing == [], f"ARCHITECTURE.md names files that do not exist: {missing}"
+
+
+def test_the_map_draws_the_layers_of_this_test():
+    """The diagram lists the rooms bottom-up in the order of :data:`LAYERS`."""
+    doc = _doc()
+    diagram = doc[doc.index("    cli/  |  qgis_plugin/"):doc.index("| Room |")]
+    order = ["canopyblocks.errors", "canopyblocks.photons", "canopyblocks.readers",
+             "canopyblocks.blocks", "canopyblocks.reference", "canopyblocks.validation",
+             "canopyblocks.outputs", "canopyblocks.simulate", "canopyblocks.workflows",
+             "canopyblocks.cli"]
+    words = ["errors", "photons.py", "readers/", "blocks/", "reference/", "validation/",
+             "outputs/", "simulate/", "workflows/", "cli/"]
+    at = [diagram.rindex(w) for w in words]
+    assert at == sorted(at, reverse=True), "the diagram's rooms are out of order"
+    assert [place(m)[0] for m in order] == sorted(place(m)[0] for m in order)
+    for room in LAYERS[0][1]:
+        assert room.rpartition(".")[2] in diagram, f"{room} missing from the foundation"
+    assert "DOOR_DEBT" in doc and "H5PY_DEBT" in doc
