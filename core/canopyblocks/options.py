@@ -102,12 +102,14 @@ _TABLE: tuple[Option, ...] = (
            qgis="PLOT"),
     Option("--k-sigma", "k_sigma", "a threshold in standard deviations", "number",
            "Noise filter threshold k, in standard deviations.", unit="standard deviations"),
+    # three CRSs, three names: the output's, the airborne tiles', an input table's
     Option("--crs", "crs", "the CRS of the output x/y", "crs",
            "Metric CRS of the output x/y (default: the UTM zone of the track)."),
     Option("--points-crs", "points_crs", "the CRS of airborne tiles that state none", "crs",
            "CRS of airborne LAS/LAZ tiles that state none (e.g. EPSG:3005)."),
     Option("--table-crs", "table_crs", "the CRS of an input table that carries none", "crs",
            "CRS of the x/y of an input CSV table (CSV carries none)."),
+    # photons: the input file, the simulated table, the labelled layer
     Option("--photons", "photons", "the input photon file", "file",
            "ATL03 / MABEL / table photon file.", qgis="INPUT"),
     Option("--photon-table", "photon_table", "also write the simulated photons as a table",
@@ -115,19 +117,21 @@ _TABLE: tuple[Option, ...] = (
     Option("--photon-layer", "with_photons", "also write the photon layer", "switch",
            "Also write layer 'photons' with per-photon labels (GeoPackage output).",
            qgis="PHOTONS"),
+    Option("--channel", "channel", "MABEL channel", "text",
+           "MABEL channel number, or 'most' (the default)."),
+    # ATL08: as a reference, as photon classes
     Option("--atl08", "atl08", "the matching ATL08 file as a reference", "file",
            "Matching ATL08 file: validate against its land segments."),
     Option("--atl08-classes", "atl08_classes", "the matching ATL08 file's photon classes",
            "file", "Matching ATL08 file: adds its photon classes (classed_pc_flag) to the "
            "photons layer."),
     Option("--plots", "plots", "a folder of figures", "folder", "Folder for the figures (PNG)."),
+    # shared settings
     Option("--width", "width", "corridor width", "number",
            "Corridor width, m (default: the footprint of the photons' sensor: ICESat-2 13, "
            "MABEL 2; a photon table of no known sensor needs it).", unit="m"),
     Option("--min-signal-conf", "min_signal_conf", "ATL03 signal confidence floor", "number",
            "ATL03: keep photons with land signal_conf_ph >= this before the noise filter."),
-    Option("--channel", "channel", "MABEL channel", "text",
-           "MABEL channel number, or 'most' (the default)."),
     Option("--search-range", "search_range", "co-registration search range", "number",
            "Search +- this many metres along and across the track.", unit="m", default=15.0),
     Option("--diameter", "diameter", "footprint diameter", "number",

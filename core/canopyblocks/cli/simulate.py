@@ -125,8 +125,9 @@ def simulate_cmd(ctx: click.Context, las: tuple[str, ...], sensor: str, azimuth:
         ctx.obj and ctx.obj.get("quiet")))
     params = SimParams(instrument=instrument,  # type: ignore[arg-type]
                        diameter=diameters[0] if diameters else None,
-                       shot_spacing=shot_spacing, photon_rate=photon_rate,
-                       beam=beam, mean_photons=mean_photons,
+                       shot_spacing=shot_spacing,
+                       photon_rate=photon_rate,  # type: ignore[arg-type]
+                       beam=beam, mean_photons=mean_photons,  # type: ignore[arg-type]
                        background_rate_mhz=background_rate if noise_rate is None else 0.0,
                        noise_rate=noise_rate, telemetry_window=telemetry_window,
                        geolocation_sigma=geolocation_sigma)
@@ -139,7 +140,8 @@ def simulate_cmd(ctx: click.Context, las: tuple[str, ...], sensor: str, azimuth:
             realisations=realisations, seed=seed, crs=crs,
             layout=fmt or ("mabel" if instrument == "mabel" else "atl03"),
             photon_table=photon_table, report=report, progress=progress)
-    sim = result.simulations[float(diameters[0]) if diameters else float(params.diameter)]
+    first = diameters[0] if diameters else params.diameter  # filled from the instrument
+    sim = result.simulations[float(first or 0.0)]
     if quiet:
         return
     t = result.table

@@ -19,18 +19,15 @@ if TYPE_CHECKING:
 __all__ = ["file_info", "format_info", "is_url", "atl03_beams", "las_crs",
            "check_output_path", "waveform_product"]
 
-_OWNER = {
-    "file_info": "..readers",
-    "format_info": "..readers",
-    "is_url": "..readers.remote",
-    "atl03_beams": "..readers.atl03",
-    "las_crs": "..readers.las",
-    "check_output_path": "..outputs.tables",
-    "waveform_product": "..readers.flash_dual",
-}
+#: The room that owns each name (module, names).
+_OWNERS = (("..readers", ("file_info", "format_info")), ("..readers.remote", ("is_url",)),
+           ("..readers.atl03", ("atl03_beams",)), ("..readers.las", ("las_crs",)),
+           ("..outputs.tables", ("check_output_path",)),
+           ("..readers.flash_dual", ("waveform_product",)))
 
 
 def __getattr__(name: str) -> Any:
-    if name in _OWNER:
-        return getattr(importlib.import_module(_OWNER[name], __package__), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    owner = next((m for m, names in _OWNERS if name in names), None)
+    if owner is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    return getattr(importlib.import_module(owner, __package__), name)

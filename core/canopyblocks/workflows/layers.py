@@ -163,7 +163,7 @@ def waveform_views(path: str | os.PathLike[str], shots: Iterable[int],
     from ..waveforms.settings import WaveformParams
 
     wanted = {int(s) for s in shots}
-    params = WaveformParams(setting=setting)
+    params = WaveformParams(setting=setting)  # type: ignore[arg-type]
     details = []
     for batch in iter_gedi_l1b(path, progress=as_progress(progress).sub(0.0, 0.8)):
         sn = batch.shot_number.astype("int64")
