@@ -7,7 +7,6 @@ from typing import Any
 import click
 
 from .common import (
-    WIDTH_HELP,
     channel_option,
     explicit_value,
     lengths_option,
@@ -16,6 +15,7 @@ from .common import (
     preset_option,
     vertical_options,
 )
+from .options import option
 from .progress_bars import progress_bar
 
 
@@ -49,8 +49,8 @@ from .progress_bars import progress_bar
               default=None)
 @click.option("--kind", type=click.Choice(["additive", "linear"]), default="additive",
               show_default=True, help="--method bias: correction form.")
-@click.option("--width", type=float, default=None, help=WIDTH_HELP)
-@click.option("--crs", default=None, help="Metric CRS for the photons (default: the DTM's).")
+@option("--width")
+@option("--crs", help="Metric CRS of the photons' x/y (default: the DTM's).")
 @vertical_options
 @click.option("--photon-vcrs", default=None,
               help="Vertical datum of the photon heights (default: the file's; ATL03/MABEL "

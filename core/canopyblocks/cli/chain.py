@@ -55,8 +55,7 @@ from .vocabulary import deprecated_option, say_deprecated, take_alias
                    "of the simulation against its truth (0 skips it).")
 @lengths_option(default="10, 25, 50")
 @min_signal_conf_option
-@click.option("--width", type=float, default=None,
-              help=WIDTH_HELP[:-2] + "; the footprint diameter when simulated).")
+@option("--width", help=WIDTH_HELP[:-2] + "; the footprint diameter when simulated).")
 @click.option("--resolution", type=float, default=2.0, show_default=True,
               help="Reference raster cell size, m.")
 @click.option("--smrf", is_flag=True, help="Classify ground with PDAL's SMRF (unclassified tiles).")
