@@ -94,7 +94,7 @@ def gedi_granule(work: Path, km: float) -> Path:
 
     import numpy as np
 
-    from canopyblocks.outputs.gedi_l1b_layout import write_gedi_l1b
+    from canopyblocks.outputs.h5_gedi_l1b import write_gedi_l1b
     from canopyblocks.readers.gedi import gedi_beams, read_gedi_l1b
 
     out = work / f"GEDI01_B_{int(km)}km.h5"

@@ -20,7 +20,7 @@ def file_beams(path: str) -> list[tuple[str, str]]:
     if not path or not path.lower().endswith((".h5", ".hdf5", ".he5")):
         return []
     try:
-        from canopyblocks.readers.atl03 import atl03_beams
+        from canopyblocks.workflows.inputs import atl03_beams
 
         beams = atl03_beams(path)
     except Exception:  # noqa: BLE001 - not ATL03 (MABEL, damaged): the box stays free text

@@ -269,7 +269,7 @@ CASES = {
     "rasters-out-is-file": (lambda i, o: ["rasters", i["topo"], "-o", o / "f.txt"], ["f.txt"]),
     # validate
     "validate-csv-nocrs": (lambda i, o: ["validate", i["blocks_csv"], *R(i, "dtm", "dsm_max",
-                                         "dsm_p90"), "-o", o / "v.gpkg"], ["blocks.csv", "--crs"]),
+                                         "dsm_p90"), "-o", o / "v.gpkg"], ["blocks.csv", "--table-crs"]),
     "validate-wrong-layer": (lambda i, o: ["validate", i["wrong_layer"], *R(i, "dtm", "dsm_max",
                                            "dsm_p90"), "-o", o / "v.gpkg"],
                              ["wrong_layer.gpkg", "blocks"]),

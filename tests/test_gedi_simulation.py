@@ -20,7 +20,7 @@ import numpy as np
 import pyproj
 import pytest
 
-from canopyblocks.outputs.gedi_l1b_layout import write_gedi_l1b
+from canopyblocks.outputs.h5_gedi_l1b import write_gedi_l1b
 from canopyblocks.readers.gedi import read_gedi_l1b
 from canopyblocks.readers.las import read_las
 from canopyblocks.simulate.gedi_waveforms import GediSimParams, simulate_gedi

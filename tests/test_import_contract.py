@@ -17,6 +17,11 @@ Read from the code itself with ``ast`` (nothing is imported): every ``import`` o
 - The package face ``canopyblocks/__init__.py`` (lazy re-exports) and the alias table of
   old module paths (``_aliases``, string-based) stand outside the layers.
 
+- The front doors (``cli``, ``qgis_plugin``) import only ``workflows`` and the foundation
+  (the QGIS plugin's ``import_core("canopyblocks.x")`` calls count as imports): every
+  command and algorithm is parameters in, one workflow call, outputs out.
+- ``h5py`` is imported only in ``readers/`` and ``outputs/h5*``.
+
 The checks are tested on small made-up import graphs too, so that they can fail.
 """
 
@@ -33,7 +38,8 @@ ROOT = Path(__file__).resolve().parents[1]
 #: named "a|b" stay apart (they may not import each other); the others may.
 LAYERS: list[tuple[str, list[str]]] = [
     ("foundation", ["canopyblocks.errors", "canopyblocks.schema", "canopyblocks.progress",
-                    "canopyblocks.arguments", "canopyblocks.geo", "canopyblocks.atomic"]),
+                    "canopyblocks.arguments", "canopyblocks.geo", "canopyblocks.atomic",
+                    "canopyblocks.options"]),
     ("forms", ["canopyblocks.photons", "canopyblocks.waveforms.batch"]),
     ("readers", ["canopyblocks.readers"]),
     ("blocks|waveforms", ["canopyblocks.blocks", "canopyblocks.waveforms"]),
@@ -84,6 +90,22 @@ def _targets(module: str, is_pkg: bool, node: ast.Import | ast.ImportFrom,
     return out
 
 
+def _core_by_name(node: ast.AST, known: set[str]) -> str | None:
+    """The module of an ``import_core("canopyblocks.x")`` / ``importlib.import_module(...)``
+    call with a literal name (the QGIS plugin's lazy imports), else None."""
+    if not (isinstance(node, ast.Call) and node.args and isinstance(node.args[0], ast.Constant)
+            and isinstance(node.args[0].value, str)):
+        return None
+    f = node.func
+    name = f.id if isinstance(f, ast.Name) else f.attr if isinstance(f, ast.Attribute) else ""
+    if name not in ("import_core", "import_module"):
+        return None
+    target = node.args[0].value
+    while target and target not in known:
+        target = target.rpartition(".")[0]
+    return target or None
+
+
 def import_graph(mods: dict[str, tuple[Path, bool]]) -> dict[str, dict[str, int]]:
     """{module: {imported module: line of the first such import}}."""
     known = set(mods)
@@ -94,7 +116,62 @@ def import_graph(mods: dict[str, tuple[Path, bool]]) -> dict[str, dict[str, int]
             if isinstance(node, (ast.Import, ast.ImportFrom)):
                 for target in _targets(module, is_pkg, node, known):
                     arrows.setdefault(target, node.lineno)
+            elif (target := _core_by_name(node, known)) is not None and target != module:
+                arrows.setdefault(target, node.lineno)
     return graph
+
+
+def third_party(mods: dict[str, tuple[Path, bool]], package: str) -> dict[str, int]:
+    """{module: line} of the modules importing the third-party ``package``."""
+    out: dict[str, int] = {}
+    for module, (path, _) in mods.items():
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else \
+                [node.module or ""] if isinstance(node, ast.ImportFrom) and not node.level \
+                else []
+            if any(n == package or n.startswith(package + ".") for n in names):
+                out.setdefault(module, node.lineno)
+    return out
+
+
+#: The rooms the front doors may import: the workflows and the foundation.
+DOOR_ROOMS = ("canopyblocks.workflows", *LAYERS[0][1])
+FRONT_DOORS = ("canopyblocks.cli", "qgis_plugin")
+
+#: Front-door imports still going around the workflows, each to be replaced by a workflow
+#: call (the list only shrinks; a new entry fails the test).
+DOOR_DEBT: set[tuple[str, str]] = {
+    # the reference rasters' command and algorithm (being rebuilt with the survey catalog)
+    ("canopyblocks.cli.reference", "canopyblocks.reference.rasters"),
+    ("qgis_plugin.algorithms.referencerasters", "canopyblocks.reference.rasters"),
+    ("qgis_plugin.algorithms.referencerasters", "canopyblocks.reference.pdal"),
+}
+
+#: Modules outside ``readers/`` and ``outputs/h5*`` still importing h5py (only shrinks).
+H5PY_DEBT: set[str] = {
+    "canopyblocks.simulate.sensor_files",  # writes the ESFL cubes and dual pairs itself
+}
+
+
+def around_the_door(graph: dict[str, dict[str, int]]) -> list[str]:
+    """Front-door modules importing anything but the workflows, the foundation, the package
+    face and their own room."""
+    bad = []
+    for module, arrows in sorted(graph.items()):
+        door = next((d for d in FRONT_DOORS if module == d or module.startswith(d + ".")), None)
+        if door is None:
+            continue
+        for target, line in sorted(arrows.items()):
+            if target == "canopyblocks" or target == door or target.startswith(door + ".") \
+                    or any(target == r or target.startswith(r + ".") for r in DOOR_ROOMS):
+                continue
+            bad.append(f"{module}:{line} imports {target}")
+    return bad
+
+
+def _door_key(line: str) -> tuple[str, str]:
+    module, _, target = line.partition(" imports ")
+    return module.split(":")[0], target
 
 
 def circles(graph: dict[str, dict[str, int]]) -> list[list[str]]:
@@ -191,6 +268,23 @@ def test_no_import_runs_back_up(graph):
     assert upward(graph) == []
 
 
+def test_the_front_doors_call_only_the_workflows(graph):
+    """cli/ and qgis_plugin/ import workflows/ and the foundation only (listed debt aside)."""
+    found = around_the_door(graph)
+    new = [b for b in found if _door_key(b) not in DOOR_DEBT]
+    assert new == [], "a front door goes around the workflows: " + "; ".join(new)
+    paid = DOOR_DEBT - {_door_key(b) for b in found}
+    assert not paid, f"paid debt: remove from DOOR_DEBT {sorted(paid)}"
+
+
+def test_h5py_only_in_readers_and_h5_outputs():
+    users = third_party(modules(), "h5py")
+    ok = ("canopyblocks.readers", "canopyblocks.outputs.h5")
+    bad = {m for m in users if not m.startswith(ok)}
+    assert bad - H5PY_DEBT == set(), {m: users[m] for m in bad - H5PY_DEBT}
+    assert H5PY_DEBT - bad == set(), f"paid debt: remove from H5PY_DEBT {H5PY_DEBT - bad}"
+
+
 def test_the_package_face_imports_only_errors_and_the_alias_table_at_load_time():
     """``import canopyblocks`` stays fast: everything else loads on first use."""
     tree = ast.parse((ROOT / "core/canopyblocks/__init__.py").read_text(encoding="utf-8"))
@@ -237,6 +331,29 @@ def test_a_made_up_upward_import_is_found():
     assert bad[2].startswith("canopyblocks.readers.x:7 imports canopyblocks.workflows.y")
 
 
+def test_a_made_up_door_bypass_is_found():
+    g = {"canopyblocks.cli.x": {"canopyblocks.workflows.y": 1, "canopyblocks.errors": 2,
+                                "canopyblocks.cli.common": 3, "canopyblocks.blocks.z": 4},
+         "qgis_plugin.algorithms.a": {"canopyblocks.readers.r": 9, "qgis_plugin.base": 1},
+         "canopyblocks.workflows.y": {"canopyblocks.blocks.z": 5}}
+    assert around_the_door(g) == ["canopyblocks.cli.x:4 imports canopyblocks.blocks.z",
+                                  "qgis_plugin.algorithms.a:9 imports canopyblocks.readers.r"]
+
+
+def test_an_import_core_call_is_an_import(tmp_path):
+    pkg = tmp_path / "core" / "canopyblocks"
+    (pkg / "readers").mkdir(parents=True)
+    (tmp_path / "qgis_plugin").mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "readers" / "__init__.py").write_text("")
+    (pkg / "readers" / "las.py").write_text("")
+    (tmp_path / "qgis_plugin" / "__init__.py").write_text("")
+    (tmp_path / "qgis_plugin" / "alg.py").write_text(
+        "def f():\n    x = 1\n    return import_core('canopyblocks.readers.las.read_las')\n")
+    g = import_graph(modules(tmp_path))
+    assert g["qgis_plugin.alg"] == {"canopyblocks.readers.las": 3}
+
+
 def test_a_relative_import_is_resolved(tmp_path):
     pkg = tmp_path / "core" / "canopyblocks"
     (pkg / "readers").mkdir(parents=True)
@@ -248,3 +365,51 @@ def test_a_relative_import_is_resolved(tmp_path):
     g = import_graph(modules(tmp_path))
     assert g["canopyblocks.readers"] == {"canopyblocks.readers.las": 1}
     assert g["canopyblocks.readers.las"] == {"canopyblocks.errors": 2}
+
+
+# ---- the map (docs/ARCHITECTURE.md) states what the code is --------------------------------
+
+def _doc() -> str:
+    return (ROOT / "docs" / "ARCHITECTURE.md").read_text(encoding="utf-8")
+
+
+def test_every_file_the_map_names_exists():
+    """A ``.py`` path in ARCHITECTURE.md is a file: from the package, the plugin, or the
+    repository root (a bare name: somewhere in the package, the plugin or the tests)."""
+    import re
+
+    names = set(re.findall(r"`((?:[A-Za-z_0-9]+/)*[A-Za-z_0-9*]+\.py)`", _doc()))
+    assert len(names) > 40, names
+    bases = (ROOT / "core" / "canopyblocks", ROOT / "qgis_plugin", ROOT, ROOT / "core",
+             ROOT / "core" / "canopyblocks" / "workflows")
+    everywhere = {p.name for b in (ROOT / "core", ROOT / "qgis_plugin", ROOT / "tests")
+                  for p in b.rglob("*.py")}
+    missing = []
+    for n in sorted(names):
+        if "*" in n:  # a family, e.g. chain_*.py
+            if not any(p.match(n) for b in bases for p in b.rglob("*.py")):
+                missing.append(n)
+        elif "/" in n:
+            if not any((b / n).is_file() for b in bases):
+                missing.append(n)
+        elif n not in everywhere:
+            missing.append(n)
+    assert missing == [], f"ARCHITECTURE.md names files that do not exist: {missing}"
+
+
+def test_the_map_draws_the_layers_of_this_test():
+    """The diagram lists the rooms bottom-up in the order of :data:`LAYERS`."""
+    doc = _doc()
+    diagram = doc[doc.index("    cli/  |  qgis_plugin/"):doc.index("| Room |")]
+    order = ["canopyblocks.errors", "canopyblocks.photons", "canopyblocks.readers",
+             "canopyblocks.blocks", "canopyblocks.reference", "canopyblocks.validation",
+             "canopyblocks.outputs", "canopyblocks.simulate", "canopyblocks.workflows",
+             "canopyblocks.cli"]
+    words = ["errors", "photons.py", "readers/", "blocks/", "reference/", "validation/",
+             "outputs/", "simulate/", "workflows/", "cli/"]
+    at = [diagram.rindex(w) for w in words]
+    assert at == sorted(at, reverse=True), "the diagram's rooms are out of order"
+    assert [place(m)[0] for m in order] == sorted(place(m)[0] for m in order)
+    for room in LAYERS[0][1]:
+        assert room.rpartition(".")[2] in diagram, f"{room} missing from the foundation"
+    assert "DOOR_DEBT" in doc and "H5PY_DEBT" in doc

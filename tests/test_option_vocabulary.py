@@ -194,3 +194,140 @@ def test_hidden_commands_are_listed_deprecated_ones() -> None:
     for new in DEPRECATED_COMMANDS.values():
         assert new in cli.commands and not cli.commands[new].hidden
     assert "validate-footprints" not in CliRunner().invoke(cli, ["--help"]).output
+
+
+# ---- the one table (canopyblocks.options): every front end reads its names from it ---------
+
+_CLICK_KIND = {"file": "path", "folder": "path", "number": "number", "choice": "choice",
+               "switch": "switch", "crs": "text", "text": "text"}
+
+#: The names the vocabulary was made for: each is declared once, in the table.
+NAMED = ("--photons", "--photon-table", "--photon-layer", "--crs", "--points-crs",
+         "--table-crs", "--preset", "--photon-rate", "--atl08", "--atl08-classes", "--plot",
+         "--plots", "--k-sigma", "--length", "--width")
+
+
+def test_the_named_options_are_declared_once_in_the_table() -> None:
+    from canopyblocks.options import OPTIONS
+
+    assert set(NAMED) <= set(OPTIONS), set(NAMED) - set(OPTIONS)
+    keywords = [o.keyword for o in OPTIONS.values()]
+    assert len(keywords) == len(set(keywords)), "one Python keyword, two options"
+    qgis = [o.qgis_name for o in OPTIONS.values()]
+    assert len(qgis) == len(set(qgis)), "one QGIS parameter name, two options"
+    for o in OPTIONS.values():
+        assert o.meaning and o.help, o.name
+        if o.kind == "choice":
+            assert o.choices and (o.default is None or o.default in o.choices), o.name
+
+
+def test_every_command_option_of_a_table_name_has_its_meaning() -> None:
+    """The same kind and (a subset of) the same choices as the table says, in every
+    command; ``--help`` then shows one meaning per name."""
+    from canopyblocks.options import OPTIONS
+
+    seen = defaultdict(set)
+    for cmd, o, p in _walk():
+        if p.hidden or o not in OPTIONS:
+            continue
+        spec = OPTIONS[o]
+        seen[o].add(cmd)
+        assert _kind(p) == _CLICK_KIND[spec.kind], (cmd, o, _kind(p), spec.kind)
+        if spec.kind == "choice":
+            assert set(p.type.choices) <= set(spec.choices), (cmd, o, p.type.choices)
+    assert {"run", "simulate", "validate", "blocks"} <= set().union(*seen.values())
+    assert seen["--photons"] == {"run"}, "--photons is the input photon file of run only"
+    assert "simulate" in seen["--photon-table"] and "simulate" in seen["--points-crs"]
+    assert seen["--atl08-classes"] == {"blocks"} and "blocks" not in seen["--atl08"]
+
+
+def test_the_preset_list_and_default_are_declared_once() -> None:
+    from canopyblocks.blocks.estimators import PRESET_NAMES, PRESETS, RECOMMENDED_PRESET
+    from canopyblocks.options import ESTIMATOR_PRESETS, OPTIONS
+    from canopyblocks.options import RECOMMENDED_PRESET as TABLE_DEFAULT
+
+    assert PRESET_NAMES is ESTIMATOR_PRESETS and set(PRESETS) == set(ESTIMATOR_PRESETS)
+    assert RECOMMENDED_PRESET == TABLE_DEFAULT == OPTIONS["--preset"].default == "atl08"
+    for cmd, o, p in _walk():
+        if o == "--preset" and not p.hidden:
+            assert tuple(p.type.choices) == ESTIMATOR_PRESETS, cmd
+            assert p.default == "atl08", cmd
+
+
+def test_run_preset_is_the_estimator_set_and_the_old_rate_still_works(tmp_path) -> None:
+    r = CliRunner().invoke(cli, ["run", "--help"])
+    assert "boreal" not in r.output.split("--preset")[1].split("--calibration")[0]
+    from canopyblocks.cli.vocabulary import ChoiceWithOld
+
+    run = cli.commands["run"]
+    p = next(p for p in run.params if p.name == "estimator_preset")
+    assert isinstance(p.type, ChoiceWithOld) and p.type.convert("boreal", p, None) == "boreal"
+
+
+def test_the_python_keyword_of_a_table_name_means_the_same() -> None:
+    """A keyword named like a table option takes its values: ``photon_rate`` the ecosystem
+    rates (SimParams, run_chain), ``preset`` the estimator sets (no more a photon rate)."""
+    import dataclasses
+    import inspect
+
+    from canopyblocks.options import OPTIONS
+    from canopyblocks.simulate.params import SimParams
+    from canopyblocks.workflows import chain, validate
+    from canopyblocks.workflows.batch import runner
+
+    fields = {f.name: f for f in dataclasses.fields(SimParams)}
+    assert fields["photon_rate"].default == OPTIONS["--photon-rate"].default
+    assert fields["preset"].default is None  # the deprecated spelling only
+    by_keyword = {o.keyword: o for o in OPTIONS.values()}
+    checked = 0
+    for fn in (chain.run_chain, validate.validate_file, *(
+            v for v in vars(runner).values() if inspect.isfunction(v))):
+        for name, par in inspect.signature(fn).parameters.items():
+            spec = by_keyword.get(name)
+            if spec is None or spec.kind != "choice" or not isinstance(par.default, str):
+                continue
+            assert par.default in spec.choices, (fn.__name__, name, par.default)
+            checked += 1
+    assert checked >= 1
+    assert "photon_rate" in inspect.signature(chain.run_chain).parameters
+
+
+RENAMED = {("simulate", "--photons"), ("simulate", "--crs"), ("validate", "--crs"),
+           ("blocks", "--k"), ("blocks", "--atl08"), ("blocks", "--profile"),
+           ("waveforms", "--noise-threshold")}
+
+
+def test_a_renamed_option_is_listed_deprecated_and_in_the_changelog() -> None:
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[1] / "CHANGELOG.md").read_text(encoding="utf-8")
+    for cmd, old in RENAMED:
+        new = DEPRECATED_OPTIONS[(cmd, old)]
+        assert f"{cmd} {old}" in text and new in text, f"CHANGELOG: {cmd} {old} -> {new}"
+
+
+@pytest.mark.parametrize(("cmd", "old"), sorted(RENAMED))
+def test_a_renamed_option_still_works_with_one_warning(cmd: str, old: str, tmp_path) -> None:
+    """The old spelling reaches the command (it fails later, on the missing input file,
+    not on the option) and says its new name once."""
+    value = [] if old in ("--photon-layer",) else [str(tmp_path / "x.png") if old ==
+                                                   "--profile" else "3"]
+    args = {"simulate": [str(tmp_path / "no.laz"), "--azimuth", "0", "-o",
+                         str(tmp_path / "o.h5")],
+            "validate": [str(tmp_path / "no.csv"), "-o", str(tmp_path / "o.gpkg")],
+            "blocks": [str(tmp_path / "no.h5"), "-o", str(tmp_path / "o.gpkg")],
+            "waveforms": [str(tmp_path / "no.h5"), "-o", str(tmp_path / "o.gpkg")]}[cmd]
+    r = CliRunner().invoke(cli, [cmd, *args, old, *value])
+    new = DEPRECATED_OPTIONS[(cmd, old)]
+    assert f"{old} is deprecated and will be removed; use {new}" in r.output, r.output
+    assert "no such option" not in r.output.lower()
+
+
+def test_the_workflow_parameter_sets_are_the_rooms_classes() -> None:
+    from canopyblocks.blocks import BlockParams
+    from canopyblocks.simulate.params import SimParams
+    from canopyblocks.workflows import params
+
+    assert params.BlockParams is BlockParams and params.SimParams is SimParams
+    for name in params.__all__:
+        assert getattr(params, name) is not None, name

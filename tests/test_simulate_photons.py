@@ -48,7 +48,7 @@ def shot_counts(sim) -> np.ndarray:
                                                 ("tropical", "strong", 0.6)])
 def test_photons_per_shot_are_poisson(preset, beam, mean):
     track = SimTrack.line(X0 + 10, Y0 + 30, X0 + 50, Y0 + 30)  # 58 shots
-    sim = simulate_photons(flat_points(), track, SimParams(preset=preset, beam=beam),
+    sim = simulate_photons(flat_points(), track, SimParams(photon_rate=preset, beam=beam),
                            realisations=300, seed=11)
     c = shot_counts(sim)
     n = c.size

@@ -183,8 +183,8 @@ def test_truth_columns_on_simulation_match_index():
 def test_params_validation():
     with pytest.raises(InputError, match="diameter"):
         SimParams(diameter=-1)
-    with pytest.raises(InputError, match="preset"):
-        SimParams(preset="savanna")  # type: ignore[arg-type]
+    with pytest.raises(InputError, match="photon_rate"):
+        SimParams(photon_rate="savanna")  # type: ignore[arg-type]
     with pytest.raises(InputError, match="instrument"):
         SimParams(instrument="gedi")  # type: ignore[arg-type]
     with pytest.raises(InputError, match="noise_rate"):
@@ -193,7 +193,10 @@ def test_params_validation():
         TruthParams(peak_fraction=1.5)
     p = SimParams(instrument="mabel")
     assert (p.diameter, p.shot_spacing, p.pulse_rate) == (2.0, 0.04, 5000.0)
-    assert SimParams(preset="boreal", beam="weak").photon_mean == 0.25
-    assert SimParams(preset="tropical").photon_mean == 0.6
+    assert SimParams(photon_rate="boreal", beam="weak").photon_mean == 0.25
+    assert SimParams(photon_rate="tropical").photon_mean == 0.6
+    with pytest.warns(FutureWarning, match=r"preset=\) is deprecated.*photon_rate="):
+        old = SimParams(preset="boreal")  # type: ignore[arg-type]  # the old name still works
+    assert (old.photon_rate, old.preset, old.photon_mean) == ("boreal", None, 1.0)
     assert SimParams(mean_photons=3.0, beam="weak").photon_mean == 3.0
     assert SimParams(diameter=17).radius == 8.5

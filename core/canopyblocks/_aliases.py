@@ -16,6 +16,8 @@ from typing import Any
 
 #: old module -> new module (a package entry covers its submodules too)
 MOVED_MODULES: dict[str, str] = {
+    "canopyblocks.waveforms.arguments": "canopyblocks.waveforms.waveform_checks",
+    "canopyblocks.outputs.gedi_l1b_layout": "canopyblocks.outputs.h5_gedi_l1b",
     "canopyblocks.track_blocks": "canopyblocks.workflows.blocks",
     "canopyblocks.track_workers": "canopyblocks.workflows.blocks_tracks",
     "canopyblocks.track_segments": "canopyblocks.workflows.segments",

@@ -21,6 +21,8 @@ __all__ = [
     "CancelledError",
     "CanopyBlocksWarning",
     "SparseBlockWarning",
+    "CanopyBlocksDeprecationWarning",
+    "warn_renamed",
 ]
 
 
@@ -73,3 +75,16 @@ class CanopyBlocksWarning(UserWarning):
 
 class SparseBlockWarning(CanopyBlocksWarning):
     """Some blocks held too few photons to compute metrics; they are flagged ``sparse``."""
+
+
+class CanopyBlocksDeprecationWarning(CanopyBlocksWarning, FutureWarning):
+    """An old spelling (keyword, option, value) that still works for a release; the message
+    names the new one."""
+
+
+def warn_renamed(old: str, new: str, stacklevel: int = 3) -> None:
+    """The one warning for a renamed keyword: ``old`` still works, use ``new``."""
+    import warnings
+
+    warnings.warn(f"{old} is deprecated and will be removed; use {new}",
+                  CanopyBlocksDeprecationWarning, stacklevel=stacklevel)

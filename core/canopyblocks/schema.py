@@ -16,6 +16,7 @@ __all__ = [
     "FLAG_SPARSE",
     "FLAG_INVERTED",
     "FLAG_IMPLAUSIBLE",
+    "MAX_CANOPY_HEIGHT_M",
     "FLAG_LOW_CONFIDENCE",
     "FLAGS",
     "LAYER_BLOCKS",
@@ -62,6 +63,11 @@ FLAG_OK = "ok"
 FLAG_SPARSE = "sparse"
 FLAG_INVERTED = "inverted"
 FLAG_IMPLAUSIBLE = "implausible"  # Hmax taller than any tree (blocks/plausibility.py)
+
+#: The canopy ceiling, m: no tree is taller (the tallest measured, a redwood, is about
+#: 116 m). Blocks above it are flagged implausible (blocks/plausibility.py), GEDI
+#: footprints above it terrain outliers (waveforms/gedi_outliers.py).
+MAX_CANOPY_HEIGHT_M = 130.0
 FLAG_LOW_CONFIDENCE = "low_confidence"  # sigma too wide to be useful (blocks/uncertainty.py)
 FLAGS: tuple[str, ...] = (FLAG_OK, FLAG_SPARSE, FLAG_INVERTED, FLAG_IMPLAUSIBLE,
                           FLAG_LOW_CONFIDENCE)

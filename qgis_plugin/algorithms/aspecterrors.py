@@ -65,20 +65,17 @@ class AspectErrorsAlgorithm(CanopyBlocksAlgorithm):
 
     def execute(self, parameters: dict[str, Any], context: QgsProcessingContext,
                 feedback: QgsProcessingFeedback, progress: Any) -> dict[str, Any]:
-        stats_mod = import_core("canopyblocks.validation.stats")
+        layers = import_core("canopyblocks.workflows.layers")
         residuals = self.source_frame(parameters, self.INPUT, context, feedback)
         groups = GROUPINGS[self.parameterAsEnum(parameters, self.GROUP_BY, context)][1]
         progress.update(0.3, f"{len(residuals)} blocks read")
-        if "use" in residuals.columns:  # a layer stores booleans as 0/1 or NULL
-            residuals["use"] = residuals["use"].fillna(False).astype(bool)
-        stats = stats_mod.block_stats(residuals, groups=groups)
+        stats, used = layers.aspect_statistics(residuals, groups)
         dest = write_frame(self, parameters, self.OUTPUT, context, stats, feedback)
         results: dict[str, Any] = {self.OUTPUT: dest}
         if parameters.get(self.MAP) is not None and "aspect_class" in residuals.columns:
             keep = [c for c in ("track", "length", "block", "aspect_class", "aspect", "slope",
                                 "slope_class", "res_ground", "res_top", "res_hmax", "res_h90",
                                 "use", "geometry") if c in residuals.columns]
-            used = residuals[residuals["use"]] if "use" in residuals.columns else residuals
             mdest = write_frame(self, parameters, self.MAP, context, used[keep], feedback)
             style_on_load(context, mdest, "aspect", "aspect_class", name="Errors by aspect - "
                           + self.source_name(parameters, self.INPUT, context))

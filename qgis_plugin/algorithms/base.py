@@ -23,7 +23,7 @@ from qgis.PyQt.QtGui import QIcon
 from ..core_bridge import core_errors, feedback_logging, progress_for
 
 __all__ = ["CanopyBlocksAlgorithm", "SEED_001", "SEED_002", "parse_lengths",
-           "optional_number", "las_files", "input_label"]
+           "optional_number", "las_files", "input_label", "table_choices"]
 
 SEED_001 = (
     "Gwenzi, D. & Lefsky, M.A.: Prospects of photon counting lidar for savanna ecosystem "
@@ -78,6 +78,20 @@ def input_label(paths: Any, *extra: str) -> str:
     if len(names) > 1:
         stem += f" + {len(names) - 1} more"
     return " ".join(p for p in (stem, *extra) if p)
+
+
+def table_choices(name: str) -> tuple[tuple[str, ...], int]:
+    """(choices, index of the default) of the core's option ``name`` (``"--preset"``), from
+    the one vocabulary (``canopyblocks.options``; plain Python). Without an importable core
+    the list is empty: the dialog then says what to install instead of running."""
+    import importlib
+
+    try:
+        spec = importlib.import_module("canopyblocks.options").OPTIONS[name]
+    except ImportError:
+        return (), 0
+    choices = tuple(spec.choices or ())
+    return choices, (choices.index(spec.default) if spec.default in choices else 0)
 
 
 def optional_number(alg: Any, parameters: dict[str, Any], name: str,

@@ -20,22 +20,33 @@ from qgis.core import (
 from ..core_bridge import import_core
 from ..layers import pyproj_crs, write_frame
 from ..styles import style_on_load
-from .base import SEED_001, CanopyBlocksAlgorithm, input_label, optional_number, parse_lengths
+from .base import (
+    SEED_001,
+    CanopyBlocksAlgorithm,
+    input_label,
+    optional_number,
+    parse_lengths,
+    table_choices,
+)
 
 __all__ = ["BlockHeightsAlgorithm"]
 
 NOISE_OPTIONS = ("sigma", "none")
-#: (menu label, preset name): the presets of the CLI's --preset, in its order, the
-#: default (the recommended atl08) first
-PRESET_OPTIONS = (
-    ("atl08 (recommended): photons classified as ATL08 does, its ground surface, 98th "
-     "percentile of the canopy heights", "atl08"),
-    ("paper: the paper's method (k-sigma noise filter, top and ground windows)", "paper"),
-    ("icesat2: density noise filter, the paper's ground window, 98th-percentile top",
-     "icesat2"),
-    ("mabel: density noise filter, ground surface, 98th-percentile top", "mabel"),
-)
-DEFAULT_PRESET_INDEX = 0
+#: What each estimator preset computes, in the dialog's words (the names, their order and
+#: the default come from the core's one vocabulary: ``canopyblocks.options``)
+PRESET_LABELS = {
+    "atl08": "atl08 (recommended): photons classified as ATL08 does, its ground surface, "
+             "98th percentile of the canopy heights",
+    "paper": "paper: the paper's method (k-sigma noise filter, top and ground windows)",
+    "icesat2": "icesat2: density noise filter, the paper's ground window, 98th-percentile top",
+    "mabel": "mabel: density noise filter, ground surface, 98th-percentile top",
+}
+
+
+def preset_options() -> tuple[tuple[tuple[str, str], ...], int]:
+    """((menu label, preset name), ...) in the core's order, and the default's index."""
+    names, default = table_choices("--preset")
+    return tuple((PRESET_LABELS.get(n, n), n) for n in names), default
 
 
 def parse_track(text: str) -> dict[str, Any]:
@@ -132,9 +143,10 @@ class BlockHeightsAlgorithm(CanopyBlocksAlgorithm):
             self.ATL08, "Matching ATL08 file (adds photon classes)",
             behavior=QgsProcessingParameterFile.File, optional=True,
             fileFilter="HDF5 (*.h5 *.hdf5);;All files (*.*)"))
+        presets, default = preset_options()
         self.addParameter(QgsProcessingParameterEnum(
-            self.PRESET, "Estimators", options=[label for label, _ in PRESET_OPTIONS],
-            defaultValue=DEFAULT_PRESET_INDEX))
+            self.PRESET, "Estimators", options=[label for label, _ in presets],
+            defaultValue=default))
         self.addParameter(QgsProcessingParameterFile(
             self.CALIBRATION, "Bias calibration (JSON from Calibrate, bias method)",
             behavior=QgsProcessingParameterFile.File, fileFilter="Calibration (*.json)",
@@ -159,12 +171,12 @@ class BlockHeightsAlgorithm(CanopyBlocksAlgorithm):
 
     def execute(self, parameters: dict[str, Any], context: QgsProcessingContext,
                 feedback: QgsProcessingFeedback, progress: Any) -> dict[str, Any]:
-        blocks_mod = import_core("canopyblocks.blocks")
-        readers = import_core("canopyblocks.readers")
+        params_mod = import_core("canopyblocks.workflows.params")
+        layers = import_core("canopyblocks.workflows.layers")
         path = self.parameterAsFile(parameters, self.INPUT, context)
         track_kw = parse_track(self.parameterAsString(parameters, self.TRACK, context))
         lengths = parse_lengths(self.parameterAsString(parameters, self.LENGTHS, context))
-        params = blocks_mod.BlockParams(
+        params = params_mod.BlockParams(
             lengths=lengths,
             s0=optional_number(self, parameters, self.S0, context),
             k_sigma=self.parameterAsDouble(parameters, self.K_SIGMA, context),
@@ -180,25 +192,20 @@ class BlockHeightsAlgorithm(CanopyBlocksAlgorithm):
         atl08 = self.parameterAsFile(parameters, self.ATL08, context) or None
         if atl08:
             track_kw["atl08"] = atl08
-        want_photons = parameters.get(self.PHOTONS) is not None
         profile = self.parameterAsFileOutput(parameters, self.PROFILE, context) \
             if parameters.get(self.PROFILE) is not None else ""
-        want_labels = want_photons or bool(profile)
-
         feedback.pushInfo(f"reading {path} {track_kw or ''}")
-        track = readers.open_track(path, progress=progress.sub(0.0, 0.2), **track_kw)
-        progress.update(0.2, f"{len(track)} photons read")
-        preset = PRESET_OPTIONS[self.parameterAsEnum(parameters, self.PRESET, context)][1]
-        calibration = self.parameterAsFile(parameters, self.CALIBRATION, context) or None
-        track_mod = import_core("canopyblocks.workflows.blocks")
-        est = import_core("canopyblocks.blocks.estimators").preset(preset)
-        blocks, all_labels = track_mod.run_blocks([track], params, labels=want_labels,
-                                                  estimators=est,
-                                                  progress=progress.sub(0.2, 0.85))
-        labels = all_labels.get(track.track) if want_labels else None
-        if calibration:
-            blocks = track_mod.calibrate_blocks(
-                blocks, calibration, track_mod.track_strengths(path, [track]))
+        made = layers.block_layers(
+            path, params,
+            preset=preset_options()[0][self.parameterAsEnum(parameters, self.PRESET,
+                                                            context)][1],
+            track=track_kw,
+            calibration=self.parameterAsFile(parameters, self.CALIBRATION, context) or None,
+            photon_layer=parameters.get(self.PHOTONS) is not None,
+            segment_length=self.parameterAsDouble(parameters, self.SEGMENT_LENGTH, context)
+            if parameters.get(self.SEGMENTS) is not None else None,
+            profile=profile or None, progress=progress)
+        blocks, track, labels = made.blocks, made.track, made.labels
         feedback.pushInfo(
             f"{len(blocks)} blocks, {int((blocks['flag'] == 'ok').sum())} flagged ok")
         results: dict[str, Any] = {}
@@ -207,25 +214,16 @@ class BlockHeightsAlgorithm(CanopyBlocksAlgorithm):
         lengths_text = ", ".join(f"{v:g}" for v in lengths) + " m"
         source = input_label(path, str(track.track), lengths_text)
         style_on_load(context, dest, "height", "hmax", name=f"Blocks - {source}")
-        if want_photons and labels is not None:
-            pipeline = import_core("canopyblocks.workflows.blocks")
-            photons = pipeline.photon_layer([track], {track.track: labels})
-            pdest = write_frame(self, parameters, self.PHOTONS, context, photons, feedback)
+        if made.photons is not None and labels is not None:
+            pdest = write_frame(self, parameters, self.PHOTONS, context, made.photons,
+                                feedback)
             results[self.PHOTONS] = pdest
             style_on_load(context, pdest, "label", f"label_{min(labels):g}m",
                           name=f"Photons with labels - {source}")
-        if parameters.get(self.SEGMENTS) is not None:
-            a8 = import_core("canopyblocks.blocks.atl08_classify")
-            a8seg = import_core("canopyblocks.blocks.atl08_segments")
-            seg_len = self.parameterAsDouble(parameters, self.SEGMENT_LENGTH, context)
-            segments = a8seg.atl08_segments(track, a8.classify_photons(track), seg_len,
-                                            params.s0)
+        if made.segments is not None:
             results[self.SEGMENTS] = write_frame(self, parameters, self.SEGMENTS, context,
-                                                 segments, feedback)
-        progress.update(0.95, "written")
+                                                 made.segments, feedback)
         if profile:
-            plots = import_core("canopyblocks.outputs.profile_plot")
-            plots.plot_profile(track, blocks, profile, labels=labels)
             results[self.PROFILE] = profile
         if feedback.isCanceled():
             raise QgsProcessingException("cancelled by the user")

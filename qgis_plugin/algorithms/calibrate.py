@@ -18,7 +18,7 @@ from qgis.core import (
 from ..core_bridge import import_core
 from ..layers import write_frame
 from .base import SEED_001, CanopyBlocksAlgorithm, optional_number, parse_lengths
-from .blockheights import DEFAULT_PRESET_INDEX, PRESET_OPTIONS, parse_track
+from .blockheights import parse_track, preset_options
 from .validate import raster_path
 
 __all__ = ["CalibrateAlgorithm"]
@@ -72,8 +72,8 @@ class CalibrateAlgorithm(CanopyBlocksAlgorithm):
                 "chosen estimators (applied by Block canopy heights)"], defaultValue=0))
         self.addParameter(QgsProcessingParameterEnum(
             self.PRESET, "Estimators (bias method)",
-            options=[label for label, _ in PRESET_OPTIONS],
-            defaultValue=DEFAULT_PRESET_INDEX))
+            options=[label for label, _ in preset_options()[0]],
+            defaultValue=preset_options()[1]))
         self.addParameter(QgsProcessingParameterFeatureSink(
             self.OUTPUT, "Calibration table", type=QgsProcessing.TypeVector))
         self.addParameter(QgsProcessingParameterFileDestination(
@@ -84,7 +84,7 @@ class CalibrateAlgorithm(CanopyBlocksAlgorithm):
 
     def execute(self, parameters: dict[str, Any], context: QgsProcessingContext,
                 feedback: QgsProcessingFeedback, progress: Any) -> dict[str, Any]:
-        blocks_mod = import_core("canopyblocks.blocks")
+        blocks_mod = import_core("canopyblocks.workflows.params")
         calibration = import_core("canopyblocks.workflows.calibrate")
         params = blocks_mod.BlockParams(
             lengths=parse_lengths(self.parameterAsString(parameters, self.LENGTHS, context)),
@@ -114,9 +114,8 @@ class CalibrateAlgorithm(CanopyBlocksAlgorithm):
               track: dict[str, Any], offset: float | None) -> dict[str, Any]:
         """The bias method: one core call, the table as a layer, the JSON as a file."""
         files = import_core("canopyblocks.workflows.calibrate")
-        bias = import_core("canopyblocks.validation.bias_calibration")
-        est_mod = import_core("canopyblocks.blocks.estimators")
-        name = PRESET_OPTIONS[self.parameterAsEnum(parameters, self.PRESET, context)][1]
+        est_mod = import_core("canopyblocks.workflows.params")
+        name = preset_options()[0][self.parameterAsEnum(parameters, self.PRESET, context)][1]
         cal = files.calibrate_bias_file(
             self.parameterAsFile(parameters, self.INPUT, context), params,
             est_mod.preset(name),
@@ -136,7 +135,7 @@ class CalibrateAlgorithm(CanopyBlocksAlgorithm):
             self.OUTPUT: write_frame(self, parameters, self.OUTPUT, context, table, feedback)}
         if parameters.get(self.CALIBRATION) not in (None, ""):
             path = self.parameterAsFileOutput(parameters, self.CALIBRATION, context)
-            bias.write_bias_calibration(cal, path)
+            files.write_bias_calibration(cal, path)
             results[self.CALIBRATION] = path
             # the summary table written beside the JSON
             results[self.CALIBRATION_TABLE] = str(Path(path).with_suffix(".csv"))

@@ -104,7 +104,7 @@ class CoregisterAlgorithm(CanopyBlocksAlgorithm):
     def execute(self, parameters: dict[str, Any], context: QgsProcessingContext,
                 feedback: QgsProcessingFeedback, progress: Any) -> dict[str, Any]:
         files = import_core("canopyblocks.workflows.coregister")
-        coreg = import_core("canopyblocks.validation.coregistration")
+        params = import_core("canopyblocks.workflows.params")
         kwargs: dict[str, Any] = {}
         offset = optional_number(self, parameters, self.OFFSET, context)
         if offset is not None:
@@ -117,7 +117,7 @@ class CoregisterAlgorithm(CanopyBlocksAlgorithm):
         result = files.coregister_file(
             self.parameterAsFile(parameters, self.INPUT, context),
             raster_path(self, parameters, self.DTM, context), dsm,
-            params=coreg.CoregParams(
+            params=params.CoregParams(
                 search_range=self.parameterAsDouble(parameters, self.RANGE, context)),
             progress=progress.sub(0.0, 0.9), **kwargs)
         out = self.parameterAsFileOutput(parameters, self.OUTPUT, context)
@@ -128,8 +128,7 @@ class CoregisterAlgorithm(CanopyBlocksAlgorithm):
                                                 offsets_table(result), feedback)
         plot = self.parameterAsFileOutput(parameters, self.PLOT, context)
         if plot:
-            plots = import_core("canopyblocks.outputs.coregistration_plot")
-            plots.write_cost_surfaces(result, plot)
+            files.write_cost_surfaces(result, plot)
             results[self.PLOT] = plot
         # the one rule of every command: an undetermined offset is a warning, not applied
         files.offset_to_apply(result, self.parameterAsFile(parameters, self.INPUT, context),

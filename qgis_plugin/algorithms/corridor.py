@@ -54,11 +54,11 @@ class CorridorAlgorithm(CanopyBlocksAlgorithm):
 
     def execute(self, parameters: dict[str, Any], context: QgsProcessingContext,
                 feedback: QgsProcessingFeedback, progress: Any) -> dict[str, Any]:
-        corridor = import_core("canopyblocks.reference.corridor")
+        layers = import_core("canopyblocks.workflows.layers")
         blocks = self.source_frame(parameters, self.INPUT, context, feedback)
         progress.update(0.3, f"{len(blocks)} blocks read")
         width = optional_number(self, parameters, self.WIDTH, context)
-        polys = corridor.block_corridors(blocks, width=width)
+        polys = layers.block_corridors(blocks, width=width)
         progress.update(0.7, "corridors drawn")
         dest = write_frame(self, parameters, self.OUTPUT, context, polys, feedback)
         return {self.OUTPUT: dest}

@@ -90,7 +90,7 @@ class FlashDualFootprintsAlgorithm(CanopyBlocksAlgorithm):
 
     def execute(self, parameters: dict[str, Any], context: QgsProcessingContext,
                 feedback: QgsProcessingFeedback, progress: Any) -> dict[str, Any]:
-        sniff = import_core("canopyblocks.readers.flash_dual")
+        sniff = import_core("canopyblocks.workflows.inputs")
         wf = import_core("canopyblocks.workflows.waveforms_flash_dual")
         path = self.parameterAsFile(parameters, self.INPUT, context)
         product = sniff.waveform_product(path)

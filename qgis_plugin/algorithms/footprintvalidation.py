@@ -65,18 +65,17 @@ class FootprintValidationAlgorithm(CanopyBlocksAlgorithm):
 
     def execute(self, parameters: dict[str, Any], context: QgsProcessingContext,
                 feedback: QgsProcessingFeedback, progress: Any) -> dict[str, Any]:
-        val = import_core("canopyblocks.validation.footprints")
-        ref = import_core("canopyblocks.reference.footprint")
+        layers = import_core("canopyblocks.workflows.layers")
         footprints = self.source_frame(parameters, self.INPUT, context, feedback)
         tiles = self.parameterAsFileList(parameters, self.POINTS, context)
         kwargs: dict[str, Any] = {}
         offset = optional_number(self, parameters, self.OFFSET, context)
         if offset is not None:
             kwargs["offset"] = offset
-        params = ref.FootprintReferenceParams.gedi(   # the command line's GEDI reference
-            diameter=self.parameterAsDouble(parameters, self.DIAMETER, context))
-        result = val.validate_footprints(footprints, tiles, params=params,
-                                         progress=progress.sub(0.1, 0.9), **kwargs)
+        result = layers.validate_footprint_layer(
+            footprints, tiles, diameter=self.parameterAsDouble(parameters, self.DIAMETER,
+                                                               context),
+            progress=progress.sub(0.1, 0.9), **kwargs)
         dest = write_frame(self, parameters, self.OUTPUT, context, result.residuals, feedback)
         style_on_load(context, dest, "residual", "res_rh98", name="Footprint residuals - "
                       + self.source_name(parameters, self.INPUT, context))

@@ -109,7 +109,7 @@ class GediFootprintsAlgorithm(CanopyBlocksAlgorithm):
     def execute(self, parameters: dict[str, Any], context: QgsProcessingContext,
                 feedback: QgsProcessingFeedback, progress: Any) -> dict[str, Any]:
         wf = import_core("canopyblocks.workflows.waveforms")
-        settings = import_core("canopyblocks.waveforms.settings")
+        settings = import_core("canopyblocks.workflows.params")
         path = gedi_file(self.parameterAsFile(parameters, self.INPUT, context))
         text = self.parameterAsString(parameters, self.BEAMS, context)
         beams = [b.strip() for b in text.replace(";", ",").split(",") if b.strip()] or None

@@ -21,11 +21,10 @@ from qgis.core import (
 from ..core_bridge import import_core
 from ..layers import qgs_crs, write_frame
 from ..styles import style_on_load
-from .base import SEED_002, CanopyBlocksAlgorithm, input_label, las_files
+from .base import SEED_002, CanopyBlocksAlgorithm, input_label, las_files, table_choices
 
 __all__ = ["SimulateAlgorithm", "track_vertices", "add_tiles_and_track_parameters"]
 
-PRESETS = ("boreal", "temperate", "tropical")
 BEAMS = ("strong", "weak")
 
 
@@ -54,7 +53,7 @@ class SimulateAlgorithm(CanopyBlocksAlgorithm):
     TRACK_LINE = "TRACK_LINE"
     AZIMUTH = "AZIMUTH"
     DIAMETER = "DIAMETER"
-    PRESET = "PRESET"
+    PHOTON_RATE = "PHOTON_RATE"
     BEAM = "BEAM"
     BACKGROUND_RATE = "BACKGROUND_RATE"
     SEED = "SEED"
@@ -66,8 +65,10 @@ class SimulateAlgorithm(CanopyBlocksAlgorithm):
         self.addParameter(QgsProcessingParameterNumber(
             self.DIAMETER, "Footprint diameter (m; 13 start, 17 end of mission)",
             type=QgsProcessingParameterNumber.Double, defaultValue=13.0, minValue=0.1))
+        rates, default = table_choices("--photon-rate")
         self.addParameter(QgsProcessingParameterEnum(
-            self.PRESET, "Ecosystem photon rate", options=list(PRESETS), defaultValue=1))
+            self.PHOTON_RATE, "Ecosystem photon rate", options=list(rates),
+            defaultValue=default))
         self.addParameter(QgsProcessingParameterEnum(
             self.BEAM, "Beam", options=list(BEAMS), defaultValue=0))
         self.addParameter(QgsProcessingParameterNumber(
@@ -83,24 +84,23 @@ class SimulateAlgorithm(CanopyBlocksAlgorithm):
 
     def execute(self, parameters: dict[str, Any], context: QgsProcessingContext,
                 feedback: QgsProcessingFeedback, progress: Any) -> dict[str, Any]:
-        sim_mod = import_core("canopyblocks.simulate")
-        las = import_core("canopyblocks.readers.las")
-        writers = import_core("canopyblocks.simulate.writers")
+        params_mod = import_core("canopyblocks.workflows.params")
+        workflow = import_core("canopyblocks.workflows.simulate")
+        inputs = import_core("canopyblocks.workflows.inputs")
         files = las_files(self, parameters, self.INPUT, context)
-        diameter = self.parameterAsDouble(parameters, self.DIAMETER, context)
-        params = sim_mod.SimParams(
-            diameter=diameter,
-            preset=PRESETS[self.parameterAsEnum(parameters, self.PRESET, context)],
+        params = params_mod.SimParams(
+            diameter=self.parameterAsDouble(parameters, self.DIAMETER, context),
+            photon_rate=self._photon_rate(parameters, context),
             beam=BEAMS[self.parameterAsEnum(parameters, self.BEAM, context)],
             background_rate_mhz=self.parameterAsDouble(parameters, self.BACKGROUND_RATE,
                                                        context))
-        points = las.read_las(files, progress=progress.sub(0.0, 0.3))
-        track = self._track(parameters, context, sim_mod, points, diameter)
-        sim = sim_mod.simulate_photons(
-            points, track, params, seed=self.parameterAsInt(parameters, self.SEED, context),
-            progress=progress.sub(0.3, 0.85))
         out = self.parameterAsFileOutput(parameters, self.OUTPUT, context)
-        writers.write_simulation_atl03(sim, out)
+        sim = workflow.simulate_photon_file(
+            files, out, params,
+            vertices=track_vertices(self, parameters, self.TRACK_LINE, context,
+                                    inputs.las_crs(files[0])),
+            azimuth=self.parameterAsDouble(parameters, self.AZIMUTH, context),
+            seed=self.parameterAsInt(parameters, self.SEED, context), progress=progress)
         results: dict[str, Any] = {self.OUTPUT: out}
         if parameters.get(self.PHOTONS) is not None:
             photons = sim.photon_track().to_geodataframe()
@@ -110,13 +110,19 @@ class SimulateAlgorithm(CanopyBlocksAlgorithm):
                           name=f"Simulated photons - {input_label(out)}")
         return results
 
-    def _track(self, parameters: dict[str, Any], context: QgsProcessingContext,
-               sim_mod: Any, points: Any, diameter: float) -> Any:
-        line = track_vertices(self, parameters, self.TRACK_LINE, context, points.crs)
-        if line is None:
-            azimuth = self.parameterAsDouble(parameters, self.AZIMUTH, context)
-            return sim_mod.line_through(points.bounds, azimuth, inset=diameter / 2.0)
-        return sim_mod.polyline_from_points(line)
+    def _photon_rate(self, parameters: dict[str, Any], context: QgsProcessingContext) -> str:
+        """PHOTON_RATE's name; a model saved with the old parameter name PRESET still runs
+        (with a warning in the log)."""
+        rates = table_choices("--photon-rate")[0]
+        if "PRESET" in parameters and self.PHOTON_RATE not in parameters:
+            import warnings
+
+            from ..core_bridge import import_core
+            warnings.warn("the parameter PRESET is deprecated and will be removed; use "
+                          "PHOTON_RATE", import_core("canopyblocks.errors")
+                          .CanopyBlocksDeprecationWarning, stacklevel=2)
+            return rates[self.parameterAsEnum(parameters, "PRESET", context)]
+        return rates[self.parameterAsEnum(parameters, self.PHOTON_RATE, context)]
 
 
 def add_tiles_and_track_parameters(alg: Any) -> None:

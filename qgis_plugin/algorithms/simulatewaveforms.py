@@ -69,19 +69,17 @@ class SimulateWaveformsAlgorithm(CanopyBlocksAlgorithm):
 
     def execute(self, parameters: dict[str, Any], context: QgsProcessingContext,
                 feedback: QgsProcessingFeedback, progress: Any) -> dict[str, Any]:
-        files_mod = import_core("canopyblocks.simulate.sensor_files")
-        sim_mod = import_core("canopyblocks.simulate")
-        las = import_core("canopyblocks.readers.las")
+        workflow = import_core("canopyblocks.workflows.simulate")
+        inputs = import_core("canopyblocks.workflows.inputs")
         files = las_files(self, parameters, self.INPUT, context)
         sensor = SENSORS[self.parameterAsEnum(parameters, self.SENSOR, context)][1]
         line = track_vertices(self, parameters, self.TRACK_LINE, context,
-                              las.las_crs(files[0]))
+                              inputs.las_crs(files[0]))
         report = (self.parameterAsString(parameters, self.REPORT, context)
                   if parameters.get(self.REPORT) not in (None, "") else None)
         out = self.parameterAsFileOutput(parameters, self.OUTPUT, context)
-        track, summary = files_mod.simulate_sensor_over_tiles(
-            files, sensor, out,
-            track=None if line is None else sim_mod.polyline_from_points(line),
+        track, summary = workflow.simulate_sensor_over_tiles(
+            files, sensor, out, vertices=line,
             azimuth=self.parameterAsDouble(parameters, self.AZIMUTH, context),
             seed=self.parameterAsInt(parameters, self.SEED, context), report_dir=report,
             progress=progress)

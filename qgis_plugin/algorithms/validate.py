@@ -35,6 +35,10 @@ def raster_path(alg: Any, parameters: dict[str, Any], name: str,
     return layer.source()
 
 
+#: The REFERENCE menu's entries as the workflow names them, in the menu's order.
+REFERENCES = ("corridor", "footprint")
+
+
 class ValidateAlgorithm(CanopyBlocksAlgorithm):
     """Photon block metrics against reference rasters over per-block corridors."""
 
@@ -76,9 +80,9 @@ class ValidateAlgorithm(CanopyBlocksAlgorithm):
             self.INPUT, "Blocks", [QgsProcessing.TypeVectorPoint]))
         self.addParameter(QgsProcessingParameterEnum(
             self.REFERENCE, "Reference", options=[
-                "rasters: corridor statistics of the DTM and DSMs (as in the paper)",
-                "footprint-matched: Gaussian-weighted airborne points in each footprint "
-                "(needs the LAS/LAZ tiles)"], defaultValue=0))
+                "corridor: corridor statistics of the DTM and DSMs (as in the paper)",
+                "footprint: the footprint-matched reference, Gaussian-weighted airborne "
+                "points in each footprint (needs the LAS/LAZ tiles)"], defaultValue=0))
         self.add_reference_parameters(optional=True)
         self.addParameter(QgsProcessingParameterMultipleLayers(
             self.POINTS, "Airborne LAS/LAZ tiles (footprint-matched reference)",
@@ -102,7 +106,7 @@ class ValidateAlgorithm(CanopyBlocksAlgorithm):
 
     def execute(self, parameters: dict[str, Any], context: QgsProcessingContext,
                 feedback: QgsProcessingFeedback, progress: Any) -> dict[str, Any]:
-        pipeline = import_core("canopyblocks.validation.block_validation")
+        layers = import_core("canopyblocks.workflows.layers")
         blocks = self.source_frame(parameters, self.INPUT, context, feedback)
         progress.update(0.1, f"{len(blocks)} blocks read")
         kwargs: dict[str, Any] = {}
@@ -114,33 +118,19 @@ class ValidateAlgorithm(CanopyBlocksAlgorithm):
             kwargs["photon_vertical_crs"] = vcrs
         if parameters.get(self.GEOID) not in (None, ""):
             kwargs["geoid"] = raster_path(self, parameters, self.GEOID, context)
-        slope = self.parameterAsDouble(parameters, self.SLOPE_THRESHOLD, context)
-        if self.parameterAsEnum(parameters, self.REFERENCE, context) == 1:
-            footprints = import_core("canopyblocks.validation.footprints")
-            ref = import_core("canopyblocks.reference.footprint")
-            points = [str(f) for f in self.parameterAsFileList(parameters, self.POINTS,
-                                                               context)]
-            if not points:
-                raise QgsProcessingException(
-                    "the footprint-matched reference needs the airborne LAS/LAZ tiles")
-            result = footprints.validate_blocks_footprint(
-                blocks, points, params=ref.FootprintReferenceParams(
-                    diameter=self.parameterAsDouble(parameters, self.DIAMETER, context)),
-                slope_threshold=slope, progress=progress.sub(0.1, 0.9), **kwargs)
-        else:
-            rasters = {k: parameters.get(k) for k in (self.DTM, self.DSM_MAX, self.DSM_P90)}
-            missing = [k for k, v in rasters.items() if v in (None, "")]
-            if missing:
-                raise QgsProcessingException(
-                    f"the raster reference needs the DTM, DSM (maximum) and DSM (90th "
-                    f"percentile); missing: {', '.join(missing)}")
-            result = pipeline.validate_blocks(
-                blocks,
-                dtm=raster_path(self, parameters, self.DTM, context),
-                dsm_max=raster_path(self, parameters, self.DSM_MAX, context),
-                dsm_p90=raster_path(self, parameters, self.DSM_P90, context),
-                width=optional_number(self, parameters, self.WIDTH, context),
-                slope_threshold=slope, progress=progress.sub(0.1, 0.9), **kwargs)
+        rasters = {k: raster_path(self, parameters, k, context)
+                   if parameters.get(k) not in (None, "") else None
+                   for k in (self.DTM, self.DSM_MAX, self.DSM_P90)}
+        result = layers.validate_block_layer(
+            blocks, reference=REFERENCES[self.parameterAsEnum(parameters, self.REFERENCE,
+                                                              context)],
+            dtm=rasters[self.DTM], dsm_max=rasters[self.DSM_MAX],
+            dsm_p90=rasters[self.DSM_P90],
+            points=[str(f) for f in self.parameterAsFileList(parameters, self.POINTS, context)],
+            diameter=self.parameterAsDouble(parameters, self.DIAMETER, context),
+            width=optional_number(self, parameters, self.WIDTH, context),
+            slope_threshold=self.parameterAsDouble(parameters, self.SLOPE_THRESHOLD, context),
+            progress=progress.sub(0.1, 0.9), **kwargs)
         residuals, stats = result.residuals, result.stats
         dest = write_frame(self, parameters, self.OUTPUT, context, residuals, feedback)
         style_on_load(context, dest, "residual", "res_hmax",

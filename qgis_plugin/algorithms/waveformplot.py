@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 from qgis.core import (
@@ -65,31 +64,14 @@ class WaveformPlotAlgorithm(CanopyBlocksAlgorithm):
 
     def execute(self, parameters: dict[str, Any], context: QgsProcessingContext,
                 feedback: QgsProcessingFeedback, progress: Any) -> dict[str, Any]:
-        gedi = import_core("canopyblocks.readers.gedi")
-        process = import_core("canopyblocks.waveforms.process")
-        settings = import_core("canopyblocks.waveforms.settings")
-        plots = import_core("canopyblocks.outputs.waveform_plot")
+        layers = import_core("canopyblocks.workflows.layers")
         path = gedi_file(self.parameterAsFile(parameters, self.INPUT, context))
-        wanted = self._shots(parameters, context)
-        params = settings.WaveformParams(
-            setting=SETTINGS[self.parameterAsEnum(parameters, self.SETTING, context)])
-        details = []
-        for batch in gedi.iter_gedi_l1b(path, progress=progress.sub(0.0, 0.8)):
-            sn = batch.shot_number.astype("int64")
-            for i in [k for k, s in enumerate(sn) if int(s) in wanted]:
-                details.append(process.shot_details(batch, i, params))
-        missing = wanted - {d.shot_number for d in details}
-        if missing:
-            raise QgsProcessingException(
-                f"shot(s) {', '.join(map(str, sorted(missing)))} are not in {path}")
-        out = Path(self.parameterAsFileOutput(parameters, self.OUTPUT, context))
-        pngs = []
-        for d in details:
-            png = out.with_name(f"{out.stem}_{d.shot_number}.png")
-            plots.plot_waveform(d, png)
-            pngs.append(str(png))
-        plots.waveform_html(details, out)
-        feedback.pushInfo(f"{len(details)} waveform(s) -> {out} and {len(pngs)} PNG file(s)")
+        out, pngs = layers.waveform_views(
+            path, self._shots(parameters, context),
+            self.parameterAsFileOutput(parameters, self.OUTPUT, context),
+            setting=SETTINGS[self.parameterAsEnum(parameters, self.SETTING, context)],
+            progress=progress)
+        feedback.pushInfo(f"{len(pngs)} waveform(s) -> {out} and {len(pngs)} PNG file(s)")
         return {self.OUTPUT: str(out), self.PLOTS: pngs}
 
     def _shots(self, parameters: dict[str, Any], context: QgsProcessingContext) -> set[int]:

@@ -13,7 +13,7 @@ pytestmark = [pytest.mark.qgis]
 
 def test_blockheights_atl08_segments_match_core(run_alg, open_layer, layer_rows,
                                                 atl03_sample: Path, tmp_path):
-    from qgis_plugin.algorithms.blockheights import PRESET_OPTIONS
+    from qgis_plugin.algorithms.blockheights import preset_options
 
     from canopyblocks.blocks.atl08_classify import classify_photons
     from canopyblocks.blocks.atl08_segments import atl08_segments
@@ -21,7 +21,7 @@ def test_blockheights_atl08_segments_match_core(run_alg, open_layer, layer_rows,
 
     track = open_track(atl03_sample, beam="gt1r")
     direct = atl08_segments(track, classify_photons(track), 50.0)
-    atl08_index = [name for _, name in PRESET_OPTIONS].index("atl08")
+    atl08_index = [name for _, name in preset_options()[0]].index("atl08")
     seg_out = tmp_path / "segments.gpkg"
     photons = tmp_path / "photons.gpkg"
     run_alg("canopyblocks:blockheights", {

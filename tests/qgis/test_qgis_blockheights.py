@@ -29,10 +29,10 @@ def direct_blocks(atl03_sample: Path):
 
 
 def _run_blocks(run_alg, src: Path, out: Path, **extra):
-    from qgis_plugin.algorithms.blockheights import PRESET_OPTIONS
+    from qgis_plugin.algorithms.blockheights import preset_options
 
     # the paper's method, which the core's compute_blocks above computes
-    paper = [name for _, name in PRESET_OPTIONS].index("paper")
+    paper = [name for _, name in preset_options()[0]].index("paper")
     params = {"INPUT": str(src), "TRACK": "gt1r", "LENGTHS": "25, 10", "MIN_PHOTONS": 5,
               "PRESET": paper, "OUTPUT": str(out)}
     params.update(extra)

@@ -285,9 +285,9 @@ def test_validate_photon_vertical_crs_applies_the_datum_rule(qgis_profile, qgis_
 
 def _preset_index(name: str) -> int:
     """The QGIS enum index of a preset (the options follow the CLI's --preset order)."""
-    from qgis_plugin.algorithms.blockheights import PRESET_OPTIONS
+    from qgis_plugin.algorithms.blockheights import preset_options
 
-    return [n for _, n in PRESET_OPTIONS].index(name)
+    return [n for _, n in preset_options()[0]].index(name)
 
 
 def test_blockheights_preset_and_calibration_equal_the_command_line(qp, simulated, rasters,

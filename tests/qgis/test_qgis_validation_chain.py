@@ -31,7 +31,7 @@ def chain(qgis_session, sample, pdal_bin, tmp_path_factory) -> dict[str, Any]:
     laz = sample("als/lasR_bcts_1.laz")
     out: dict[str, Any] = {"laz": laz, "tmp": tmp}
     out["sim"] = run("canopyblocks:simulate", {
-        "INPUT": [str(laz)], "AZIMUTH": 0.0, "DIAMETER": 13.0, "PRESET": 1, "SEED": 7,
+        "INPUT": [str(laz)], "AZIMUTH": 0.0, "DIAMETER": 13.0, "PHOTON_RATE": 1, "SEED": 7,
         "OUTPUT": str(tmp / "sim.h5")})
     out["blocks"] = run("canopyblocks:blockheights", {
         "INPUT": str(tmp / "sim.h5"), "TRACK": "gt1r", "LENGTHS": "25",
@@ -67,7 +67,7 @@ def test_simulated_file_matches_core(chain):
     tr = open_track(chain["tmp"] / "sim.h5", beam="gt1r")
     pts = read_las([chain["laz"]])
     sim = simulate_photons(pts, line_through(pts.bounds, 0.0, inset=6.5),
-                           SimParams(diameter=13.0, preset="temperate", beam="strong"), seed=7)
+                           SimParams(diameter=13.0, photon_rate="temperate", beam="strong"), seed=7)
     direct = sim.photon_track()
     assert len(tr) == len(direct) > 100
     np.testing.assert_allclose(np.sort(tr.h), np.sort(direct.h), atol=1e-3)

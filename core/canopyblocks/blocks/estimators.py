@@ -42,6 +42,8 @@ from typing import TYPE_CHECKING, Literal, overload
 import numpy as np
 
 from ..errors import InputError, NoUsableDataError, SparseBlockWarning
+from ..options import ESTIMATOR_PRESETS as _PRESET_NAMES
+from ..options import RECOMMENDED_PRESET as _RECOMMENDED
 from ..schema import LABEL_BETWEEN, LABEL_CANOPY, LABEL_GROUND, LABEL_NOISE
 from .atl08_classify import CLASS_COLUMN, Atl08Params
 from .background_check import classify_photons
@@ -149,21 +151,21 @@ PRESETS: dict[str, Estimators] = {
     "atl08": Estimators(noise="atl08", ground="atl08", top="atl08", name="atl08"),
 }
 
-RECOMMENDED_PRESET = "atl08"
-"""The estimator preset the project recommends, the default of every front end."""
+RECOMMENDED_PRESET = _RECOMMENDED
+"""The estimator preset the project recommends, the default of every front end (declared
+once with the preset names in the one vocabulary, ``canopyblocks.options``)."""
 
 #: The preset names every front end offers (CLI ``--preset``, QGIS, Python), in one order.
-PRESET_NAMES: tuple[str, ...] = tuple(PRESETS)
+PRESET_NAMES: tuple[str, ...] = _PRESET_NAMES
+if set(PRESET_NAMES) != set(PRESETS):  # pragma: no cover - a preset added on one side only
+    raise ImportError(f"blocks.estimators.PRESETS {sorted(PRESETS)} and "
+                      f"options.ESTIMATOR_PRESETS {sorted(PRESET_NAMES)} differ")
 
 
-def default_estimators(track: str | None = None) -> Estimators:
+def default_estimators() -> Estimators:
     """The estimators used when none are given: the recommended preset
-    (:data:`RECOMMENDED_PRESET`, ``atl08``) for every sensor.
-
-    ``track`` (a beam or channel id) is accepted so that a sensor-specific default has one
-    place to live; measured on simulated MABEL photons (DESIGN 1.12) the ``atl08`` preset
-    is the better one there too.
-    """
+    (:data:`RECOMMENDED_PRESET`, ``atl08``) for every sensor (measured on simulated MABEL
+    photons, DESIGN 1.12, the ``atl08`` preset is the better one there too)."""
     return PRESETS[RECOMMENDED_PRESET]
 
 
@@ -245,7 +247,7 @@ def estimate_blocks(track: PhotonTrack, params: BlockParams | None = None,
     from .engine import compute_blocks
 
     params = BlockParams() if params is None else params
-    est = default_estimators(track.track) if estimators is None else estimators
+    est = default_estimators() if estimators is None else estimators
     if not isinstance(est, Estimators):
         raise InputError(f"estimators must be an Estimators (or a preset name via preset()); "
                          f"got {type(est).__name__}")

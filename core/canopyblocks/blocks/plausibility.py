@@ -15,13 +15,11 @@ import numpy as np
 import pandas as pd
 
 from ..errors import CanopyBlocksWarning
-from ..schema import FLAG_IMPLAUSIBLE, FLAG_OK
+from ..schema import FLAG_IMPLAUSIBLE, FLAG_OK, MAX_CANOPY_HEIGHT_M
 
 __all__ = ["MAX_CANOPY_HEIGHT_M", "ImplausibleBlockWarning", "background_fraction",
            "flag_implausible_blocks"]
 
-MAX_CANOPY_HEIGHT_M = 130.0
-"""Hmax above this (m) is flagged: the tallest measured tree is about 116 m."""
 
 
 class ImplausibleBlockWarning(CanopyBlocksWarning):

@@ -61,7 +61,7 @@ if TYPE_CHECKING:
 __all__ = ["SigmaModel", "FEATURES", "PUBLISHED_GEOLOCATION_SIGMA", "REGIMES",
            "geolocation_sigma", "regime_of", "FLAG_LOW_CONFIDENCE", "sigma_model", "block_features",
            "design_matrix", "predict_sigma", "add_block_sigma", "add_segment_sigma",
-           "mark_use", "left_out_summary"]
+           "mark_use", "upgrade_table", "left_out_summary"]
 
 #: Terms of the log-linear model, in the order of the coefficients.
 FEATURES: tuple[str, ...] = (
@@ -400,6 +400,33 @@ def mark_use(table: pd.DataFrame, model: SigmaModel | None = None) -> pd.DataFra
     return table
 
 
+def upgrade_table(table: pd.DataFrame) -> pd.DataFrame:
+    """A block, segment, footprint or residuals table read from a file, in today's form; in
+    place, and returned. The one place older tables are upgraded (the readers call it):
+
+    - ``hmax_sigma``/``ground_sigma`` missing (written before the error bars): NaN;
+    - ``use`` missing (written before it): the rows :func:`mark_use` would use, flag ``ok``
+      (and, in a residuals table, a usable reference: ``ref_flag`` ``ok``);
+    - ``use`` stored as 0/1 or NULL (a GeoPackage or QGIS layer): a bool, NULL False.
+
+    A table without a ``flag`` column (statistics, pixels) is returned unchanged.
+    """
+    if "flag" not in table.columns:
+        return table
+    if "hmax" in table.columns:  # blocks and block residuals carry error bars
+        for c in ("hmax_sigma", "ground_sigma"):
+            if c not in table.columns:
+                table[c] = np.nan
+    if "use" in table.columns:
+        table["use"] = table["use"].fillna(False).astype(bool).to_numpy()
+    else:
+        use = table["flag"].astype(object).to_numpy() == FLAG_OK
+        if "ref_flag" in table.columns:
+            use &= table["ref_flag"].astype(object).to_numpy() == FLAG_OK
+        table["use"] = use
+    return table
+
+
 def add_block_sigma(blocks: pd.DataFrame, track: PhotonTrack, classes: Atl08Classes,
                     model: SigmaModel | None = None) -> pd.DataFrame:
     """Fill ``hmax_sigma``, ``ground_sigma``, the ``low_confidence`` flag and ``use`` of an
@@ -456,10 +483,9 @@ def left_out_summary(table: pd.DataFrame) -> dict[str, object]:
     check_frame(table, "left_out_summary: table", "a block, segment or residuals table")
     m = sigma_model()
     n = len(table)
-    if "use" in table.columns:
-        use = table["use"].fillna(False).to_numpy(bool)
-    else:
-        use = (table["flag"] == "ok").to_numpy() if "flag" in table.columns else np.ones(n, bool)
+    use = upgrade_table(table.copy())["use"].to_numpy(bool) if "flag" in table.columns \
+        else (table["use"].fillna(False).to_numpy(bool) if "use" in table.columns
+              else np.ones(n, bool))
     why = (table["flag"].astype(str).to_numpy(object) if "flag" in table.columns
            else np.full(n, "not used", object))
     if "ref_flag" in table.columns:  # a residuals table: the reference's reason too

@@ -7,12 +7,12 @@ import logging
 import click
 
 from .common import (
-    WIDTH_HELP,
     lengths_option,
     min_signal_conf_option,
     preset_option,
     vertical_options,
 )
+from .options import option
 from .sources import GranuleSource
 
 log = logging.getLogger(__name__)
@@ -33,7 +33,7 @@ def register(group: click.Group) -> None:
                    "report.html.")
 @click.option("--beam", "beams", multiple=True, help="Beams to use (default all).")
 @lengths_option("25")
-@click.option("--width", type=float, default=None, help=WIDTH_HELP)
+@option("--width")
 @preset_option()
 @min_signal_conf_option
 @vertical_options

@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import logging
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
 
 import click
 
@@ -18,11 +17,9 @@ from .common import (
     parse_floats,
     preset_option,
 )
+from .options import option
 from .progress_bars import progress_bar
 from .vocabulary import deprecated_option, take_alias
-
-if TYPE_CHECKING:
-    from ..blocks.estimators import Estimators
 
 log = logging.getLogger(__name__)
 
@@ -32,7 +29,7 @@ log = logging.getLogger(__name__)
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of text.")
 def info_cmd(path: str, as_json: bool) -> None:
     """Describe a photon file: product, beams or channels, photon counts, extent."""
-    from ..readers import file_info, format_info
+    from ..workflows.inputs import file_info, format_info
 
     info = file_info(path)
     if as_json:
@@ -52,8 +49,9 @@ def info_cmd(path: str, as_json: bool) -> None:
 @lengths_option(default="25")
 @click.option("--s0", type=float, default=None,
               help="Block origin along track, m (default: the track start).")
-@click.option("--k", "k_sigma", type=float, default=2.5, show_default=True,
-              help="Noise filter: keep |z - mean| <= k * std per block.")
+@option("--k-sigma", default=2.5,
+        help="Noise filter of the paper's method: keep |z - mean| <= k * std per block.")
+@deprecated_option("--k", "old_k", type=float)
 @click.option("--noise", type=click.Choice(["sigma", "conf", "density", "atl08", "none"]),
               default=None,
               help="Noise filter: sigma (the paper's), conf (ATL03 signal_conf_ph), "
@@ -75,8 +73,8 @@ def info_cmd(path: str, as_json: bool) -> None:
               help="Ground window fraction (default by block length).")
 @click.option("--min-photons", type=int, default=10, show_default=True,
               help="Blocks with fewer kept photons are flagged 'sparse'.")
-@click.option("--atl08", type=click.Path(dir_okay=False), default=None,
-              help="Matching ATL08 file: adds its photon classes to the photons layer.")
+@option("--atl08-classes", "atl08")
+@deprecated_option("--atl08", "old_atl08", type=click.Path(dir_okay=False))
 @click.option("--bbox", default=None, help="lon_min,lat_min,lon_max,lat_max (degrees) subset.")
 @click.option("--polygon", type=click.Path(dir_okay=False), default=None,
               help="Vector file of polygons (any CRS): keep the blocks whose centre lies "
@@ -84,14 +82,14 @@ def info_cmd(path: str, as_json: bool) -> None:
 @click.option("--time", "time_range", nargs=2, default=None, metavar="START END",
               help="UTC dates or times (2022-04-01 or 2022-04-01T22:00:00): skip ATL03 "
                    "granules taken outside.")
-@click.option("--crs", default=None, help="Metric CRS for x/y (default: UTM zone of the track).")
-@click.option("--photon-layer", "with_photons", is_flag=True,
-              help="Also write layer 'photons' with per-photon labels (GeoPackage output; "
-                   "with --noise atl08 also classed_pc_flag: 0 noise, 1 ground, 2 canopy, "
-                   "3 top of canopy).")
+@option("--crs")
+@option("--photon-layer", help="Also write layer 'photons' with per-photon labels "
+        "(GeoPackage output; with --noise atl08 also classed_pc_flag: 0 noise, 1 ground, "
+        "2 canopy, 3 top of canopy).")
 @deprecated_option("--photons", "old_photons", is_flag=True)
-@click.option("--profile", type=click.Path(dir_okay=False), default=None,
-              help="Write a profile plot PNG (photons, canopy top and ground per block).")
+@option("--plot", "profile",
+        help="Write the profile plot PNG (photons, canopy top and ground per block).")
+@deprecated_option("--profile", "old_profile", type=click.Path(dir_okay=False))
 @click.option("--workers", type=click.IntRange(1, 512), default=None,
               help="Processes reading and blocking the beams of a granule in parallel "
                    "(default: the machine's cores, capped by the memory available; the "
@@ -100,6 +98,7 @@ def info_cmd(path: str, as_json: bool) -> None:
 def blocks_cmd(ctx: click.Context, paths: tuple[str, ...], output: str,
                beams: tuple[str, ...],
                channel: str | None, lengths: tuple[float, ...], s0: float | None, k_sigma: float,
+               old_k: float | None, old_atl08: str | None, old_profile: str | None,
                noise: str | None, preset: str, ground_estimator: str | None,
                top_estimator: str | None, calibration: str | None,
                min_signal_conf: int | None, top_cutoff: float | None,
@@ -114,10 +113,14 @@ def blocks_cmd(ctx: click.Context, paths: tuple[str, ...], output: str,
     Several PATHs (granules) give one table with a 'granule' column, filtered by
     --bbox, --polygon and --time.
     """
-    from ..blocks import BlockParams
     from ..workflows.blocks import blocks_from_file
+    from ..workflows.choices import estimators_from_options
+    from ..workflows.params import BlockParams
 
     with_photons = take_alias(with_photons, old_photons, old="--photons", new="--photon-layer")
+    k_sigma = take_alias(k_sigma, old_k, old="--k", new="--k-sigma", default=2.5)
+    atl08 = take_alias(atl08, old_atl08, old="--atl08", new="--atl08-classes")
+    profile = take_alias(profile, old_profile, old="--profile", new="--plot")
     estimators = estimators_from_options(explicit_value(ctx, "preset", preset), noise,
                                          ground_estimator, top_estimator, min_signal_conf)
     params = BlockParams(
@@ -128,8 +131,8 @@ def blocks_cmd(ctx: click.Context, paths: tuple[str, ...], output: str,
     quiet = bool(ctx.obj and ctx.obj.get("quiet"))
     box = parse_floats(bbox, 4, "lon_min,lat_min,lon_max,lat_max", "--bbox")
     if len(paths) > 1 or polygon is not None or time_range is not None:
-        many = [n for n, v in (("--photon-layer", with_photons), ("--profile", profile),
-                               ("--atl08", atl08)) if v]
+        many = [n for n, v in (("--photon-layer", with_photons), ("--plot", profile),
+                               ("--atl08-classes", atl08)) if v]
         if many:
             raise click.UsageError(f"{', '.join(many)}: one PATH at a time (not with "
                                    "several granules, --polygon or --time)")
@@ -161,33 +164,6 @@ def blocks_cmd(ctx: click.Context, paths: tuple[str, ...], output: str,
         f"{', '.join(result.track_ids)} -> {Path(output)}",
         err=True,
     )
-
-
-def estimators_from_options(preset: str | None, noise: str | None, ground: str | None,
-                            top: str | None, min_signal_conf: int | None = None
-                            ) -> Estimators:
-    """The Estimators the options name.
-
-    ``preset`` None (not given): the recommended preset (``atl08``) when no part is
-    named, else the named parts (``noise``, ``ground``, ``top``) replacing those of the
-    paper's method; a given ``preset`` has its parts replaced by the named ones.
-    """
-    from dataclasses import replace
-
-    from ..blocks.estimators import RECOMMENDED_PRESET
-    from ..blocks.estimators import preset as named_preset
-
-    parts = {"noise": noise, "ground": ground, "top": top}
-    base = preset or ("paper" if any(v is not None for v in parts.values())
-                      else RECOMMENDED_PRESET)
-    est = named_preset(base)
-    changes: dict[str, Any] = {k: v for k, v in parts.items()
-                               if v is not None and v != getattr(est, k)}
-    if min_signal_conf is not None and (noise == "conf" or est.noise == "conf"):
-        changes["min_signal_conf"] = min_signal_conf
-    if changes:
-        est = replace(est, **changes, name="custom" if preset is None else f"{preset}+")
-    return est
 
 
 def register(group: click.Group) -> None:

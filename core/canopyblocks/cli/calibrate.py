@@ -7,7 +7,6 @@ from typing import Any
 import click
 
 from .common import (
-    WIDTH_HELP,
     channel_option,
     explicit_value,
     lengths_option,
@@ -16,6 +15,7 @@ from .common import (
     preset_option,
     vertical_options,
 )
+from .options import option
 from .progress_bars import progress_bar
 
 
@@ -49,8 +49,8 @@ from .progress_bars import progress_bar
               default=None)
 @click.option("--kind", type=click.Choice(["additive", "linear"]), default="additive",
               show_default=True, help="--method bias: correction form.")
-@click.option("--width", type=float, default=None, help=WIDTH_HELP)
-@click.option("--crs", default=None, help="Metric CRS for the photons (default: the DTM's).")
+@option("--width")
+@option("--crs", help="Metric CRS of the photons' x/y (default: the DTM's).")
 @vertical_options
 @click.option("--photon-vcrs", default=None,
               help="Vertical datum of the photon heights (default: the file's; ATL03/MABEL "
@@ -79,8 +79,8 @@ def calibrate_cmd(ctx: click.Context, photons: str, method: str, dtm: str | None
     the chosen estimators (--preset), with its held-out error; apply it with
     `canopyblocks blocks ... --preset P --calibration cal.json`.
     """
-    from ..blocks import BlockParams
     from ..errors import InputError
+    from ..workflows.params import BlockParams
 
     if output is not None:
         if method == "bias":
@@ -91,7 +91,7 @@ def calibrate_cmd(ctx: click.Context, photons: str, method: str, dtm: str | None
 
             check_writable(output)
         else:
-            from ..outputs.tables import check_output_path
+            from ..workflows.inputs import check_output_path
 
             check_output_path(output)  # fail before the work, not after it
     params = BlockParams(lengths=tuple(lengths) or (10.0, 25.0, 50.0),
@@ -127,9 +127,9 @@ def calibrate_cmd(ctx: click.Context, photons: str, method: str, dtm: str | None
                    f"  held-out Hmax RMSE {row.rmse_hmax_default:.2f} -> "
                    f"{row.rmse_hmax_calibrated:.2f} m (n={row.n_holdout})")
     if output is not None:
-        from ..outputs.tables import write_table
+        from ..workflows.calibrate import write_cutoff_calibration
 
-        write_table(cal.table, output, layer="calibration")
+        write_cutoff_calibration(cal, output)
     if not quiet:
         click.echo("canopyblocks: use them one length at a time, e.g.", err=True)
         for row in cal.table.itertuples():
@@ -142,10 +142,9 @@ def _bias(photons: str, params: object, *, quiet: bool, output: str | None,
           preset: str | None, noise: str | None, ground_estimator: str | None,
           top_estimator: str | None, min_signal_conf: int | None, channel: str | None,
           photon_vcrs: str | None, **kw: Any) -> None:
-    from ..blocks.estimators import PRESETS
-    from ..validation.bias_calibration import write_bias_calibration
-    from ..workflows.calibrate import calibrate_bias_file
-    from .blocks import estimators_from_options
+    from ..options import ESTIMATOR_PRESETS
+    from ..workflows.calibrate import calibrate_bias_file, write_bias_calibration
+    from ..workflows.choices import estimators_from_options
 
     est = estimators_from_options(preset, noise, ground_estimator, top_estimator,
                                   min_signal_conf)
@@ -162,7 +161,7 @@ def _bias(photons: str, params: object, *, quiet: bool, output: str | None,
         write_bias_calibration(cal, output)
         if not quiet:
             click.echo(f"canopyblocks: apply it with `canopyblocks blocks PHOTONS --preset "
-                       f"{est.name if est.name in PRESETS else '...'} "
+                       f"{est.name if est.name in ESTIMATOR_PRESETS else '...'} "
                        f"--calibration {output}`", err=True)
 
 

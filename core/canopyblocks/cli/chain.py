@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import click
 
+from ..options import PHOTON_RATES
 from .common import (
     WIDTH_HELP,
     channel_option,
@@ -15,6 +16,7 @@ from .common import (
     preset_option,
     vertical_options,
 )
+from .options import option
 from .progress_bars import progress_bar
 from .vocabulary import deprecated_option, say_deprecated, take_alias
 
@@ -23,8 +25,7 @@ from .vocabulary import deprecated_option, say_deprecated, take_alias
 @click.argument("tiles", nargs=-1, required=True, type=click.Path(dir_okay=False))
 @click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False),
               help="Output folder.")
-@click.option("--photons", type=click.Path(dir_okay=False), default=None,
-              help="ATL03 / MABEL / table photon file. Without it (or with --simulate), "
+@option("--photons", extra_help="Without it (or with --simulate), "
                    "ICESat-2 photons are simulated over the tiles.")
 @click.option("--simulate", is_flag=True, help="Simulate the photons (the default without "
               "--photons).")
@@ -43,24 +44,19 @@ from .vocabulary import deprecated_option, say_deprecated, take_alias
                    "(default 0.05, the dual-wavelength paper's; 0 = noise free).")
 @click.option("--beam", "beams", multiple=True, help="ATL03 beam(s) to use.")
 @channel_option
-@click.option("--atl08", type=click.Path(dir_okay=False), default=None,
-              help="Matching ATL08 file: also validate against its land segments.")
+@option("--atl08", help="Matching ATL08 file: also validate against its land segments.")
 @click.option("--azimuth", type=float, default=0.0, show_default=True,
               help="Simulated track direction, degrees clockwise from north.")
-@click.option("--diameter", type=float, default=13.0, show_default=True,
-              help="Simulated ICESat-2 footprint diameter, m (GEDI, flash-lidar and "
-                   "dual-wavelength footprints are their instruments').")
-@click.option("--photon-rate", "photon_rate",
-              type=click.Choice(["boreal", "temperate", "tropical"]), default="temperate",
-              show_default=True, help="Simulated photon rate (as simulate --photon-rate).")
+@option("--diameter", default=13.0, help="Simulated ICESat-2 footprint diameter, m (GEDI, "
+        "flash-lidar and dual-wavelength footprints are their instruments').")
+@option("--photon-rate")
 @click.option("--seed", type=int, default=0, show_default=True, help="Simulation seed.")
 @click.option("--realisations", type=click.IntRange(min=0), default=100, show_default=True,
               help="Simulated runs: photon draws per footprint diameter for the analysis "
                    "of the simulation against its truth (0 skips it).")
 @lengths_option(default="10, 25, 50")
 @min_signal_conf_option
-@click.option("--width", type=float, default=None,
-              help=WIDTH_HELP[:-2] + "; the footprint diameter when simulated).")
+@option("--width", help=WIDTH_HELP[:-2] + "; the footprint diameter when simulated).")
 @click.option("--resolution", type=float, default=2.0, show_default=True,
               help="Reference raster cell size, m.")
 @click.option("--smrf", is_flag=True, help="Classify ground with PDAL's SMRF (unclassified tiles).")
@@ -68,8 +64,7 @@ from .vocabulary import deprecated_option, say_deprecated, take_alias
 @click.option("--calibrate", is_flag=True,
               help="Also fit the cut-offs to the reference and validate again with them.")
 @preset_option("With another preset the recommended ones are computed too (see "
-               "--compare). The photon-rate names are deprecated here: use --photon-rate.",
-               dest="estimator_preset", extra_choices=("boreal", "temperate", "tropical"))
+               "--compare).", dest="estimator_preset", old_values=PHOTON_RATES)
 @deprecated_option("--estimators", "old_estimators",
                    type=click.Choice(["paper", "icesat2", "mabel", "atl08"]))
 @click.option("--calibration", type=click.Path(dir_okay=False), default=None,
@@ -99,10 +94,10 @@ def run_cmd(ctx: click.Context, tiles: tuple[str, ...], out_dir: str, photons: s
             footprint_reference: bool, sensor: str, esfl_noise: float | None,
             dual_noise: float | None) -> None:
     """Photons + airborne TILES -> blocks, reference rasters, validation, plots, report."""
-    from ..blocks import BlockParams
-    from ..blocks.estimators import RECOMMENDED_PRESET
-    from ..blocks.estimators import preset as named_preset
-    from ..workflows.chain.run import run_chain
+    from ..options import RECOMMENDED_PRESET
+    from ..workflows.chain import run_chain
+    from ..workflows.params import BlockParams
+    from ..workflows.params import preset as named_preset
 
     if simulate and photons:
         raise click.UsageError("give either --photons or --simulate, not both")
@@ -123,7 +118,7 @@ def run_cmd(ctx: click.Context, tiles: tuple[str, ...], out_dir: str, photons: s
     estimator_preset = take_alias(explicit_value(ctx, "estimator_preset", estimator_preset),
                                   old_estimators, old="--estimators",
                                   new="--preset") or RECOMMENDED_PRESET
-    if estimator_preset in ("boreal", "temperate", "tropical"):  # the old meaning of --preset
+    if estimator_preset in PHOTON_RATES:  # the old meaning of --preset
         say_deprecated(f"--preset {estimator_preset}", f"--photon-rate {estimator_preset}")
         photon_rate, estimator_preset = estimator_preset, RECOMMENDED_PRESET
     params = BlockParams(lengths=tuple(lengths) or (10.0, 25.0, 50.0),

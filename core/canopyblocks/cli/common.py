@@ -14,6 +14,7 @@ from typing import Any, TypeVar
 import click
 
 from ..errors import CanopyBlocksError
+from ..options import ESTIMATOR_PRESETS, OPTIONS, RECOMMENDED_PRESET
 from .exits import (
     EXIT_BAD_INPUT,
     EXIT_BUG,
@@ -25,6 +26,7 @@ from .exits import (
     _os_error_message,
 )
 from .log_setup import _quiet_numpy, is_quiet, setup_logging
+from .options import option
 from .progress_bars import progress_bar, summary
 from .signals import (
     _ABORTED,
@@ -35,6 +37,7 @@ from .signals import (
     _quiet_unraisable_interrupts,
     _signals_handled,
 )
+from .vocabulary import ChoiceWithOld
 
 __all__ = ["lengths_option", "channel_option", "preset_option", "PRESET_CHOICES",
            "explicit_value", "WIDTH_HELP", "min_signal_conf_option", "vertical_options",
@@ -44,37 +47,31 @@ __all__ = ["lengths_option", "channel_option", "preset_option", "PRESET_CHOICES"
 F = TypeVar("F", bound=Callable[..., Any])
 
 
-# ---- option definitions shared by several commands (rasterio's rio keeps them in one place too)
+# ---- option definitions shared by several commands, built from the one vocabulary
+# (canopyblocks.options; rasterio's rio keeps them in one place too)
 def lengths_option(default: str) -> Callable[[F], F]:
     """``--length`` (repeatable, metres) -> ``lengths: tuple[float, ...]``."""
-    return click.option("--length", "lengths", multiple=True, type=float,
-                        help=f"Block length, m; repeat for several (default {default}).")
+    return option("--length", "lengths",
+                  help=f"Block length, m; repeat for several (default {default}).")
 
 
-#: The block estimator presets every command offers, the default first (the names of
-#: ``blocks.estimators.PRESETS``; kept here so that ``--help`` needs no numerical import:
-#: tests/test_defaults_walk.py checks they are the same).
-PRESET_CHOICES: tuple[str, ...] = ("atl08", "paper", "icesat2", "mabel")
-DEFAULT_PRESET = PRESET_CHOICES[0]
-PRESET_HELP = ("Block estimators: atl08 (the recommended: photons classified as ATL08 does; "
-               "ground = its ground surface, Hmax = 98th percentile of the canopy heights "
-               "above it), paper (the paper's method), icesat2 (density filter, the paper's "
-               "ground window, 98th-percentile top), mabel (density filter, ground surface, "
-               "98th-percentile top).")
-
+#: The block estimator presets every command offers, the default first (declared once in
+#: ``canopyblocks.options``; ``blocks.estimators.PRESETS`` holds what each computes).
+PRESET_CHOICES: tuple[str, ...] = ESTIMATOR_PRESETS
+DEFAULT_PRESET = RECOMMENDED_PRESET
+PRESET_HELP = OPTIONS["--preset"].help
 
 #: ``--width`` help: the rule of ``reference.sensor_width`` (the same numbers; checked by
 #: tests/test_defaults_walk.py).
-WIDTH_HELP = ("Corridor width, m (default: the footprint of the photons' sensor: ICESat-2 "
-              "13, MABEL 2; a photon table of no known sensor needs it).")
+WIDTH_HELP = OPTIONS["--width"].help
 
 
 def preset_option(extra_help: str = "", *, dest: str = "preset",
-                  extra_choices: tuple[str, ...] = ()) -> Callable[[F], F]:
-    """``--preset``: the block estimators, the same names and default in every command."""
-    return click.option("--preset", dest, type=click.Choice([*PRESET_CHOICES, *extra_choices]),
-                        default=DEFAULT_PRESET, show_default=True,
-                        help=f"{PRESET_HELP} {extra_help}".strip())
+                  old_values: tuple[str, ...] = ()) -> Callable[[F], F]:
+    """``--preset``: the block estimators, the same names and default in every command;
+    ``old_values`` are deprecated values still accepted (not shown)."""
+    return option("--preset", dest, extra_help=extra_help,
+                  type=ChoiceWithOld(ESTIMATOR_PRESETS, old_values))
 
 
 def explicit_value(ctx: click.Context, name: str, value: Any) -> Any:
@@ -85,11 +82,8 @@ def explicit_value(ctx: click.Context, name: str, value: Any) -> Any:
     return None if ctx.get_parameter_source(name) == ParameterSource.DEFAULT else value
 
 
-channel_option = click.option("--channel", default=None,
-                              help="MABEL channel number, or 'most' (the default).")
-min_signal_conf_option = click.option(
-    "--min-signal-conf", type=click.IntRange(-2, 4), default=None,
-    help="ATL03: keep photons with land signal_conf_ph >= this before the noise filter.")
+channel_option = option("--channel")
+min_signal_conf_option = option("--min-signal-conf", type=click.IntRange(-2, 4))
 
 
 def vertical_options(f: F) -> F:

@@ -9,6 +9,7 @@ import numpy as np
 
 from ..errors import InputError
 from .common import min_signal_conf_option, vertical_options
+from .options import option
 from .vocabulary import deprecated_option, take_alias
 
 log = logging.getLogger(__name__)
@@ -27,15 +28,16 @@ def register(group: click.Group) -> None:
               help="Maximum-surface GeoTIFF: also align the canopy top.")
 @click.option("--beam", "beams", multiple=True, help="Beam/track to use (repeatable; "
               "default all).")
-@click.option("--crs", help="Metric CRS for photons (default UTM), or the CRS of a CSV table.")
+@option("--crs", help="Metric CRS the photons are projected into (default: the UTM zone "
+        "of the track).")
+@option("--table-crs", help="CRS of the x/y of a CSV block table (CSV carries none).")
 @vertical_options
 @click.option("--photon-vcrs", default="EPSG:4979", show_default=True,
               help="Vertical datum of the heights (ATL03/MABEL/GEDI: WGS84 ellipsoid).")
 @click.option("--reference-vcrs", help="Vertical/compound CRS of the rasters (default: the "
               "DTM's CRS).")
 @min_signal_conf_option
-@click.option("--search-range", "search_range", type=float, default=15.0, show_default=True,
-              help="Search +- this many metres along and across the track.")
+@option("--search-range")
 @deprecated_option("--range", "old_range", type=float)
 @click.option("--step", type=float, default=1.0, show_default=True,
               help="Coarse grid step, m (then refined by 0.25 m).")
@@ -43,10 +45,10 @@ def register(group: click.Group) -> None:
               show_default=True, help="Also match the canopy top to --dsm-max.")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="offsets.json (one entry per track and 'all').")
-@click.option("--plot", type=click.Path(dir_okay=False), help="Cost-surface PNG.")
+@option("--plot", help="Write the cost-surface plot (PNG).")
 @click.pass_context
 def coregister(ctx: click.Context, source: str, dtm: str, dsm_max: str | None,
-               beams: tuple[str, ...], crs: str | None, geoid: str | None,
+               beams: tuple[str, ...], crs: str | None, table_crs: str | None, geoid: str | None,
                offset: float | None, photon_vcrs: str, reference_vcrs: str | None,
                min_signal_conf: int | None, search_range: float, old_range: float | None,
                step: float, use_top: str,
@@ -61,8 +63,8 @@ def coregister(ctx: click.Context, source: str, dtm: str, dsm_max: str | None,
     that cover too little of the track are refused.
     """
     from ..atomic import check_writable
-    from ..validation.coregistration import CoregParams
     from ..workflows.coregister import coregister_file, offset_to_apply, write_offsets
+    from ..workflows.params import CoregParams
     from .progress_bars import progress_bar
 
     search_range = take_alias(search_range, old_range, old="--range", new="--search-range",
@@ -75,12 +77,12 @@ def coregister(ctx: click.Context, source: str, dtm: str, dsm_max: str | None,
     params = CoregParams(search_range=search_range, step=step, use_top=use_top)  # type: ignore[arg-type]
     quiet = bool(ctx.obj.get("quiet")) if ctx.obj else False
     with progress_bar("coregister", quiet=quiet) as prog:
-        result = coregister_file(source, dtm, dsm_max, beams=beams, crs=crs, geoid=geoid,
+        result = coregister_file(source, dtm, dsm_max, beams=beams, crs=crs, table_crs=table_crs, geoid=geoid,
                                  offset=offset, photon_vertical_crs=photon_vcrs,
                                  reference_vertical_crs=reference_vcrs,
                                  min_signal_conf=min_signal_conf, params=params, progress=prog)
     if plot is not None:
-        from ..outputs.coregistration_plot import write_cost_surfaces
+        from ..workflows.coregister import write_cost_surfaces
 
         write_cost_surfaces(result, plot)
     write_offsets(result, output)

@@ -59,7 +59,7 @@ def validate_footprints_cmd(ctx: click.Context, footprints: str, points: tuple[s
     (ground, RH98, RH50, cover); statistics per beam, aspect, slope and cover class.
     """
     say_deprecated("the command validate-footprints", "validate FOOTPRINTS --points TILE")
-    from ..reference.footprint_params import FootprintReferenceParams
+    from ..workflows.params import FootprintReferenceParams
     from ..workflows.validate import validate_footprints_file
     from .progress_bars import progress_bar
 

@@ -7,6 +7,7 @@ from pathlib import Path
 import click
 
 from .common import channel_option, parse_channel, parse_floats
+from .options import option
 from .progress_bars import progress_bar
 from .vocabulary import deprecated_option, take_alias
 
@@ -18,15 +19,16 @@ from .vocabulary import deprecated_option, take_alias
 @click.option("--beam", "beams", multiple=True,
               help="ATL03 beam (gt1l..gt3r); repeat for several. Default: every beam with photons.")
 @channel_option
-@click.option("--length", type=click.FloatRange(min=0.0, min_open=True), default=100.0,
-              show_default=True, help="Segment length along the track, m (ATL08: 100).")
+@option("--length", "length", multiple=False, default=100.0,
+        type=click.FloatRange(min=0.0, min_open=True),
+        help="Segment length along the track, m (ATL08: 100).")
 @click.option("--s0", type=float, default=None,
               help="Segment origin along the track, m (default: the track start).")
 @click.option("--bbox", default=None, help="lon_min,lat_min,lon_max,lat_max (degrees) subset.")
-@click.option("--crs", default=None, help="Metric CRS for x/y (default: UTM zone of the track).")
-@click.option("--photon-layer", "with_photons", is_flag=True,
-              help="Also write layer 'photons' with each photon's class (classed_pc_flag: "
-                   "0 noise, 1 ground, 2 canopy, 3 top of canopy; GeoPackage output).")
+@option("--crs")
+@option("--photon-layer", help="Also write layer 'photons' with each photon's class "
+        "(classed_pc_flag: 0 noise, 1 ground, 2 canopy, 3 top of canopy; GeoPackage "
+        "output).")
 @deprecated_option("--photons", "old_photons", is_flag=True)
 @click.pass_context
 def segments_cmd(ctx: click.Context, path: str, output: str, beams: tuple[str, ...],

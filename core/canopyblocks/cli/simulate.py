@@ -4,17 +4,14 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
-from typing import TYPE_CHECKING, cast
 
 import click
 
+from ..options import PHOTON_RATES
 from .common import parse_floats as _floats
+from .options import option
 from .progress_bars import progress_bar
 from .vocabulary import deprecated_option, take_alias
-
-if TYPE_CHECKING:
-    from ..simulate import SimTrack
-    from ..simulate.params import Beam, Ecosystem, Instrument
 
 log = logging.getLogger(__name__)
 
@@ -51,14 +48,9 @@ WAVEFORM_FOOTPRINT = {"gedi": "GEDI footprint (22 m Gaussian, sigma 5.5 m)",
               show_default=True, help="Sets footprint, shot spacing and pulse rate defaults.")
 @click.option("--shot-spacing", type=float, default=None,
               help="Metres between footprint centres (ICESat-2 0.7, MABEL 0.04, GEDI 60).")
-@click.option("--photon-rate", "preset", type=click.Choice(["boreal", "temperate", "tropical"]),
-              default="temperate", show_default=True,
-              help="Poisson mean photons per strong-beam shot: 1.0 / 1.9 / 0.6.")
-@deprecated_option("--preset", "old_preset", type=click.Choice(["boreal", "temperate",
-                                                                 "tropical"]))
-@click.option("--beam-strength", "beam", type=click.Choice(["strong", "weak"]),
-              default="strong", show_default=True,
-              help="The weak beam gets a quarter of the photons.")
+@option("--photon-rate")
+@deprecated_option("--preset", "old_preset", type=click.Choice(list(PHOTON_RATES)))
+@option("--beam-strength", "beam")
 @deprecated_option("--beam", "old_beam", type=click.Choice(["strong", "weak"]))
 @click.option("--mean-photons", type=float, default=None,
               help="Poisson mean photons per shot (overrides --photon-rate/--beam-strength).")
@@ -84,14 +76,15 @@ WAVEFORM_FOOTPRINT = {"gedi": "GEDI footprint (22 m Gaussian, sigma 5.5 m)",
 @click.option("--realisations", type=click.IntRange(min=1), default=100, show_default=True,
               help="Photon draws per diameter for the statistics (the file holds the first).")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Random seed.")
-@click.option("--crs", default=None, help="CRS of LAS files that state none (e.g. 3005).")
+@option("--points-crs", "crs")
+@deprecated_option("--crs", "old_crs")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Photons: .h5 (ATL03 layout, or MABEL with --format mabel), or a "
                    ".parquet/.gpkg/.csv table with truth columns.")
 @click.option("--format", "fmt", type=click.Choice(["atl03", "mabel"]), default=None,
               help="HDF5 layout (default: atl03 for icesat2, mabel for mabel).")
-@click.option("--photons", "photon_table", type=click.Path(dir_okay=False), default=None,
-              help="Also write every realisation's photons with truth (.parquet/.gpkg/.csv).")
+@option("--photon-table")
+@deprecated_option("--photons", "old_photon_table", type=click.Path(dir_okay=False))
 @click.option("--report", type=click.Path(file_okay=False), default=None,
               help="Folder for the table of errors against truth (CSV), residuals by cover (CSV), the "
                    "cover plot (PNG) and the per-footprint truth (CSV).")
@@ -99,24 +92,27 @@ WAVEFORM_FOOTPRINT = {"gedi": "GEDI footprint (22 m Gaussian, sigma 5.5 m)",
 def simulate_cmd(ctx: click.Context, las: tuple[str, ...], sensor: str, azimuth: float | None,
                  line: str | None, polyline: str | None, centre: str | None,
                  diameters: tuple[float, ...],
-                 instrument: Instrument, shot_spacing: float | None, preset: Ecosystem,
-                 old_preset: Ecosystem | None, beam: Beam, old_beam: Beam | None,
+                 instrument: str, shot_spacing: float | None, photon_rate: str,
+                 old_preset: str | None, beam: str, old_beam: str | None,
                  mean_photons: float | None, background_rate: float, night: bool, day: bool,
                  telemetry_window: float, noise_rate: float | None, geolocation_sigma: float,
-                 dual_noise: float | None, esfl_noise: float | None, realisations: int, seed: int, crs: str | None, output: str, fmt: str | None,
-                 photon_table: str | None, report: str | None) -> None:
+                 dual_noise: float | None, esfl_noise: float | None, realisations: int, seed: int, crs: str | None, old_crs: str | None, output: str,
+                 fmt: str | None, photon_table: str | None, old_photon_table: str | None,
+                 report: str | None) -> None:
     """Simulate lidar along a track over airborne LAS/LAZ tiles: ICESat-2/MABEL photons
     (default), GEDI waveforms, flash-array cubes or dual-wavelength pairs.
 
     Heights keep the LAS files' CRS (converted to WGS84 lat/lon in HDF5 files) and
     vertical datum; the truth (footprint ground, top, RH, cover) travels with them.
     """
-    from ..readers.las import las_bounds, read_las
-    from ..simulate import SimParams, SimTrack, line_through, seed002_experiment
-    from ..simulate.writers import check_simulation_outputs, write_simulation_outputs
+    from ..workflows.params import SimParams
+    from ..workflows.simulate import simulate_photons_over_tiles
 
-    preset = take_alias(preset, old_preset, old="--preset", new="--photon-rate",
-                        default="temperate")
+    crs = take_alias(crs, old_crs, old="--crs", new="--points-crs")
+    photon_table = take_alias(photon_table, old_photon_table, old="--photons",
+                              new="--photon-table")
+    photon_rate = take_alias(photon_rate, old_preset, old="--preset", new="--photon-rate",
+                             default="temperate")
     beam = take_alias(beam, old_beam, old="--beam", new="--beam-strength", default="strong")
     if sum(v is not None for v in (azimuth, line, polyline)) != 1:
         raise click.UsageError(
@@ -139,48 +135,25 @@ def simulate_cmd(ctx: click.Context, las: tuple[str, ...], sensor: str, azimuth:
     light = "night" if night else "day" if day else None
     background_rate = _background_rate(background_rate, light, noise_rate, quiet=bool(
         ctx.obj and ctx.obj.get("quiet")))
-    params = SimParams(instrument=instrument,
+    params = SimParams(instrument=instrument,  # type: ignore[arg-type]
                        diameter=diameters[0] if diameters else None,
-                       shot_spacing=shot_spacing, preset=preset,
-                       beam=beam, mean_photons=mean_photons,
+                       shot_spacing=shot_spacing,
+                       photon_rate=photon_rate,  # type: ignore[arg-type]
+                       beam=beam, mean_photons=mean_photons,  # type: ignore[arg-type]
                        background_rate_mhz=background_rate if noise_rate is None else 0.0,
                        noise_rate=noise_rate, telemetry_window=telemetry_window,
                        geolocation_sigma=geolocation_sigma)
-    # SimParams.__post_init__ fills diameter from the instrument when it is None.
-    diams = tuple(diameters) or (float(cast(float, params.diameter)),)
     out = Path(output)
-    # every output checked before the work; written all or none after it
-    check_simulation_outputs(out, photon_table=photon_table, report=report)
     quiet = bool(ctx.obj and ctx.obj.get("quiet"))
     with progress_bar("simulate", quiet=quiet) as progress:
-        if line is not None:
-            x0, y0, x1, y1 = _parse(line, 4, "x0,y0,x1,y1")
-            track = SimTrack.line(x0, y0, x1, y1)
-        elif polyline is not None:
-            track = _polyline(polyline)
-        elif azimuth is not None:
-            c = None if centre is None else _pair(centre, "x,y")
-            track = line_through(las_bounds(list(las)), float(azimuth),
-                                 inset=max(diams) / 2.0, centre=c)
-        else:  # excluded by the check above
-            raise click.UsageError("give one of --azimuth, --line or --polyline")
-        # read only the corridor the footprints can reach
-        reach = max(diams) / 2.0 + 1.0
-        vx, vy = zip(*track.vertices)
-        bbox = (min(vx) - reach, min(vy) - reach, max(vx) + reach, max(vy) + reach)
-        pts = read_las(list(las), crs=crs, bbox=bbox, progress=progress.sub(0.0, 0.2))
-        from ..readers.cloud_checks import refuse_all_noise
-
-        refuse_all_noise(pts.classification, ", ".join(las), params.exclude_classes)
-        result = seed002_experiment(pts, track, params, diameters=diams,
-                                    realisations=realisations, seed=seed,
-                                    progress=progress.sub(0.2, 0.9))
-        sim = result.simulations[float(diams[0])]
-        layout = fmt or ("mabel" if instrument == "mabel" else "atl03")
-        write_simulation_outputs(result, out, layout=layout, diameter=float(diams[0]),
-                                 photon_table=photon_table, report=report,
-                                 progress=progress.sub(0.9, 1.0))
-        progress.report(1.0, "done")
+        result, _ = simulate_photons_over_tiles(
+            las, out, params, vertices=_vertices(line, polyline), azimuth=azimuth,
+            centre=None if centre is None else _pair(centre, "x,y"), diameters=diameters,
+            realisations=realisations, seed=seed, crs=crs,
+            layout=fmt or ("mabel" if instrument == "mabel" else "atl03"),
+            photon_table=photon_table, report=report, progress=progress)
+    first = diameters[0] if diameters else params.diameter  # filled from the instrument
+    sim = result.simulations[float(first or 0.0)]
     if quiet:
         return
     t = result.table
@@ -204,9 +177,8 @@ def _waveform_sensor(ctx: click.Context, las: tuple[str, ...], sensor: str,
                      dual_noise: float | None = None,
                      esfl_noise: float | None = None) -> None:
     """``--sensor gedi|esfl|dual``: one core call writing the HDF5 (and the report)."""
-    from ..simulate import SimTrack
-    from ..simulate.gedi_waveforms import GediSimParams
-    from ..simulate.sensor_files import simulate_sensor_over_tiles
+    from ..workflows.params import DualAlsParams, FlashSimParams, GediSimParams
+    from ..workflows.simulate import simulate_sensor_over_tiles
 
     params: object = None
     if shot_spacing is not None:   # the footprint spacing of GEDI; the others have theirs
@@ -218,27 +190,18 @@ def _waveform_sensor(ctx: click.Context, las: tuple[str, ...], sensor: str,
         if sensor != "dual":
             raise click.BadParameter(f"applies to --sensor dual only, not {sensor}",
                                      param_hint="--dual-noise")
-        from ..simulate.sensor_files import DualAlsParams
-
         params = DualAlsParams(noise=dual_noise)
     if esfl_noise is not None:
         if sensor != "esfl":
             raise click.BadParameter(f"applies to --sensor esfl only, not {sensor}",
                                      param_hint="--esfl-noise")
-        from ..simulate.flash_cubes import FlashSimParams
-
         params = FlashSimParams(noise_sd=esfl_noise)
 
-    track = None
-    if line is not None:
-        x0, y0, x1, y1 = _parse(line, 4, "x0,y0,x1,y1")
-        track = SimTrack.line(x0, y0, x1, y1)
-    elif polyline is not None:
-        track = _polyline(polyline)
     quiet = bool(ctx.obj and ctx.obj.get("quiet"))
     with progress_bar("simulate", quiet=quiet) as progress:
         track, summary = simulate_sensor_over_tiles(
-            list(las), sensor, output, track=track, azimuth=float(azimuth or 0.0),
+            list(las), sensor, output, vertices=_vertices(line, polyline),
+            azimuth=float(azimuth or 0.0),
             centre=None if centre is None else _pair(centre, "x,y"), seed=seed, crs=crs,
             report_dir=report, params=params, progress=progress)
     if quiet:
@@ -256,7 +219,7 @@ def _background_rate(rate: float, light: str | None, noise_rate: float | None, *
                      quiet: bool) -> float:
     """The background rate (MHz) from ``--background-rate``, ``--night``/``--day`` or the
     deprecated ``--noise-rate`` (given to SimParams as is, which converts and checks it)."""
-    from ..simulate.params import BACKGROUND_PRESETS_MHZ
+    from ..workflows.params import BACKGROUND_PRESETS_MHZ
 
     given = [name for name, on in (("--background-rate", rate != 0.0),
                                    (f"--{light}", light is not None),
@@ -285,15 +248,18 @@ def _pair(value: str, what: str) -> tuple[float, float]:
     return x, y
 
 
-def _polyline(value: str) -> SimTrack:
-    from ..simulate import SimTrack
-
-    verts: list[tuple[float, float]] = []
-    for part in value.split(";"):
-        verts.append(_pair(part, "'x0,y0;x1,y1;...'"))
+def _vertices(line: str | None, polyline: str | None) -> list[tuple[float, float]] | None:
+    """The track's vertices (metres) from ``--line x0,y0,x1,y1`` or ``--polyline
+    'x0,y0;x1,y1;...'``; None when neither is given (then ``--azimuth``)."""
+    if line is not None:
+        x0, y0, x1, y1 = _parse(line, 4, "x0,y0,x1,y1")
+        return [(x0, y0), (x1, y1)]
+    if polyline is None:
+        return None
+    verts = [_pair(part, "'x0,y0;x1,y1;...'") for part in polyline.split(";")]
     if len(verts) < 2:
-        raise click.BadParameter(f"a polyline needs at least two vertices; got {value!r}")
-    return SimTrack(tuple(verts))
+        raise click.BadParameter(f"a polyline needs at least two vertices; got {polyline!r}")
+    return verts
 
 
 def register(group: click.Group) -> None:

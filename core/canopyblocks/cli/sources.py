@@ -14,7 +14,7 @@ class GranuleSource(click.Path):
 
     def convert(self, value: Any, param: click.Parameter | None,
                 ctx: click.Context | None) -> Any:
-        from ..readers.remote import is_url
+        from ..workflows.inputs import is_url
 
         if is_url(value):
             return str(value).strip()

@@ -7,8 +7,10 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from .common import WIDTH_HELP, vertical_options
-from .vocabulary import deprecated_option, deprecated_value, take_alias
+from ..options import OPTIONS
+from .common import vertical_options
+from .options import option
+from .vocabulary import ChoiceWithOld, deprecated_option, deprecated_value, take_alias
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -27,13 +29,11 @@ def register(group: click.Group) -> None:
 @click.option("--dsm-max", type=click.Path(dir_okay=False), help="Maximum-surface GeoTIFF.")
 @click.option("--dsm-p90", type=click.Path(dir_okay=False),
               help="90th-percentile surface GeoTIFF.")
-@click.option("--atl08", type=click.Path(dir_okay=False),
-              help="Validate against ATL08 land segments instead of rasters.")
-@click.option("--reference", "reference",
-              type=click.Choice(["corridor", "atl08", "footprint", "rasters"]),
-              metavar="[corridor|atl08|footprint]", default=None, help="Reference for blocks: corridor rasters (default), ATL08, "
-              "or the footprint-matched airborne points (--points). Footprint tables (GEDI) "
-              "always use the footprint reference.")
+@option("--atl08")
+@option("--reference", type=ChoiceWithOld(OPTIONS["--reference"].choices, ("rasters",)),
+        help="Reference for blocks: corridor rasters (default), ATL08 (default with "
+        "--atl08), or the footprint-matched airborne points (--points; default with "
+        "--points and no --dtm). Footprint tables (GEDI) always use the footprint reference.")
 @click.option("--points", "points", multiple=True, type=click.Path(dir_okay=False),
               help="Airborne LAS/LAZ tile for the footprint reference (repeatable).")
 @click.option("--diameter", type=float, default=None,
@@ -53,10 +53,10 @@ def register(group: click.Group) -> None:
               "ground points, RH = weighted percentiles of all returns). --cut and "
               "--weighting shape the points definition; the waveform's beam has sigma = "
               "--diameter / 4 and reaches 3 sigma.")
-@click.option("--points-crs", help="CRS of tiles that state none.")
+@option("--points-crs")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Output .gpkg (layers residuals, stats), or .csv/.parquet.")
-@click.option("--width", type=float, default=None, help=WIDTH_HELP)
+@option("--width")
 @vertical_options
 @click.option("--reference-vcrs", help="Vertical/compound CRS of the rasters, e.g. "
               "EPSG:32612+5703 (default: the DTM's CRS).")
@@ -64,7 +64,9 @@ def register(group: click.Group) -> None:
               help="Vertical datum of the block heights (ATL03/MABEL/GEDI: WGS84 ellipsoid).")
 @click.option("--slope-threshold", type=float, default=2.0, show_default=True,
               help="Degrees below which a block's aspect class is 'flat'.")
-@click.option("--crs", "blocks_crs", help="CRS of a CSV block table (CSV carries none).")
+@option("--table-crs", "blocks_crs",
+        help="CRS of the x/y of a CSV block table (CSV carries none).")
+@deprecated_option("--crs", "old_crs")
 @click.option("--coregister", is_flag=True,
               help="First find the track's geolocation offset against --dtm (and --dsm-max) "
                    "and validate the shifted table; offsets -> <output>_offsets.json, "
@@ -79,8 +81,7 @@ def register(group: click.Group) -> None:
               help="With --coregister: find the offset from these photons (the file the "
                    "blocks were made from) instead of the blocks; the same offsets as "
                    "'coregister PHOTONS' with the blocks' CRS.")
-@click.option("--plots", type=click.Path(file_okay=False),
-              help="Folder for scatter and aspect PNGs.")
+@option("--plots", help="Folder for the scatter and aspect PNGs.")
 @click.pass_context
 def validate(ctx: click.Context, blocks_path: str, dtm: str | None, dsm_max: str | None,
              dsm_p90: str | None, atl08: str | None, reference: str | None,
@@ -88,7 +89,7 @@ def validate(ctx: click.Context, blocks_path: str, dtm: str | None, dsm_max: str
              weighting: str | None, footprint_definition: str | None,
              points_crs: str | None, output: str, width: float | None, geoid: str | None, offset: float | None,
              reference_vcrs: str | None, photon_vcrs: str, slope_threshold: float,
-             blocks_crs: str | None, coregister: bool, coregister_vertical: bool,
+             blocks_crs: str | None, old_crs: str | None, coregister: bool, coregister_vertical: bool,
              search_range: float, old_range: float | None, coregister_photons: str | None,
              plots: str | None) -> None:
     """Validate a block table (or GEDI footprints) against reference lidar.
@@ -98,17 +99,14 @@ def validate(ctx: click.Context, blocks_path: str, dtm: str | None, dsm_max: str
     Writes per-block residuals and statistics per block length, metric, aspect and slope
     class (footprints: per beam, aspect, slope and cover class).
     """
-    from ..reference.footprint_params import FootprintReferenceParams
-    from ..validation.coregistration import CoregParams
+    from ..workflows.params import CoregParams, FootprintReferenceParams
     from ..workflows.validate import is_footprint_table, validate_file
     from .progress_bars import progress_bar
 
     search_range = take_alias(search_range, old_range, old="--coregister-range",
                               new="--search-range", default=15.0)
     reference = deprecated_value(reference, option="--reference", old="rasters", new="corridor")
-    if reference is None:
-        reference = "atl08" if atl08 is not None else ("footprint" if points and dtm is None
-                                                      else "corridor")
+    blocks_crs = take_alias(blocks_crs, old_crs, old="--crs", new="--table-crs")
     footprints = is_footprint_table(blocks_path)
     given: dict[str, Any] = {k: v for k, v in (("diameter", diameter), ("cut", cut),
                                                ("weighting", weighting),

@@ -13,7 +13,7 @@ from typing import Any, TypeVar
 
 import click
 
-__all__ = ["DEPRECATED_OPTIONS", "DEPRECATED_VALUES", "DEPRECATED_COMMANDS", "deprecated_option", "take_alias",
+__all__ = ["DEPRECATED_OPTIONS", "DEPRECATED_VALUES", "DEPRECATED_COMMANDS", "deprecated_option", "take_alias", "ChoiceWithOld",
            "deprecated_value", "say_deprecated"]
 
 F = TypeVar("F", bound=Callable[..., Any])
@@ -23,6 +23,13 @@ DEPRECATED_OPTIONS: dict[tuple[str, str], str] = {
     ("simulate", "--preset"): "--photon-rate",
     ("simulate", "--beam"): "--beam-strength",
     ("simulate", "--noise-rate"): "--background-rate",
+    ("simulate", "--photons"): "--photon-table",
+    ("simulate", "--crs"): "--points-crs",
+    ("validate", "--crs"): "--table-crs",
+    ("blocks", "--k"): "--k-sigma",
+    ("blocks", "--atl08"): "--atl08-classes",
+    ("blocks", "--profile"): "--plot",
+    ("waveforms", "--noise-threshold"): "--k-sigma",
     ("run", "--estimators"): "--preset",
     ("blocks", "--photons"): "--photon-layer",
     ("segments", "--photons"): "--photon-layer",
@@ -80,3 +87,17 @@ def deprecated_value(value: Any, *, option: str, old: str, new: str) -> Any:
         _say(f"{option} {old} is deprecated and will be removed; use {option} {new}")
         return new
     return value
+
+
+class ChoiceWithOld(click.Choice):
+    """A choice that also takes deprecated values (``old``), not shown in ``--help``;
+    the command maps them with :func:`deprecated_value`."""
+
+    def __init__(self, choices: Any, old: Any = ()) -> None:
+        super().__init__(list(choices))
+        self.old = tuple(old)
+
+    def convert(self, value: Any, param: Any, ctx: Any) -> Any:
+        if value in self.old:
+            return value
+        return super().convert(value, param, ctx)

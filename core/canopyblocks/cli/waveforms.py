@@ -8,7 +8,9 @@ import logging
 import click
 
 from .common import parse_floats
+from .options import option
 from .progress_bars import progress_bar
+from .vocabulary import deprecated_option, take_alias
 
 log = logging.getLogger(__name__)
 
@@ -32,7 +34,7 @@ def register(group: click.Group) -> None:
                    "(15-25x slower).")
 @click.option("--all-rh", is_flag=True, help="Write rh0 .. rh100 (every percent).")
 @click.option("--bbox", default=None, help="lon_min,lat_min,lon_max,lat_max (degrees) subset.")
-@click.option("--crs", default=None, help="Metric CRS of the layer (default: UTM zone).")
+@option("--crs", help="Metric CRS of the output x/y (default: the UTM zone of the shots).")
 @click.option("--quality", is_flag=True,
               help="Drop stale and degraded shots (default: keep them, flagged).")
 @click.option("--l2a", type=click.Path(dir_okay=False), default=None,
@@ -40,8 +42,7 @@ def register(group: click.Group) -> None:
                    "(layer l2a_comparison).")
 @click.option("--l2b", type=click.Path(dir_okay=False), default=None,
               help="GEDI L2B of the same shots: add its cover.")
-@click.option("--plots", type=click.Path(file_okay=False), default=None,
-              help="Folder for waveform plots (PNG) and waveforms.html.")
+@option("--plots", help="Folder for the waveform plots (PNG) and waveforms.html.")
 @click.option("--shot", "shots", multiple=True, type=int,
               help="Shot number to plot (repeatable; default a few ok shots per beam).")
 @click.option("--workers", type=click.IntRange(1, 512), default=None,
@@ -58,10 +59,11 @@ def register(group: click.Group) -> None:
               help="Flash lidar (ESFL): the Gaussian fitted to each waveform's value "
                    "histogram: ml (maximum likelihood below the mode, default) or lsq "
                    "(least squares to the counts around the mode).")
-@click.option("--noise-threshold", type=click.FloatRange(min=0.0, min_open=True),
-              default=None,
-              help="Flash lidar and dual wavelength: signal threshold in noise standard "
-                   "deviations above the noise mean (the papers' 4).")
+@option("--k-sigma", "noise_threshold", type=click.FloatRange(min=0.0, min_open=True),
+        help="Flash lidar and dual wavelength: signal threshold k, in noise standard "
+             "deviations above the noise mean (the papers' 4).")
+@deprecated_option("--noise-threshold", "old_noise_threshold",
+                   type=click.FloatRange(min=0.0, min_open=True))
 @click.option("--dual-method", type=click.Choice(["paper", "refined"]), default=None,
               help="Dual wavelength: the paper's steps (default) or refined (the search "
                    "confined to the lowest return, the gap rule, weak edges ignored).")
@@ -71,13 +73,17 @@ def waveforms_cmd(ctx: click.Context, path: str, output: str, beams: tuple[str, 
                   crs: str | None, quality: bool, l2a: str | None, l2b: str | None,
                   plots: str | None, shots: tuple[int, ...], workers: int | None,
                   fraction: float | None, cell: float | None, noise_fit: str | None,
-                  noise_threshold: float | None, dual_method: str | None) -> None:
+                  noise_threshold: float | None, old_noise_threshold: float | None,
+                  dual_method: str | None) -> None:
     """Footprints from waveforms: ground, canopy top, RH metrics and cover per GEDI
     footprint from L1B (GEDI L2A's algorithm, setting groups a1-a6); terrain and canopy
     height per 5 m cell from flash-lidar (ESFL) cubes (the flash-lidar paper's chain);
     ground and tree height per footprint from dual-wavelength pairs (the
     dual-wavelength paper's ground finder). The product is told from the file."""
-    from ..waveforms.settings import WaveformParams
+    from ..workflows.params import WaveformParams
+
+    noise_threshold = take_alias(noise_threshold, old_noise_threshold,
+                                 old="--noise-threshold", new="--k-sigma")
     from ..workflows.waveforms import footprints_to_file
     from ..workflows.waveforms_flash_dual import SensorOptions
 

@@ -254,6 +254,10 @@ def _gpkg_layers(p: Path) -> list[str]:
 def read_layer(path: str | os.PathLike[str], layer: str | None = None) -> pd.DataFrame:
     """Read a layer/table written by :func:`write_table` (GeoPackage, GeoParquet, CSV).
 
+    A block, segment, footprint or residuals table written by an older version is upgraded
+    to today's form here, once (:func:`~canopyblocks.blocks.uncertainty.upgrade_table`:
+    missing error bars NaN, missing ``use`` from the flags, ``use`` a bool).
+
     Raises
     ------
     FileFormatError
@@ -264,6 +268,12 @@ def read_layer(path: str | os.PathLike[str], layer: str | None = None) -> pd.Dat
     p = Path(path)
     if not p.exists():
         raise FileFormatError(f"{p}: no such file")
+    from ..blocks.uncertainty import upgrade_table
+
+    return upgrade_table(_read_layer(p, layer))
+
+
+def _read_layer(p: Path, layer: str | None) -> pd.DataFrame:
     suf = _suffix(p, "read")
     try:
         if suf == ".gpkg":

@@ -57,11 +57,13 @@ def elevation_datum(source: str | os.PathLike[str]) -> str:
     WGS84 ellipsoid (GEDI), or the datum a simulated file states in its
     ``vertical_datum`` attribute (the airborne tiles' own, e.g. 'CGVD28 height')."""
     try:
-        import h5py
         import pyproj
 
-        with h5py.File(source, "r") as f:
-            stated = f.attrs.get("vertical_datum") if "simulated" in f.attrs else None
+        from ..readers._h5 import open_h5
+
+        with open_h5(source) as f:  # the one place h5py is touched
+            attrs = f.attrs("/")
+        stated = attrs.get("vertical_datum") if "simulated" in attrs else None
         if stated is None:
             return "WGS84 ellipsoid"
         crs = pyproj.CRS.from_user_input(stated.decode() if isinstance(stated, bytes)

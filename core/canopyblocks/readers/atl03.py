@@ -53,7 +53,6 @@ log = logging.getLogger(__name__)
 EXTRA_GROUP = "canopyblocks_truth"
 """Per-beam group holding extra per-photon columns (the simulator's truth)."""
 
-SIGNAL_CONF_COLUMNS = ("land", "ocean", "sea_ice", "land_ice", "inland_water")
 PHOTON_DATASETS = ("h_ph", "lat_ph", "lon_ph", "dist_ph_along", "delta_time")
 """Per-photon datasets of ``gtXX/heights`` every read needs."""
 _SEG_MARGIN_M = 25.0  # photons lie up to ~1 m outside their 20 m segment; keep one more

@@ -301,8 +301,8 @@ def read_las(
                 if given is None:
                     raise CRSError(
                         f"{path}: the file states no CRS (no WKT or GeoTIFF keys); give the "
-                        "CRS of its coordinates (--crs in rasters and simulate, --points-crs "
-                        "in validate, crs='EPSG:...' in Python), or write it into the file "
+                        "CRS of its coordinates (--crs in rasters, --points-crs in simulate and "
+                        "validate, crs='EPSG:...' in Python), or write it into the file "
                         "(e.g. pdal translate with writers.las.a_srs) for `run` and `batch`")
                 file_crs = given
             elif given is not None and not file_crs.equals(given, ignore_axis_order=True):

@@ -40,8 +40,7 @@ GEOKEY_PROJECTED = 3072
 GEOKEY_LINEAR_UNITS = 3076
 GEOKEY_VERTICAL = 4096
 GEOKEY_VERTICAL_UNITS = 4099
-_USER_DEFINED = 32767
-_METRE = ("metre", 1.0)
+_USER_DEFINED = 32767  # a GeoTIFF key's "user defined": the CRS is stated another way
 
 
 @dataclass(frozen=True)

@@ -13,7 +13,7 @@ Typical use::
 
     pts = read_las("tile.laz")
     track = line_through(pts.bounds, azimuth=0.0, inset=6.5)
-    sim = simulate_photons(pts, track, SimParams(diameter=13, preset="boreal"), seed=1)
+    sim = simulate_photons(pts, track, SimParams(diameter=13, photon_rate="boreal"), seed=1)
     photons = sim.photon_track()          # PhotonTrack for the block engine
 """
 

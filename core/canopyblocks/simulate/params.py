@@ -111,13 +111,15 @@ class SimParams:
         Distance between footprint centres along the track, metres (0.7 for ICESat-2).
     pulse_rate : float or None
         Shots per second; photon ``time`` = shot index / pulse_rate (seconds).
-    preset : "boreal", "temperate" or "tropical"
-        Poisson mean of signal photons per strong-beam shot (seed 002 table 1: 1.0,
-        1.9, 0.6); ignored when ``mean_photons`` is given.
+    photon_rate : "boreal", "temperate" or "tropical"
+        The ecosystem photon rate: Poisson mean of signal photons per strong-beam shot
+        (1.0, 1.9, 0.6); ignored when ``mean_photons`` is given.
+    preset : str or None
+        Deprecated spelling of ``photon_rate`` (warns; then set to None).
     beam : "strong" or "weak"
         The weak beam gets a quarter of the strong beam's mean.
     mean_photons : float or None
-        User Poisson mean per shot (for the chosen beam), overriding preset/beam.
+        User Poisson mean per shot (for the chosen beam), overriding photon_rate/beam.
     psf : float
         Instrument point-spread (Gaussian sigma), metres (ATLAS: 0.25).
     background_rate_mhz : float
@@ -153,7 +155,7 @@ class SimParams:
     diameter: float | None = None
     shot_spacing: float | None = None
     pulse_rate: float | None = None
-    preset: Ecosystem = "temperate"
+    photon_rate: Ecosystem = "temperate"
     beam: Beam = "strong"
     mean_photons: float | None = None
     psf: float = 0.25
@@ -164,8 +166,14 @@ class SimParams:
     geolocation_sigma: float = 0.0
     exclude_classes: tuple[int, ...] = (7, 18)
     truth: TruthParams = field(default_factory=TruthParams)
+    preset: Ecosystem | None = None
 
     def __post_init__(self) -> None:
+        if self.preset is not None:  # the old name of the photon rate
+            from ..errors import warn_renamed
+            warn_renamed("SimParams(preset=)", "SimParams(photon_rate=)", stacklevel=4)
+            object.__setattr__(self, "photon_rate", self.preset)
+            object.__setattr__(self, "preset", None)
         from ..arguments import check_fields
         check_fields(self)
         if self.instrument not in INSTRUMENTS:
@@ -182,9 +190,9 @@ class SimParams:
         _positive("shot_spacing", float(self.shot_spacing))  # type: ignore[arg-type]
         _positive("pulse_rate", float(self.pulse_rate))  # type: ignore[arg-type]
         _positive("psf", self.psf)
-        if self.preset not in POISSON_MEANS:
-            raise InputError(
-                f"preset must be one of {', '.join(POISSON_MEANS)}; got {self.preset!r}")
+        if self.photon_rate not in POISSON_MEANS:
+            raise InputError(f"photon_rate must be one of {', '.join(POISSON_MEANS)}; got "
+                             f"{self.photon_rate!r}")
         if self.beam not in ("strong", "weak"):
             raise InputError(f"beam must be 'strong' or 'weak'; got {self.beam!r}")
         if self.mean_photons is not None and not (
@@ -252,7 +260,7 @@ class SimParams:
         """Poisson mean of signal photons per shot for this beam."""
         if self.mean_photons is not None:
             return float(self.mean_photons)
-        m = POISSON_MEANS[self.preset]
+        m = POISSON_MEANS[self.photon_rate]
         return m * WEAK_BEAM_RATIO if self.beam == "weak" else m
 
     @property

@@ -7,7 +7,7 @@ study (seed 003's energy-threshold table, or seed 004's ground error against cov
 
 Layouts (HDF5, metres unless stated):
 
-- GEDI: the L1B layout (:mod:`canopyblocks.outputs.gedi_l1b_layout`) with the truth in
+- GEDI: the L1B layout (:mod:`canopyblocks.outputs.h5_gedi_l1b`) with the truth in
   ``BEAMxxxx/canopyblocks_truth/``; report: ``gedi_truth.csv`` and
   ``gedi_round_trip.csv`` (the L2A-style processing of the file against the truth).
 - ESFL: ``cubes`` (footprints, rows, cols, bins) float32, ``top`` (footprints,) the
@@ -243,7 +243,7 @@ def simulate_gedi_to_file(points: LasPoints, track: SimTrack, path: str | os.Pat
                           progress: Progress | None = None) -> dict[str, object]:
     """Simulate GEDI waveforms along ``track``, write them in the L1B layout (and the
     truth and round-trip tables into ``report_dir``)."""
-    from ..outputs.gedi_l1b_layout import write_gedi_l1b
+    from ..outputs.h5_gedi_l1b import write_gedi_l1b
     from .gedi_waveforms import GediSimParams, simulate_gedi
 
     prog = as_progress(progress)

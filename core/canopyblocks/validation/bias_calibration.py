@@ -173,9 +173,10 @@ def fit_bias_calibration(residuals: pd.DataFrame, *, kind: BiasKind = "additive"
     if missing:
         raise InputError(f"the validated blocks lack {', '.join(sorted(missing))}; pass the "
                          "residuals of a validation")
-    df = residuals
-    use = df["use"].to_numpy(bool) if "use" in df.columns else (df.get("flag") == "ok").to_numpy()
-    df = df[use]
+    from ..blocks.uncertainty import upgrade_table
+
+    df = residuals if "use" in residuals.columns else upgrade_table(residuals.copy())
+    df = df[df["use"].to_numpy(bool)]
     labels = (df["estimators"].unique() if "estimators" in df.columns
               else np.array([_PAPER_LABEL]))
     if len(labels) > 1:

@@ -119,8 +119,7 @@ def require_plausible_reference(residuals: pd.DataFrame,
         Median |residual| above :data:`MAX_MEDIAN_RESIDUAL_M` over the usable rows: a
         raster in feet, holding zeros, or on another vertical datum.
     """
-    use = residuals["use"].to_numpy(bool) if "use" in residuals.columns else \
-        np.ones(len(residuals), bool)
+    use = residuals["use"].to_numpy(bool)
     for res_col, (ref_col, what, path) in rasters.items():
         if res_col not in residuals.columns or ref_col not in residuals.columns:
             continue

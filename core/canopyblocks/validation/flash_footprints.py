@@ -290,7 +290,7 @@ def validate_sensor_footprints(
 def sensor_stats(residuals: pd.DataFrame, *, length: float) -> pd.DataFrame:
     """Statistics per metric of :data:`FLASH_METRICS` over the rows in use
     (``schema.STATS_COLUMNS`` plus ``sd``: the residuals' standard deviation, m)."""
-    df = residuals[residuals["use"].to_numpy(bool)] if "use" in residuals else residuals
+    df = residuals[residuals["use"].to_numpy(bool)]
     rows = []
     for m, r in FLASH_METRICS.items():
         est, ref = df[m].to_numpy(float), df[r].to_numpy(float)

@@ -14,6 +14,7 @@ import geopandas as gpd
 import numpy as np
 import pandas as pd
 
+from ..blocks.uncertainty import upgrade_table
 from ..errors import InputError
 from ..schema import BLOCK_COLUMNS, FLAG_OK, REFERENCE_COLUMNS, RESIDUAL_COLUMNS
 
@@ -95,13 +96,15 @@ def compute_residuals(blocks: pd.DataFrame, ref_values: pd.DataFrame,
     out["slope_class"] = slope_cls
     out["ref_flag"] = ref["ref_flag"].fillna("missing").to_numpy(object) if "ref_flag" in ref \
         else "ok"
-    flag = blocks["flag"].to_numpy(object) if "flag" in blocks else np.full(len(out), FLAG_OK)
-    for c in ("hmax_sigma", "ground_sigma"):  # tables written before the sigma model: NaN
-        out[c] = blocks[c].to_numpy(float) if c in blocks else np.nan
-    # the one place headline statistics are chosen: the block's own use (flag ok, sigma
-    # not too wide: blocks.uncertainty) and a usable reference
-    own = blocks["use"].fillna(False).to_numpy(bool) if "use" in blocks else flag == FLAG_OK
-    out["use"] = own & (flag == FLAG_OK) & (out["ref_flag"].to_numpy(object) == "ok")
+    if "flag" not in blocks:  # a hand-made table: every block ok
+        blocks = blocks.assign(flag=FLAG_OK)
+    if not {"use", "hmax_sigma", "ground_sigma"} <= set(blocks.columns):
+        blocks = upgrade_table(blocks.copy())  # a table of an older version, in memory
+    for c in ("hmax_sigma", "ground_sigma"):
+        out[c] = blocks[c].to_numpy(float)
+    # headline statistics take the blocks the block table uses (decided once, by
+    # blocks.uncertainty.mark_use) where the reference is usable
+    out["use"] = blocks["use"].to_numpy(bool) & (out["ref_flag"].to_numpy(object) == "ok")
     order = [c for c in BLOCK_COLUMNS if c in out] + list(RESIDUAL_COLUMNS) + \
         ["slope_class", "ref_flag"]
     out = out[order]

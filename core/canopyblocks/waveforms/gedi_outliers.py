@@ -29,11 +29,9 @@ import numpy as np
 import numpy.typing as npt
 
 from ..errors import InputError
+from ..schema import MAX_CANOPY_HEIGHT_M
 
-__all__ = ["gedi_outliers", "MAX_TREE_HEIGHT"]
-
-MAX_TREE_HEIGHT = 130.0
-"""Canopy heights (m) above this are no tree (the tallest measured, a redwood: 116 m)."""
+__all__ = ["gedi_outliers"]
 _EARTH_M = 6_371_008.8
 
 
@@ -48,7 +46,7 @@ def _along(lon: np.ndarray, lat: np.ndarray) -> np.ndarray:
 def gedi_outliers(ground: npt.ArrayLike, height: npt.ArrayLike, lon: npt.ArrayLike,
                   lat: npt.ArrayLike, *, dem: npt.ArrayLike | None = None,
                   neighbours: int = 5, max_below: float = 10.0,
-                  max_height: float = MAX_TREE_HEIGHT, max_gap: float = 600.0,
+                  max_height: float = MAX_CANOPY_HEIGHT_M, max_gap: float = 600.0,
                   diameter: float = 25.0, dem_limit: float = 100.0
                   ) -> npt.NDArray[np.bool_]:
     """Flag terrain outliers along one GEDI beam.

@@ -35,7 +35,6 @@ from ..errors import CanopyBlocksWarning, DependencyError, InputError
 from ..geo import require_metric_crs, to_metric
 from ..progress import Progress, as_progress
 from ..schema import FOOTPRINT_COLUMNS
-from .arguments import check_waveform_args
 from .batch import WaveformBatch
 from .cover import cover_and_penetration
 from .details import ShotDetails
@@ -47,6 +46,7 @@ from .rh import energy_positions, signal_energy, truncate_cm
 from .scan import Scan, scan_shots
 from .settings import WaveformParams
 from .smoothing import smooth_subsampled
+from .waveform_checks import check_waveform_args
 
 if TYPE_CHECKING:
     import geopandas as gpd

@@ -258,7 +258,7 @@ def blocks_of_track(track: PhotonTrack, params: BlockParams, *, labels: bool = F
     default_estimators`)."""
     from ..blocks.estimators import default_estimators, estimate_blocks
 
-    est = default_estimators(track.track) if estimators is None else estimators
+    est = default_estimators() if estimators is None else estimators
     if labels:
         return estimate_blocks(track, params, est, labels=True, progress=progress)
     return estimate_blocks(track, params, est, progress=progress), None

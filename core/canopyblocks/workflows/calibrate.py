@@ -25,7 +25,8 @@ from ..validation.calibration import CutoffCalibration, calibrate_against_refere
 if TYPE_CHECKING:
     from ..blocks.estimators import Estimators
 
-__all__ = ["calibrate_bias_file"]
+__all__ = ["calibrate_bias_file", "calibrate_reference_rasters", "write_cutoff_calibration",
+           "write_bias_calibration"]
 
 
 def calibrate_bias_file(
@@ -94,7 +95,7 @@ def calibrate_bias_file(
     tracks = read_tracks(photons, beams=beams, channel=channel, crs=crs,
                          min_signal_conf=params.min_signal_conf, progress=prog.sub(0.0, 0.2))
     if estimators is None:
-        estimators = default_estimators(tracks[0].track if tracks else None)
+        estimators = default_estimators()
     if reference == "corridor":
         width = corridor_width(width, [t.track for t in tracks], source=str(photons))
     blocks, _ = run_blocks(tracks, params, estimators=estimators, progress=prog.sub(0.2, 0.5))
@@ -176,3 +177,18 @@ def calibrate_reference_rasters(
     val = validate_blocks(blocks, dtm=dtm, dsm_max=dsm_max, dsm_p90=dsm_p90, width=width,
                           geoid=geoid, offset=offset, progress=prog.sub(0.2, 0.5))
     return calibrate_against_reference(track, val.residuals, params, progress=prog.sub(0.5, 1.0))
+
+
+def write_cutoff_calibration(cal: CutoffCalibration, output: str | os.PathLike[str]) -> None:
+    """Write the fitted cut-offs table (``cal.table``) to ``output`` (.csv, .parquet, or
+    .gpkg layer ``calibration``), atomically."""
+    from ..outputs.tables import write_table
+
+    write_table(cal.table, output, layer="calibration")
+
+
+def write_bias_calibration(cal: BiasCalibration, output: str | os.PathLike[str]) -> None:
+    """Write a bias calibration as JSON (what ``blocks --calibration`` reads), atomically."""
+    from ..validation.bias_calibration import write_bias_calibration as write
+
+    write(cal, output)

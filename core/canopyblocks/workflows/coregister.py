@@ -30,7 +30,7 @@ from ..validation.coregistration_targets import (
     targets_from_table,
 )
 
-__all__ = ["coregister_file", "table_targets", "write_offsets",
+__all__ = ["coregister_file", "table_targets", "write_offsets", "write_cost_surfaces",
            "vertical_shift", "offset_to_apply",
            "read_table_for_coregistration"]
 
@@ -81,6 +81,7 @@ def coregister_file(
     *,
     beams: tuple[str, ...] = (),
     crs: Any = None,
+    table_crs: Any = None,
     geoid: str | os.PathLike[str] | None = None,
     offset: float | None = None,
     photon_vertical_crs: Any = "EPSG:4979",
@@ -103,7 +104,9 @@ def coregister_file(
     beams : tuple of str
         ATL03 beams / table tracks to use (default all).
     crs : CRS-like, optional
-        Metric CRS for photons (default UTM), or the CRS of a CSV table.
+        Metric CRS the photons are projected into (default UTM).
+    table_crs : CRS-like, optional
+        The CRS of a CSV table's x/y (CSV carries none; ``crs`` is taken when not given).
     geoid, offset : optional
         Conversion of ellipsoidal heights to the rasters' datum (DESIGN 2.6).
     photon_vertical_crs, reference_vertical_crs : CRS-like
@@ -128,7 +131,8 @@ def coregister_file(
     prog.update(0.02, "reading")
     table = path if isinstance(path, pd.DataFrame) else read_table_for_coregistration(path)
     if table is not None:
-        targets = table_targets(table, surface.crs, beams=beams, crs=crs, geoid=geoid,
+        targets = table_targets(table, surface.crs, beams=beams,
+                                crs=table_crs if table_crs is not None else crs, geoid=geoid,
                                 offset=offset,
                                 source="table" if isinstance(path, pd.DataFrame) else path)
     else:
@@ -226,3 +230,11 @@ def write_offsets(result: CoregResult, path: str | os.PathLike[str]) -> Path:
     with atomic_output(p) as tmp:
         Path(tmp).write_text(json.dumps(doc, indent=2), encoding="utf-8")
     return p
+
+
+def write_cost_surfaces(result: CoregResult, path: str | os.PathLike[str]) -> Path:
+    """The cost-surface figure of ``result`` (one panel per track and ``all``) as a PNG
+    at ``path``, atomically."""
+    from ..outputs.coregistration_plot import write_cost_surfaces as write
+
+    return write(result, path)

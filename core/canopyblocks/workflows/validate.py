@@ -82,7 +82,7 @@ class FileValidation:
     @property
     def n_used(self) -> int:
         """Blocks or footprints that entered the statistics."""
-        return int(self.residuals["use"].sum()) if "use" in self.residuals else 0
+        return int(self.residuals["use"].sum())
 
 
 def is_footprint_table(path: str | os.PathLike[str]) -> bool:
@@ -147,7 +147,7 @@ def validate_file(
     path: str | os.PathLike[str],
     output: str | os.PathLike[str],
     *,
-    reference: ReferenceKind = "corridor",
+    reference: ReferenceKind | None = None,
     dtm: str | os.PathLike[str] | None = None,
     dsm_max: str | os.PathLike[str] | None = None,
     dsm_p90: str | os.PathLike[str] | None = None,
@@ -180,8 +180,9 @@ def validate_file(
         ``.gpkg`` (layers ``residuals``/``stats``, plus ``stats_uncorrected`` with
         ``coregister``; footprints: ``residuals_footprints``/``stats_footprints``) or
         ``.csv``/``.parquet``.  Must differ from ``path``.
-    reference : {"corridor", "atl08", "footprint"}
-        Blocks only: the corridor maximum of the rasters (``dtm``, ``dsm_max``,
+    reference : {"corridor", "atl08", "footprint"}, optional
+        Blocks only (default: ``atl08`` when an ``atl08`` file is given, ``footprint``
+        when ``points`` are given without a ``dtm``, else ``corridor``): the corridor maximum of the rasters (``dtm``, ``dsm_max``,
         ``dsm_p90``; ``"rasters"``, its former name, is still accepted), ATL08
         land segments (``atl08``), or the footprint-matched ALS reference (``points``).
         Footprint tables are always validated against the footprint reference.
@@ -226,6 +227,9 @@ def validate_file(
                          "not both")
     if reference == "rasters":
         reference = "corridor"
+    if reference is None:  # the one place the reference is chosen from what was given
+        reference = "atl08" if atl08 is not None else (
+            "footprint" if points and dtm is None else "corridor")
     if reference not in REFERENCE_KINDS:
         raise InputError(f"reference must be one of {', '.join(REFERENCE_KINDS)}; "
                          f"got {reference!r}")
@@ -269,10 +273,11 @@ def validate_file(
     if getattr(table, "crs", None) is None and not (footprints and {"lon", "lat"}
                                                      <= set(table.columns)):
         if table_crs is None:
-            raise CRSError(f"{path} carries no CRS (CSV); give its CRS (--crs EPSG:...)")
+            raise CRSError(f"{path} carries no CRS (CSV); give its CRS (--table-crs "
+                           "EPSG:...)")
         from ..geo import as_crs
 
-        table = table.set_crs(as_crs(table_crs, "--crs"))
+        table = table.set_crs(as_crs(table_crs, "--table-crs"))
 
     coreg = None
     applied = ""
@@ -307,7 +312,7 @@ def validate_file(
                                         reference_vertical_crs, photon_vertical_crs,
                                         slope_threshold, points_crs,
                                         prog.sub(0.6 if coregister else 0.0, 0.9), pixels)
-    if "use" in residuals.columns and int(residuals["use"].sum()) == 0:
+    if int(residuals["use"].sum()) == 0:
         raise _no_results(kind, path, residuals)
     prog.update(0.9, "writing")
     offsets_path = None

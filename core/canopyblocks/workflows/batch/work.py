@@ -185,7 +185,7 @@ def _work(unit: Unit, config: BatchConfig, out_dir: Path, raster_root: Path,
     if "time" in residuals.columns and "time_utc" not in residuals.columns:
         residuals.insert(residuals.columns.get_loc("time") + 1, "time_utc",
                          _utc(unit.granule, residuals["time"].to_numpy(float)))
-    summary["n_validated"] = int(residuals["use"].sum()) if "use" in residuals else 0
+    summary["n_validated"] = int(residuals["use"].sum())
     folder = out_dir / "parts" / unit.partition
     folder.mkdir(parents=True, exist_ok=True)
     blocks = blocks.assign(granule=Path(unit.granule).name)

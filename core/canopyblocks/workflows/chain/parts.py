@@ -26,7 +26,7 @@ log = logging.getLogger(__name__)
 
 
 def _simulate(las_paths: Sequence[Path], out: Path, *, azimuth: float, diameter: float,
-              preset: str, seed: int, realisations: int, progress: Progress
+              photon_rate: str, seed: int, realisations: int, progress: Progress
               ) -> tuple[Path, Any, pd.DataFrame | None, Path | None]:
     """Simulate one beam over the tiles; with ``realisations`` > 0 also the study of the
     simulated photons against truth (13 and 17 m footprints) with its table and figure."""
@@ -40,7 +40,7 @@ def _simulate(las_paths: Sequence[Path], out: Path, *, azimuth: float, diameter:
     except FileFormatError:
         progress.check()  # read_las reports a cancellation as a read error
         raise
-    params = SimParams(diameter=diameter, preset=preset)  # type: ignore[arg-type]
+    params = SimParams(diameter=diameter, photon_rate=photon_rate)  # type: ignore[arg-type]
     track = line_through(points.bounds, azimuth, inset=max(diameter, 17.0) / 2.0)
     sim = simulate_photons(points, track, params, realisations=1, seed=seed,
                            progress=progress.sub(0.2, 0.4))

@@ -102,7 +102,7 @@ def photons_stage(st: RunState) -> None:
     if st.simulated:
         st.photons, st.crs, st.truth_table, st.truth_png = _simulate(
             st.tiles, st.out, azimuth=o["azimuth"], diameter=o["diameter"],
-            preset=o["photon_rate"], seed=o["seed"], realisations=o["realisations"],
+            photon_rate=o["photon_rate"], seed=o["seed"], realisations=o["realisations"],
             progress=st.prog.sub(0.0, 0.25))
         st.offset, st.geoid = 0.0, None
         st.photon_vcrs = _tiles_crs(st.tiles) or st.crs

@@ -1,4 +1,5 @@
-"""The door of the waveform processing: argument types and a waveform's orientation."""
+"""The checks at the door of the waveform processing: argument types, elevations in metres
+and a waveform's orientation (the general checks are canopyblocks.arguments)."""
 
 from __future__ import annotations
 
