@@ -141,9 +141,7 @@ FRONT_DOORS = ("canopyblocks.cli", "qgis_plugin")
 #: Front-door imports still going around the workflows, each to be replaced by a workflow
 #: call (the list only shrinks; a new entry fails the test).
 DOOR_DEBT: set[tuple[str, str]] = {
-    # the reference rasters' command and algorithm (being rebuilt with the survey catalog)
-    ("canopyblocks.cli.reference", "canopyblocks.reference.rasters"),
-    ("qgis_plugin.algorithms.referencerasters", "canopyblocks.reference.rasters"),
+    # the reference rasters' algorithm asks PDAL's version for its log
     ("qgis_plugin.algorithms.referencerasters", "canopyblocks.reference.pdal"),
 }
 
