@@ -687,7 +687,7 @@ def _quiet_args(name: str, base: Base, out: Path) -> list[str]:
     base.blocks  # noqa: B018 - makes the simulated photons too
     return {
         "blocks": ["blocks", str(base.vegr), "-o", str(out / "b.gpkg"), "--length", "25",
-                   "--min-signal-conf", "2"],
+                   "--preset", "icesat2", "--min-signal-conf", "2"],
         "rasters": ["rasters", str(base.conifer), "-o", str(out / "r"), "--resolution", "4"],
         "simulate": ["simulate", str(base.conifer), "--azimuth", "0", "--realisations", "2",
                      "-o", str(out / "s.h5")],

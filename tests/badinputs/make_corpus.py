@@ -721,8 +721,8 @@ def _cli(args: Callable[[Path, Base, Inputs], list[str]], inner: Callable[[Path,
 def _blocks_args(folder: Path, base: Base, i: Inputs) -> list[str]:
     args = ["blocks", str(i["path"]), "-o", str(folder / "out" / "blocks.gpkg"), "--length",
             "25"]
-    if i.get("min_signal_conf") is not None:
-        args += ["--min-signal-conf", str(i["min_signal_conf"])]
+    if i.get("min_signal_conf") is not None:  # the preset that uses it (atl08 refuses it)
+        args += ["--preset", "icesat2", "--min-signal-conf", str(i["min_signal_conf"])]
     return args
 
 

@@ -252,6 +252,8 @@ def estimate_blocks(track: PhotonTrack, params: BlockParams | None = None,
     work = track
     removed = None
     if est.noise == "atl08":
+        from .atl08_blocks import refuse_signal_conf
+        refuse_signal_conf(track, params)  # never silently ignored
         classes = classify_photons(track, est.atl08)  # after the background-rate check
         if labels:  # the photon layer's ATL08-style column (classed_pc_flag)
             track.extra[CLASS_COLUMN] = classes.classes
