@@ -43,8 +43,7 @@ import numpy as np
 
 from ..errors import InputError, NoUsableDataError, SparseBlockWarning
 from ..schema import LABEL_BETWEEN, LABEL_CANOPY, LABEL_GROUND, LABEL_NOISE
-from .atl08_classify import CLASS_COLUMN, Atl08Params
-from .background_check import classify_photons
+from .atl08_classify import CLASS_COLUMN, Atl08Params, classify_photons
 from .density_filter import DensityParams, density_filter
 from .ground_surface import GroundSurfaceParams, block_mean_ground, fit_ground_surface
 from .grouped import percentile_by_group

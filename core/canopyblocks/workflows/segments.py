@@ -19,7 +19,7 @@ import pandas as pd
 
 from ..blocks.atl08_classify import CLASS_COLUMN, Atl08Params
 from ..blocks.atl08_segments import atl08_segments
-from ..blocks.background_check import classify_photons
+from ..blocks.atl08_classify import classify_photons
 from ..blocks.uncertainty import add_segment_sigma
 from ..errors import InputError
 from ..progress import Progress, as_progress
