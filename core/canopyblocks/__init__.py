@@ -38,8 +38,8 @@ if TYPE_CHECKING:  # loaded on first use, see __getattr__
         compute_blocks,
         default_cutoffs,
     )
-    from .blocks.atl08_segments import atl08_segments
     from .blocks.atl08_classify import classify_photons
+    from .blocks.atl08_segments import atl08_segments
     from .blocks.estimators import (
         PRESETS,
         RECOMMENDED_PRESET,

@@ -17,9 +17,8 @@ import geopandas as gpd
 import numpy as np
 import pandas as pd
 
-from ..blocks.atl08_classify import CLASS_COLUMN, Atl08Params
+from ..blocks.atl08_classify import CLASS_COLUMN, Atl08Params, classify_photons
 from ..blocks.atl08_segments import atl08_segments
-from ..blocks.atl08_classify import classify_photons
 from ..blocks.uncertainty import add_segment_sigma
 from ..errors import InputError
 from ..progress import Progress, as_progress
