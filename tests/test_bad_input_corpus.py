@@ -41,6 +41,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from badinputs.api_corpus import RUNNERS as API_RUNNERS  # noqa: E402
 from badinputs.gedi_corpus import RUNNERS as GEDI_RUNNERS  # noqa: E402
 from badinputs.issue29_corpus import RUNNERS as ISSUE29_RUNNERS  # noqa: E402
+from badinputs.odd_inputs_corpus import RUNNERS as ODD_RUNNERS  # noqa: E402
 from badinputs.make_corpus import (  # noqa: E402
     SUBPROCESS_SAMPLE,
     Base,
@@ -535,6 +536,7 @@ RUNNERS = {"atl03": (run_atl03, check_atl03), "atl03-url": (run_atl03_url, check
 RUNNERS.update(GEDI_RUNNERS)  # damaged GEDI L1B files (badinputs/gedi_corpus.py)
 RUNNERS.update(API_RUNNERS)  # misuse of every public function (badinputs/api_corpus.py)
 RUNNERS.update(ISSUE29_RUNNERS)  # wrong background rates, foreign exceptions (issue 29)
+RUNNERS.update(ODD_RUNNERS)  # ignored options, missing bckgrd_atlas, box reads
 
 
 def judge_api(case: Case, inputs: dict[str, Any], folder: Path) -> str:
