@@ -41,13 +41,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from badinputs.api_corpus import RUNNERS as API_RUNNERS  # noqa: E402
 from badinputs.gedi_corpus import RUNNERS as GEDI_RUNNERS  # noqa: E402
 from badinputs.issue29_corpus import RUNNERS as ISSUE29_RUNNERS  # noqa: E402
-from badinputs.odd_inputs_corpus import RUNNERS as ODD_RUNNERS  # noqa: E402
 from badinputs.make_corpus import (  # noqa: E402
     SUBPROCESS_SAMPLE,
     Base,
     Case,
     all_cases,
 )
+from badinputs.odd_inputs_corpus import RUNNERS as ODD_RUNNERS  # noqa: E402
 from badinputs.xfail import XFAIL  # noqa: E402
 from canopyblocks.errors import CanopyBlocksError  # noqa: E402
 
