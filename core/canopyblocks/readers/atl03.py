@@ -485,7 +485,8 @@ def read_atl03(
         height_crs = stated if isinstance(stated, str) and stated.strip() else "EPSG:4979"
         background = read_background_rate(f, beam, float(np.min(cols["time"])),
                                           float(np.max(cols["time"])))
-        background = whole_track_background(f, beam, background, cut=cut)
+        background = whole_track_background(f, beam, background, cut=cut, photons=(
+            cols["s"], cols["h"], cols["time"]))
     if atl08 is not None and seg_ids is not None and within_k is not None:
         prog.update(0.7, "joining ATL08 classes")
         a8 = read_atl08_photons(atl08, beam)

@@ -10,9 +10,9 @@ The photons say what the background is too (:func:`photon_rates`): per along-tra
 stretch, the photons of the telemetry window far from the surface are background alone,
 and their count is Poisson.  A beam without a usable ``bckgrd_atlas`` (subsetters drop
 it) gets its rate from the photons of the *whole* track, with a warning naming the
-missing group; a beam read in part (a ``bbox``) has its file rate checked against the
-photons of the whole track, not of the part (:func:`whole_track_background`), so the
-photons of a box are classed as in the whole-track run.
+missing group; a beam read in part (a ``bbox``) keeps the file's rate of the whole track
+(or, without one, the rate counted from the photons of the whole track), never one counted
+from the part's photons (:func:`whole_track_background`).
 """
 
 from __future__ import annotations
@@ -276,8 +276,9 @@ def settle_rate(bg: BackgroundRate, chk: RateCheck, *, settled: bool = False
 
 
 def whole_track_background(f: H5File, beam: str, background: BackgroundRate | None, *,
-                           cut: bool) -> BackgroundRate | None:
-    """The rate of a beam settled on the photons of its whole track.
+                           cut: bool, photons: tuple[np.ndarray, np.ndarray, np.ndarray]
+                           ) -> BackgroundRate | None:
+    """The rate of a beam settled on its whole track, never on a part of it.
 
     Parameters
     ----------
@@ -288,38 +289,37 @@ def whole_track_background(f: H5File, beam: str, background: BackgroundRate | No
         What :func:`read_background_rate` found (None: no usable ``bckgrd_atlas``).
     cut : bool
         The photons read are a part of the track (a ``bbox`` or along-track range).
+    photons : (s, h, time)
+        The photons read (m, m, s).
 
     Returns
     -------
     BackgroundRate or None
-        ``background`` as it is when it exists and the whole track was read (the
-        classifier checks it on those photons); otherwise the rate checked against (or,
-        without one, counted from) the photons of the whole track, marked ``settled``;
-        None when those photons give no verdict (a window cut to the surface).  Only
-        ``heights/delta_time`` and ``heights/h_ph`` are read (16 bytes a photon).
+        ``background`` as it is for a whole track (the classifier checks it on those
+        photons); the file's rate marked ``settled`` for a part (it was measured on the
+        whole track, the part's photons may be too few to judge it); without a file rate,
+        the rate counted from the photons of the whole track (for a part, only its
+        ``heights/delta_time`` and ``heights/h_ph`` are read, 16 bytes a photon), marked
+        ``settled``, or None when they give no count (a window cut to the surface).
     """
-    if background is not None and not cut:
-        return background
-    hg = f"{beam}/heights"
-    try:
-        t = f.read(f"{hg}/delta_time", dtype=np.float64)
-        h = f.read(f"{hg}/h_ph", dtype=np.float64)
-    except FileFormatError as exc:
-        log.warning("%s: the whole track's photons cannot be read (%s); the background "
-                    "rate is estimated from the photons read", f.path, str(exc).splitlines()[0])
-        return background
-    ok = np.isfinite(t) & np.isfinite(h) & (np.abs(h) < 1e5) & (np.abs(t) < 1e10)
-    t, h = t[ok], h[ok]
-    if t.size == 0:
-        return background
-    chk = photon_rates((t - t.min()) * _GROUND_SPEED, h, t, background)
-    name = f"{f.path} {beam}"
     if background is not None:
-        if chk.disagree.any():
-            warnings.warn(disagreement_message(f"track {beam} ({f.path})", chk),
-                          CanopyBlocksWarning, stacklevel=3)
-            return settle_rate(background, chk, settled=True)
-        return replace(background, settled=True)
+        return replace(background, settled=True) if cut else background
+    s, h, t = photons
+    if cut:
+        hg = f"{beam}/heights"
+        try:
+            t = f.read(f"{hg}/delta_time", dtype=np.float64)
+            h = f.read(f"{hg}/h_ph", dtype=np.float64)
+        except FileFormatError as exc:
+            log.warning("%s: the whole track's photons cannot be read (%s); the background "
+                        "rate is estimated from the photons read", f.path,
+                        str(exc).splitlines()[0])
+            return None
+        ok = np.isfinite(t) & np.isfinite(h) & (np.abs(h) < 1e5) & (np.abs(t) < 1e10)
+        t, h = t[ok], h[ok]
+        s = (t - t.min()) * _GROUND_SPEED if t.size else t
+    name = f"{f.path} {beam}"
+    chk = photon_rates(s, h, t, None)
     seen = np.isfinite(chk.photons_hz)
     if not seen.any():
         warnings.warn(f"{name}: the file has no usable bckgrd_atlas/bckgrd_rate and the "

@@ -87,7 +87,8 @@ def waveform_product(path: str | os.PathLike[str]) -> WaveformProduct:
 
     p = check_path(path, "waveform file")
     if not p.exists():
-        raise FileFormatError(f"{p}: file does not exist")
+        from .remote import missing_message
+        raise FileFormatError(missing_message(path))
     if not _looks_like_hdf5(p):
         raise FileFormatError(f"{p}: not HDF5; `canopyblocks waveforms` reads GEDI L1B, "
                               "flash-lidar (ESFL) cubes and dual-wavelength pairs")
