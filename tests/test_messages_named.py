@@ -40,3 +40,22 @@ def test_implausible_advice_names_the_recommended_estimators(conf):
     assert "atl08 estimators" in msg and "icesat2 preset" not in msg, msg
     assert ("signal confidence" in msg) == (conf is not None), msg
     np.testing.assert_array_equal(blocks["flag"], ["ok", "implausible"])
+
+
+def test_sigma_column_of_text_is_refused_in_one_line():
+    from canopyblocks.errors import InputError
+    from canopyblocks.validation.residuals import compute_residuals
+
+    n = 3
+    blocks = pd.DataFrame({"track": ["gt1r"] * n, "length": [25.0] * n, "block": range(n),
+                           "ground": [1.0] * n, "top": [20.0] * n, "hmax": [19.0] * n,
+                           "h90": [15.0] * n, "flag": ["ok"] * n,
+                           "hmax_sigma": ["1.2", "wide", "0.9"]})
+    ref = pd.DataFrame({"track": ["gt1r"] * n, "length": [25.0] * n, "block": range(n),
+                        "ref_ground": [1.0] * n, "ref_top": [19.0] * n,
+                        "ref_top90": [15.0] * n, "ref_hmax": [18.0] * n, "ref_h90": [14.0] * n})
+    with pytest.raises(InputError, match="'hmax_sigma' holds 1 values that are not numbers"):
+        compute_residuals(blocks, ref)
+    blocks["hmax_sigma"] = ["1.2", "1.5", "0.9"]  # numbers written as text: read as numbers
+    res = compute_residuals(blocks, ref)
+    np.testing.assert_allclose(res["hmax_sigma"], [1.2, 1.5, 0.9])
