@@ -76,7 +76,8 @@ class BatchConfig:
         from ...errors import InputError
 
         BlockParams(lengths=self.lengths)  # validates the lengths
-        if self.min_signal_conf is not None and preset(self.preset).noise == "atl08":
+        est = preset(self.preset)  # an unknown name is refused here
+        if self.min_signal_conf is not None and est.noise == "atl08":
             raise InputError(f"--min-signal-conf {self.min_signal_conf} is not used by the "
                              f"{self.preset} estimators (their classifier, like ATL08's, finds "
                              "the signal among all photons); drop it, or use --preset "
