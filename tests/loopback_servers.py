@@ -93,16 +93,28 @@ class _RangeHandler(http.server.BaseHTTPRequestHandler):
             return
         size = p.stat().st_size
         rng = self.headers.get("Range")
-        if self.path.lstrip("/").startswith("norange/"):  # a server that ignores Range
-            rng = None
         a, b = 0, size - 1
         if rng and rng.startswith("bytes="):
             lo, _, hi = rng[6:].partition("-")
             a = int(lo) if lo else max(0, size - int(hi))
             b = min(size - 1, int(hi)) if (hi and lo) else size - 1
+        rel = self.path.split("?", 1)[0].lstrip("/")
+        if rel.startswith("norange/"):  # a server without byte ranges: the whole object
+            rng, a, b = None, 0, size - 1
         with p.open("rb") as fh:
             fh.seek(a)
             body = fh.read(max(0, b - a + 1))
+        if rel.startswith("short/") and rng and len(body) > 1:  # a 206 with a short body
+            body, b = body[:len(body) // 2], a + len(body) // 2 - 1
+        if rel.startswith("cut/") and len(body) > 1:  # closed in the middle of the answer
+            self.send_response(206 if rng else 200)
+            self.send_header("Content-Length", str(len(body)))
+            self.end_headers()
+            self.wfile.write(body[:len(body) // 2])
+            self.wfile.flush()
+            self.close_connection = True
+            self.connection.shutdown(2)
+            return
         self.send_response(206 if rng else 200)
         if rng:
             self.send_header("Content-Range", f"bytes {a}-{a + len(body) - 1}/{size}")
@@ -124,8 +136,9 @@ class _HTTPServer(http.server.ThreadingHTTPServer):
 class RangeHTTPServer:
     """Files under ``root`` at ``http://127.0.0.1:<port>/<name>``; ``private/...`` answers
     403, ``drop/...`` closes the connection without an answer, ``slow/...`` answers nothing
-    for ``delay`` seconds, ``norange/...`` ignores ``Range`` (the whole file, 200), others
-    404 when missing; after ``fail_after`` answered GETs every
+    for ``delay`` seconds, ``norange/...`` ignores byte ranges (the whole object, 200),
+    ``short/...`` answers a range with half its bytes (a short 206), ``cut/...`` closes the
+    connection half-way through an answer, others 404 when missing; after ``fail_after`` answered GETs every
     GET gets 503 (a store that goes down in the middle of a read)."""
 
     def __init__(self, root: Path, fail_after: float = float("inf")) -> None:
@@ -256,7 +269,7 @@ def write_track_granule(path: Path, length_km: float, per_metre: float = 2.0,
     import h5py
     import numpy as np
 
-    from canopyblocks.outputs.h5_layouts import Atl03BeamData, write_atl03
+    from canopyblocks.outputs.h5_layouts import Atl03Background, Atl03BeamData, write_atl03
 
     rng = np.random.default_rng(seed)
     n = int(length_km * 1000 * per_metre)
@@ -267,8 +280,12 @@ def write_track_granule(path: Path, length_km: float, per_metre: float = 2.0,
         h = 2400.0 + 40.0 * np.sin(s / 700.0) + np.where(
             u < 0.45, rng.normal(0, 0.3, n),
             np.where(u < 0.85, rng.random(n) * 25.0, rng.uniform(-60, 90, n)))
+        # bckgrd_atlas every 50 shots: the rate of the uniform 15 % (0.3 photons/m over
+        # 150 m of height: 0.002 photons/m^2 = 0.21 MHz at 0.7 m a shot)
+        tb = np.arange(0.0, length_km * 1000.0 / 7000.0 + 0.005, 0.005)
         data[b] = Atl03BeamData(delta_time=s / 7000.0, lat=lat0 + s * 9.0e-6,
-                                lon=lon0 + i * 1e-3 + s * 1.0e-7, h=h, s=s)
+                                lon=lon0 + i * 1e-3 + s * 1.0e-7, h=h, s=s,
+                                background=Atl03Background(tb, np.full(tb.size, 0.21e6)))
     raw = path.with_suffix(".raw.h5")
     write_atl03(raw, data)
     tmp = path.with_suffix(".tmp")

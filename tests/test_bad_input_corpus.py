@@ -48,6 +48,7 @@ from badinputs.make_corpus import (  # noqa: E402
     Case,
     all_cases,
 )
+from badinputs.odd_inputs_corpus import RUNNERS as ODD_RUNNERS  # noqa: E402
 from badinputs.xfail import XFAIL  # noqa: E402
 from canopyblocks.errors import CanopyBlocksError  # noqa: E402
 
@@ -537,6 +538,7 @@ RUNNERS.update(GEDI_RUNNERS)  # damaged GEDI L1B files (badinputs/gedi_corpus.py
 RUNNERS.update(API_RUNNERS)  # misuse of every public function (badinputs/api_corpus.py)
 RUNNERS.update(ISSUE29_RUNNERS)  # wrong background rates, foreign exceptions (issue 29)
 RUNNERS.update(COPC_RUNNERS)  # damaged COPC files and EPT datasets (badinputs/copc_corpus.py)
+RUNNERS.update(ODD_RUNNERS)  # ignored options, missing bckgrd_atlas, box reads
 
 
 def judge_api(case: Case, inputs: dict[str, Any], folder: Path) -> str:
@@ -689,7 +691,7 @@ def _quiet_args(name: str, base: Base, out: Path) -> list[str]:
     base.blocks  # noqa: B018 - makes the simulated photons too
     return {
         "blocks": ["blocks", str(base.vegr), "-o", str(out / "b.gpkg"), "--length", "25",
-                   "--min-signal-conf", "2"],
+                   "--preset", "icesat2", "--min-signal-conf", "2"],
         "rasters": ["rasters", str(base.conifer), "-o", str(out / "r"), "--resolution", "4"],
         "simulate": ["simulate", str(base.conifer), "--azimuth", "0", "--realisations", "2",
                      "-o", str(out / "s.h5")],

@@ -267,3 +267,30 @@ def test_merged_table_in_one_crs_across_utm_zones():
     c = m.geometry.iloc[2:].centroid
     np.testing.assert_allclose(c.x.to_numpy(), x, atol=0.05)  # the buffer's centre moved too
     np.testing.assert_allclose(m["x"].to_numpy()[:2], a["x"].to_numpy())  # first unit as is
+
+
+def test_the_same_photons_never_count_twice(inputs, tmp_path):
+    """A granule given again (a path through '..', a renamed copy) is counted once, with a
+    warning; the merged table is the single granule's, rows and time_utc included."""
+    from canopyblocks.errors import CanopyBlocksWarning
+    from canopyblocks.outputs.tables import read_layer
+    from canopyblocks.readers import read_atl03
+
+    g0 = inputs["granules"] / "ATL03_sim0.h5"
+    copy = tmp_path / "renamed_copy.h5"
+    shutil.copy(g0, copy)
+    dotted = str(inputs["granules"] / ".." / "granules" / g0.name)
+    one = run_batch([str(g0)], [inputs["tiles"]], tmp_path / "one", CONFIG)
+    with pytest.warns(CanopyBlocksWarning, match="same photons") as caught:
+        many = run_batch([str(g0), dotted, str(copy)], [inputs["tiles"]], tmp_path / "many",
+                         CONFIG)
+    assert sum("same photons" in str(w.message) for w in caught) == 2
+    assert len(many.units) == len(one.units)
+    a = read_layer(tmp_path / "one" / "residuals.parquet")
+    b = read_layer(tmp_path / "many" / "residuals.parquet")
+    assert len(b) == len(a) > 0
+    np.testing.assert_array_equal(a["res_hmax"].to_numpy(), b["res_hmax"].to_numpy())
+    # each block's time: inside the photons' own time span (a simulated clock: UTC is NaT)
+    assert "time_utc" in b.columns and b.columns.get_loc("time_utc") == b.columns.get_loc("time") + 1
+    t = read_atl03(g0, "gt1r").time
+    assert ((b["time"] >= t.min()) & (b["time"] <= t.max())).all()

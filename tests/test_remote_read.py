@@ -145,8 +145,9 @@ def test_bbox_fetches_fewer_bytes_and_the_same_photons(s3_env, granule_dir):
     got = blocks_from_file(url, PARAMS, bbox=bbox, workers=1).blocks
     _same(got, blocks_from_file(granule_dir / "ATL03_long.h5", PARAMS, bbox=bbox).blocks)
     # 2 km of 30 km: the photons of 1-2 chunks of 5 km per column, plus the segment index
-    assert s3_env.tally.nbytes < 0.5 * size, (s3_env.tally.nbytes, size)
-    assert s3_env.tally.nbytes < 0.5 * whole_bytes
+    # and the background records (bckgrd_atlas, read whole: the rate of the whole track)
+    assert s3_env.tally.nbytes < 0.6 * size, (s3_env.tally.nbytes, size)
+    assert s3_env.tally.nbytes < 0.6 * whole_bytes
     assert whole_bytes >= 0.8 * size  # the whole read really read the photons
     assert len(got) < len(whole) / 5
 
@@ -226,12 +227,15 @@ def test_https_dropped_connection(http):
 
 
 def test_https_timed_out(http, monkeypatch):
-    monkeypatch.setattr(remote, "READ_TIMEOUT", 0.3)  # the server keeps silent for 2 s
-    monkeypatch.setattr(remote, "RETRIES", 1)
+    import time
+
+    monkeypatch.setenv("CANOPYBLOCKS_TIMEOUT", "0.3")  # the server keeps silent for 2 s
     url = f"{http.url}/slow/granule.h5"
+    t0 = time.monotonic()
     with pytest.raises(FileFormatError) as exc:
         blocks_from_file(url, PARAMS)
-    _one_line(exc, url, "connection failed after 2 tries", "no answer within 0.3 s")
+    assert time.monotonic() - t0 < 1.5  # given up after the time-out, not tried again
+    _one_line(exc, url, "no answer within 0.3 s", "CANOPYBLOCKS_TIMEOUT")
 
 
 def test_store_down_in_the_middle_of_a_read(granule_dir, monkeypatch, tmp_path):

@@ -38,8 +38,8 @@ if TYPE_CHECKING:  # loaded on first use, see __getattr__
         compute_blocks,
         default_cutoffs,
     )
+    from .blocks.atl08_classify import classify_photons
     from .blocks.atl08_segments import atl08_segments
-    from .blocks.background_check import classify_photons
     from .blocks.estimators import (
         PRESETS,
         RECOMMENDED_PRESET,
@@ -208,7 +208,7 @@ _LAZY: dict[str, str] = {
     "preset": ".blocks.estimators",
     "estimate_blocks": ".blocks.estimators",
     "RECOMMENDED_PRESET": ".blocks.estimators",
-    "classify_photons": ".blocks.background_check",
+    "classify_photons": ".blocks.atl08_classify",
     "atl08_segments": ".blocks.atl08_segments",
     "sigma_model": ".blocks.uncertainty",
     "left_out_summary": ".blocks.uncertainty",

@@ -45,10 +45,15 @@ class BackgroundRate:
     rate : ndarray float64
         Background photons per second (Hz) seen by the beam's detector at ``time``
         (``bckgrd_atlas/bckgrd_rate``); 1e6 = 1 MHz.
+    settled : bool
+        True when the rate was already checked against the photons of the *whole* track
+        (the reader does so for a ``bbox`` cut, or when the file has no rate): the
+        classifier's check on the photons it is given (a box may hold too few) leaves it.
     """
 
     time: np.ndarray
     rate: np.ndarray
+    settled: bool = False
 
     def __post_init__(self) -> None:
         t = np.asarray(self.time, np.float64)

@@ -721,8 +721,8 @@ def _cli(args: Callable[[Path, Base, Inputs], list[str]], inner: Callable[[Path,
 def _blocks_args(folder: Path, base: Base, i: Inputs) -> list[str]:
     args = ["blocks", str(i["path"]), "-o", str(folder / "out" / "blocks.gpkg"), "--length",
             "25"]
-    if i.get("min_signal_conf") is not None:
-        args += ["--min-signal-conf", str(i["min_signal_conf"])]
+    if i.get("min_signal_conf") is not None:  # the preset that uses it (atl08 refuses it)
+        args += ["--preset", "icesat2", "--min-signal-conf", str(i["min_signal_conf"])]
     return args
 
 
@@ -926,10 +926,11 @@ def all_cases() -> list[Case]:
     from .coregistration_cases import coregistration_cases
     from .gedi_corpus import gedi_cases
     from .issue29_corpus import issue29_cases
+    from .odd_inputs_corpus import odd_cases
 
     cases = (baseline_cases() + atl03_cases() + atl08_cases() + las_cases() + raster_cases() + table_cases()
              + param_cases() + cli_cases() + gedi_cases()
-             + coregistration_cases() + api_cases() + issue29_cases()
+             + coregistration_cases() + api_cases() + issue29_cases() + odd_cases()
              + url_cases() + copc_cases())
     ids = [c.id for c in cases]
     dup = {i for i in ids if ids.count(i) > 1}

@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..errors import InputError
 from ..schema import LABEL_BETWEEN, LABEL_CANOPY, LABEL_GROUND, LABEL_NOISE
 from .atl08_classify import CLASS_CANOPY, CLASS_NOISE, CLASS_TOP, Atl08Classes
 from .ground_surface import block_mean_ground
@@ -34,7 +35,7 @@ if TYPE_CHECKING:
     from ..photons import PhotonTrack
     from ..progress import Progress
 
-__all__ = ["atl08_block_table", "HMAX_PERCENTILE"]
+__all__ = ["atl08_block_table", "refuse_signal_conf", "HMAX_PERCENTILE"]
 
 HMAX_PERCENTILE = 98.0
 """Percentile of the canopy heights giving a block's Hmax (ATL08's ``h_canopy``)."""
@@ -42,6 +43,38 @@ HMAX_PERCENTILE = 98.0
 _FILLED = ("n_kept", "n_between", "ground", "top", "hmax", "z90", "h90", "flag")
 _LABEL_OF_CLASS = np.array([-1, LABEL_NOISE, LABEL_GROUND, LABEL_BETWEEN, LABEL_CANOPY],
                            np.int8)  # index: class + 1
+
+
+def refuse_signal_conf(track: PhotonTrack, params: BlockParams) -> None:
+    """Refuse ``params.min_signal_conf`` with the ATL08-style classifier (never ignore it).
+
+    ATL08 classifies *all* ATL03 photons: its noise threshold is set from the background
+    rate (``bckgrd_atlas``) and the background photons themselves, which a signal
+    confidence filter removes (PhoREAL, likewise, attaches the ATL08 classes to every
+    ATL03 photon and filters on confidence only afterwards, for display).  Filtering
+    before the classifier would leave it a window cut to the surface: its background
+    check gives no verdict and the threshold expects photons that are gone.
+
+    Raises
+    ------
+    InputError
+        ``min_signal_conf`` set: on a track without ``signal_conf`` the message names the
+        missing column (as the paper's engine does); otherwise it names the presets that
+        use the filter.
+    """
+    level = params.min_signal_conf
+    if level is None:
+        return
+    where = f"track {track.track} ({track.source or 'in memory'})"
+    if track.signal_conf is None:
+        raise InputError(
+            f"{where}: min_signal_conf={level} needs the ATL03 signal_conf_ph of each "
+            "photon, but this track has none; drop --min-signal-conf")
+    raise InputError(
+        f"{where}: --min-signal-conf {level} is not used by the atl08 estimators (their "
+        "classifier, like ATL08's, finds the signal among all photons, background "
+        "included); drop it, or use --preset icesat2 (or --noise conf) to filter on "
+        "signal confidence")
 
 
 def atl08_block_table(track: PhotonTrack, params: BlockParams, classes: Atl08Classes, *,

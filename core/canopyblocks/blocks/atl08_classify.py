@@ -281,6 +281,8 @@ def classify_photons(track: PhotonTrack, params: Atl08Params | None = None) -> A
     p = Atl08Params() if params is None else params
     if not isinstance(p, Atl08Params):
         raise InputError(f"params must be an Atl08Params; got {type(p).__name__}")
+    from .background_check import checked_background
+    track = checked_background(track, p.shot_spacing)  # the file's rate, or the photons'
     n = len(track)
     s = np.asarray(track.s, float)
     z = np.asarray(track.h, float)

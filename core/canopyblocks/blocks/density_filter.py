@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import InputError
+from ..readers.atl03_background import poisson_quantile
 from .kernels import compiled, enabled
 
 __all__ = ["DensityParams", "DensityResult", "density_filter", "box_area", "poisson_quantile"]
@@ -332,29 +333,3 @@ def box_area(p: DensityParams) -> float:
     return ((2 * p.cells + 1) * p.along / p.cells) * ((2 * p.cells + 1) * p.height / p.cells)
 
 
-_QUANTILES: dict[tuple[float, float], float] = {}
-
-
-def poisson_quantile(q: float, mu: float) -> float:
-    """The ``q`` quantile of a Poisson distribution of mean ``mu``: the smallest count k with
-    P(X <= k) >= q (scipy.stats.poisson.ppf, without importing scipy.stats, which costs the
-    command line 0.5-0.7 s at start-up)."""
-    key = (float(q), float(mu))
-    t = _QUANTILES.get(key)
-    if t is None:  # (rates repeat from track to track: remembered, a few thousand at most)
-        t = _poisson_quantile(*key)
-        if len(_QUANTILES) < 100_000:
-            _QUANTILES[key] = t
-    return t
-
-
-def _poisson_quantile(q: float, mu: float) -> float:
-    if not mu > 0:
-        return 0.0
-    kmax = int(mu + 12.0 * np.sqrt(mu) + 40.0)
-    k = np.arange(kmax + 1, dtype=np.float64)
-    log_fact = np.concatenate([[0.0], np.cumsum(np.log(k[1:]))])
-    log_pmf = k * np.log(mu) - mu - log_fact
-    cdf = np.cumsum(np.exp(log_pmf))
-    hit = np.flatnonzero(cdf >= q * (1.0 - 1e-12))
-    return float(hit[0]) if hit.size else float(kmax)

@@ -45,8 +45,7 @@ from ..errors import InputError, NoUsableDataError, SparseBlockWarning
 from ..options import ESTIMATOR_PRESETS as _PRESET_NAMES
 from ..options import RECOMMENDED_PRESET as _RECOMMENDED
 from ..schema import LABEL_BETWEEN, LABEL_CANOPY, LABEL_GROUND, LABEL_NOISE
-from .atl08_classify import CLASS_COLUMN, Atl08Params
-from .background_check import classify_photons
+from .atl08_classify import CLASS_COLUMN, Atl08Params, classify_photons
 from .density_filter import DensityParams, density_filter
 from .ground_surface import GroundSurfaceParams, block_mean_ground, fit_ground_surface
 from .grouped import percentile_by_group
@@ -254,6 +253,8 @@ def estimate_blocks(track: PhotonTrack, params: BlockParams | None = None,
     work = track
     removed = None
     if est.noise == "atl08":
+        from .atl08_blocks import refuse_signal_conf
+        refuse_signal_conf(track, params)  # never silently ignored
         classes = classify_photons(track, est.atl08)  # after the background-rate check
         if labels:  # the photon layer's ATL08-style column (classed_pc_flag)
             track.extra[CLASS_COLUMN] = classes.classes

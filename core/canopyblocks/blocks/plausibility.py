@@ -57,8 +57,10 @@ def flag_implausible_blocks(blocks: pd.DataFrame, track: str,
         f"track {track}: {int(bad.sum())} of {len(blocks)} blocks have Hmax above "
         f"{MAX_CANOPY_HEIGHT_M:g} m (up to {np.nanmax(hmax[bad]):.0f} m), taller than any tree; "
         f"they are flagged '{FLAG_IMPLAUSIBLE}'{noise}. Most likely the background photons "
-        "were kept: filter by signal confidence (min_signal_conf 2 / --min-signal-conf 2) "
-        "or use the icesat2 preset",
+        "were kept: use the recommended atl08 estimators (the default, --preset atl08), "
+        "which class the background"
+        + ("" if background is None else ", or filter by signal confidence "
+           "(--min-signal-conf 2 with --preset paper or icesat2)"),
         ImplausibleBlockWarning, stacklevel=3)
     return blocks
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import logging
 import sys
 import warnings
+from pathlib import Path
 from typing import Any
 
 import click
@@ -84,11 +85,30 @@ def setup_logging(verbose: int, quiet: bool) -> None:
         if text in said:  # the same warning from every fold or track: say it once
             return
         said.add(text)
-        _echo_above_bar(f"canopyblocks: warning: {text}")
+        if issubclass(category, CanopyBlocksWarning) or _ours(filename):
+            _echo_above_bar(f"canopyblocks: warning: {text}")
+        else:  # another package's warning (e.g. requests on urllib3's version): its name
+            _echo_above_bar(f"warning from {_package_of(filename)} "
+                            f"({category.__name__}): {text}")
 
     warnings.showwarning = _show  # one line per warning, never a source excerpt
     warnings.simplefilter("default", CanopyBlocksWarning)
     _quiet_numpy()
+
+
+def _ours(filename: object) -> bool:
+    """True when a warning was raised from canopyblocks' own code."""
+    parts = Path(str(filename)).parts
+    return "canopyblocks" in parts or "qgis_plugin" in parts
+
+
+def _package_of(filename: object) -> str:
+    """The top-level package a warning came from (``site-packages/<name>/...``)."""
+    parts = Path(str(filename)).parts
+    for anchor in ("site-packages", "dist-packages"):
+        if anchor in parts and parts.index(anchor) + 1 < len(parts):
+            return Path(parts[parts.index(anchor) + 1]).stem
+    return Path(str(filename)).stem or "another package"
 
 
 def is_quiet() -> bool:

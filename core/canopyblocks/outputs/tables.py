@@ -78,13 +78,25 @@ def _gpkg_writer() -> dict[str, object]:
     (measured on 500,000 photons: 4.65 -> 2.11 s, the same layer read back), else the
     default engine (fiona in the QGIS runtime)."""
     try:
-        import pyarrow  # noqa: F401
+        import pyarrow
         import pyogrio
     except ImportError:
         return {}
-    if tuple(pyogrio.__gdal_version__) < (3, 6, 0):
+    # Arrow writes need GDAL 3.6, pyogrio 0.8 and pyarrow 14 (the Arrow C stream protocol)
+    if tuple(pyogrio.__gdal_version__) < (3, 6, 0) or \
+            _major_minor(pyogrio.__version__) < (0, 8) or \
+            _major_minor(pyarrow.__version__) < (14, 0):
         return {"engine": "pyogrio"}
     return {"engine": "pyogrio", "use_arrow": True}
+
+
+def _major_minor(version: str) -> tuple[int, int]:
+    """(major, minor) of a version string such as "0.8.0" or "14.0.2"."""
+    parts = (version.split(".") + ["0"])[:2]
+    try:
+        return int(parts[0]), int("".join(c for c in parts[1] if c.isdigit()) or 0)
+    except ValueError:
+        return 0, 0
 
 
 def _write_one(df: pd.DataFrame | Iterable[pd.DataFrame], tmp: Path, suf: str,

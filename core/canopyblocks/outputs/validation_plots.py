@@ -110,8 +110,10 @@ def plot_validation_scatter(residuals: pd.DataFrame, path: str | os.PathLike[str
                 bbox={"facecolor": "white", "alpha": 0.8, "edgecolor": "0.8"})
     handles, names = axes[0][0].get_legend_handles_labels()
     if handles:  # one legend for all panels, below them (never over the data)
-        fig.legend(handles, names, loc="outside lower center", ncols=len(handles),
-                   fontsize=8)
+        # anchored just below the figure (the tight save takes it in): every matplotlib
+        # from 3.5 ("outside" locations need 3.7, ``ncols`` 3.6)
+        fig.legend(handles, names, loc="upper center", bbox_to_anchor=(0.5, 0.0),
+                   ncol=len(handles), fontsize=8, frameon=False)
     fig.suptitle(f"{who} vs the {reference or 'reference'}, {length:g} m blocks"
                  if estimator or reference else f"Photon blocks vs reference, {length:g} m blocks")
     return save_figure(fig, path)

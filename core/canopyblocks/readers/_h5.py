@@ -296,7 +296,8 @@ def open_h5(path: str | os.PathLike[str] | IO[bytes], product: str = "HDF5"
         raise InputError(f"expected the path of {kind} (str or Path), got {describe(path)}")
     p = Path(path)
     if not p.exists():
-        raise FileFormatError(f"{p}: file does not exist")
+        from .remote import missing_message
+        raise FileFormatError(missing_message(path))
     if p.is_dir():
         raise FileFormatError(f"{p}: is a folder, expected {kind}")
     if not _looks_like_hdf5(p):

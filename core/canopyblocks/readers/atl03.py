@@ -34,7 +34,7 @@ from ..photons import PhotonTrack, stable_order
 from ..progress import Progress, as_progress
 from ._common import bbox_mask, check_bbox, check_s_range, s_mask
 from ._h5 import H5File, open_h5
-from .atl03_background import read_background_rate
+from .atl03_background import read_background_rate, whole_track_background
 from .atl03_geolocation import GEOLOCATION_SIGMA_COLUMN, segment_geolocation_sigma
 from .atl08 import BEAMS, join_atl08, read_atl08_photons
 from .photon_checks import (
@@ -438,6 +438,7 @@ def read_atl03(
             keep = ok if keep is None else keep & ok
         if keep is not None and bool(keep.all()):
             keep = None
+        cut = keep is not None or total < n_all  # a part of the track: settle its rate whole
         prog.update(0.5, "reading heights")
         cols: dict[str, np.ndarray] = {
             "time": col("delta_time", np.float64), "lat": lat, "lon": lon,
@@ -487,6 +488,8 @@ def read_atl03(
         height_crs = stated if isinstance(stated, str) and stated.strip() else "EPSG:4979"
         background = read_background_rate(f, beam, float(np.min(cols["time"])),
                                           float(np.max(cols["time"])))
+        background = whole_track_background(f, beam, background, cut=cut, photons=(
+            cols["s"], cols["h"], cols["time"]))
     if atl08 is not None and seg_ids is not None and within_k is not None:
         prog.update(0.7, "joining ATL08 classes")
         a8 = read_atl08_photons(atl08, beam)

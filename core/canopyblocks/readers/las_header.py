@@ -133,29 +133,68 @@ def check_header_extent(path: str | Path, header: tuple[float, float, float, flo
 
 
 def check_nothing_beyond_count(reader: object, path: str | Path, count: int) -> None:
-    """After ``count`` points were read from a LAZ file, check that it holds no more.
+    """Check that a LAZ file holds no more points than the ``count`` its header states.
 
     A header that counts fewer points than the file holds makes every reader stop early,
-    silently (half a tile).  The LAZ decompressor (lazrs) knows its chunks: asking it for
-    one more point raises when the file is exhausted and returns a point when the header
-    undercounts.  Uncompressed LAS files are checked by size in :func:`check_las_file`.
+    silently (half a tile).  The LAZ chunk table (read by lazrs, a few bytes at the end of
+    the file) says how many points the file holds: exactly, with variable-size chunks;
+    with fixed-size chunks (``chunk_size`` points each, the last one partial), more than
+    ``(chunks - 1) * chunk_size``.  No point is decompressed beyond the count (asking the
+    decompressor for one more point returned one for valid laspy-written files, and made
+    older lazrs releases panic).  Uncompressed LAS files are checked by size in
+    :func:`check_las_file`.
 
     Raises
     ------
     FileFormatError
-        The file holds more points than its header counts.
+        The chunk table holds more points than the header counts.
     """
     if Path(path).suffix.lower() != ".laz":
         return
-    source = getattr(reader, "point_source", None)
-    read_more = getattr(source, "read_n_points", None)
-    if read_more is None:  # another laspy backend: nothing to ask
-        return
-    try:
-        extra = read_more(1)
-    except Exception:  # noqa: BLE001 - lazrs raises when no chunk is left: the expected end
-        return
-    if extra is not None and len(extra) > 0:
+    table, chunk_size, variable = _chunk_table(reader, path)
+    if not table:
+        return  # no table to read (another backend, or none written): nothing to tell
+    if variable:
+        held = sum(int(c[0]) for c in table)
+        more = held > count
+        what = f"its chunk table holds {held:,} points"
+    else:
+        held = (len(table) - 1) * chunk_size
+        more = held >= count
+        what = f"its chunk table holds {len(table)} chunks of {chunk_size:,} points"
+    if more:
         raise FileFormatError(
-            f"{path}: the file holds more points than the {count} its header counts; the "
-            "header is corrupt (rewrite the file with a LAS tool, e.g. las2las or PDAL)")
+            f"{path}: the file holds more points than the {count:,} its header counts "
+            f"({what}); the header is corrupt (rewrite the file with a LAS tool, e.g. "
+            "las2las or PDAL)")
+
+
+def _chunk_table(reader: object, path: str | Path) -> tuple[list, int, bool]:
+    """The LAZ chunk table ``[(points, bytes), ...]``, the chunk size and whether chunks
+    vary in size; an empty table when it cannot be read (then nothing is claimed).  The
+    header is read afresh (laspy drops the laszip record from an open reader's header once
+    its points are read)."""
+    if getattr(reader, "header", None) is None:
+        return [], 0, False  # not a laspy reader: nothing to ask
+    try:
+        import laspy
+        import lazrs
+
+        with laspy.open(path) as fresh:
+            header = fresh.header
+            vlr = next((v for v in header.vlrs if getattr(v, "record_id", None) == 22204
+                        and hasattr(v, "record_data")), None)
+            if vlr is None:
+                return [], 0, False
+            laz_vlr = lazrs.LazVlr(vlr.record_data)
+            offset = int(header.offset_to_point_data)
+        with open(path, "rb") as fh:
+            fh.seek(offset)
+            table = list(lazrs.read_chunk_table(fh, laz_vlr) or [])
+        chunk_size = int(laz_vlr.chunk_size())
+        variable = bool(laz_vlr.uses_variable_size_chunks())
+    except Exception:  # noqa: BLE001 - no readable table: the count cannot be judged here
+        return [], 0, False
+    if not all(isinstance(c, (tuple, list)) and len(c) == 2 for c in table):
+        return [], 0, False
+    return table, chunk_size, variable

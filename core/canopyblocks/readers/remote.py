@@ -21,7 +21,12 @@ index first, then the photon rows inside the study area) fetch only the chunks t
 * Transient failures (a dropped or timed-out connection, HTTP 5xx, throttling) are retried
   ``RETRIES`` times with exponential back-off; every failure ends as one
   :class:`StorageError` line (a :class:`~canopyblocks.errors.FileFormatError`) naming the
-  URL (without its query string, where signed links keep their secrets) and what to do.
+  URL (without its query string, where signed links keep their secrets) and what to do,
+  in words of what the server did: no byte ranges, a short answer, closed in the middle of
+  an answer, no answer within the time-out.
+* Time-out: ``READ_TIMEOUT`` seconds (``CANOPYBLOCKS_TIMEOUT`` in the environment sets
+  another), the same over ``s3://`` and ``https://``; a server that says nothing for that
+  long is reported at once, not tried again.
 """
 
 from __future__ import annotations
@@ -36,10 +41,11 @@ from typing import Any
 from urllib.parse import urlsplit, urlunsplit
 
 from ..errors import DependencyError, FileFormatError
+from .earthdata import _EARTHDATA, earthdata_credentials
 
 __all__ = ["StorageError", "is_url", "is_file_object", "source_arg", "source_label",
            "source_name", "RemoteFile", "open_source", "list_granules", "clear_cache",
-           "BLOCK", "MAX_BLOCKS", "MAX_GAP", "RETRIES"]
+           "missing_message", "timeout_seconds", "BLOCK", "MAX_BLOCKS", "MAX_GAP", "RETRIES"]
 
 #: Bytes per cached block (HDF5 metadata and small reads).
 BLOCK = 1 << 15
@@ -57,11 +63,51 @@ CONNECT_TIMEOUT = 20.0
 READ_TIMEOUT = 60.0
 
 _SCHEMES = ("s3://", "http://", "https://")
+TIMEOUT_ENV = "CANOPYBLOCKS_TIMEOUT"
+#: Exception names of an answer cut short (the connection closed in its middle).
+_CUT_WORDS = ("Payload", "ContentLength", "IncompleteRead", "ServerDisconnected")
 
 
 class StorageError(FileFormatError):
     """Object storage failed (not found, access denied, no credentials, connection lost):
     one line naming the URL (never a secret) and what to do."""
+
+
+class _RangesIgnored(Exception):
+    """The server answered a range request with more bytes than asked (the whole object)."""
+
+
+class _ShortAnswer(Exception):
+    """The server answered a range request with fewer bytes than asked."""
+
+
+def timeout_seconds() -> float:
+    """Seconds to wait for a connection or the next bytes of an answer: ``READ_TIMEOUT``,
+    or ``CANOPYBLOCKS_TIMEOUT`` from the environment (a positive number)."""
+    raw = os.environ.get(TIMEOUT_ENV, "").strip()
+    if not raw:
+        return READ_TIMEOUT
+    try:
+        value = float(raw)
+    except ValueError:
+        value = float("nan")
+    if not (value > 0 and value < 1e6):
+        from ..errors import InputError
+        raise InputError(f"{TIMEOUT_ENV}={raw!r} must be a positive number of seconds")
+    return value
+
+
+def missing_message(value: object) -> str:
+    """The one line for a path that does not exist: ``<path>: file does not exist``, or,
+    for a URL of a scheme the readers do not take (``ftp://``), that scheme named."""
+    import re
+
+    text = os.fspath(value) if isinstance(value, os.PathLike) else str(value)
+    m = re.match(r"^([A-Za-z][A-Za-z0-9+.-]*)://", text.strip())
+    if m and not is_url(text):
+        return (f"{source_label(text)}: {m.group(1)}:// is not a source canopyblocks reads; "
+                "use a local path, an s3:// or an https:// URL (download the file first)")
+    return f"{text}: file does not exist"
 
 
 def is_url(value: object) -> bool:
@@ -134,13 +180,16 @@ def _filesystem(url: str) -> Any:
             s3fs = _need("s3fs")
             env = os.environ
             endpoint = env.get("AWS_ENDPOINT_URL_S3") or env.get("AWS_ENDPOINT_URL") or None
+            wait = timeout_seconds()
             kw: dict[str, Any] = {
-                # botocore's own tries: 2 (ours wrap them, with back-off)
-                "config_kwargs": {"retries": {"max_attempts": 2, "mode": "standard"},
-                                  "connect_timeout": CONNECT_TIMEOUT,
-                                  "read_timeout": READ_TIMEOUT},
+                # one try inside botocore and s3fs (ours wrap it, with back-off): a silent
+                # endpoint is given up after the time-out, as over https://
+                "config_kwargs": {"retries": {"max_attempts": 1, "mode": "standard"},
+                                  "connect_timeout": min(CONNECT_TIMEOUT, wait),
+                                  "read_timeout": wait},
             }
             if endpoint:
+                _check_endpoint(endpoint, source_label(url))
                 kw["endpoint_url"] = endpoint
             if env.get("AWS_ACCESS_KEY_ID") and env.get("AWS_SECRET_ACCESS_KEY"):
                 # the chain's first link, passed on so that a changed key gets a new client
@@ -149,16 +198,25 @@ def _filesystem(url: str) -> Any:
             elif env.get("AWS_PROFILE"):
                 kw["profile"] = env["AWS_PROFILE"]
             else:  # a NASA archive's bucket: Earthdata's temporary keys, where earthaccess is
-                kw.update(_earthdata_credentials(url))
+                kw.update(earthdata_credentials(url))
             fs = s3fs.S3FileSystem(**kw)
-            fs.retries = 2  # s3fs's own loop (ours wraps it, with back-off)
+            fs.retries = 1  # s3fs's own loop (ours wraps it, with back-off)
             return fs
         aiohttp = _need("aiohttp")
         from fsspec.implementations.http import HTTPFileSystem
 
-        timeout = aiohttp.ClientTimeout(total=None, sock_connect=CONNECT_TIMEOUT,
-                                        sock_read=READ_TIMEOUT)
+        wait = timeout_seconds()
+        timeout = aiohttp.ClientTimeout(total=None, sock_connect=min(CONNECT_TIMEOUT, wait),
+                                        sock_read=wait)
         return HTTPFileSystem(block_size=0, client_kwargs={"timeout": timeout})
+
+
+def _check_endpoint(endpoint: str, label: str) -> None:
+    """``AWS_ENDPOINT_URL`` must be an http(s) URL with a host."""
+    parts = urlsplit(endpoint.strip())
+    if parts.scheme.lower() not in ("http", "https") or not parts.hostname:
+        raise StorageError(f"{label}: AWS_ENDPOINT_URL={endpoint!r} is not the URL of an S3 endpoint "
+                           "(http(s)://host[:port]); correct it, or unset it for AWS itself")
 
 
 def _chain(exc: BaseException) -> list[BaseException]:
@@ -172,55 +230,11 @@ def _chain(exc: BaseException) -> list[BaseException]:
     return out
 
 
-#: Buckets of NASA's archives (by prefix) and their data centre: ICESat-2 at NSIDC, GEDI
-#: L1B/L2 at LP DAAC, GEDI L4 at ORNL DAAC.
-DAAC_BUCKETS = {"nsidc-cumulus-prod-": "NSIDC", "lp-prod-": "LPDAAC",
-                "ornl-cumulus-prod-": "ORNLDAAC"}
-_EARTHDATA: dict[str, tuple[float, dict[str, str]]] = {}  # daac -> (time, keys)
-_EARTHDATA_SECONDS = 50 * 60  # the keys last an hour
-
-
-def _earthdata_credentials(url: str) -> dict[str, str]:
-    """Temporary S3 keys of NASA Earthdata for a NASA bucket, through ``earthaccess`` when it
-    is installed and a login works without a prompt (``EARTHDATA_USERNAME``/``_PASSWORD`` or
-    ``~/.netrc``); ``{}`` otherwise (the standard chain then decides)."""
-    import importlib
-
-    bucket = url.split("://", 1)[-1].split("/", 1)[0]
-    daac = next((d for prefix, d in DAAC_BUCKETS.items() if bucket.startswith(prefix)), None)
-    if daac is None:
-        return {}
-    now = time.monotonic()
-    got = _EARTHDATA.get(daac)
-    if got is not None and now - got[0] < _EARTHDATA_SECONDS:
-        return got[1]
-    try:
-        ea = importlib.import_module("earthaccess")
-    except ImportError:
-        return {}
-    try:
-        if not getattr(getattr(ea, "__auth__", None), "authenticated", False):
-            for strategy in ("environment", "netrc"):  # never the interactive prompt
-                try:
-                    ea.login(strategy=strategy)
-                except Exception:  # noqa: BLE001 -- the next strategy, or none
-                    continue
-                if getattr(getattr(ea, "__auth__", None), "authenticated", False):
-                    break
-            else:
-                return {}
-        creds = ea.get_s3_credentials(daac=daac)
-        keys = {"key": str(creds["accessKeyId"]), "secret": str(creds["secretAccessKey"]),
-                "token": str(creds["sessionToken"])}
-    except Exception:  # noqa: BLE001 -- no keys: the standard chain decides, and says so
-        return {}
-    _EARTHDATA[daac] = (now, keys)
-    return keys
-
-
 def _status(exc: BaseException) -> int | None:
     """The HTTP status behind ``exc`` (or the exceptions it was raised from), if any."""
     for e in _chain(exc):
+        if any(w in type(e).__name__ for w in _CUT_WORDS + ("TransferEncoding",)):
+            continue  # aiohttp's code 400 there is its parser's, not the server's
         for attr in ("status", "status_code", "code"):
             v = getattr(e, attr, None)
             if isinstance(v, int) and 100 <= v < 600:
@@ -242,9 +256,21 @@ def _connection_lost(exc: BaseException) -> bool:
                or any(w in type(e).__name__ for w in _CONNECTION_WORDS) for e in _chain(exc))
 
 
+def _timed_out(exc: BaseException) -> bool:
+    return any(isinstance(e, TimeoutError) or "Timeout" in type(e).__name__
+               for e in _chain(exc))
+
+
 def _transient(exc: BaseException) -> bool:
-    """A failure worth another try: connection dropped or timed out, 5xx, throttling."""
-    if any("Credential" in type(e).__name__ for e in _chain(exc)):
+    """A failure worth another try: connection dropped, a short answer, 5xx, throttling
+    (not a time-out: a server silent that long is reported at once)."""
+    chain = _chain(exc)
+    if any("Credential" in type(e).__name__ or "ProfileNotFound" in type(e).__name__
+           or isinstance(e, _RangesIgnored) for e in chain):
+        return False
+    if any(isinstance(e, _ShortAnswer) for e in chain):
+        return True
+    if _timed_out(exc) and _status(exc) is None:
         return False
     status = _status(exc)
     if status is not None:
@@ -257,7 +283,11 @@ def _explain(exc: BaseException, label: str, tries: int) -> StorageError:
     name = type(exc).__name__
     status = _status(exc)
     s3 = label.lower().startswith("s3://")
-    if any("Credential" in type(e).__name__ for e in _chain(exc)):
+    chain = _chain(exc)
+    special = _explain_special(chain, label, tries)
+    if special is not None:
+        return special
+    if any("Credential" in type(e).__name__ for e in chain):
         return StorageError(
             f"{label}: no credentials for S3 were found; set AWS_ACCESS_KEY_ID and "
             "AWS_SECRET_ACCESS_KEY (or AWS_PROFILE / ~/.aws/credentials), or open NASA "
@@ -276,14 +306,42 @@ def _explain(exc: BaseException, label: str, tries: int) -> StorageError:
     if _transient(exc):
         lost = [type(e).__name__ for e in _chain(exc) if _connection_lost(e)]
         why = f"HTTP {status}" if status else (lost[-1] if lost else name)
-        if "Timeout" in why:
-            wait = CONNECT_TIMEOUT if "Connect" in why else READ_TIMEOUT
-            why = f"no answer within {wait:g} s"
+        if any(w in why for w in _CUT_WORDS):
+            why = "the server closed the connection in the middle of an answer"
         return StorageError(
             f"{label}: the connection failed after {tries} tries ({why}); check the "
             "network" + (" and AWS_ENDPOINT_URL" if s3 else "") + ", then run again")
     return StorageError(f"{label}: cannot read from storage ({name}"
                            + (f", HTTP {status}" if status else "") + ")")
+
+
+def _explain_special(chain: list[BaseException], label: str, tries: int
+                     ) -> StorageError | None:
+    """What the server or the configuration did, for the failures with their own words."""
+    s3 = label.lower().startswith("s3://")
+    for e in chain:
+        if isinstance(e, _RangesIgnored):
+            return StorageError(f"{label}: the server does not support byte ranges (it does "
+                                f"not answer byte-range requests: {e}); download the file "
+                                "and pass the local copy")
+        if isinstance(e, _ShortAnswer):
+            return StorageError(f"{label}: the server's answers were short ({e}), {tries} "
+                                "tries; the object may be changing or the server faulty: "
+                                "run again later, or download the granule")
+        if "ProfileNotFound" in type(e).__name__:
+            return StorageError(f"{label}: the AWS profile "
+                                f"{os.environ.get('AWS_PROFILE', '')!r} (AWS_PROFILE) is not "
+                                "in ~/.aws/config or ~/.aws/credentials; correct or unset "
+                                "AWS_PROFILE")
+        if type(e).__name__ == "ValueError" and "endpoint" in str(e).lower():
+            return StorageError(f"{label}: AWS_ENDPOINT_URL is not the URL of an S3 endpoint "
+                                f"({e}); correct it, or unset it for AWS itself")
+    if any(_timed_out(e) for e in chain) and _status(chain[0]) is None:
+        return StorageError(
+            f"{label}: no answer within {timeout_seconds():g} s (the time-out; "
+            f"{TIMEOUT_ENV} sets another); check the network"
+            + (" and AWS_ENDPOINT_URL" if s3 else "") + ", then run again")
+    return None
 
 
 # ---------------------------------------------------------------------------- the file
@@ -355,6 +413,11 @@ class RemoteFile(io.RawIOBase):
 
     def _size(self) -> int:
         info = self._retry(lambda: self.fs.info(self.remote_path))
+        if isinstance(info, dict) and info.get("type") == "directory":
+            self.error = StorageError(
+                f"{self.label}: is a prefix (a folder of objects), not a granule; give one "
+                "granule's URL (batch takes a prefix and reads every granule under it)")
+            raise self.error
         size = info.get("size") if isinstance(info, dict) else None
         if not isinstance(size, int):
             self.error = StorageError(
@@ -401,13 +464,10 @@ class RemoteFile(io.RawIOBase):
             for (a, b), blob in zip(spans, got):
                 if isinstance(blob, BaseException):
                     raise blob
-                if len(blob) > b - a and b - a < self.size:
-                    raise StorageError(
-                        f"{self.label}: the server does not answer byte-range requests (it "
-                        f"sent {len(blob):,} bytes for a range of {b - a:,}); download the "
-                        "file, then pass the local copy")
-                if len(blob) != b - a:
-                    raise EOFError(f"short read: {len(blob)} of {b - a} bytes")
+                if len(blob) > b - a:
+                    raise _RangesIgnored(f"asked for {b - a:,} bytes, it sent {len(blob):,}")
+                if len(blob) < b - a:
+                    raise _ShortAnswer(f"{len(blob):,} of the {b - a:,} bytes asked for")
             return list(got)
 
         blobs: list[bytes] = self._retry(go)

@@ -75,7 +75,8 @@ def detect_product(path: str | os.PathLike[str]) -> Product:
                                   "files; download it first")
         return _hdf5_product(path, label)
     if not p.exists():
-        raise FileFormatError(f"{p}: file does not exist")
+        from .remote import missing_message
+        raise FileFormatError(missing_message(path))
     suf = p.suffix.lower()
     if suf in TABLE_SUFFIXES:
         return "table"

@@ -43,6 +43,19 @@ def _align(blocks: pd.DataFrame, other: pd.DataFrame, what: str) -> pd.DataFrame
     return other.reset_index(drop=True)
 
 
+def _require_numbers(blocks: pd.DataFrame, column: str) -> None:
+    """Refuse a block column of metres that holds text (a hand-edited or foreign table)."""
+    if column not in blocks.columns or pd.api.types.is_numeric_dtype(blocks[column]):
+        return
+    vals = pd.to_numeric(blocks[column], errors="coerce")
+    bad = vals.isna().to_numpy() & blocks[column].notna().to_numpy()
+    if bad.any():
+        example = blocks[column].to_numpy(object)[bad][0]
+        raise InputError(f"the block table's column {column!r} holds {int(bad.sum())} values "
+                         f"that are not numbers (e.g. {str(example)[:30]!r}); it must hold "
+                         "metres: write the table again with canopyblocks blocks")
+
+
 def compute_residuals(blocks: pd.DataFrame, ref_values: pd.DataFrame,
                       terrain: pd.DataFrame | None = None, *,
                       corridors: gpd.GeoDataFrame | None = None) -> gpd.GeoDataFrame:
@@ -74,6 +87,8 @@ def compute_residuals(blocks: pd.DataFrame, ref_values: pd.DataFrame,
     missing = [c for c in (*KEY_COLUMNS, *RESIDUAL_PAIRS) if c not in blocks.columns]
     if missing:
         raise InputError(f"the block table lacks column(s) {', '.join(missing)}")
+    for c in (*RESIDUAL_PAIRS, "hmax_sigma", "ground_sigma"):
+        _require_numbers(blocks, c)
     ref = _align(blocks, ref_values, "reference")
     out = pd.DataFrame({c: blocks[c].to_numpy() for c in BLOCK_COLUMNS if c in blocks.columns})
     for c in REFERENCE_COLUMNS:

@@ -104,9 +104,8 @@ def segments_of_track(track: PhotonTrack, params: Any, length: float,
                       s0: float | None, *, with_photons: bool = False) -> pd.DataFrame:
     """One track's segment table (columns as :func:`segments_from_file`); with
     ``with_photons`` its photons get their ``classed_pc_flag``."""
-    from ..blocks.atl08_classify import CLASS_COLUMN
+    from ..blocks.atl08_classify import CLASS_COLUMN, classify_photons
     from ..blocks.atl08_segments import atl08_segments
-    from ..blocks.background_check import classify_photons
     from ..blocks.uncertainty import add_segment_sigma
 
     classes = classify_photons(track, params)

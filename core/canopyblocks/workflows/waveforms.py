@@ -364,10 +364,12 @@ def footprints_to_file(
     """
     from ..atomic import check_writable, new_files_removed_on_failure
     from ..outputs.tables import check_output_path, write_layers
-    from ..readers.flash_dual import flash_dual_sensor
+    from ..readers.flash_dual import flash_dual_sensor, refuse_unlabelled
 
     check_output_path(output)
     sensor = flash_dual_sensor(path)   # anything else goes to the GEDI reader, which says why
+    if sensor is None:
+        refuse_unlabelled(path)  # ESFL/dual data without its sensor attribute: named so
     if sensor is not None:
         product = "ESFL" if sensor == "esfl" else "dual"
         return _sensor_file(path, output, product, options=options, crs=crs,

@@ -38,7 +38,7 @@ from .cleanup import (
     refuse_output_in_inputs,
     remove_partial_outputs,
 )
-from .units import Unit, find_units, list_inputs, tile_index
+from .units import Unit, drop_duplicate_granules, find_units, list_inputs, tile_index
 from .work import BatchConfig, build_tile_rasters, run_unit
 
 __all__ = ["BatchResult", "run_batch", "MANIFEST"]
@@ -172,7 +172,7 @@ def run_batch(granules: Sequence[str | os.PathLike[str]],
     if backend not in BACKENDS:
         raise InputError(f"backend must be one of {', '.join(BACKENDS)}; got {backend!r}")
     out = Path(out_dir)
-    g_paths = list_inputs(granules, (".h5",))
+    g_paths = drop_duplicate_granules(list_inputs(granules, (".h5",)))
     t_paths = list_inputs(tiles, (".las", ".laz"))
     refuse_output_in_inputs(out, [*granules, *tiles])
     check_writable(out, folder=True)

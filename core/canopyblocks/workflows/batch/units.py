@@ -10,6 +10,7 @@ from __future__ import annotations
 import hashlib
 import logging
 import os
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -18,9 +19,10 @@ import numpy as np
 import pyproj
 import shapely
 
-from ...errors import CRSError, FileFormatError, InputError
+from ...errors import CanopyBlocksError, CanopyBlocksWarning, CRSError, FileFormatError, InputError
 
-__all__ = ["Tile", "Unit", "tile_index", "track_line", "find_units", "list_inputs"]
+__all__ = ["Tile", "Unit", "tile_index", "track_line", "find_units", "list_inputs",
+           "photon_identity", "drop_duplicate_granules"]
 
 log = logging.getLogger(__name__)
 
@@ -90,6 +92,60 @@ def list_inputs(items: Sequence[str | os.PathLike[str]], suffixes: tuple[str, ..
         raise InputError(f"no input files with suffix {', '.join(suffixes)} in "
                          f"{', '.join(map(str, items))}")
     return sorted(dict.fromkeys(out))
+
+
+_ENDS = 256  # photons read at each end of each beam for a granule's identity
+
+
+def photon_identity(path: str) -> str | None:
+    """A digest of the photons a granule holds, whatever its name or place.
+
+    Per beam (sorted): the photon count and the first and last ``_ENDS`` values of
+    ``heights/delta_time`` and ``heights/h_ph`` (a few kB, cheap over ``s3://`` too).
+    Two files with the same digest hold the same photons (a copy, a renamed copy, the
+    same granule as a URL and a local path).
+
+    Returns
+    -------
+    str or None
+        Hex digest; None when the file cannot be read (its unit reports it).
+    """
+    from ...readers._h5 import open_h5
+
+    h = hashlib.sha1()
+    try:
+        with open_h5(path, "ATL03") as f:
+            for beam in sorted(k for k in f.keys("/") if k.startswith("gt")):
+                for name in ("delta_time", "h_ph"):
+                    d = f"{beam}/heights/{name}"
+                    if not f.is_dataset(d) or len(f.shape(d)) != 1:
+                        continue
+                    n = f.shape(d)[0]
+                    h.update(f"{d}:{n};".encode())
+                    for sel in (np.s_[:min(n, _ENDS)], np.s_[max(n - _ENDS, 0):n]):
+                        h.update(np.ascontiguousarray(f.read(d, sel, dtype=np.float64)).tobytes())
+    except (CanopyBlocksError, OSError):
+        return None
+    return h.hexdigest()
+
+
+def drop_duplicate_granules(paths: Sequence[str]) -> list[str]:
+    """``paths`` without the granules whose photons an earlier one already holds, with a
+    :class:`~canopyblocks.errors.CanopyBlocksWarning` naming each pair (the same photons
+    never enter the merged tables twice)."""
+    seen: dict[str, str] = {}
+    out: list[str] = []
+    for p in paths:
+        key = photon_identity(p)
+        if key is not None and key in seen:
+            warnings.warn(f"{p} holds the same photons as {seen[key]} (same beams, same "
+                          f"photon times and heights): counted once, as {seen[key]}",
+                          CanopyBlocksWarning, stacklevel=2)
+            continue
+        if key is not None:
+            seen[key] = p
+        out.append(p)
+    return out
 
 
 def tile_index(paths: Sequence[str | os.PathLike[str]]) -> list[Tile]:

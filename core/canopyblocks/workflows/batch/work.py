@@ -12,6 +12,7 @@ import traceback
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -21,6 +22,9 @@ from ...blocks.estimators import RECOMMENDED_PRESET
 from ...errors import CanopyBlocksError, NoUsableDataError
 from ...reference.sensor_width import sensor_width
 from .units import Tile, Unit
+
+if TYPE_CHECKING:
+    from ...photons import PhotonTrack
 
 __all__ = ["BatchConfig", "run_unit", "raster_paths", "build_tile_rasters"]
 
@@ -44,7 +48,8 @@ class BatchConfig:
         Block estimators (``atl08``, the default and recommended; ``paper``, the paper's
         method; ``icesat2``; ``mabel``).
     min_signal_conf : int or None
-        ATL03 confidence threshold applied when reading.
+        ATL03 land confidence kept before the noise filter (the estimators that use it:
+        not ``atl08``, which refuses it).
     offset : float or None
         Constant ``h_photon - H_reference`` (m); or ``geoid`` raster path.
     photon_vcrs, reference_vcrs : str or None
@@ -71,7 +76,12 @@ class BatchConfig:
         from ...errors import InputError
 
         BlockParams(lengths=self.lengths)  # validates the lengths
-        preset(self.preset)
+        est = preset(self.preset)  # an unknown name is refused here
+        if self.min_signal_conf is not None and est.noise == "atl08":
+            raise InputError(f"--min-signal-conf {self.min_signal_conf} is not used by the "
+                             f"{self.preset} estimators (their classifier, like ATL08's, finds "
+                             "the signal among all photons); drop it, or use --preset "
+                             "icesat2 to filter on signal confidence")
         if not (np.isfinite(self.width) and self.width > 0):
             raise InputError(f"corridor width must be a positive number of metres, got "
                              f"{self.width!r}")
@@ -136,6 +146,18 @@ def run_unit(unit: Unit, config: BatchConfig, out_dir: str, raster_root: str) ->
     return summary
 
 
+def _block_time(track: PhotonTrack, s_start: np.ndarray, s_end: np.ndarray) -> np.ndarray:
+    """``delta_time`` (s) at each block's centre, interpolated along the track's photons
+    (the photons' ``s`` in m, sorted; NaN for a track without finite photons)."""
+    s = np.asarray(track.s, float)
+    t = np.asarray(track.time, float)
+    ok = np.isfinite(s) & np.isfinite(t)
+    if not ok.any():
+        return np.full(s_start.size, np.nan)
+    order = np.argsort(s[ok], kind="stable")
+    return np.interp(0.5 * (s_start + s_end), s[ok][order], t[ok][order])
+
+
 def _utc(granule: str, delta_time: np.ndarray) -> np.ndarray:
     """UTC of ``delta_time`` (to the ms, as the photon layer); NaT for a simulated granule,
     whose clock starts at its first shot."""
@@ -163,7 +185,7 @@ def _work(unit: Unit, config: BatchConfig, out_dir: Path, raster_root: Path,
     bbox = (float(np.min(lon)), float(np.min(lat)), float(np.max(lon)), float(np.max(lat)))
     tracks = read_tracks(unit.granule, beams=[unit.beam], bbox=bbox, crs=tcrs,
                          min_signal_conf=config.min_signal_conf)
-    params = BlockParams(lengths=config.lengths)
+    params = BlockParams(lengths=config.lengths, min_signal_conf=config.min_signal_conf)
     blocks = estimate_blocks(tracks[0], params, preset(config.preset))
     summary["n_blocks"] = int(len(blocks))
     where = _block_tile(blocks, unit.tiles, blocks.crs)
@@ -182,6 +204,9 @@ def _work(unit: Unit, config: BatchConfig, out_dir: Path, raster_root: Path,
         raise NoUsableDataError(f"{unit.key}: no block lies on its tiles")
     residuals = pd.concat(parts, ignore_index=True)
     residuals.insert(0, "granule", Path(unit.granule).name)
+    if "time" not in residuals.columns and {"s_start", "s_end"} <= set(residuals.columns):
+        residuals["time"] = _block_time(tracks[0], residuals["s_start"].to_numpy(float),
+                                        residuals["s_end"].to_numpy(float))
     if "time" in residuals.columns and "time_utc" not in residuals.columns:
         residuals.insert(residuals.columns.get_loc("time") + 1, "time_utc",
                          _utc(unit.granule, residuals["time"].to_numpy(float)))
