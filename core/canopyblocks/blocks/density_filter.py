@@ -123,6 +123,7 @@ def _box_counts(ss: np.ndarray, zs: np.ndarray, starts: np.ndarray, ends: np.nda
     with a box's width of empty cells on every side, so no box needs clipping.
     """
     out = np.empty(ss.size, np.int64)
+    _check_span(ss, zs, p)
     mod = compiled() if enabled() else None
     if mod is not None:  # one compiled pass: a running histogram of rows (the same counts)
         k, nc, nr = mod.box_counts(ss, zs, starts.astype(np.int64), ends.astype(np.int64),
@@ -139,6 +140,18 @@ def _box_counts(ss: np.ndarray, zs: np.ndarray, starts: np.ndarray, ends: np.nda
         _group_counts(ss, zs, starts[k0:k1], ends[k0:k1], lo[k0:k1], hi[k0:k1], p, out)
         k0 = k1
     return out
+
+
+def _check_span(ss: np.ndarray, zs: np.ndarray, p: DensityParams) -> None:
+    """Refuse a track whose heights (or distances) span more grid cells than a cell index
+    holds (far outliers): the compiled loop would index outside its grid."""
+    if ss.size == 0:
+        return
+    nc = float(np.ptp(ss)) / (p.along / p.cells)
+    nr = float(np.ptp(zs)) / (p.height / p.cells)
+    if not (np.isfinite(nc) and np.isfinite(nr)) or max(nc, nr) >= 2**31 - 2:
+        _too_large(int(min(nc, 2**62)) + 1 if np.isfinite(nc) else -1,
+                   int(min(nr, 2**62)) + 1 if np.isfinite(nr) else -1)
 
 
 def _too_large(nc: int, nr: int) -> None:

@@ -46,9 +46,11 @@ def _cache_dir() -> None:
               Path(tempfile.gettempdir()) / f"canopyblocks-numba-{os.getuid()}"):
         try:
             d.mkdir(parents=True, exist_ok=True)
+            own = d.stat().st_uid == os.getuid()
         except OSError:
             continue
-        if os.access(d, os.W_OK):
+        # numba loads pickled files from its cache: only a folder of this user's own
+        if own and os.access(d, os.W_OK):
             os.environ["NUMBA_CACHE_DIR"] = str(d)
             return
 
@@ -61,7 +63,9 @@ def compiled() -> ModuleType | None:
         try:
             _cache_dir()
             mod = importlib.import_module(__name__ + "_numba")
-        except ImportError:
+        except (ImportError, RuntimeError, OSError):
+            # numba missing, or no folder to cache its compiled code in ("cannot cache
+            # function"): the numpy code gives the same bits
             mod = None
         _STATE["mod"] = mod
     return _STATE["mod"]

@@ -137,7 +137,7 @@ def rasters_stage(st: RunState) -> None:
     st.rasters = make_survey_rasters(
         st.tiles, st.out / "rasters", resolution=st.options["resolution"],
         crs=st.res.blocks.crs, ground=st.options["ground"],
-        polygon=corridor_area(st.res.blocks, st.width),
+        polygon=corridor_area(st.res.blocks, float(st.width)),  # type: ignore[arg-type]  # set by blocks_stage
         progress=st.prog.sub(0.4, 0.75))
 
 
