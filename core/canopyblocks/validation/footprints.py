@@ -334,8 +334,8 @@ def reference_words(definition: str = "waveform", diameter: float = 22.0) -> str
         return (f"the airborne points under each footprint formed into the waveform the "
                 f"sensor would record (a Gaussian beam {diameter:g} m across, sigma "
                 f"{diameter / 4:g} m; each return's energy, canopy 1.5 times ground; the "
-                "15.6 ns pulse; no noise) and read by the same GEDI L2A algorithm with the "
-                "simulator's noise level: ground = its lowest mode, RH = the height above "
+                "15.6 ns pulse; no noise added) and read by the same GEDI L2A algorithm, "
+                "the simulator's noise level setting only its detection thresholds: ground = its lowest mode, RH = the height above "
                 "it where the energy accumulated from the bottom of its signal reaches the "
                 "percentile, cover = its canopy share of the energy")
     return (f"the airborne points weighted by a Gaussian footprint {diameter:g} m across: "

@@ -12,19 +12,27 @@ from pathlib import Path
 
 from ...outputs.report import ReportSection
 
-__all__ = ["GLOSSARY", "glossary_section", "training_sentence", "CALIBRATION_TILES",
-           "UNSEEN_FIGURES"]
+__all__ = ["GLOSSARY", "glossary_section", "training_sentence", "training_caveat",
+           "CALIBRATION_TILES",
+           "UNSEEN_FIGURES", "UNSEEN_CONDITION", "GEDI_GLOSSARY", "gedi_glossary_section"]
 
 #: The tiles the recommended estimators' windows and the per-block sigma model were
 #: fitted on (the package's ``blocks/uncertainty_model.json`` names them too).
 CALIBRATION_TILES: tuple[str, ...] = ("lasR_bcts_1", "lasR_bcts_2")
+
+#: The condition the unseen-tile figures hold under (the accuracy benchmark's): the
+#: ``atl08`` estimators plus an additive bias calibration per beam strength and night/day
+#: fitted on the bundled calibration tiles.
+UNSEEN_CONDITION = (
+    "for the 'atl08' estimators plus an additive bias calibration (per beam strength and "
+    "night/day) fitted on the calibration tiles")
 
 #: What the recommended estimators (with a bias calibration) and their sigma scored on
 #: three airborne tiles never used for fitting (lidR_Topography, pyfor_test,
 #: lidR_MixedConifer), simulated night and day, 25 m blocks: the project's accuracy and
 #: block-sigma benchmarks (measured elsewhere, not on this run).
 UNSEEN_FIGURES = (
-    "Hmax RMSE against the footprint-matched reference 1.9 m (strong beams, night) to "
+    f"{UNSEEN_CONDITION}: Hmax RMSE against the footprint-matched reference 1.9 m (strong beams, night) to "
     "3.0 m (strong, day) and 4.6 to 8.6 m (weak beams); ground RMSE 0.8 to 1.1 m "
     "(strong beams); the predicted sigma held for about 80 % of the Hmax residuals "
     "within 1 sigma and 96 % within 2 sigma")
@@ -56,8 +64,11 @@ GLOSSARY: dict[str, str] = {
     "low_confidence": "a block whose predicted sigma is too wide to be useful; written, "
             "but left out of the statistics.",
     "sparse": "a block with too few photons for a height; written with no value.",
-    "reference outside": "a block whose corridor or footprints are not covered by the "
-            "airborne tiles; it has no reference value.",
+    "reference outside": "a block only partly covered by the airborne points: one of its "
+            "footprints has less than 90 % of its circle over cells holding airborne points "
+            "(or its corridor reaches beyond the rasters) -- it runs past the tiles' edge or "
+            "over a data gap. Its reference values are computed from the part covered, "
+            "but it is left out of the statistics.",
     "implausible": "a block whose canopy height is taller than any tree.",
     "aspect class": "the compass direction the terrain faces (downhill), N to NW in 45 "
             "degree sectors; flat = mean terrain slope below 2 degrees.",
@@ -89,7 +100,85 @@ GLOSSARY: dict[str, str] = {
             "algorithm the chain applies to the waveforms.",
     "cover": "canopy cover: the share of the footprint's returns more than 2 m above the "
              "ground, a fraction 0 to 1.",
+    "inverted": "a block whose canopy top came out below its ground (a negative height); "
+                "left out of the statistics.",
+    "h90": "the height above the ground below which 90 % of a block's canopy photons (or "
+           "of the reference's canopy) lie, metres.",
+    "top": "canopy top: the elevation of the highest canopy photons (or airborne points) "
+           "of a block, metres.",
+    "MAE": "mean absolute error: the mean of the residuals' absolute values, metres.",
+    "OLS": "ordinary least squares: the straight-line fit of the values on the reference "
+           "values.",
+    "fit slope": "the slope of the least-squares line of the values on the reference "
+                 "values, metres per metre (1 = no scale error); not the terrain slope, "
+                 "which is in degrees.",
+    "ATL03": "ICESat-2's geolocated photon product: every photon's position and height.",
+    "ATL08-style": "the estimators that follow ICESat-2's ATL08 land and vegetation "
+                   "product: photons classified as ground, canopy and canopy top, the "
+                   "ground a surface through the ground photons.",
+    "MABEL": "the Multiple Altimeter Beam Experimental Lidar: NASA's airborne "
+             "photon-counting lidar, ICESat-2's precursor, for whose dense photons the "
+             "paper's method was built.",
+    "DSM / DTM": "digital surface model (the top of the canopy, buildings, ground) and "
+                 "digital terrain model (the bare ground), rasters made from the airborne "
+                 "points.",
+    "beam names (gt1l ... gt3r)": "ICESat-2's six beams: ground tracks 1 to 3, left (l) "
+                                  "and right (r); which of a pair is strong depends on "
+                                  "the spacecraft's orientation. GEDI's beams are named "
+                                  "BEAM0000 ... BEAM1011.",
+    "beam strength": "ICESat-2's strong beams carry about four times the energy of the "
+                     "weak ones, so they record about four times the photons.",
+    "setting a1": "one of the GEDI L2A algorithm's settings groups (a1 ... a6): its noise "
+                  "thresholds and smoothing widths for finding the signal and the modes.",
+    "lowest mode": "the lowest peak of a waveform above the noise: GEDI L2A's ground.",
+    "penetration": "how far below the canopy top a waveform's energy reaches: whether the "
+                   "ground was seen.",
 }
+
+#: A GEDI run's words where they differ from the photon reports' (``definition`` of the
+#: footprint reference: "waveform" or "points").
+GEDI_GLOSSARY: dict[str, dict[str, str]] = {
+    "waveform": {
+        "footprint-matched airborne reference": "the airborne points under each GEDI "
+            "footprint formed into the waveform the sensor would record (a Gaussian beam of "
+            "the footprint's size, each return's energy, the pulse; no noise) and read by "
+            "the same GEDI L2A algorithm as the GEDI waveforms: ground = its lowest mode, "
+            "RH98 and cover from its energy; the like-with-like reference.",
+        "cover": "canopy cover: the canopy share of a footprint's return energy (canopy "
+                 "energy over all the energy of the signal), for the GEDI waveform and the "
+                 "reference waveform alike; a fraction 0 to 1.",
+        "RH98": "relative height 98: the height above the ground (the lowest mode) below "
+                "which 98 % of the waveform's return energy lies, metres.",
+    },
+    "points": {
+        "footprint-matched airborne reference": "the airborne points under each GEDI "
+            "footprint weighted by the footprint (a Gaussian of the footprint's size): "
+            "ground = the weighted mean of the ground points, RH98 = the weighted 98th "
+            "percentile of all returns above it; the like-with-like reference.",
+    },
+    "": {
+        "bias": "mean of the residuals (value minus reference value): metres (cover: "
+                "fraction).",
+        "RMSE": "root mean square of the residuals: metres (cover: fraction).",
+        "slope class": "terrain slope of the footprint in degrees (the plane through the "
+                       "airborne ground points under it): 0-5, 5-10, 10-20, 20-30, >30 degrees.",
+        "aspect class": "the compass direction the terrain of the footprint faces "
+                        "(downhill), N to NW in 45 degree sectors; flat = slope below 2 "
+                        "degrees.",
+        "reference outside": "a footprint only partly covered by the airborne points: less "
+            "than 90 % of its circle over cells holding airborne points (past the tiles' "
+            "edge or over a data gap). Its reference values are computed from the part "
+            "covered, but it is left out of the statistics.",
+    },
+}
+
+
+def gedi_glossary_section(terms: Sequence[str], reference: str = "waveform"
+                          ) -> ReportSection:
+    """The glossary of a GEDI report: the words of the footprint reference the run used
+    (``reference``: "waveform" or "points")."""
+    words = {**GLOSSARY, **GEDI_GLOSSARY[""], **GEDI_GLOSSARY.get(reference, {})}
+    return ReportSection("Glossary", [f"{k}: {words[k]}" for k in terms if k in words])
 
 
 def glossary_section(terms: Sequence[str] | None = None) -> ReportSection:
@@ -98,10 +187,8 @@ def glossary_section(terms: Sequence[str] | None = None) -> ReportSection:
     return ReportSection("Glossary", [f"{k}: {GLOSSARY[k]}" for k in keys])
 
 
-def training_sentence(tiles: Sequence[Path | str]) -> str:
-    """Which tiles the recommended estimators and the sigma model were fitted on; said
-    first when the tiles under validation are among them, with the figures measured on
-    tiles never used for fitting."""
+def _fitted_tiles_seen(tiles: Sequence[Path | str]) -> list[str]:
+    """The tiles of ``tiles`` the estimators or the sigma model were fitted on."""
     import importlib
 
     fitted_on = ""
@@ -111,7 +198,25 @@ def training_sentence(tiles: Sequence[Path | str]) -> str:
     except Exception:  # noqa: BLE001 -- no model: name the tiles from the constant
         fitted_on = ""
     names = {Path(str(t)).name.split(".")[0] for t in tiles}
-    seen = sorted(n for n in names if n in CALIBRATION_TILES or (fitted_on and n in fitted_on))
+    return sorted(n for n in names if n in CALIBRATION_TILES or (fitted_on and n in fitted_on))
+
+
+def training_caveat(tiles: Sequence[Path | str]) -> str:
+    """The report's first caveat in one line for the terminal, when the tiles validated
+    are those the estimators and the sigma model were fitted on (else "")."""
+    seen = _fitted_tiles_seen(tiles)
+    if not seen:
+        return ""
+    return (f"Read with care: the tiles validated here ({', '.join(seen)}) are the tiles the "
+            "recommended estimators and the sigma model were fitted on; the report gives "
+            "the errors measured on unseen tiles.")
+
+
+def training_sentence(tiles: Sequence[Path | str]) -> str:
+    """Which tiles the recommended estimators and the sigma model were fitted on; said
+    first when the tiles under validation are among them, with the figures measured on
+    tiles never used for fitting."""
+    seen = _fitted_tiles_seen(tiles)
     base = ("The recommended estimators' windows and the per-block sigma model were fitted "
             f"on the tiles {', '.join(CALIBRATION_TILES)} (ICESat-2 tracks simulated over "
             "them, night and day, strong and weak beams).")

@@ -75,6 +75,23 @@ class LeadResult:
     facts: pd.DataFrame | None = None   # its rows of the run's table of facts
 
 
+#: What facts.csv holds, and where the report's other numbers are.
+FILES_WORDS = (
+    "facts.csv holds the n, bias, RMSE (with their 95 % intervals), R² and counts of every "
+    "estimator set against each reference, per block length and metric (all aspects and "
+    "slopes together): the numbers of the summary and of the paper's method. The "
+    "report's other numbers are in their own files: "
+    "calibration.csv (the cut-off calibration, when run), bias_calibration_<estimators>.csv "
+    "(the bias calibration and its held-out error), truth_residuals.csv (the simulation's "
+    "known truth, when simulated), the statistics layers of validation.gpkg (by group, with "
+    "MAE and the least-squares fit slope), and stats.csv (the run's own blocks, those of "
+    "blocks.gpkg, against the corridor maximum, every group: the layer 'stats'). The "
+    "figures measured on unseen tiles are the project's benchmarks, not this run's.")
+
+#: Below this many blocks no interval is given.
+MIN_INTERVAL = 3
+
+
 def _fmt(v: float, signed: bool = False) -> str:
     if not np.isfinite(v):
         return "n/a"
@@ -134,10 +151,16 @@ def _sentence(table: pd.DataFrame, length: float) -> str:
         if not len(row):
             continue
         r = row.iloc[0]
+        n = int(r["n"])
+        if n < MIN_INTERVAL:
+            parts.append(f"{_METRIC_WORDS[m]} bias {_fmt(r['bias'], True)} m, RMSE "
+                         f"{_fmt(r['rmse'])} m (n = {n} {'block' if n == 1 else 'blocks'}; "
+                         "too few blocks for an interval)")
+            continue
         parts.append(f"{_METRIC_WORDS[m]} bias {_fmt(r['bias'], True)} m (95 % interval "
                      f"{_span(r['bias_lo'], r['bias_hi'], True)} m), RMSE {_fmt(r['rmse'])} m "
                      f"({_span(r['rmse_lo'], r['rmse_hi'])} m), R² {_fmt(r['r2'])} "
-                     f"(n = {int(r['n'])} blocks)")
+                     f"(n = {n} blocks)")
     return "; ".join(parts)
 
 
@@ -185,8 +208,8 @@ def summary_section(lead: LeadResult, *, source: str, n_tracks: int, n_photons: 
                  "bootstrap over the blocks (2,000 resamples; the analytic interval above "
                  "5,000 blocks). The table below holds the rows of facts.csv for these "
                  f"estimators and this reference (statistics layer '{lead.layer}' of "
-                 "validation.gpkg; the blocks used, all aspects and slopes together); "
-                 "facts.csv holds every number of this report.")
+                 "validation.gpkg; the blocks used, all aspects and slopes together). "
+                 + FILES_WORDS)
     return ReportSection("Summary", paras,
                          {f"'{lead.name}' against the {lead.reference}":
                           numbers_table(table)},
@@ -223,6 +246,11 @@ def summary_lines(lead: LeadResult) -> list[str]:
     out = [f"{who} '{lead.name}' against the {lead.reference} (95 % intervals in brackets; "
            "every number in facts.csv):"]
     for r in table.itertuples():
+        if int(r.n) < MIN_INTERVAL:
+            out.append(f"  {r.length:>5g} m  {str(r.metric):<6}  n={int(r.n):<4} "
+                       f"bias={_fmt(r.bias, True)} m  rmse={_fmt(r.rmse)} m  (too few "
+                       "blocks for an interval)")
+            continue
         out.append(f"  {r.length:>5g} m  {str(r.metric):<6}  n={int(r.n):<4} "
                    f"bias={_fmt(r.bias, True)} m [{_span(r.bias_lo, r.bias_hi, True)}]  "
                    f"rmse={_fmt(r.rmse)} m [{_span(r.rmse_lo, r.rmse_hi)}]  "

@@ -17,6 +17,7 @@ One :class:`RunState` holds what the stages hand on; each stage fills its part:
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -250,4 +251,13 @@ def report_stage(st: RunState) -> ChainResult:
                        rasters={"dtm": r.dtm, "dsm_max": r.dsm_max, "dsm_p90": r.dsm_p90},
                        validation=st.validation, report=report, plots=figures.all(),
                        stats=st.sets[st.primary].corridor_stats, simulated=st.simulated,
-                       summary=summary_lines(lead_result(lead, st.facts)))
+                       summary=_caveated(st.tiles, summary_lines(lead_result(lead, st.facts))))
+
+
+def _caveated(tiles: Sequence[Path], lines: list[str]) -> list[str]:
+    """The terminal summary with the report's first caveat (validated tiles = fitted
+    tiles) said first."""
+    from .glossary import training_caveat
+
+    caveat = training_caveat(tiles)
+    return [caveat, *lines] if caveat else lines

@@ -82,6 +82,19 @@ def footprint_facts(residuals: pd.DataFrame, *, pairs: dict[str, str], metrics: 
     return table
 
 
+#: Below this many footprints (or blocks) no interval is given.
+MIN_INTERVAL = 3
+
+
+def _count(n: int, what: str) -> str:
+    """``1 footprint``, ``2 footprints`` (``what``: the plural)."""
+    return f"{n} {what[:-1] if n == 1 and what.endswith('s') else what}"
+
+
+def _too_few(what: str) -> str:
+    return f"too few {what} for an interval"
+
+
 def _unit(metric: str) -> str:
     return "" if metric == "cover" else " m"
 
@@ -94,12 +107,15 @@ def facts_sentence(facts: pd.DataFrame, words: dict[str, str], what: str = "foot
         if not np.isfinite(r.bias):
             continue
         u = _unit(str(r.metric))
+        few = int(r.n) < MIN_INTERVAL
         ci_b = (f" (95 % interval {r.bias_lo:+.2f} to {r.bias_hi:+.2f}{u})"
-                if np.isfinite(r.bias_lo) else "")
-        ci_r = (f" ({r.rmse_lo:.2f} to {r.rmse_hi:.2f}{u})" if np.isfinite(r.rmse_lo) else "")
+                if np.isfinite(r.bias_lo) and not few else "")
+        ci_r = (f" ({r.rmse_lo:.2f} to {r.rmse_hi:.2f}{u})"
+                if np.isfinite(r.rmse_lo) and not few else "")
         r2 = f", R² {r.r2:.2f}" if np.isfinite(r.r2) else ""
+        note = f"; {_too_few(what)}" if few else ""
         parts.append(f"{words.get(str(r.metric), r.metric)} bias {r.bias:+.2f}{u}{ci_b}, "
-                     f"RMSE {r.rmse:.2f}{u}{ci_r}{r2} (n = {int(r.n)} {what})")
+                     f"RMSE {r.rmse:.2f}{u}{ci_r}{r2} (n = {_count(int(r.n), what)}{note})")
     return "; ".join(parts)
 
 
@@ -120,10 +136,14 @@ def facts_lines(facts: pd.DataFrame, words: dict[str, str], reference: str,
     out = [f"against {reference} (95 % intervals in brackets; every number in facts.csv):"]
     for r in facts.itertuples():
         u = _unit(str(r.metric))
-        out.append(f"  {words.get(str(r.metric), r.metric)}: n={int(r.n)} of "
-                   f"{int(r.n_blocks)} {what}  bias={r.bias:+.2f}{u} "
-                   f"[{r.bias_lo:+.2f} to {r.bias_hi:+.2f}]  rmse={r.rmse:.2f}{u} "
-                   f"[{r.rmse_lo:.2f} to {r.rmse_hi:.2f}]  R²={r.r2:.2f}")
+        head = (f"  {words.get(str(r.metric), r.metric)}: n={int(r.n)} of "
+                f"{_count(int(r.n_blocks), what)}  bias={r.bias:+.2f}{u}")
+        if int(r.n) < MIN_INTERVAL:
+            out.append(f"{head}  rmse={r.rmse:.2f}{u}  ({_too_few(what)})")
+            continue
+        r2 = f"  R²={r.r2:.2f}" if np.isfinite(r.r2) else ""
+        out.append(f"{head} [{r.bias_lo:+.2f} to {r.bias_hi:+.2f}]  rmse={r.rmse:.2f}{u} "
+                   f"[{r.rmse_lo:.2f} to {r.rmse_hi:.2f}]{r2}")
     return out
 
 
@@ -157,7 +177,7 @@ def waveform_summary_section(stats: pd.DataFrame, *, source: str, n_footprints: 
     the reference's definition, ``FootprintReferenceParams.definition``)."""
     from ...validation.footprints import reference_words
 
-    paras = [f"{n_footprints} GEDI footprints of {len(beams)} "
+    paras = [f"{_count(n_footprints, 'GEDI footprints')} of {len(beams)} "
              f"{'beam' if len(beams) == 1 else 'beams'} ({', '.join(beams) or 'none'}) of "
              f"{source}, processed with the GEDI L2A algorithm (setting {setting}), "
              f"validated against the airborne lidar tiles {', '.join(t.name for t in tiles)}."]
@@ -173,9 +193,12 @@ def waveform_summary_section(stats: pd.DataFrame, *, source: str, n_footprints: 
         paras.append("No footprint could be validated against the airborne reference.")
     paras.append(GEDI_FOOTPRINT_WORDS)
     paras.append("Residual = waveform value minus reference value. 95 % intervals: bootstrap "
-                 "over the footprints (2,000 resamples). facts.csv holds every number of "
-                 "this summary; the tables below are layer 'stats_footprints' of "
-                 "validation.gpkg (also stats.csv, its footprint_diameter column in m).")
+                 f"over the footprints (2,000 resamples; none below {MIN_INTERVAL} "
+                 "footprints). facts.csv holds every number of this summary (its 'length' "
+                 "column is the footprint diameter, m); the tables below are layer "
+                 "'stats_footprints' of validation.gpkg (whose 'length' column is the "
+                 "footprint diameter, m) and stats.csv (the same rows, the column named "
+                 "footprint_diameter).")
     tables = {k: v for k, v in waveform_stats_tables(stats).items() if "all footprints" in k}
     return ReportSection("Summary", paras, tables)
 
@@ -189,7 +212,7 @@ def gedi_sections(fp: pd.DataFrame, val: Any, facts: pd.DataFrame, *, l1b: Any,
     validation, glossary (``reference``: the reference's definition)."""
     from ...readers.remote import source_name
     from ...validation.footprints import reference_words
-    from .glossary import glossary_section
+    from .glossary import gedi_glossary_section
     from .report import datum_sentence
 
     flags = fp["flag"].value_counts().rename_axis("flag").reset_index(name="footprints")
@@ -219,8 +242,11 @@ def gedi_sections(fp: pd.DataFrame, val: Any, facts: pd.DataFrame, *, l1b: Any,
             f"{MIN_GROUP} footprints are left out of the tables (the maps show every "
             "footprint)."],
             waveform_stats_tables(val.stats), list(maps)),
-        glossary_section(["RH98", "footprint-matched airborne reference", "bias", "RMSE",
-                          "95 % interval", "R²", "L1B / L2A", "ALS", "cover", "aspect class",
-                          "slope class", "reference outside", "random seed"]),
+        gedi_glossary_section(
+            ["RH98", "footprint-matched airborne reference", "bias", "RMSE",
+             "95 % interval", "R²", "L1B / L2A", "setting a1", "lowest mode", "top",
+             "penetration", "ALS", "cover", "aspect class", "slope class",
+             "reference outside", "random seed", "beam names (gt1l ... gt3r)"],
+            reference),
     ]
     return sections
