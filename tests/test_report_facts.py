@@ -287,3 +287,18 @@ def test_waveform_words(runs) -> None:
     assert covers and all(re.fullmatch(r"cover:(0(\.\d+)?-(0\.\d+|1)|unknown)", g)
                           for g in covers), covers
     assert "Glossary" in text and "r2" not in text
+    # the glossary defines the reference and cover the way this run formed them
+    gloss = text[text.index("Glossary"):]
+    assert "formed into the waveform" in gloss and "more than 2 m above" not in gloss
+    assert "setting only its detection thresholds" in text
+
+
+def test_photon_report_says_what_facts_csv_holds(runs) -> None:
+    out, said = runs["photons"]
+    text = " ".join(_text(out).split())
+    assert "facts.csv holds every number" not in text
+    assert "stats.csv (the run's own blocks" in text and "corridor maximum" in text
+    assert "for the 'atl08' estimators plus an additive bias calibration" in text
+    # the terminal says the report's first caveat (the tiles are the fitted ones)
+    assert "are the tiles the recommended estimators and the sigma model were fitted on" \
+        in said

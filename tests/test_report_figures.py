@@ -84,7 +84,21 @@ def test_residual_map_draws_the_hillshade_of_a_dtm_in_another_crs(tmp_path, monk
         assert not a.overlaps(b), [t.get_text() for t in ax.get_xticklabels()]
     # the block without a value is explained, not left blank
     legend = ax.get_legend()
-    assert legend is not None and "no value (1)" in [t.get_text() for t in legend.get_texts()]
+    assert legend is not None and "not in the statistics: no value 1" in [
+        t.get_text() for t in legend.get_texts()]
+
+
+def test_residual_map_labels_hatched_blocks_by_their_reason(tmp_path) -> None:
+    """Blocks with a value but low_confidence are hatched and said so (not 'no value')."""
+    from canopyblocks.outputs.footprint_maps import _hatched_label
+
+    g = _blocks(0.0, 0.0, "EPSG:32609")
+    g["flag"] = ["sparse", "ok", "ok", "ok", "ok", "ok", "ok", "ok"]
+    g["use"] = [False, False, False, True, True, True, True, True]
+    g["ref_flag"] = ["ok", "ok", "outside", "ok", "ok", "ok", "ok", "ok"]
+    hatched = ~(g["use"].to_numpy(bool) & np.isfinite(g["res_hmax"].to_numpy(float)))
+    assert _hatched_label(g, hatched, True) == ("not in the statistics: not used 1; "
+                                                "reference outside 1; sparse 1")
 
 
 def test_residual_map_in_its_own_crs_is_unchanged(tmp_path) -> None:
@@ -248,6 +262,14 @@ def test_scatter_and_aspect_titles_name_the_estimator_and_the_reference(monkeypa
     vp.write_validation_plots(res, stats, tmp_path, estimator="paper",
                               reference="corridor maximum", prefix="paper_corridor_")
     assert seen[2]._suptitle.get_text().startswith("The paper's method vs the corridor maximum")
+    # the paper's method has no sigma: no bars and no legend entry for one
+    nosig = res.assign(hmax_sigma=np.nan, ground_sigma=np.nan)
+    vp.write_validation_plots(nosig, stats, tmp_path, estimator="paper",
+                              reference="corridor maximum", prefix="paper_nosigma_")
+    texts = [t.get_text() for lg in seen[4].legends for t in lg.get_texts()]
+    texts += [t.get_text() for ax in seen[4].axes if ax.get_legend()
+              for t in ax.get_legend().get_texts()]
+    assert texts and "predicted 1-sigma error of the block" not in texts
 
 
 def test_profile_shows_the_lead_estimators_with_the_paper_overlaid(monkeypatch,
@@ -360,3 +382,42 @@ def test_numbers_and_simulation_headers_as_a_reader_reads_them(tmp_path) -> None
     assert heads == ["footprint diameter (m)", "photon draws", "mean cover (fraction)",
                      "ground bias (m)", "canopy-top photons"]
     assert "<td>13</td>" in page and "13.000" not in page and "<td>-0.12</td>" in page
+
+
+def test_gedi_glossary_follows_the_reference_the_run_used() -> None:
+    from canopyblocks.workflows.chain.glossary import GLOSSARY, gedi_glossary_section
+
+    terms = ["footprint-matched airborne reference", "cover", "bias", "slope class",
+             "reference outside"]
+    wave = " ".join(gedi_glossary_section(terms, "waveform").paragraphs)
+    assert "formed into the waveform" in wave and "share of a footprint's return energy" in wave
+    assert "more than 2 m" not in wave and "metres (cover: fraction)" in wave
+    assert "of the footprint" in wave and "corridor" not in wave
+    pts = " ".join(gedi_glossary_section(terms, "points").paragraphs)
+    assert "weighted by the footprint" in pts and "formed into the waveform" not in pts
+    # the photon reports keep theirs; 'reference outside' is partly covered, with values
+    assert "weighted by the footprint" in GLOSSARY["footprint-matched airborne reference"]
+    assert "no reference value" not in GLOSSARY["reference outside"]
+    assert "less than 90 %" in GLOSSARY["reference outside"]
+
+
+def test_too_few_for_an_interval_and_one_footprint_singular() -> None:
+    from canopyblocks.workflows.chain.waveform_report import facts_lines, facts_sentence
+
+    one = pd.DataFrame([{"metric": "rh98", "n": 1, "n_blocks": 1, "bias": 0.5,
+                         "bias_lo": np.nan, "bias_hi": np.nan, "rmse": 0.5,
+                         "rmse_lo": np.nan, "rmse_hi": np.nan, "r2": np.nan}])
+    said = facts_sentence(one, {})
+    assert "(n = 1 footprint; too few footprints for an interval)" in said
+    line = " ".join(facts_lines(one, {}, "ref"))
+    assert "nan" not in line and "too few footprints for an interval" in line
+    assert "of 1 footprint " in line
+
+
+def test_unseen_figures_name_their_condition_and_the_terminal_the_caveat() -> None:
+    from canopyblocks.workflows.chain.glossary import UNSEEN_FIGURES, training_caveat
+
+    assert UNSEEN_FIGURES.startswith("for the 'atl08' estimators plus an additive bias "
+                                     "calibration")
+    assert "lasR_bcts_1" in training_caveat(["t/lasR_bcts_1.laz"])
+    assert training_caveat(["t/pyfor_test.laz"]) == ""

@@ -115,6 +115,25 @@ def _crs_label(gdf: Any) -> str:
     return f", EPSG:{code}" if code else ""
 
 
+def _hatched_label(gdf: pd.DataFrame, hatched: np.ndarray, only_used: bool) -> str:
+    """The legend of the hatched (uncoloured) shapes, counted by reason as the report's
+    counts are: the block's flag, else the reference's, else not used, else no value."""
+    n = len(gdf)
+    flag = (gdf["flag"].astype(str).to_numpy(object) if "flag" in gdf
+            else np.full(n, "ok", object))
+    rflag = (gdf["ref_flag"].astype(str).to_numpy(object) if "ref_flag" in gdf
+             else np.full(n, "ok", object))
+    use = (gdf["use"].fillna(False).to_numpy(bool) if (only_used and "use" in gdf)
+           else np.ones(n, bool))
+    why = np.where(flag != "ok", flag,
+                   np.where(rflag != "ok", np.array([f"reference {f}" for f in rflag],
+                                                    dtype=object),
+                            np.where(~use, "not used", "no value")))
+    reasons, counts = np.unique(why[hatched].astype(str), return_counts=True)
+    return "not in the statistics: " + "; ".join(
+        f"{r} {int(c)}" for r, c in zip(reasons, counts, strict=True))
+
+
 def plot_footprint_map(residuals: Any, column: str, path: str | os.PathLike[str], *,
                        dtm: str | os.PathLike[str] | None = None, only_used: bool = True,
                        title: str | None = None) -> Path:
@@ -187,7 +206,7 @@ def plot_footprint_map(residuals: Any, column: str, path: str | os.PathLike[str]
                                           facecolor="none", edgecolor="0.3", linewidth=0.8,
                                           hatch="///"))
         ax.legend(handles=[Patch(facecolor="none", edgecolor="0.3", hatch="///",
-                                 label=f"no value ({int((~col).sum())})")],
+                                 label=_hatched_label(gdf, ~col, only_used))],
                   loc="upper left", bbox_to_anchor=(0.0, -0.16), frameon=False, fontsize=8)
     from matplotlib.ticker import MaxNLocator
 

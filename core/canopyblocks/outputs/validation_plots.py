@@ -82,8 +82,9 @@ def plot_validation_scatter(residuals: pd.DataFrame, path: str | os.PathLike[str
         x, y = x[ok], y[ok]
         st = error_stats(y, x, allow_empty=True)
         sig_col = {"hmax": "hmax_sigma", "ground": "ground_sigma"}.get(m)
-        if sig_col is not None and sig_col in sub.columns:
-            sig = sub[sig_col].to_numpy(float)[ok]
+        sig = (sub[sig_col].to_numpy(float)[ok]
+               if sig_col is not None and sig_col in sub.columns else np.array([]))
+        if np.isfinite(sig).any():  # no bars (nor legend entry) where no sigma exists
             ax.errorbar(x, y, yerr=np.where(np.isfinite(sig), sig, 0.0), fmt="none",
                         ecolor="0.6", elinewidth=0.7, capsize=0,
                         label="predicted 1-sigma error of the block")
