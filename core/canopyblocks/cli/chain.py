@@ -14,6 +14,7 @@ from .common import (
     min_signal_conf_option,
     parse_channel,
     preset_option,
+    sensor_option,
     vertical_options,
 )
 from .options import option
@@ -29,12 +30,10 @@ from .vocabulary import deprecated_option, say_deprecated, take_alias
                    "ICESat-2 photons are simulated over the tiles.")
 @click.option("--simulate", is_flag=True, help="Simulate the photons (the default without "
               "--photons).")
-@click.option("--sensor", type=click.Choice(["icesat2", "gedi", "esfl", "dual"]),
-              default="icesat2", show_default=True,
-              help="What to simulate without --photons: ICESat-2 photons, GEDI waveforms, "
-                   "flash-lidar (ESFL) cubes or dual-wavelength pairs (then footprints are "
-                   "validated against the tiles). A GEDI, ESFL or dual file given as "
-                   "--photons is told from its content.")
+@sensor_option("What to simulate without --photons: ICESat-2 photons, GEDI waveforms, "
+               "flash-lidar (ESFL) cubes or dual-wavelength pairs (then footprints are "
+               "validated against the tiles). A GEDI, ESFL or dual file given as "
+               "--photons is told from its content.")
 @click.option("--esfl-noise", type=click.FloatRange(min=0.0, max=1.0), default=None,
               help="--sensor esfl: noise sd per pixel and range bin as a share of the mean "
                    "brightest-pixel peak (default 0.05; the flash-lidar paper does not "

@@ -41,7 +41,7 @@ from .vocabulary import ChoiceWithOld
 
 __all__ = ["lengths_option", "channel_option", "preset_option", "PRESET_CHOICES",
            "explicit_value", "WIDTH_HELP", "min_signal_conf_option", "vertical_options",
-           "parse_floats", "parse_channel", "run_main", "setup_logging", "progress_bar", "summary",
+           "parse_floats", "parse_channel", "sensor_option", "SIMULATED_SENSORS", "run_main", "setup_logging", "progress_bar", "summary",
            "is_quiet", "EXIT_OK", "EXIT_BAD_INPUT", "EXIT_BUG", "EXIT_SIGINT", "EXIT_SIGTERM"]
 
 F = TypeVar("F", bound=Callable[..., Any])
@@ -53,6 +53,16 @@ def lengths_option(default: str) -> Callable[[F], F]:
     """``--length`` (repeatable, metres) -> ``lengths: tuple[float, ...]``."""
     return option("--length", "lengths",
                   help=f"Block length, m; repeat for several (default {default}).")
+
+
+#: What ``simulate`` and ``run`` simulate: ICESat-2 photons or a waveform sensor's file.
+SIMULATED_SENSORS: tuple[str, ...] = ("icesat2", "gedi", "esfl", "dual")
+
+
+def sensor_option(help_text: str) -> Callable[[F], F]:
+    """``--sensor``: what to simulate, the same names and default in every command."""
+    return click.option("--sensor", type=click.Choice(list(SIMULATED_SENSORS)),
+                        default="icesat2", show_default=True, help=help_text)
 
 
 #: The block estimator presets every command offers, the default first (declared once in

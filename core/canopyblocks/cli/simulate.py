@@ -9,6 +9,7 @@ import click
 
 from ..options import PHOTON_RATES
 from .common import parse_floats as _floats
+from .common import sensor_option
 from .options import option
 from .progress_bars import progress_bar
 from .vocabulary import deprecated_option, take_alias
@@ -24,12 +25,10 @@ WAVEFORM_FOOTPRINT = {"gedi": "GEDI footprint (22 m Gaussian, sigma 5.5 m)",
 
 @click.command("simulate")
 @click.argument("las", nargs=-1, required=True, type=click.Path(dir_okay=False))
-@click.option("--sensor", type=click.Choice(["icesat2", "gedi", "esfl", "dual"]),
-              default="icesat2", show_default=True,
-              help="icesat2: photons (--instrument mabel for MABEL); gedi: "
-                   "waveforms in the GEDI L1B layout; esfl: flash-array data cubes "
-                   "(electronically steerable flash lidar); dual: visible/NIR waveform "
-                   "pairs.")
+@sensor_option("icesat2: photons (--instrument mabel for MABEL); gedi: "
+               "waveforms in the GEDI L1B layout; esfl: flash-array data cubes "
+               "(electronically steerable flash lidar); dual: visible/NIR waveform "
+               "pairs.")
 @click.option("--azimuth", type=float, default=None,
               help="Track through the survey centre at this azimuth, degrees clockwise "
                    "from grid north, clipped to the survey extent.")

@@ -95,6 +95,15 @@ def _extras(extra: Mapping[str, object], n: int) -> dict[str, np.ndarray]:
     return out
 
 
+def _set_finite(obj: object, cols: Mapping[str, np.ndarray]) -> None:
+    """Set each column on the frozen ``obj`` in turn, refusing one holding NaN/inf."""
+    for k, v in cols.items():
+        if not np.all(np.isfinite(v)):
+            raise InputError(f"{type(obj).__name__}.{k} holds NaN/inf; drop those photons "
+                             "first")
+        object.__setattr__(obj, k, v)
+
+
 @dataclass(frozen=True, eq=False)
 class Atl03Background:
     """A beam's ``bckgrd_atlas`` group: the background rate per 50-shot sum.
@@ -180,10 +189,7 @@ class Atl03BeamData:
         cols = {"delta_time": t, "lat": _column("lat", self.lat, n),
                 "lon": _column("lon", self.lon, n), "h": _column("h", self.h, n),
                 "s": _column("s", self.s, n)}
-        for k, v in cols.items():
-            if not np.all(np.isfinite(v)):
-                raise InputError(f"Atl03BeamData.{k} holds NaN/inf; drop those photons first")
-            object.__setattr__(self, k, v)
+        _set_finite(self, cols)
         if n and cols["s"].min() < 0:
             raise InputError(f"Atl03BeamData.s must be >= 0 (metres from the track start), "
                              f"got minimum {cols['s'].min():.3f}")
@@ -249,11 +255,9 @@ class MabelChannelData:
     def __post_init__(self) -> None:
         t = _column("delta_time", self.delta_time, None)
         n = t.size
-        for k, v in (("delta_time", t), ("lat", _column("lat", self.lat, n)),
-                     ("lon", _column("lon", self.lon, n)), ("elev", _column("elev", self.elev, n))):
-            if not np.all(np.isfinite(v)):
-                raise InputError(f"MabelChannelData.{k} holds NaN/inf; drop those photons first")
-            object.__setattr__(self, k, v)
+        _set_finite(self, {"delta_time": t, "lat": _column("lat", self.lat, n),
+                           "lon": _column("lon", self.lon, n),
+                           "elev": _column("elev", self.elev, n)})
         if self.shot_num is None or self.photon_id is None:
             _, inv = np.unique(t, return_inverse=True)
             order = np.argsort(inv, kind="stable")

@@ -100,17 +100,16 @@ class H5File:
 
     def is_group(self, name: str) -> bool:
         """True when ``name`` exists and is a group."""
-        h5py = _import_h5py()
-        try:
-            return isinstance(self._f.get(name), h5py.Group)
-        except (OSError, KeyError, RuntimeError, ValueError):
-            return False
+        return self._is_a(name, _import_h5py().Group)
 
     def is_dataset(self, name: str) -> bool:
         """True when ``name`` exists and is a dataset."""
-        h5py = _import_h5py()
+        return self._is_a(name, _import_h5py().Dataset)
+
+    def _is_a(self, name: str, kind: type) -> bool:
+        """True when ``name`` exists and is a ``kind`` (False on any read error)."""
         try:
-            return isinstance(self._f.get(name), h5py.Dataset)
+            return isinstance(self._f.get(name), kind)
         except (OSError, KeyError, RuntimeError, ValueError):
             return False
 

@@ -50,6 +50,14 @@ def _read(f: H5File, beam: str, name: str, n: int) -> np.ndarray:
     return a
 
 
+def _shot_columns(f: H5File, beam: str) -> tuple[int, dict[str, Any]]:
+    """The beam's shot count and its ``beam`` and ``shot_number`` (int64) columns."""
+    sn = f.read(f"{beam}/shot_number")
+    n = sn.shape[0]
+    return n, {"beam": np.full(n, beam, dtype=object),
+               "shot_number": np.asarray(sn, dtype=np.uint64).astype(np.int64)}
+
+
 def _bbox(df: pd.DataFrame, bbox: tuple[float, float, float, float] | None) -> pd.DataFrame:
     if bbox is None:
         return df
@@ -99,11 +107,7 @@ def read_gedi_l2a(path: str | os.PathLike[str], beams: Sequence[str] | str | Non
     frames = []
     with open_h5(path) as f:
         for beam in _beams(f, beams, "elev_lowestmode"):
-            sn = f.read(f"{beam}/shot_number")
-            n = sn.shape[0]
-            cols: dict[str, Any] = {"beam": np.full(n, beam, dtype=object),
-                                    "shot_number": np.asarray(sn, dtype=np.uint64)
-                                    .astype(np.int64)}
+            n, cols = _shot_columns(f, beam)
             if setting is None:
                 lon = _read(f, beam, "lon_lowestmode", n)
                 lat = _read(f, beam, "lat_lowestmode", n)
@@ -152,11 +156,7 @@ def read_gedi_l2b(path: str | os.PathLike[str], beams: Sequence[str] | str | Non
     frames = []
     with open_h5(path) as f:
         for beam in _beams(f, beams, "cover"):
-            sn = f.read(f"{beam}/shot_number")
-            n = sn.shape[0]
-            cols: dict[str, Any] = {"beam": np.full(n, beam, dtype=object),
-                                    "shot_number": np.asarray(sn, dtype=np.uint64)
-                                    .astype(np.int64)}
+            n, cols = _shot_columns(f, beam)
             for key, names in (("lon", ("geolocation/lon_lowestmode", "lon_lowestmode")),
                                ("lat", ("geolocation/lat_lowestmode", "lat_lowestmode"))):
                 name = next((nm for nm in names if f.is_dataset(f"{beam}/{nm}")), None)

@@ -253,6 +253,20 @@ def _inline(keys: dict[int, tuple[int, int, int]], key: int) -> int | None:
     return value if loc == 0 else None
 
 
+def _stated_unit(keys: dict[int, tuple[int, int, int]], key: int, p: Path, what: str,
+                 kind: str) -> tuple[str, float] | None:
+    """The unit (name, metres per unit) the GeoKey ``key`` states inline, or None (not
+    stated, or user-defined); a code that is no unit is refused naming the file."""
+    code = _inline(keys, key)
+    if code is None or code == _USER_DEFINED:
+        return None
+    stated = _unit(code)
+    if stated is None:
+        raise CRSError(f"{p}: its {what} give the {kind} unit code {code}, which is not a "
+                       "unit; rewrite the file's CRS")
+    return stated
+
+
 def _citation(keys: dict[int, tuple[int, int, int]], key: int, ascii_params: str) -> str:
     loc, count, offset = keys.get(key, (-1, 0, 0))
     if loc != 34737 or count <= 0:
@@ -274,12 +288,8 @@ def _from_keys(p: Path, keys: dict[int, tuple[int, int, int]], ascii_params: str
                                "with writers.las.a_srs)") from None
             break
     h_unit = _axis_unit(horizontal)
-    code = _inline(keys, GEOKEY_LINEAR_UNITS)
-    if code is not None and code != _USER_DEFINED:
-        stated = _unit(code)
-        if stated is None:
-            raise CRSError(f"{p}: its {what} give the linear unit code {code}, which is not a "
-                           "unit; rewrite the file's CRS")
+    stated = _stated_unit(keys, GEOKEY_LINEAR_UNITS, p, what, "linear")
+    if stated is not None:
         if h_unit is not None and horizontal is not None and horizontal.is_projected \
                 and abs(stated[1] - h_unit[1]) > 1e-9:
             raise CRSError(f"{p}: its {what} say the positions are in {stated[0]!r} but "
@@ -305,12 +315,8 @@ def _from_keys(p: Path, keys: dict[int, tuple[int, int, int]], ascii_params: str
     elif code == _USER_DEFINED:
         v_name = _citation(keys, GEOKEY_VERTICAL + 1, ascii_params) or "unknown"
     v_unit = _axis_unit(vertical)
-    code = _inline(keys, GEOKEY_VERTICAL_UNITS)
-    if code is not None and code != _USER_DEFINED:
-        stated = _unit(code)
-        if stated is None:
-            raise CRSError(f"{p}: its {what} give the vertical unit code {code}, which is "
-                           "not a unit; rewrite the file's CRS")
+    stated = _stated_unit(keys, GEOKEY_VERTICAL_UNITS, p, what, "vertical")
+    if stated is not None:
         if v_unit is not None and abs(stated[1] - v_unit[1]) > 1e-9:
             raise CRSError(f"{p}: its {what} say the heights are in {stated[0]!r} but "
                            f"{vertical.name if vertical else 'its vertical CRS'} is in "

@@ -49,12 +49,17 @@ from .footprint_returns import FootprintReturns, footprint_returns
 from .waveform_binning import bin_returns
 
 __all__ = ["WaveformFormParams", "noise_free_waveforms", "read_noise_free",
-           "waveform_reference", "SAMPLE_M", "WAVEFORM_RH"]
+           "waveform_reference", "pulse_sigma_m", "SAMPLE_M", "WAVEFORM_RH"]
 
 #: Light travels 0.1499 m (there and back) per nanosecond sample.
 SAMPLE_M = 0.299792458 / 2.0
 #: RH percentiles of the waveform reference (those of the footprint table).
 WAVEFORM_RH: tuple[int, ...] = (25, 50, 75, 90, 95, 98, 100)
+
+
+def pulse_sigma_m(pulse_fwhm_ns: float) -> float:
+    """Pulse sigma in range (metres) of a pulse ``pulse_fwhm_ns`` nanoseconds wide (FWHM)."""
+    return pulse_fwhm_ns / (2.0 * np.sqrt(2.0 * np.log(2.0))) * SAMPLE_M
 
 
 @dataclass(frozen=True)
@@ -103,7 +108,7 @@ class WaveformFormParams:
     @property
     def pulse_sigma_m(self) -> float:
         """Pulse sigma in range, metres."""
-        return self.pulse_fwhm_ns / (2.0 * np.sqrt(2.0 * np.log(2.0))) * SAMPLE_M
+        return pulse_sigma_m(self.pulse_fwhm_ns)
 
     @classmethod
     def for_diameter(cls, diameter: float, **kw: object) -> WaveformFormParams:

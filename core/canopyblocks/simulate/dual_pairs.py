@@ -22,19 +22,13 @@ import numpy as np
 import pandas as pd
 
 from ..errors import InputError
+from ..reference.dual_reference import NOISE_FREE_FLOOR, PAPER_NOISE
 from ..reference.waveform_binning import bin_returns
 
 __all__ = ["DualSimParams", "DualPairs", "simulate_dual_pairs", "dual_cover_study",
            "lowest_mode_ground", "NOISE_FREE_FLOOR", "PAPER_NOISE"]
 
 log = logging.getLogger(__name__)
-
-#: Noise-free pairs: the noise sd given to the ground finder, as a share of each band's
-#: peak (a receiver floor, so the above-noise mask is defined).
-NOISE_FREE_FLOOR = 0.0025
-
-#: The dual-wavelength paper's noise (sd as a share of the near-infrared peak).
-PAPER_NOISE = 0.05
 
 
 @dataclass(frozen=True)

@@ -50,6 +50,7 @@ from ..reference.waveform_reference import (
     SAMPLE_M,
     WaveformFormParams,
     noise_free_waveforms,
+    pulse_sigma_m,
     read_noise_free,
 )
 from ..waveforms.batch import WaveformBatch
@@ -98,16 +99,17 @@ class GediSimParams:
         Metres of waveform above the highest and below the lowest point.
     """
 
-    sigma: float = 5.5
-    pulse_fwhm_ns: float = 15.6
+    # the formation's own defaults (one place: the footprint reference's)
+    sigma: float = WaveformFormParams.sigma
+    pulse_fwhm_ns: float = WaveformFormParams.pulse_fwhm_ns
     spacing: float = 60.0
-    density_cell: float = 1.5
-    rho_ratio: float = 1.5
-    peak_counts: float = 250.0
-    noise_mean: float = 230.0
-    noise_sd: float = 4.0
+    density_cell: float = WaveformFormParams.density_cell
+    rho_ratio: float = WaveformFormParams.rho_ratio
+    peak_counts: float = WaveformFormParams.peak_counts
+    noise_mean: float = WaveformFormParams.noise_mean
+    noise_sd: float = WaveformFormParams.noise_sd
     digitiser_sigma: float = 1.0
-    margin: float = 25.0
+    margin: float = WaveformFormParams.margin
     beam: str = "BEAM0101"
     extra_truth: tuple[str, ...] = field(default=())
 
@@ -136,7 +138,7 @@ class GediSimParams:
     @property
     def pulse_sigma_m(self) -> float:
         """Pulse sigma in range (m)."""
-        return self.pulse_fwhm_ns / (2.0 * np.sqrt(2.0 * np.log(2.0))) * SAMPLE_M
+        return pulse_sigma_m(self.pulse_fwhm_ns)
 
 
 @dataclass(frozen=True)

@@ -38,7 +38,7 @@ from ..progress import Progress, as_progress
 from ..readers.las import LasPoints
 from ..reference.dual_reference import DualFormParams, dual_bands, dual_noise_sd
 from ..reference.footprint_returns import footprint_returns
-from .dual_pairs import PAPER_NOISE, DualPairs
+from .dual_pairs import DualPairs
 from .flash_cubes import FlashSimParams, simulate_flash_cubes, threshold_study
 from .tracks import SimTrack, shots_along
 
@@ -60,14 +60,15 @@ class DualAlsParams:
     the ground finder then gets a floor of 0.25 % of each band's peak).
     """
 
-    sigma: float = 5.5
+    # the formation's own defaults (one place: the dual-wavelength reference's)
+    sigma: float = DualFormParams.sigma
     spacing: float = 10.0
-    bin_size: float = 0.15
-    pulse_sigma: float = 4e-9 * 299_792_458.0 / 2 / 2.3548
-    leaf: tuple[float, float] = (0.05, 0.45)
-    soil: tuple[float, float] = (0.15, 0.25)
-    noise: float = PAPER_NOISE
-    density_cell: float = 1.5
+    bin_size: float = DualFormParams.bin_size
+    pulse_sigma: float = DualFormParams.pulse_sigma
+    leaf: tuple[float, float] = DualFormParams.leaf
+    soil: tuple[float, float] = DualFormParams.soil
+    noise: float = DualFormParams.noise
+    density_cell: float = DualFormParams.density_cell
 
     @property
     def formation(self) -> DualFormParams:
@@ -77,11 +78,9 @@ class DualAlsParams:
                               noise=self.noise, density_cell=self.density_cell)
 
     def __post_init__(self) -> None:
-        for name in ("sigma", "spacing", "bin_size", "pulse_sigma", "density_cell"):
-            if not getattr(self, name) > 0:
-                raise InputError(f"{name} must be positive, got {getattr(self, name)!r}")
-        if self.noise < 0:
-            raise InputError(f"noise must be >= 0, got {self.noise!r}")
+        if not self.spacing > 0:
+            raise InputError(f"spacing must be positive, got {self.spacing!r}")
+        _ = self.formation  # the formation's checks (sigma, bin_size, pulse_sigma, ..., noise)
 
 
 def simulate_dual_over_points(points: LasPoints, track: SimTrack,

@@ -66,7 +66,7 @@ from ..reference.terrain import aspect_class, slope_class
 from ..schema import FLAG_OK, STATS_COLUMNS
 from .block_validation import ValidationResult
 from .residuals import compute_residuals
-from .stats import GROUP_ALL, _sorted_classes, block_stats, error_stats
+from .stats import GROUP_ALL, _sorted_classes, _used_rows, block_stats, error_stats
 
 __all__ = [
     "FootprintValidation",
@@ -378,12 +378,7 @@ def footprint_stats(residuals: pd.DataFrame, *, length: float,
 
     ``length`` fills the ``length`` column (the footprint diameter, m).
     """
-    for m in metrics:
-        if m not in FOOTPRINT_METRICS:
-            raise InputError(f"unknown metric {m!r}; use {', '.join(FOOTPRINT_METRICS)}")
-    df = residuals
-    if only_used and "use" in df.columns:
-        df = df[df["use"].to_numpy(bool)]
+    df = _used_rows(residuals, metrics, tuple(FOOTPRINT_METRICS), only_used)
     subsets: list[tuple[str, pd.DataFrame]] = [(GROUP_ALL, df)]
     for prefix, col in groups:
         if col not in df.columns:

@@ -82,6 +82,18 @@ def _sorted_classes(values: Sequence[str]) -> list[str]:
     return sorted(set(values), key=lambda c: (rank.get(c, len(rank)), c))
 
 
+def _used_rows(residuals: pd.DataFrame, metrics: Sequence[str], known: Sequence[str],
+               only_used: bool) -> pd.DataFrame:
+    """The residuals' rows to count (``use`` True when ``only_used``), once every metric is
+    one of ``known`` (else the one-line error naming them)."""
+    for m in metrics:
+        if m not in known:
+            raise InputError(f"unknown metric {m!r}; use {', '.join(known)}")
+    if only_used and "use" in residuals.columns:
+        return residuals[residuals["use"].to_numpy(bool)]
+    return residuals
+
+
 def block_stats(residuals: pd.DataFrame, *, metrics: Sequence[str] = METRICS,
                 groups: Sequence[tuple[str, str]] = (("aspect", "aspect_class"),
                                                      ("slope", "slope_class")),
@@ -107,12 +119,7 @@ def block_stats(residuals: pd.DataFrame, *, metrics: Sequence[str] = METRICS,
     """
     from ..arguments import check_frame
     check_frame(residuals, "block_stats: residuals", "a residuals table (DataFrame)")
-    for m in metrics:
-        if m not in RESIDUAL_PAIRS:
-            raise InputError(f"unknown metric {m!r}; use {', '.join(RESIDUAL_PAIRS)}")
-    df = residuals
-    if only_used and "use" in df.columns:
-        df = df[df["use"].to_numpy(bool)]
+    df = _used_rows(residuals, metrics, tuple(RESIDUAL_PAIRS), only_used)
     rows = []
     for length in sorted(pd.unique(residuals["length"])):
         dl = df[df["length"].to_numpy() == length]

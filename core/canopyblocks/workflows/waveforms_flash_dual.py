@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import logging
 import os
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -57,6 +58,18 @@ def _file_crs(crs_text: str, path: object) -> Any:
         raise CRSError(f"{path}: the file states no CRS (root attribute crs); it was not "
                        "written by `canopyblocks simulate`")
     return as_crs(crs_text, f"{path}: crs")
+
+
+def _opened(path: str | os.PathLike[str], read: Callable[[Any], Any],
+            progress: Progress | None, what: str, step: str) -> tuple[Progress, Any, Any]:
+    """The progress, the file ``read`` from ``path`` and its CRS (refused without one),
+    announcing the reading of ``what`` and then the ``step`` that follows."""
+    prog = as_progress(progress)
+    prog.update(0.0, f"reading {what}")
+    f = read(path)
+    src = _file_crs(f.crs, path)
+    prog.update(0.2, step)
+    return prog, f, src
 
 
 def _layer(frame: pd.DataFrame, x: np.ndarray, y: np.ndarray, src_crs: Any, crs: Any,
@@ -110,11 +123,8 @@ def esfl_footprints(path: str | os.PathLike[str], params: Any = None, *, crs: An
 
     p = check_instance(EsflParams() if params is None else params, EsflParams, "params",
                        "an EsflParams for flash-lidar cubes (None: the defaults)")
-    prog = as_progress(progress)
-    prog.update(0.0, "reading flash-lidar cubes")
-    f = read_esfl_file(path)
-    src = _file_crs(f.crs, path)
-    prog.update(0.2, "flash-lidar chain")
+    prog, f, src = _opened(path, read_esfl_file, progress, "flash-lidar cubes",
+                           "flash-lidar chain")
     wf, res = esfl_chain(EsflCubes(f.cubes, f.top, f.bin_size, f.x, f.y, f.along,
                                    f.pixel_size), p)
     prog.check()
@@ -176,11 +186,8 @@ def dual_footprints(path: str | os.PathLike[str], params: Any = None, *, crs: An
 
     p = check_instance(DualParams() if params is None else params, DualParams, "params",
                        "a DualParams for dual-wavelength pairs (None: the defaults)")
-    prog = as_progress(progress)
-    prog.update(0.0, "reading dual-wavelength pairs")
-    f = read_dual_file(path)
-    src = _file_crs(f.crs, path)
-    prog.update(0.2, "dual-wavelength ground")
+    prog, f, src = _opened(path, read_dual_file, progress, "dual-wavelength pairs",
+                           "dual-wavelength ground")
     g = dual_wavelength_ground(f.visible, f.nir, noise_mean=f.noise_mean,
                                noise_sd=f.noise_sd, params=p)
     prog.check()
