@@ -22,6 +22,9 @@ from canopyblocks.outputs.h5_layouts import (
 )
 from canopyblocks.readers import atl03_beams, file_info, mabel_channels, read_atl03, read_mabel
 
+# files written here carry no bckgrd_atlas; reading them says so (tested elsewhere)
+pytestmark = pytest.mark.filterwarnings("ignore:.*no usable bckgrd_atlas:canopyblocks.errors.CanopyBlocksWarning")
+
 UTM13 = pyproj.CRS.from_epsg(32613)
 
 

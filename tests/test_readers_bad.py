@@ -71,6 +71,7 @@ def test_truncated_hdf5(tmp_path, sample, fraction):
         file_info(p)
 
 
+@pytest.mark.filterwarnings("ignore:.*no usable bckgrd_atlas:canopyblocks.errors.CanopyBlocksWarning")
 def test_zeroed_blocks_never_leak_library_errors(tmp_path, sample):
     """Zero 2 KiB at fixed-seed random places: the result is a track or a canopyblocks
     error, never a raw h5py/OSError/KeyError."""
@@ -163,6 +164,7 @@ def test_beam_errors(sample):
         read_atl03(sample(VEGR), "gt1r", s_range=(10, 5))
 
 
+@pytest.mark.filterwarnings("ignore:.*no usable bckgrd_atlas:canopyblocks.errors.CanopyBlocksWarning")
 def test_atl08_from_another_granule(tmp_path, sample):
     # an ATL03-layout file with the clip's segment ids but other times and RGT
     with h5py.File(sample(VEGR), "r") as f:

@@ -175,7 +175,7 @@ def test_run_chain_leads_with_the_answer(files, tmp_path, sensor):
     html = (out / "report.html").read_text()
     first = html.index("<h2>")
     assert html[first:].startswith("<h2>Summary</h2>")
-    assert html.index("canopy height: RMSE") < html.index("<h2>", first + 1)
+    assert html.index("canopy height bias") < html.index("<h2>", first + 1)
     assert "canopy height: RMSE" in r.stderr and "ground elevation: RMSE" in r.stderr
     # run on the file it simulated gives the same numbers
     again = tmp_path / f"{sensor}_again"

@@ -172,6 +172,9 @@ class SimParams:
         if self.preset is not None:  # the old name of the photon rate
             from ..errors import warn_renamed
             warn_renamed("SimParams(preset=)", "SimParams(photon_rate=)", stacklevel=4)
+            if not isinstance(self.preset, str) or self.preset not in POISSON_MEANS:
+                raise InputError(f"preset (the old name of photon_rate) must be one of "
+                                 f"{', '.join(POISSON_MEANS)}; got {self.preset!r}")
             object.__setattr__(self, "photon_rate", self.preset)
             object.__setattr__(self, "preset", None)
         from ..arguments import check_fields
