@@ -269,7 +269,8 @@ def _area(bounds: tuple[float, float, float, float] | None, poly: Any,
             continue
         if not _intersects(box, area):
             raise CoverageError(
-                f"the {what} {_fmt(box)} do not overlap the tiles (their union is "
+                f"the {what} {_fmt(box)} {'do' if what == 'bounds' else 'does'} not overlap "
+                f"the tiles (their union is "
                 f"{_fmt(union)} in {crs_label(target)}); give an area over the tiles, in "
                 "the output CRS")
         area = (max(area[0], box[0]), max(area[1], box[1]), min(area[2], box[2]),

@@ -135,11 +135,21 @@ def rasters_stage(st: RunState) -> None:
 
     st.prog.update(0.4, "reference rasters")
     # over the corridors only: tiles away from the track are skipped by their headers
-    st.rasters = make_survey_rasters(
-        st.tiles, st.out / "rasters", resolution=st.options["resolution"],
-        crs=st.res.blocks.crs, ground=st.options["ground"],
-        polygon=corridor_area(st.res.blocks, float(st.width)),  # type: ignore[arg-type]  # set by blocks_stage
-        progress=st.prog.sub(0.4, 0.75))
+    from ...errors import CoverageError
+
+    area = corridor_area(st.res.blocks, float(st.width))  # type: ignore[arg-type]  # set by blocks_stage
+    try:
+        st.rasters = make_survey_rasters(
+            st.tiles, st.out / "rasters", resolution=st.options["resolution"],
+            crs=st.res.blocks.crs, ground=st.options["ground"], polygon=area,
+            progress=st.prog.sub(0.4, 0.75))
+    except CoverageError as e:
+        if "does not overlap the tiles" not in str(e):
+            raise
+        box = tuple(round(float(v), 1) for v in area.bounds)
+        raise CoverageError(
+            f"the airborne tiles do not cover the track: its corridors {box} lie outside "
+            f"them ({e}); give the tiles under the track") from e
 
 
 def validation_stage(st: RunState) -> None:
