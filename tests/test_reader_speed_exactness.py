@@ -219,6 +219,7 @@ def _raw(path) -> dict[str, np.ndarray]:
 
 
 @pytest.mark.parametrize("disorder_m", [0.0, 0.1, 1.5])  # 0.1: sorted in windows
+@pytest.mark.filterwarnings("ignore:.*no usable bckgrd_atlas:canopyblocks.errors.CanopyBlocksWarning")
 def test_read_atl03_fast_path_equals_plain_h5py(tmp_path, disorder_m):
     path = tmp_path / "a.h5"
     _write(path, 150_000, seed=21, disorder_m=disorder_m)
