@@ -31,6 +31,7 @@ def granule(tmp_path_factory):
     return path
 
 
+@pytest.mark.filterwarnings("ignore:.*no usable bckgrd_atlas:canopyblocks.errors.CanopyBlocksWarning")
 def test_segments_in_workers_equal_one_process(granule):
     one = segments_from_file(granule, length=100.0, workers=1)
     said: list[str] = []

@@ -176,7 +176,7 @@ def test_run_chain_leads_with_the_answer(files, tmp_path, sensor):
     first = html.index("<h2>")
     assert html[first:].startswith("<h2>Summary</h2>")
     assert html.index("canopy height bias") < html.index("<h2>", first + 1)
-    assert "canopy height: RMSE" in r.stderr and "ground elevation: RMSE" in r.stderr
+    assert "canopy height: n=" in r.stderr and "ground elevation: n=" in r.stderr
     # run on the file it simulated gives the same numbers
     again = tmp_path / f"{sensor}_again"
     r2 = _cli("run", files["las"], "--photons", out / f"{sensor}.h5", "-o", again)

@@ -77,8 +77,8 @@ def _sensor_summary(val: Any, product: str, out: Path, source: str, *,
                             diameter=diameter, estimators=product,
                             layer="stats_footprints", out=out)
     ref = ("the airborne points under each 5 m cell's pixels" if product == "ESFL" else
-           "the footprint-matched airborne points (22 m Gaussian footprint; height "
-           "against its RH98)")
+           "the airborne points formed into the noise-free waveform pair the sensor would "
+           "record (22 m Gaussian footprint) and read by the same ground finder")
     lines = facts_lines(facts, _SENSOR_WORDS, ref)
     paras = []
     if simulated is not None:
