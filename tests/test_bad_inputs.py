@@ -310,7 +310,7 @@ CASES = {
     "validate-blocks-is-atl03": (lambda i, o: ["validate", i["atl03"], *R(
         i, "dtm", "dsm_max", "dsm_p90"), "-o", o / "v.gpkg"], ["cannot read", "vegr_atl03"]),
     "validate-datum-mismatch": (lambda i, o: ["validate", i["blocks"], *R(
-        i, "dtm", "dsm_max", "dsm_p90"), "--reference-vcrs", "EPSG:2949+5713", "-o",
+        i, "dtm", "dsm_max", "dsm_p90")[:-2], "--reference-vcrs", "EPSG:2949+5713", "-o",
         o / "v.gpkg"], ["--geoid", "--offset"]),
     "validate-slope-nan": (lambda i, o: ["validate", i["blocks"], *R(
         i, "dtm", "dsm_max", "dsm_p90"), "--slope-threshold", "nan", "-o", o / "v.gpkg"],
