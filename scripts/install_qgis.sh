@@ -7,8 +7,8 @@
 #                      hence no `qgis_process`; the plugin and the in-process tests still work).
 #   --no-runtime       skip the Python runtime for the plugin inside QGIS (see below).
 #
-# Afterwards QGIS's Python is Debian's /usr/bin/python3; the project venv (scripts/setup_env.sh,
-# made with --system-site-packages) sees `qgis.core` and runs QGIS in-process with its wheels.
+# Afterwards QGIS's Python is Debian's /usr/bin/python3; the project venv (scripts/setup_env.sh)
+# sees only QGIS's bindings (scripts/qgis_bindings.py) and runs QGIS in-process with its wheels.
 #
 # Inside the QGIS application and `qgis_process` (not in a Python process) the executable links
 # GEOS, PROJ, GDAL and HDF5 into the global symbol scope, and PyPI wheels that bundle their own
@@ -18,7 +18,8 @@
 # (linked to the same libraries as QGIS) plus, in RUNTIME (default /opt/canopyblocks-qgis-python,
 # env CANOPYBLOCKS_QGIS_RUNTIME), shapely 2.0.x (GEOS C API <= 3.11, which bookworm has),
 # geopandas 1.0.x, laspy and lazrs (LAZ; a self-contained Rust extension that links none of
-# QGIS's libraries), installed without dependencies.  Debian's xvfb lets the QGIS application
+# QGIS's libraries), at the versions of scripts/lock/qgis-runtime.txt, without dependencies.
+# Debian's xvfb lets the QGIS application
 # run headless (the project's tests of the real application).  Use it with
 #     PYTHONPATH=RUNTIME:<checkout>/core qgis   (or qgis_process)
 # or install canopyblocks itself there: python3 -m pip install --no-deps --target RUNTIME <checkout>
@@ -59,8 +60,12 @@ runtime_pkgs=(python3-h5py python3-pandas python3-rasterio python3-scipy python3
 
 install_runtime() {
     [ "$with_runtime" -eq 1 ] || return 0
-    if PYTHONPATH="$RUNTIME" /usr/bin/python3 -c \
-        'import shapely, geopandas, laspy, lazrs; assert shapely.__version__.startswith("2.0.")' \
+    # the versions of scripts/lock/qgis-runtime.txt, exactly (a stamp beside them)
+    local lock want
+    lock="$(cd "$(dirname "$0")" && pwd)/lock/qgis-runtime.txt"
+    want="$(sha256sum "$lock" | cut -c1-64)"
+    if [ "$(cat "$RUNTIME/.canopyblocks-lock" 2>/dev/null)" = "$want" ] && \
+        PYTHONPATH="$RUNTIME" /usr/bin/python3 -c 'import shapely, geopandas, laspy, lazrs' \
         2>/dev/null; then
         return 0
     fi
@@ -69,13 +74,13 @@ install_runtime() {
     local log; log=$(mktemp)
     if ! $SUDO /usr/bin/python3 -m pip install -q --disable-pip-version-check --no-deps \
             --root-user-action=ignore --target "$RUNTIME" --upgrade \
-            "shapely>=2.0,<2.1" "geopandas>=1.0,<1.1" "laspy>=2.5,<3" "lazrs>=0.6,<1" \
-            >"$log" 2>&1; then
+            -r "$lock" >"$log" 2>&1; then
         cat "$log" >&2; rm -f "$log"
         echo "install_qgis.sh: pip could not install the plugin runtime into $RUNTIME" >&2
         exit 1
     fi
     rm -f "$log"
+    echo "$want" | $SUDO tee "$RUNTIME/.canopyblocks-lock" >/dev/null
 }
 
 # Already there?  (idempotent, no network)

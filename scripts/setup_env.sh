@@ -1,10 +1,25 @@
 #!/usr/bin/env bash
-# Create ./.venv on Debian's Python (the one QGIS's bindings are built for) and install
-# canopyblocks into it, editable, with its optional parts. Idempotent.
-# Usage: bash scripts/setup_env.sh [extras]   (default extras: all; the tests use "test")
+# Create ./.venv on Debian's Python 3.11 and install canopyblocks into it, editable, with every
+# package at the version of the committed lock (scripts/lock/, written by
+# scripts/update_locks.sh): a fresh machine today and in three months gets what CI tested.
+# Idempotent: an existing .venv made from the same lock is kept; any other is made anew.
+#
+# The venv does not see Debian's Python packages (no --system-site-packages): a Debian
+# pyOpenSSL, requests or matplotlib pulled in by QGIS would otherwise be imported by the
+# command line beside the lock's packages. When QGIS is installed, only its bindings (qgis,
+# PyQt5, sip, osgeo and the Processing plugins) are made visible, through one .pth file
+# (scripts/qgis_bindings.py), so the QGIS tests run QGIS in-process with the locked wheels.
+#
+# Usage: bash scripts/setup_env.sh [all|test]   (default all: the demo's; the tests use test)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 extras="${1:-all}"
+case "$extras" in
+    all) lock=scripts/lock/demo.txt ;;
+    test) lock=scripts/lock/test.txt ;;
+    *) echo "setup_env.sh: unknown environment '$extras' (all or test)" >&2; exit 2 ;;
+esac
+PIP_VERSION=26.3
 PY=/usr/bin/python3
 if [ ! -x "$PY" ] || ! "$PY" -c 'import venv, ensurepip' 2>/dev/null; then
     echo "canopyblocks: installing Debian's python3 with venv support" >&2
@@ -12,32 +27,31 @@ if [ ! -x "$PY" ] || ! "$PY" -c 'import venv, ensurepip' 2>/dev/null; then
     apt-get update -qq
     apt-get install -y -qq --no-install-recommends python3 python3-venv python3-pip >/dev/null
 fi
-if [ ! -x .venv/bin/python ]; then
-    # --system-site-packages: the venv sees Debian's QGIS bindings when they are installed.
-    "$PY" -m venv --system-site-packages .venv
-fi
-.venv/bin/python -m pip install -q --upgrade pip >/dev/null
-# numpy<2: Debian's GDAL/scipy/matplotlib (seen by QGIS) are built on numpy 1.x;
-# attrs>=23.2: Debian's attrs 22.2 breaks rasterio's affine.
-# --ignore-installed: take every dependency from PyPI into the venv, even where Debian's copy
-# (pulled in by QGIS: scipy, rasterio, matplotlib, ...) would satisfy the range, so the
-# environment is the same with and without QGIS on the machine.
-.venv/bin/python -m pip install -q --ignore-installed -c scripts/constraints.txt -e ".[${extras}]"
 
-# Debian's python3-matplotlib (pulled in by QGIS) ships mpl_toolkits as a *regular* package,
-# which shadows the pip matplotlib's namespace package and breaks its 3-D axes (a warning on
-# every plot).  Make the venv's own mpl_toolkits regular too, so it wins on sys.path.
-mpl_dir=$(.venv/bin/python - <<'PY'
-import importlib.util, pathlib, sys
-spec = importlib.util.find_spec("matplotlib")
-if spec and spec.origin and str(pathlib.Path(spec.origin)).startswith(sys.prefix):
-    print(pathlib.Path(spec.origin).parents[1] / "mpl_toolkits")
-PY
-)
-if [ -n "$mpl_dir" ] && [ -d "$mpl_dir" ] && ls /usr/lib/python3/dist-packages/matplotlib-*-nspkg.pth >/dev/null 2>&1; then
-    # Debian's matplotlib-*-nspkg.pth imports mpl_toolkits at start-up; import ours first
-    # (the venv's .pth files run before the system's), so its __path__ starts with ours.
-    [ -e "$mpl_dir/__init__.py" ] || echo "# made regular by canopyblocks' scripts/setup_env.sh" > "$mpl_dir/__init__.py"
-    echo "import mpl_toolkits" > "$(dirname "$mpl_dir")/canopyblocks-mpl-toolkits.pth"
+stamp=".venv/canopyblocks-lock.txt"
+want="$(sha256sum "$lock" pyproject.toml scripts/qgis_bindings.py | sha256sum | cut -c1-64) $lock"
+if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ] && [ -x .venv/bin/python ]; then
+    "$PY" scripts/qgis_bindings.py .venv >&2
+    echo "canopyblocks: environment ready in $(pwd)/.venv (from $lock)" >&2
+    exit 0
 fi
-echo "canopyblocks: environment ready in $(pwd)/.venv" >&2
+if [ -e .venv ]; then
+    echo "canopyblocks: .venv was made from another lock or by hand; making it anew" >&2
+    rm -rf .venv
+fi
+"$PY" -m venv .venv
+log=$(mktemp)
+pip_quiet() {  # pip's own chatter (setuptools' editable-install notice) only when it fails
+    if ! .venv/bin/python -m pip install -q --disable-pip-version-check "$@" >"$log" 2>&1; then
+        cat "$log" >&2; rm -f "$log"
+        echo "setup_env.sh: pip could not install $* (see above)" >&2
+        exit 1
+    fi
+}
+pip_quiet "pip==$PIP_VERSION"
+pip_quiet -r "$lock"
+pip_quiet --no-deps --no-build-isolation -e .
+rm -f "$log"
+"$PY" scripts/qgis_bindings.py .venv >&2
+echo "$want" > "$stamp"
+echo "canopyblocks: environment ready in $(pwd)/.venv (from $lock)" >&2
