@@ -4,13 +4,14 @@ every file in it 0644, every folder 0755, whatever the umask and the checkout's 
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import shutil
 import stat
 import subprocess
-import sys
 import zipfile
 from pathlib import Path
+from types import ModuleType
 
 import pytest
 
@@ -18,13 +19,14 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture
-def build_plugin():
-    sys.path.insert(0, str(ROOT / "scripts"))
-    try:
-        import build_plugin as mod
-    finally:
-        sys.path.remove(str(ROOT / "scripts"))
-    return mod
+def build_plugin() -> ModuleType:
+    """scripts/build_plugin.py as a module (scripts/ is no package)."""
+    spec = importlib.util.spec_from_file_location("build_plugin_script",
+                                                  ROOT / "scripts" / "build_plugin.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 @pytest.fixture

@@ -125,13 +125,23 @@ _FOREIGN_MARKS = re.compile(
     r"^(ERROR|Warning) \d+:|\bPROJ\b|proj_|\bGDAL\b|HDF5|OpenSSL", flags=re.I)
 
 
+def own_warning_classes() -> set[str]:
+    """Names of canopyblocks' warning classes (CanopyBlocksWarning and its subclasses, by
+    their ``class X(...Warning...)`` lines in the package's source)."""
+    names: set[str] = set()
+    for src in (ROOT / "core" / "canopyblocks").rglob("*.py"):
+        names |= set(re.findall(r"^class (\w+)\([^)]*Warning[^)]*\):", src.read_text(),
+                                flags=re.M))
+    return names
+
+
 def foreign_lines(stderr: str) -> list[str]:
     """The lines of a README example's stderr that are not canopyblocks' own.
 
     canopyblocks' own lines are those of its logger and warnings (``canopyblocks: ...``,
     ``canopyblocks: warning: ...``, cli/log_setup.py), Python warnings raised from its own
-    code (``.../canopyblocks/...py:N: SomeWarning: ...`` and the source line under it, from
-    the Python API), and the plain summary lines a command prints (counts, tables, "validated
+    code or of its own classes (``.../canopyblocks/...py:N: SomeWarning: ...`` and the source
+    line under it, from the Python API), and the plain summary lines a command prints (counts, tables, "validated
     9 of 10 blocks"): canopyblocks says a warning or an error only with its prefix, so a
     plain line speaking of warnings, errors, deprecation, a traceback or GDAL/PROJ/HDF5 is
     another package's, as is log_setup's ``warning from <package> (<category>): ...``.
@@ -149,7 +159,8 @@ def foreign_lines(stderr: str) -> list[str]:
             continue
         m = _PY_WARNING.match(line)
         if m and m.group("category").endswith("Warning"):
-            after_own_warning = "canopyblocks" in Path(m.group("file")).parts
+            after_own_warning = ("canopyblocks" in Path(m.group("file")).parts
+                                 or m.group("category") in own_warning_classes())
             if after_own_warning:
                 continue
         if m or _FOREIGN_MARKS.search(line):
@@ -167,6 +178,9 @@ def test_foreign_lines_are_told_from_canopyblocks_own() -> None:
            "CanopyBlocksWarning: x.h5: gt1r has no bckgrd_atlas\n"
            "  warnings.warn(msg, CanopyBlocksWarning, stacklevel=2)\n")
     assert foreign_lines(own) == []
+    assert foreign_lines("<string>:7: SparseBlockWarning: track gt1r: 1 of 39 blocks\n"
+                         "<string>:7: UserWarning: something\n") == [
+        "<string>:7: UserWarning: something"]
     foreign = [
         "warning from OpenSSL (CryptographyDeprecationWarning): DSA is deprecated and will "
         "be removed in a future release",
