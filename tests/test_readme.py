@@ -121,7 +121,7 @@ def placeholders(note: str) -> list[str]:
 
 _PY_WARNING = re.compile(r"^(?P<file>\S.*?):\d+: (?P<category>\w+): ")
 _FOREIGN_MARKS = re.compile(
-    r"warning from |warn|deprecat|error|traceback|exception|"
+    r"warning from |\w*Warning\b|\bwarning:|\berror:|\w+Error\b|deprecat|Traceback|"
     r"^(ERROR|Warning) \d+:|\bPROJ\b|proj_|\bGDAL\b|HDF5|OpenSSL", flags=re.I)
 
 
@@ -142,9 +142,11 @@ def foreign_lines(stderr: str) -> list[str]:
     ``canopyblocks: warning: ...``, cli/log_setup.py), Python warnings raised from its own
     code or of its own classes (``.../canopyblocks/...py:N: SomeWarning: ...`` and the source
     line under it, from the Python API), and the plain summary lines a command prints (counts, tables, "validated
-    9 of 10 blocks"): canopyblocks says a warning or an error only with its prefix, so a
-    plain line speaking of warnings, errors, deprecation, a traceback or GDAL/PROJ/HDF5 is
-    another package's, as is log_setup's ``warning from <package> (<category>): ...``.
+    9 of 10 blocks", "the report gives the errors measured on unseen tiles"): canopyblocks
+    says a warning or an error only with its prefix, so a plain line with a warning's or an
+    error's label (``warning:``, ``SomeWarning``, ``error:``, ``SomeError``), a deprecation,
+    a traceback or GDAL/PROJ/HDF5 is another package's, as is log_setup's
+    ``warning from <package> (<category>): ...``.
     """
     out: list[str] = []
     after_own_warning = False
@@ -172,6 +174,8 @@ def test_foreign_lines_are_told_from_canopyblocks_own() -> None:
     own = ("canopyblocks: warning: track gt1r: 1 of 39 blocks hold fewer than min_photons\n"
            "canopyblocks: 10 blocks (10 ok) from gt1r -> out/sim_blocks.gpkg\n"
            "validated 9 of 10 blocks -> out/validation.gpkg\n"
+           "Read with care: the tiles validated here are the tiles the recommended estimators "
+           "were fitted on; the report gives the errors measured on unseen tiles.\n"
            "     10 m  ground  n=21   bias=-0.07 m [-0.17 to +0.02]  rmse=0.22 m\n"
            "  canopyblocks blocks PHOTONS --length 10 --top-cutoff 0.001 -o blocks_10m.gpkg\n"
            "/venv/lib/python3.11/site-packages/canopyblocks/readers/atl03.py:88: "
@@ -194,6 +198,9 @@ def test_foreign_lines_are_told_from_canopyblocks_own() -> None:
         "ERROR 1: PROJ: proj_create_from_database: Cannot find proj.db",
         "HDF5-DIAG: Error detected in HDF5 (1.14.2) thread 0:",
         "Traceback (most recent call last):",
+        "RuntimeWarning: invalid value encountered in divide",
+        "rasterio.errors.NotGeoreferencedWarning: Dataset has no geotransform",
+        "OSError: [Errno 2] No such file or directory",
     ]
     for line in foreign:
         assert foreign_lines(own + line + "\n  the source line\n") == [line], line
