@@ -4,7 +4,8 @@
 The zip holds one folder, ``canopyblocks_qgis/``, with the plugin (``qgis_plugin/``) and the
 top-level ``metadata.txt``.  The plugin version in metadata.txt must equal the core's
 ``__version__`` (core/canopyblocks/__init__.py); the build stops otherwise.  The zip is written
-under a temporary name and renamed when complete.
+under a temporary name and renamed when complete; it and every file in it are mode 0644
+(folders 0755), whatever the umask and the checkout's modes.
 
 Usage: python scripts/build_plugin.py [--out DIR]
 """
@@ -15,6 +16,7 @@ import argparse
 import configparser
 import os
 import re
+import stat
 import sys
 import tempfile
 import zipfile
@@ -76,6 +78,35 @@ def plugin_files(plugin_dir: Path = PLUGIN_DIR) -> list[Path]:
     return out
 
 
+def _entry(name: str, mode: int, source: Path | None) -> zipfile.ZipInfo:
+    """A zip entry of fixed Unix mode (whatever the umask or the checkout's modes),
+    dated as its source file (folders: the zip's epoch, 1980-01-01)."""
+    if source is None:
+        info = zipfile.ZipInfo(name)
+    else:
+        info = zipfile.ZipInfo.from_file(source, name)
+    info.create_system = 3  # Unix: unzip and QGIS's installer read the mode below
+    info.external_attr = mode << 16
+    if source is None:
+        info.external_attr |= 0x10  # MS-DOS directory bit
+    else:
+        info.compress_type = zipfile.ZIP_DEFLATED
+    return info
+
+
+def write_zip(path: Path, entries: list[tuple[Path, str]]) -> None:
+    """Write ``entries`` (source file, name in the zip) to ``path``: every file
+    ``-rw-r--r--`` (0644), every folder ``drwxr-xr-x`` (0755), so every user of a shared
+    QGIS can read the installed plugin."""
+    folders = sorted({"/".join(name.split("/")[:i]) + "/" for _, name in entries
+                      for i in range(1, name.count("/") + 1)})
+    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED) as zf:
+        for folder in folders:
+            zf.writestr(_entry(folder, stat.S_IFDIR | 0o755, None), b"")
+        for source, name in entries:
+            zf.writestr(_entry(name, stat.S_IFREG | 0o644, source), source.read_bytes())
+
+
 def build(out_dir: Path = ROOT / "dist", *, metadata: Path = METADATA,
           plugin_dir: Path = PLUGIN_DIR, core_init: Path = CORE_INIT,
           licence: Path = ROOT / "LICENSE") -> Path:
@@ -97,11 +128,11 @@ def build(out_dir: Path = ROOT / "dist", *, metadata: Path = METADATA,
     fd, tmp = tempfile.mkstemp(prefix=f".{target.stem}.", suffix=".part.zip", dir=out_dir)
     os.close(fd)
     try:
-        with zipfile.ZipFile(tmp, "w", compression=zipfile.ZIP_DEFLATED) as zf:
-            for p in plugin_files(plugin_dir):
-                zf.write(p, f"{FOLDER}/{p.relative_to(plugin_dir).as_posix()}")
-            zf.write(metadata, f"{FOLDER}/metadata.txt")
-            zf.write(licence, f"{FOLDER}/LICENSE")
+        entries = [(p, f"{FOLDER}/{p.relative_to(plugin_dir).as_posix()}")
+                   for p in plugin_files(plugin_dir)]
+        entries += [(metadata, f"{FOLDER}/metadata.txt"), (licence, f"{FOLDER}/LICENSE")]
+        write_zip(Path(tmp), entries)
+        os.chmod(tmp, 0o644)  # mkstemp made it 0600: readable by every user of the QGIS
         os.replace(tmp, target)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

@@ -123,8 +123,9 @@ _TABLE: tuple[Option, ...] = (
     Option("--atl08", "atl08", "the matching ATL08 file as a reference", "file",
            "Matching ATL08 file: validate against its land segments."),
     Option("--atl08-classes", "atl08_classes", "the matching ATL08 file's photon classes",
-           "file", "Matching ATL08 file: adds its photon classes (classed_pc_flag) to the "
-           "photons layer."),
+           "file", "Matching ATL08 file: adds its class of each photon to the photons layer, "
+           "column 'classification' (0 noise, 1 ground, 2 canopy, 3 top of canopy; -1 "
+           "not classed by ATL08)."),
     Option("--plots", "plots", "a folder of figures", "folder", "Folder for the figures (PNG)."),
     # shared settings
     Option("--width", "width", "corridor width", "number",
