@@ -31,6 +31,7 @@ from ..errors import (
 from ..geo import as_crs, require_metric_crs
 from ..readers.las_header import check_header_extent, check_las_file
 from ..readers.las_summary import LasSummary, las_summary
+from ..readers.tile_checks import check_survey_tiles
 from .pdal import TileInfo, tile_info
 from .raster_grid import (
     Grid,
@@ -95,6 +96,8 @@ def las_plan(paths: list[Path], params: RasterParams, crs: object, area_poly: An
     """One unit per LAS/LAZ tile meeting the grid (``exe``: PDAL, for SMRF's CRS reading)."""
     infos = [tile_info(p, pdal=exe) if exe is not None else header_info(p) for p in paths]
     infos = [_fix_broken_header(i, params.resolution) for i in infos]
+    check_survey_tiles([(i.path, i.bounds) for i in infos if i.n_points > 0],
+                       max(params.resolution, 1.0))  # headers vs first points, datums
     names = _names(paths)
     target_in = None if crs is None else require_metric_crs(as_crs(crs, "output crs"),
                                                             "output crs")
