@@ -301,7 +301,8 @@ Node = tuple[int, int, int, int]
 
 def select_nodes(src: ByteSource, h: CopcHeader, area: Area) -> list[tuple[Node, int, int, int]]:
     """``(key, offset, byte size, point count)`` of the nodes whose cubes meet ``area``
-    (hierarchy pages fetched only for cubes that meet it), in file order."""
+    (hierarchy pages fetched only for cubes that meet it), in file order, checked against
+    the LAZ chunks they point to (:mod:`~canopyblocks.readers.copc_checks`)."""
     entries: dict[Node, tuple[int, int, int]] = {}
     _add_page(src, h, entries, h.root)
     pad = 2.0 * max(h.scales)  # a point rounded onto its cube's face
@@ -328,6 +329,8 @@ def select_nodes(src: ByteSource, h: CopcHeader, area: Area) -> list[tuple[Node,
         d, x, y, z = key
         todo.extend((d + 1, 2 * x + (i & 1), 2 * y + ((i >> 1) & 1), 2 * z + ((i >> 2) & 1))
                     for i in range(8))
+    if out:  # each node read checked against the LAZ chunk it points to
+        check_chunks(h, out, chunk_starts(src, h))
     if area.everything:
         check_total(h, entries)
     return sorted(out, key=lambda n: n[1])
@@ -420,8 +423,6 @@ def read_copc(source: str | os.PathLike[str], *, bounds: Sequence[float] | None 
         h = read_header(src)
         crs = check_crs(h.stated, h.label)
         nodes = select_nodes(src, h, area)
-        if nodes:
-            check_chunks(h, nodes, chunk_starts(src, h))
         cols = Columns(h.label)
         total = max(1, sum(n[3] for n in nodes))
         done = 0

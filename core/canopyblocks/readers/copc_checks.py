@@ -147,8 +147,8 @@ def check_total(h: Any, entries: dict[Node, tuple[int, int, int]]) -> None:
     if total != h.n_points:
         raise FileFormatError(
             f"{h.label}: its hierarchy's nodes hold {total:,} points, its header says "
-            f"{h.n_points:,}; the hierarchy is damaged (nodes missing from it): write the file "
-            "again")
+            f"{h.n_points:,}; the hierarchy is damaged (a node's count is wrong or a node is "
+            "missing from it): write the file again")
 
 
 def check_node_points(h: Any, rec: np.ndarray, batch: Sequence[NodeEntry]) -> None:
