@@ -30,6 +30,10 @@ from canopyblocks.workflows.rasters import make_survey_rasters
 laspy = pytest.importorskip("laspy")
 rasterio = pytest.importorskip("rasterio")
 
+sys.path.insert(0, str(Path(__file__).parent))
+from badinputs.survey_corpus import crop_of, move_header  # noqa: E402
+from copc_data import build_octree, copc_damaged, tile_points, write_copc, write_ept  # noqa: E402
+
 BCTS = ("als/lasR_bcts_1.laz", "als/lasR_bcts_2.laz")
 BOUNDS = (885022.0, 629157.0, 885218.0, 629700.0)
 
@@ -46,25 +50,6 @@ def _rasters(tiles: list, out: Path, **kw: object) -> tuple[object, list[str]]:
         warnings.simplefilter("always")
         r = make_survey_rasters(tiles, out, backend="serial", bounds=BOUNDS, **kw)
     return r, [str(w.message) for w in caught]
-
-
-def move_header(path: Path, dx: float, dy: float) -> None:
-    """Shift a LAS/LAZ header's stated extent (max/min x, y at bytes 179-211), not its points."""
-    raw = bytearray(path.read_bytes())
-    mx, mnx, my, mny = struct.unpack_from("<4d", raw, 179)
-    struct.pack_into("<4d", raw, 179, mx + dx, mnx + dx, my + dy, mny + dy)
-    path.write_bytes(bytes(raw))
-
-
-def crop_of(src: Path, out: Path) -> Path:
-    """The western half of a tile's points (a subset, in the file's order)."""
-    las = laspy.read(src)
-    x = np.asarray(las.x)
-    crop = laspy.LasData(las.header)
-    crop.points = las.points[x < np.median(x)].copy()
-    crop.update_header()
-    crop.write(str(out))
-    return out
 
 
 @pytest.fixture(scope="module")
@@ -192,46 +177,11 @@ def test_tiles_in_two_vertical_datums_are_refused(survey, tmp_path) -> None:  # 
 
 @pytest.fixture(scope="module")
 def copc(tmp_path_factory, sample) -> tuple[Path, bytes]:  # noqa: ANN001
-    sys.path.insert(0, str(Path(__file__).parent))
-    from copc_data import build_octree, tile_points, write_copc
-
     d = tmp_path_factory.mktemp("copc")
     p = d / "topo.copc.laz"
     topo = sample("als/lidR_Topography.laz")
     write_copc([topo], p, tree=build_octree(tile_points([topo]), capacity=5000), page_level=1)
     return p, p.read_bytes()
-
-
-_E = struct.Struct("<4iQii")
-_INFO = 375 + 54  # the COPC info record's data
-
-
-def copc_damaged(raw: bytes, edit: str) -> bytes:
-    """The COPC bytes with one lie: a node's count halved or zeroed, a node pointed at
-    another node's chunk, the octree centre or the header extent moved 5 km."""
-    b = bytearray(raw)
-    root_at, root_size = struct.unpack_from("<2Q", raw, _INFO + 40)
-    root = [(root_at + 32 * i, _E.unpack_from(raw, root_at + 32 * i))
-            for i in range(root_size // 32)]
-    at0, e0 = next((at, e) for at, e in root if e[6] > 0)
-    page = next(e for _, e in root if e[6] == -1)
-    inner = [(page[4] + 32 * i, _E.unpack_from(raw, page[4] + 32 * i))
-             for i in range(page[5] // 32)]
-    inner = [(at, e) for at, e in inner if e[6] > 0]
-    if edit == "half":
-        _E.pack_into(b, at0, *e0[:6], e0[6] // 2)
-    elif edit == "none":
-        _E.pack_into(b, at0, *e0[:6], 0)
-    elif edit == "other":
-        (_, e1), (at2, e2) = inner[0], inner[-1]
-        _E.pack_into(b, at2, *e2[:4], e1[4], e1[5], e1[6])
-    elif edit == "centre":
-        cx = struct.unpack_from("<d", raw, _INFO)[0]
-        struct.pack_into("<d", b, _INFO, cx + 5000.0)
-    elif edit == "header":
-        mx, mnx = struct.unpack_from("<2d", raw, 179)
-        struct.pack_into("<2d", b, 179, mx + 5000.0, mnx + 5000.0)
-    return bytes(b)
 
 
 COPC_LIES = {"half": "holds 2,500 points in 49,390 bytes, its LAZ chunk holds 5,000 points",
@@ -258,9 +208,6 @@ def test_a_copc_hierarchy_that_lies_is_refused(copc, tmp_path, edit) -> None:  #
 
 def test_an_ept_without_its_root_or_a_node_is_named(tmp_path, sample) -> None:  # noqa: ANN001
     import json
-
-    sys.path.insert(0, str(Path(__file__).parent))
-    from copc_data import build_octree, tile_points, write_ept
 
     from canopyblocks.readers.ept import read_ept
 
