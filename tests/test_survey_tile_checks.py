@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import os
 import shutil
-import struct
 import sys
 import warnings
 from pathlib import Path

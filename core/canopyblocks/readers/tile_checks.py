@@ -3,8 +3,9 @@
 * :func:`duplicate_tiles`: the same points given twice (a renamed copy, the same path twice,
   a symlink, a copy with another suffix's case, a crop of another tile) are counted once,
   with a warning naming both files.  Tiles are compared by their content, not their names:
-  the number of points and the first and last :data:`SAMPLE` points (x, y, z to the
-  millimetre, class), as ``batch`` compares granules by their photons.  A tile whose header
+  the number of points, the extent and the first :data:`SAMPLE` points (x, y, z to the
+  millimetre, class; one LAZ chunk's start, a few milliseconds a tile), as ``batch``
+  compares granules by their photons.  A tile whose header
   extent lies within another's and whose sampled points are all points of that tile is a
   crop of it (that tile's points are read in full to check; only for nested extents).
 * :func:`check_first_points`: a tile skipped by its header extent (it does not meet the
@@ -20,6 +21,7 @@
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
 import warnings
@@ -32,10 +34,10 @@ import numpy as np
 from ..errors import CanopyBlocksWarning, CRSError, FileFormatError
 
 __all__ = ["SAMPLE", "duplicate_tiles", "check_first_points", "check_vertical_datums",
-           "check_survey_tiles"]
+           "check_survey_tiles", "vertical_names"]
 
 SAMPLE = 256
-"""Points read at each end of a tile for its identity (and at its start for its extent)."""
+"""Points read at the start of a tile for its identity and to check its header extent."""
 
 Box = tuple[float, float, float, float]
 _MM = 1000.0  # coordinates compared to the millimetre
@@ -53,6 +55,20 @@ def _local(source: object) -> Path | None:
     return p if p.is_file() and p.suffix.lower() in (".las", ".laz") else None
 
 
+def _open(path: Any) -> Any:
+    """A laspy reader with the single-threaded LAZ decompressor (the parallel one costs
+    about 70 ms to start on a 4 MB tile; a sample needs a few points)."""
+    from .las_crs import _laspy
+
+    laspy = _laspy()
+    try:
+        backend = laspy.LazBackend.Lazrs
+        return laspy.open(path, laz_backend=backend) if backend.is_available() \
+            else laspy.open(path)
+    except AttributeError:  # a laspy without LazBackend
+        return laspy.open(path)
+
+
 def _keys(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
     """One int64-like key per point (x, y, z to the millimetre), for set membership."""
     q = np.round(np.column_stack([x, y, z]) * _MM).astype(np.int64)
@@ -63,33 +79,43 @@ class _Tile:
     """A tile's header facts and its sampled points."""
 
     def __init__(self, path: Path) -> None:
-        from .las_crs import _laspy
-
         self.path = path
         self.digest: str | None = None
         self.box: Box | None = None
         self.n = 0
         self.first = np.empty(0, np.dtype((np.void, 24)))
+        self.xy = np.empty((0, 2))
         try:
-            with _laspy().open(path) as reader:
+            with _open(path) as reader:
                 h = reader.header
                 self.n = int(h.point_count)
                 self.box = (float(h.mins[0]), float(h.mins[1]), float(h.maxs[0]),
                             float(h.maxs[1]))
                 head = reader.read_points(min(SAMPLE, self.n))
-                tail = head
-                if self.n > 2 * SAMPLE:
-                    reader.seek(self.n - SAMPLE)
-                    tail = reader.read_points(SAMPLE)
+                ext = np.r_[np.asarray(h.mins, float), np.asarray(h.maxs, float)]
         except Exception:  # noqa: BLE001 - an unreadable tile is reported by its reader
             return
         digest = hashlib.sha1(f"{self.n};".encode())
-        for pts in (head, tail):
-            k = _keys(np.asarray(pts.x), np.asarray(pts.y), np.asarray(pts.z))
-            digest.update(k.tobytes())
-            digest.update(np.asarray(pts.classification, np.uint8).tobytes())
+        digest.update(np.round(ext * _MM).astype(np.int64).tobytes())
+        digest.update(_keys(np.asarray(head.x), np.asarray(head.y), np.asarray(head.z)).tobytes())
+        digest.update(np.asarray(head.classification, np.uint8).tobytes())
         self.digest = digest.hexdigest()
         self.first = _keys(np.asarray(head.x), np.asarray(head.y), np.asarray(head.z))
+        self.xy = np.c_[np.asarray(head.x, float), np.asarray(head.y, float)]
+
+
+def _sample(path: Path) -> _Tile:
+    """The tile's sample, read once per file version (size, modification time)."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return _Tile(path)  # an empty sample: the tile's reader reports it
+    return _cached_sample(str(path), st.st_size, st.st_mtime_ns)
+
+
+@functools.lru_cache(maxsize=4096)
+def _cached_sample(path: str, size: int, mtime: int) -> _Tile:  # noqa: ARG001 - cache keys
+    return _Tile(Path(path))
 
 
 def duplicate_tiles(sources: Sequence[Any]) -> tuple[list[Any], list[tuple[Any, Any, str]]]:
@@ -122,7 +148,7 @@ def duplicate_tiles(sources: Sequence[Any]) -> tuple[list[Any], list[tuple[Any, 
         if ident in seen_files:
             dropped.append((src, seen_files[ident], "same file"))
             continue
-        t = _Tile(p)
+        t = _sample(p)
         if t.digest is not None and t.digest in seen_digest:
             dropped.append((src, seen_digest[t.digest], "same points"))
             continue
@@ -143,8 +169,8 @@ def _message(src: Any, same: Any, why: str) -> str:
     if why == "same file":
         return f"{src} is given twice (the same file as {same}): read once"
     if why == "same points":
-        return (f"{src} holds the same points as {same} (the same count and the same "
-                f"coordinates at both ends): a copy, counted once, as {same}")
+        return (f"{src} holds the same points as {same} (the same count, extent and "
+                f"coordinates): a copy, counted once, as {same}")
     return (f"{src} holds a part of the points of {same} (its extent lies within that "
             f"tile's and the {SAMPLE} points sampled from it are all points of that tile): a "
             f"crop of it, left out so that no point is counted twice")
@@ -198,16 +224,10 @@ def check_first_points(path: str | os.PathLike[str], header: Box, tolerance: flo
     FileFormatError
         Naming the tile, the stated extent and where its first points lie.
     """
-    from .las_crs import _laspy
-
-    try:
-        with _laspy().open(path) as reader:
-            pts = reader.read_points(min(SAMPLE, int(reader.header.point_count)))
-    except Exception:  # noqa: BLE001 - an unreadable tile is reported by its reader
+    xy = _sample(Path(path)).xy
+    if xy.size == 0:
         return
-    if len(pts) == 0:
-        return
-    x, y = np.asarray(pts.x), np.asarray(pts.y)
+    x, y = xy[:, 0], xy[:, 1]
     out = ((x < header[0] - tolerance) | (x > header[2] + tolerance)
            | (y < header[1] - tolerance) | (y > header[3] + tolerance))
     if not out.any():
@@ -225,19 +245,24 @@ def check_survey_tiles(tiles: Sequence[tuple[Any, Box]], tolerance: float) -> No
     """The checks of a survey's LAS/LAZ tiles before any is read in full: each tile's first
     points within its header extent (:func:`check_first_points`, ``tolerance`` metres) and
     one vertical datum for all (:func:`check_vertical_datums`)."""
-    from .las_crs import las_file_crs
-
     for path, box in tiles:  # a loop over tiles: one small read each
         check_first_points(path, box, tolerance)
     paths = [p for p, _ in tiles]
+    check_vertical_datums(paths, vertical_names(paths))
+
+
+def vertical_names(paths: Sequence[Any]) -> list[str]:
+    """Each tile's stated vertical datum for a message (``"EPSG:5713 (CGVD28 height)"``;
+    "unknown" when it states none)."""
+    from .las_crs import las_file_crs
+
     stated = [las_file_crs(p) for p in paths]
-    check_vertical_datums(paths, [s.vertical_name if s.vertical is None or
-                                  s.vertical_name == s.vertical.name
-                                  else f"{s.vertical_name} ({s.vertical.name})"
-                                  for s in stated])
+    return [s.vertical_name if s.vertical is None or s.vertical_name == s.vertical.name
+            else f"{s.vertical_name} ({s.vertical.name})" for s in stated]
 
 
-def check_vertical_datums(paths: Sequence[Any], names: Sequence[str]) -> None:
+def check_vertical_datums(paths: Sequence[Any], names: Sequence[str], *,
+                          warn: bool = True) -> None:
     """Refuse tiles that state different vertical datums (``names``: each tile's,
     "unknown" when it states none); warn when some state one and others none.
 
@@ -257,9 +282,9 @@ def check_vertical_datums(paths: Sequence[Any], names: Sequence[str]) -> None:
             "heights cannot be mixed in one DTM: convert the tiles to one vertical datum "
             "(e.g. PDAL filters.reprojection with a compound CRS) or give only the tiles of "
             "one datum")
-    if known and "unknown" in first:
+    if warn and known and "unknown" in first:
         (a, pa), = known.items()
         warnings.warn(
-            f"{first['unknown']} states no vertical datum, {pa} states {a}: the tiles' "
-            f"heights are taken as all in {a}; check that they are (a tile in another datum "
-            "would shift the DTM)", CanopyBlocksWarning, stacklevel=3)
+            f"{first['unknown']} states no vertical datum, {pa} states {a}: their heights "
+            f"are merged as if in one datum; check that the first tile's are in {a} too (a "
+            "tile in another datum would shift the DTM)", CanopyBlocksWarning, stacklevel=3)

@@ -96,14 +96,14 @@ def las_plan(paths: list[Path], params: RasterParams, crs: object, area_poly: An
     """One unit per LAS/LAZ tile meeting the grid (``exe``: PDAL, for SMRF's CRS reading)."""
     infos = [tile_info(p, pdal=exe) if exe is not None else header_info(p) for p in paths]
     infos = [_fix_broken_header(i, params.resolution) for i in infos]
-    check_survey_tiles([(i.path, i.bounds) for i in infos if i.n_points > 0],
-                       max(params.resolution, 1.0))  # headers vs first points, datums
     names = _names(paths)
     target_in = None if crs is None else require_metric_crs(as_crs(crs, "output crs"),
                                                             "output crs")
     checked = [check_tile_crs(i, target_in) for i in infos]
     tile_crss = [c for c, _ in checked]
     target = _target_crs(infos, tile_crss, target_in)
+    check_survey_tiles([(i.path, i.bounds) for i in infos if i.n_points > 0],
+                       max(params.resolution, 1.0))  # headers vs first points, datums
     src_wkts = [None if _horizontal(c).equals(_horizontal(target), ignore_axis_order=True)
                 else _horizontal(c).to_wkt() for c in tile_crss]
     boxes = _boxes(infos, tile_crss, target)

@@ -152,6 +152,7 @@ def run_chain(
                       stacklevel=2)
         photon_rate = preset
     prog = as_progress(progress)
+    from ...readers.tile_checks import duplicate_tiles
     from .flash_dual import waveform_chain
 
     waveform = waveform_chain(las_paths, out_dir, photons, sensor, beams=beams,
@@ -173,7 +174,8 @@ def run_chain(
                "coregister": coregister, "footprint_reference": footprint_reference}
     with new_files_removed_on_failure(out):
         out.mkdir(parents=True, exist_ok=True)
-        st = RunState(out=out, tiles=[Path(p) for p in las_paths],
+        # the same points given twice (a copy, a link, a crop) are read once, with a warning
+        st = RunState(out=out, tiles=[Path(p) for p in duplicate_tiles(list(las_paths))[0]],
                       params=params or BlockParams(lengths=(10.0, 25.0, 50.0)),
                       options=options, prog=prog)
         for stage in (photons_stage, blocks_stage, rasters_stage, validation_stage,
