@@ -2,9 +2,8 @@
 the Topography tile cut in two halves (west, east; adjacent tiles): the same points given
 twice (a renamed copy with an upper-case suffix, the same path twice, a symlink, a crop of
 a tile), a tile whose header extent is 5 km off its points, a tile without ground points
-among classified ones, tiles stating two vertical datums (CGVD28 and CGVD2013); and COPC
-files and EPT datasets whose hierarchy lies (a node's count halved or zeroed, a node at
-another node's chunk, a moved octree centre or header, a missing root or node entry).
+among classified ones, tiles stating two vertical datums (CGVD28 and CGVD2013).  (COPC
+files and EPT datasets whose hierarchy lies are in ``copc_corpus``.)
 
 The accepted surveys must give the rasters of the whole tile, cell for cell (the halves
 hold exactly its points), with a warning naming the cause; the tile without ground must
@@ -150,38 +149,6 @@ def check_survey(case: Any, i: dict[str, Any], result: Any, ws: list[str]) -> No
                                       err_msg=name)
 
 
-def _copc_lie(edit: str) -> Callable[[Path, Any], dict[str, Any]]:
-    def make(folder: Path, base: Any) -> dict[str, Any]:
-        from copc_data import copc_damaged
-
-        from .copc_corpus import _made
-
-        copc, _ = _made(base)
-        p = folder / f"{edit}.copc.laz"
-        p.write_bytes(copc_damaged(copc.read_bytes(), edit))
-        return {"path": p, "kind": "copc", "truth": base.topo}
-    return make
-
-
-def _ept_lie(edit: str) -> Callable[[Path, Any], dict[str, Any]]:
-    def make(folder: Path, base: Any) -> dict[str, Any]:
-        import json
-
-        from .copc_corpus import _made
-
-        _, src = _made(base)
-        ept = folder / "ept"
-        shutil.copytree(src, ept)
-        h = (ept / "ept-hierarchy" / "0-0-0-0.json" if edit == "no-root"
-             else sorted((ept / "ept-hierarchy").glob("1-*.json"))[0])
-        j = json.loads(h.read_text())
-        del j["0-0-0-0" if edit == "no-root" else
-              next(k for k, v in j.items() if k.startswith("2-") and v > 0)]
-        h.write_text(json.dumps(j))
-        return {"path": ept / "ept.json", "kind": "ept", "truth": base.topo}
-    return make
-
-
 RUNNERS: dict[str, tuple[Callable[..., Any], Callable[..., None]]] = {
     "survey": (run_survey, check_survey)}
 
@@ -198,10 +165,4 @@ def survey_cases() -> list[Any]:
                    warn_words=("no ground point",)),
               Case("survey-vertical-datums", "survey", _survey("datums"),
                    needles=("different vertical datums",), must_refuse=True)]
-    cases += [Case(f"copc-hierarchy-{e}", "copc", _copc_lie(e),
-                   needles=("hierarchy", "octree"), forbidden=("no points",), must_refuse=True)
-              for e in ("half", "none", "other", "centre", "header")]
-    cases += [Case(f"ept-hierarchy-{e}", "copc", _ept_lie(e), needles=("hierarchy",),
-                   forbidden=("no points",), must_refuse=True)
-              for e in ("no-root", "no-entry")]
     return cases
