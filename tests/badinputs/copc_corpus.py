@@ -21,9 +21,10 @@ import numpy as np
 
 __all__ = ["copc_cases", "RUNNERS"]
 
-LIES = ("half", "none", "other", "centre", "header")
+LIES = ("half", "none", "other", "sibling", "centre", "header")
 """COPC edits of :func:`copc_data.copc_damaged`: a node's count halved or zeroed, a node at
-another node's chunk, the octree centre or the header extent moved 5 km."""
+another node's chunk (its parent's, its sibling's), the octree centre or the header extent
+moved 5 km."""
 
 BROKEN = ("truncat", "not a copc", "corrupt", "damaged", "missing", "not supported",
           "not valid json", "byte-range")

@@ -85,8 +85,12 @@ class _Ranges(io.RawIOBase):
         return len(data)
 
 
+_TABLES: dict[tuple[str, int, int, tuple[int, int]], dict[int, tuple[int, int]]] = {}
+
+
 def chunk_starts(src: Any, h: Any) -> dict[int, tuple[int, int]]:
-    """``{byte offset: (points, bytes)}`` of every LAZ chunk of the file.
+    """``{byte offset: (points, bytes)}`` of every LAZ chunk of the file (read once per
+    file and process: a raster's windows each read the same file).
 
     Raises
     ------
@@ -94,10 +98,19 @@ def chunk_starts(src: Any, h: Any) -> dict[int, tuple[int, int]]:
         No readable chunk table (a COPC file has one), or one that holds another point
         count than the header's.
     """
+    key = (h.label, int(src.size), int(h.points_at), tuple(h.root))
+    if key not in _TABLES:
+        if len(_TABLES) > 64:
+            _TABLES.clear()
+        _TABLES[key] = _read_table(src, h)
+    return _TABLES[key]
+
+
+def _read_table(src: Any, h: Any) -> dict[int, tuple[int, int]]:
     import lazrs
 
     try:
-        f = io.BufferedReader(_Ranges(src), 1 << 16)
+        f = io.BufferedReader(_Ranges(src), 1 << 14)
         f.seek(h.points_at)
         table = list(lazrs.read_chunk_table(f, lazrs.LazVlr(h.laszip)) or [])
     except FileFormatError:
