@@ -34,7 +34,7 @@ import numpy as np
 from ..errors import CanopyBlocksWarning, CRSError, FileFormatError
 
 __all__ = ["SAMPLE", "duplicate_tiles", "check_first_points", "check_vertical_datums",
-           "check_survey_tiles", "vertical_names"]
+           "check_survey_tiles", "vertical_names", "check_tile_datums"]
 
 SAMPLE = 256
 """Points read at the start of a tile for its identity and to check its header extent."""
@@ -249,6 +249,13 @@ def check_survey_tiles(tiles: Sequence[tuple[Any, Box]], tolerance: float) -> No
         check_first_points(path, box, tolerance)
     paths = [p for p, _ in tiles]
     check_vertical_datums(paths, vertical_names(paths))
+
+
+def check_tile_datums(paths: Sequence[Any]) -> None:
+    """Refuse local LAS/LAZ tiles stating different vertical datums (URLs and COPC/EPT
+    sources are left to their readers); for ``run``'s and ``batch``'s tile lists."""
+    local = [p for p in paths if _local(p) is not None]
+    check_vertical_datums(local, vertical_names(local), warn=False)
 
 
 def vertical_names(paths: Sequence[Any]) -> list[str]:

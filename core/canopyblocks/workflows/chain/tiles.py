@@ -28,8 +28,7 @@ def _tiles_crs(tiles: Sequence[Path]) -> Any:
     read by the one LAS CRS reader): the vertical datum of every raster made from them,
     also after reprojection; None when unstated."""
     from ...readers.las_crs import las_file_crs
-    from ...readers.tile_checks import check_vertical_datums, vertical_names
+    from ...readers.tile_checks import check_tile_datums
 
-    local = [t for t in tiles if Path(t).is_file()]  # tiles in two vertical datums: refused
-    check_vertical_datums(local, vertical_names(local), warn=False)
+    check_tile_datums(tiles)  # tiles in two vertical datums: refused
     return las_file_crs(tiles[0]).crs
