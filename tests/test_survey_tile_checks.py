@@ -95,6 +95,12 @@ def test_copies_links_and_crops_are_counted_once(survey, reference, tmp_path) ->
     # the crop listed first is dropped too; tiles that only touch are both kept
     with pytest.warns(CanopyBlocksWarning, match="crop.laz holds a part of the points"):
         assert duplicate_tiles([crop, a, b])[0] == [a, b]
+    # a reclassified copy holds the same points: counted once too
+    las = laspy.read(b)
+    las.classification = np.where(np.asarray(las.classification) == 2, 1, 2).astype(np.uint8)
+    las.write(str(tmp_path / "reclassed.laz"))
+    with pytest.warns(CanopyBlocksWarning, match="reclassed.laz holds the same points as"):
+        assert duplicate_tiles([a, b, tmp_path / "reclassed.laz"])[0] == [a, b]
 
 
 def test_a_header_extent_moved_off_its_points_is_refused(survey, tmp_path) -> None:  # noqa: ANN001

@@ -4,8 +4,9 @@
   a symlink, a copy with another suffix's case, a crop of another tile) are counted once,
   with a warning naming both files.  Tiles are compared by their content, not their names:
   the number of points, the extent and the first :data:`SAMPLE` points (x, y, z to the
-  millimetre, class; one LAZ chunk's start, a few milliseconds a tile), as ``batch``
-  compares granules by their photons.  A tile whose header
+  millimetre, whatever their classes: a reclassified copy holds the same points; one LAZ
+  chunk's start, a few milliseconds a tile), as ``batch`` compares granules by their
+  photons.  A tile whose header
   extent lies within another's and whose sampled points are all points of that tile is a
   crop of it (that tile's points are read in full to check; only for nested extents).
 * :func:`check_first_points`: a tile skipped by its header extent (it does not meet the
@@ -98,7 +99,6 @@ class _Tile:
         digest = hashlib.sha1(f"{self.n};".encode())
         digest.update(np.round(ext * _MM).astype(np.int64).tobytes())
         digest.update(_keys(np.asarray(head.x), np.asarray(head.y), np.asarray(head.z)).tobytes())
-        digest.update(np.asarray(head.classification, np.uint8).tobytes())
         self.digest = digest.hexdigest()
         self.first = _keys(np.asarray(head.x), np.asarray(head.y), np.asarray(head.z))
         self.xy = np.c_[np.asarray(head.x, float), np.asarray(head.y, float)]
