@@ -155,6 +155,9 @@ def run_chain(
     from ...readers.tile_checks import duplicate_tiles
     from .flash_dual import waveform_chain
 
+    # the same points given twice (a copy, a link, a crop) are read once, with a warning
+    single = isinstance(las_paths, (str, os.PathLike))
+    las_paths = duplicate_tiles([las_paths] if single else list(las_paths))[0]
     waveform = waveform_chain(las_paths, out_dir, photons, sensor, beams=beams,
                                azimuth=azimuth, seed=seed, geoid=geoid, offset=offset,
                                options=sensor_options, noise=noise, progress=prog)
@@ -174,8 +177,7 @@ def run_chain(
                "coregister": coregister, "footprint_reference": footprint_reference}
     with new_files_removed_on_failure(out):
         out.mkdir(parents=True, exist_ok=True)
-        # the same points given twice (a copy, a link, a crop) are read once, with a warning
-        st = RunState(out=out, tiles=[Path(p) for p in duplicate_tiles(list(las_paths))[0]],
+        st = RunState(out=out, tiles=[Path(p) for p in las_paths],
                       params=params or BlockParams(lengths=(10.0, 25.0, 50.0)),
                       options=options, prog=prog)
         for stage in (photons_stage, blocks_stage, rasters_stage, validation_stage,
