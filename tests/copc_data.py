@@ -31,7 +31,7 @@ import numpy as np
 import pyproj
 
 __all__ = ["Octree", "build_octree", "write_copc", "write_ept", "tile_points",
-           "shifted_grid"]
+           "shifted_grid", "copc_damaged", "sibling_box"]
 
 
 @dataclass(frozen=True)
@@ -317,3 +317,59 @@ def write_ept(paths: Sequence[Path], out_dir: Path, *, capacity: int = 20_000,
             "schema": schema, "span": 128, "srs": srs, "version": "1.0.0"}
     (out_dir / "ept.json").write_text(json.dumps(meta, indent=1))
     return tree
+
+
+_E = struct.Struct("<4iQii")
+_INFO_AT = 375 + 54  # the COPC info record's data
+
+
+def _level2(raw: bytes) -> list[tuple[int, tuple[int, ...]]]:
+    """(entry position, entry) of the level-2 nodes with points (in hierarchy pages)."""
+    root_at, root_size = struct.unpack_from("<2Q", raw, _INFO_AT + 40)
+    root = [_E.unpack_from(raw, root_at + 32 * i) for i in range(root_size // 32)]
+    out = []
+    for page in (e for e in root if e[6] == -1):
+        out += [(page[4] + 32 * i, _E.unpack_from(raw, page[4] + 32 * i))
+                for i in range(page[5] // 32)]
+    return [(at, e) for at, e in out if e[0] == 2 and e[6] > 0]
+
+
+def sibling_box(raw: bytes) -> tuple[float, float, float, float]:
+    """A box inside the cube of the node that the ``"sibling"`` edit points elsewhere."""
+    cx, cy, _, half = struct.unpack_from("<4d", raw, _INFO_AT)
+    key = _level2(raw)[1][1]
+    side = half / 2.0
+    x0, y0 = cx - half + key[1] * side, cy - half + key[2] * side
+    return (x0 + 0.4 * side, y0 + 0.4 * side, x0 + 0.6 * side, y0 + 0.6 * side)
+
+
+def copc_damaged(raw: bytes, edit: str) -> bytes:
+    """The COPC bytes with one lie: a node's count halved or zeroed, a node pointed at
+    another node's chunk (its parent's: ``"other"``, its sibling's: ``"sibling"``), the
+    octree centre or the header extent moved 5 km."""
+    b = bytearray(raw)
+    root_at, root_size = struct.unpack_from("<2Q", raw, _INFO_AT + 40)
+    root = [(root_at + 32 * i, _E.unpack_from(raw, root_at + 32 * i))
+            for i in range(root_size // 32)]
+    at0, e0 = next((at, e) for at, e in root if e[6] > 0)
+    page = next(e for _, e in root if e[6] == -1)
+    inner = [(page[4] + 32 * i, _E.unpack_from(raw, page[4] + 32 * i))
+             for i in range(page[5] // 32)]
+    inner = [(at, e) for at, e in inner if e[6] > 0]
+    if edit == "half":
+        _E.pack_into(b, at0, *e0[:6], e0[6] // 2)
+    elif edit == "none":
+        _E.pack_into(b, at0, *e0[:6], 0)
+    elif edit == "other":
+        (_, e1), (at2, e2) = inner[0], inner[-1]
+        _E.pack_into(b, at2, *e2[:4], e1[4], e1[5], e1[6])
+    elif edit == "sibling":
+        (_, e1), (at2, e2) = _level2(raw)[:2]
+        _E.pack_into(b, at2, *e2[:4], e1[4], e1[5], e1[6])
+    elif edit == "centre":
+        cx = struct.unpack_from("<d", raw, _INFO_AT)[0]
+        struct.pack_into("<d", b, _INFO_AT, cx + 5000.0)
+    elif edit == "header":
+        mx, mnx = struct.unpack_from("<2d", raw, 179)
+        struct.pack_into("<2d", b, 179, mx + 5000.0, mnx + 5000.0)
+    return bytes(b)

@@ -1,7 +1,8 @@
 """Corpus cases of cloud-optimised surveys: COPC files and EPT datasets made from the
 Topography tile (``tests/copc_data.py``), damaged: truncated COPC files, a plain LAZ given
 as COPC, a broken ``ept.json``, a missing node file, an unsupported EPT data type, a server
-that ignores byte ranges.  The undamaged ones must be read, and give the tile's own points
+that ignores byte ranges; hierarchies that lie (a node's count halved or zeroed, a node at
+another node's chunk, a moved octree centre or header, an EPT without its root or a node).  The undamaged ones must be read, and give the tile's own points
 (read here with plain laspy).
 
 Registered in :func:`badinputs.make_corpus.all_cases`; the runner ``copc`` is added to the
@@ -10,6 +11,7 @@ corpus test's runners through :data:`RUNNERS`.
 
 from __future__ import annotations
 
+import json
 import shutil
 from collections.abc import Callable
 from pathlib import Path
@@ -18,6 +20,11 @@ from typing import Any
 import numpy as np
 
 __all__ = ["copc_cases", "RUNNERS"]
+
+LIES = ("half", "none", "other", "sibling", "centre", "header")
+"""COPC edits of :func:`copc_data.copc_damaged`: a node's count halved or zeroed, a node at
+another node's chunk (its parent's, its sibling's), the octree centre or the header extent
+moved 5 km."""
 
 BROKEN = ("truncat", "not a copc", "corrupt", "damaged", "missing", "not supported",
           "not valid json", "byte-range")
@@ -50,6 +57,10 @@ def _copc(edit: str, frac: float = 0.0) -> Callable[[Path, Any], dict[str, Any]]
         p = folder / ("norange" if edit == "norange" else "") / f"{edit}.copc.laz"
         p.parent.mkdir(exist_ok=True)
         raw = copc.read_bytes()
+        if edit in LIES:  # a hierarchy, octree centre or header that lies
+            from copc_data import copc_damaged
+
+            raw = copc_damaged(raw, edit)
         p.write_bytes(raw[:int(len(raw) * frac)] if edit == "truncated" else raw)
         return {"path": p, "kind": "copc", "truth": base.topo,
                 "serve": edit == "norange"}
@@ -72,6 +83,13 @@ def _ept(edit: str) -> Callable[[Path, Any], dict[str, Any]]:
             sorted((ept / "ept-data").glob("2-*.laz"))[0].unlink()
         elif edit == "missing-hierarchy":
             sorted((ept / "ept-hierarchy").glob("1-*.json"))[0].unlink()
+        elif edit in ("no-root", "no-entry"):  # a node left out of the hierarchy
+            h = (ept / "ept-hierarchy" / "0-0-0-0.json" if edit == "no-root"
+                 else sorted((ept / "ept-hierarchy").glob("1-*.json"))[0])
+            j = json.loads(h.read_text())
+            del j["0-0-0-0" if edit == "no-root" else
+                  next(k for k, v in j.items() if k.startswith("2-") and v > 0)]
+            h.write_text(json.dumps(j))
         return {"path": ept / "ept.json", "kind": "ept", "truth": base.topo}
     return make
 
@@ -121,4 +139,8 @@ def copc_cases() -> list[Any]:
     cases += [Case(f"ept-{e}", "copc", _ept(e), needles=BROKEN, must_refuse=True)
               for e in ("broken-json", "binary", "zstandard", "missing-node",
                         "missing-hierarchy")]
+    cases += [Case(f"copc-hierarchy-{e}", "copc", _copc(e), needles=("hierarchy", "octree"),
+                   forbidden=("no points",), must_refuse=True) for e in LIES]
+    cases += [Case(f"ept-hierarchy-{e}", "copc", _ept(e), needles=("hierarchy",),
+                   forbidden=("no points",), must_refuse=True) for e in ("no-root", "no-entry")]
     return cases

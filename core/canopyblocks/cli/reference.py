@@ -74,6 +74,10 @@ def rasters_cmd(ctx: click.Context, las: tuple[str, ...], out_dir: str, resoluti
     filled = result.stats.get("dtm_filled")
     if filled:
         summary(f"DTM: {filled:,} empty cells filled (marked in dtm_fill_mask.tif)", err=False)
+    bare = result.stats.get("dtm_unsupported")
+    if bare:
+        summary(f"DTM: {bare:,} cells of tiles without ground points left empty (not "
+                "interpolated)", err=False)
 
 
 def register(group: click.Group) -> None:

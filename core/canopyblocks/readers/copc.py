@@ -34,6 +34,7 @@ from ..errors import CRSError, FileFormatError, InputError, NoUsableDataError
 from ..geo import require_metre_units, require_metric_crs
 from ..progress import Progress, as_progress
 from .cloud_checks import HeightTally, warn_if_normalised
+from .copc_checks import check_chunks, check_cube, check_node_points, check_total, chunk_starts
 from .las_crs import LasCRS, _laspy, crs_from_records
 from .remote import is_url, open_source, source_label
 
@@ -209,6 +210,7 @@ class CopcHeader:
     halfsize: float
     root: tuple[int, int]   # (offset, size) of the root hierarchy page
     stated: LasCRS
+    points_at: int = 0      # offset to the point data (the chunk table's pointer)
 
 
 def read_header(src: ByteSource) -> CopcHeader:
@@ -246,13 +248,15 @@ def read_header(src: ByteSource) -> CopcHeader:
     stated = crs_from_records(Path(label), list(hdr.vlrs or []), version,
                               bool(getattr(hdr.global_encoding, "wkt", False)))
     mins, maxs = hdr.mins, hdr.maxs
-    return CopcHeader(
+    h = CopcHeader(
         label=label, n_points=int(hdr.point_count), point_format=fmt, record_length=rec_len,
         scales=tuple(float(v) for v in hdr.scales),  # type: ignore[arg-type]
         offsets=tuple(float(v) for v in hdr.offsets),  # type: ignore[arg-type]
         bounds=(float(mins[0]), float(mins[1]), float(maxs[0]), float(maxs[1])),
         laszip=laszip, center=(info[0], info[1], info[2]), halfsize=float(info[3]),
-        root=(int(info[5]), int(info[6])), stated=stated)
+        root=(int(info[5]), int(info[6])), stated=stated, points_at=int(offset_to_points))
+    check_cube(h)
+    return h
 
 
 def _raw_vlrs(blob: bytes, n: int) -> list[tuple[bytes, int, bytes]]:
@@ -297,7 +301,8 @@ Node = tuple[int, int, int, int]
 
 def select_nodes(src: ByteSource, h: CopcHeader, area: Area) -> list[tuple[Node, int, int, int]]:
     """``(key, offset, byte size, point count)`` of the nodes whose cubes meet ``area``
-    (hierarchy pages fetched only for cubes that meet it), in file order."""
+    (hierarchy pages fetched only for cubes that meet it), in file order, checked against
+    the LAZ chunks they point to (:mod:`~canopyblocks.readers.copc_checks`)."""
     entries: dict[Node, tuple[int, int, int]] = {}
     _add_page(src, h, entries, h.root)
     pad = 2.0 * max(h.scales)  # a point rounded onto its cube's face
@@ -319,11 +324,15 @@ def select_nodes(src: ByteSource, h: CopcHeader, area: Area) -> list[tuple[Node,
             _add_page(src, h, entries, (offset, size))
             todo.append(key)
             continue
-        if count > 0:
+        if count > 0 or size > 0:  # a count of 0 with bytes is checked against its chunk
             out.append((key, offset, size, count))
         d, x, y, z = key
         todo.extend((d + 1, 2 * x + (i & 1), 2 * y + ((i >> 1) & 1), 2 * z + ((i >> 2) & 1))
                     for i in range(8))
+    if out:  # each node read checked against the LAZ chunk it points to
+        check_chunks(h, out, chunk_starts(src, h))
+    if area.everything:
+        check_total(h, entries)
     return sorted(out, key=lambda n: n[1])
 
 
@@ -420,7 +429,9 @@ def read_copc(source: str | os.PathLike[str], *, bounds: Sequence[float] | None 
         for batch in _batches(nodes):
             prog.check()
             blobs = src.fetch([(n[1], n[1] + n[2]) for n in batch], "point data")
-            cols.add(_decompress(h, blobs, batch), h.scales, h.offsets, area)
+            rec = _decompress(h, blobs, batch)
+            check_node_points(h, rec, batch)
+            cols.add(rec, h.scales, h.offsets, area)
             del blobs
             done += sum(n[3] for n in batch)
             prog.update(done / total, f"{h.label}: {done:,} points")

@@ -158,6 +158,10 @@ def select_nodes(info: EptInfo, area: Area) -> list[tuple[Node, int]]:
     """``(key, count)`` of the nodes whose cubes meet ``area`` (sub-hierarchy files read
     only for cubes that meet it)."""
     counts = info.hierarchy((0, 0, 0, 0))
+    if (0, 0, 0, 0) not in counts:
+        raise FileFormatError(f"{info.label}: its hierarchy (ept-hierarchy/0-0-0-0.json) has no "
+                              "root node 0-0-0-0, so no point can be found; the dataset is "
+                              "damaged: write it again")
     b = info.bounds
     out: list[tuple[Node, int]] = []
     todo: list[Node] = [(0, 0, 0, 0)]
@@ -183,7 +187,28 @@ def select_nodes(info: EptInfo, area: Area) -> list[tuple[Node, int]]:
         d, x, y, z = key
         todo.extend((d + 1, 2 * x + (i & 1), 2 * y + ((i >> 1) & 1), 2 * z + ((i >> 2) & 1))
                     for i in range(8))
+    total = sum(n for n in counts.values() if n > 0)
+    if area.everything and -1 not in counts.values() and total != info.n_points:
+        raise FileFormatError(f"{info.label}: its hierarchy's nodes hold {total:,} points, "
+                              f"ept.json says {info.n_points:,}; the hierarchy is damaged (a "
+                              "node is missing from it or miscounted): write the dataset again")
     return sorted(out)
+
+
+def _check_cube(info: EptInfo, key: Node, las: Any) -> None:
+    """Refuse a node file whose points lie outside the node's cube (another node's data)."""
+    b = info.bounds
+    side = (b[3] - b[0]) / (1 << key[0])
+    out = np.zeros(len(las.points), dtype=bool)
+    for i, v in enumerate((las.x, las.y, las.z)):  # three axes
+        lo = b[i] + key[i + 1] * side - 0.01
+        a = np.asarray(v)
+        out |= (a < lo) | (a > lo + side + 0.02)
+    if out.any():
+        raise FileFormatError(
+            f"{info.label}: {int(out.sum()):,} of the {out.size:,} points of node "
+            f"ept-data/{'-'.join(map(str, key))}.laz lie outside its cube: the file holds "
+            "another node's points; the dataset is damaged: write it again")
 
 
 def _node_points(info: EptInfo, key: Node) -> Any:
@@ -245,6 +270,7 @@ def read_ept(source: str | os.PathLike[str], *, bounds: Sequence[float] | None =
                     raise FileFormatError(
                         f"{info.label}: node {'-'.join(map(str, key))} holds {len(las.points)} "
                         f"points, its hierarchy says {n}; the dataset is damaged")
+                _check_cube(info, key, las)
                 cols.add_arrays(np.asarray(las.x), np.asarray(las.y), np.asarray(las.z),
                                 np.asarray(las.classification, dtype=np.uint8),
                                 np.asarray(las.return_number, dtype=np.uint8),

@@ -24,6 +24,7 @@ Every filled cell is marked in the fill mask (``dtm_fill_mask.tif``: 1 filled, 0
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -34,7 +35,7 @@ from ..errors import DependencyError
 from ..geo import as_crs
 from .raster_grid import NODATA, Grid, authority_crs
 
-__all__ = ["fill_dtm_holes", "MASK_FILLED", "MASK_MEASURED", "MASK_NODATA"]
+__all__ = ["fill_dtm_holes", "groundless_cells", "MASK_FILLED", "MASK_MEASURED", "MASK_NODATA"]
 
 log = logging.getLogger(__name__)
 
@@ -43,7 +44,8 @@ MASK_FILLED = 1
 MASK_NODATA = 255
 
 
-def fill_dtm_holes(dtm: np.ndarray, support: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def fill_dtm_holes(dtm: np.ndarray, support: np.ndarray,
+                   exclude: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The DTM with its holes filled, and the mask of the filled cells.
 
     Parameters
@@ -52,6 +54,8 @@ def fill_dtm_holes(dtm: np.ndarray, support: np.ndarray) -> tuple[np.ndarray, np
         Ground heights (m), NaN where the cell has no ground point.
     support : ndarray of bool, same shape
         True where the cell holds points of any class (where the DSM has a value).
+    exclude : ndarray of bool, same shape, optional
+        Cells never filled (e.g. a tile without ground points: see :func:`groundless_cells`).
 
     Returns
     -------
@@ -69,6 +73,8 @@ def fill_dtm_holes(dtm: np.ndarray, support: np.ndarray) -> tuple[np.ndarray, np
     measured = np.isfinite(dtm)
     covered = ndimage.binary_fill_holes(support | measured)
     holes = covered & ~measured
+    if exclude is not None:
+        holes &= ~np.asarray(exclude, dtype=bool)
     filled = dtm.copy()
     if not holes.any() or not measured.any():
         return filled, np.zeros(dtm.shape, dtype=bool)
@@ -164,7 +170,7 @@ def write_grid(path: Path, values: np.ndarray, grid: Grid, crs: pyproj.CRS,
 
 
 def fill_and_write_dtm(dtm_path: Path, mask_path: Path, support: np.ndarray, grid: Grid,
-                       crs: pyproj.CRS) -> int:
+                       crs: pyproj.CRS, exclude: np.ndarray | None = None) -> int:
     """Rewrite PDAL's DTM at ``dtm_path`` with its holes filled and ``crs``; write the fill
     mask to ``mask_path``.  Returns the number of filled cells."""
     rasterio = rasterio_module()
@@ -172,7 +178,7 @@ def fill_and_write_dtm(dtm_path: Path, mask_path: Path, support: np.ndarray, gri
         raw = src.read(1).astype(np.float64)
         nodata = src.nodata
     raw[(raw == NODATA) | (raw == nodata) | ~np.isfinite(raw)] = np.nan
-    filled, mask = fill_dtm_holes(raw, support)
+    filled, mask = fill_dtm_holes(raw, support, exclude)
     write_grid(dtm_path, filled, grid, crs)
     codes = np.where(mask, MASK_FILLED, np.where(np.isfinite(filled), MASK_MEASURED,
                                                  MASK_NODATA))
@@ -181,3 +187,47 @@ def fill_and_write_dtm(dtm_path: Path, mask_path: Path, support: np.ndarray, gri
     log.info("DTM: %d of %d cells filled by interpolation (%.1f %%)", n, mask.size,
              100.0 * n / mask.size)
     return n
+
+
+def groundless_cells(tiles: Sequence[tuple[str, int, int, Sequence[float]]], grid: Grid,
+                     dtm: np.ndarray) -> np.ndarray | None:
+    """The cells a tile without ground points covers and no ground point measured.
+
+    A survey tile whose points include no ground (class 2) while other tiles do (an
+    unclassified tile among classified ones) would have its whole area interpolated from
+    the ground around it.  Its cells without a measured ground are left without DTM
+    instead (blocks there get no ground reference: left out of the ground statistics),
+    with a warning naming the tile.
+
+    Parameters
+    ----------
+    tiles : sequence of (path, n_points, n_ground, box)
+        Each tile read; ``box`` its extent in the grid's CRS.
+    dtm : (height, width) array, NaN where no ground was measured
+
+    Returns
+    -------
+    bool array of the grid's shape, or None when no tile is groundless (or none has ground).
+    """
+    import warnings
+
+    from ..errors import CanopyBlocksWarning
+
+    bare = [t for t in tiles if t[1] > 0 and t[2] == 0]
+    if not bare or not any(t[2] > 0 for t in tiles):
+        return None
+    cx = grid.origin_x + (np.arange(grid.width) + 0.5) * grid.resolution
+    cy = grid.top_y - (np.arange(grid.height) + 0.5) * grid.resolution
+    out = np.zeros((grid.height, grid.width), dtype=bool)
+    for path, n, _, box in bare:  # a loop over the groundless tiles, vectorised over cells
+        cols = (cx >= box[0]) & (cx <= box[2])
+        rows = (cy >= box[1]) & (cy <= box[3])
+        cells = np.outer(rows, cols) & ~np.isfinite(dtm)
+        out |= cells
+        warnings.warn(
+            f"tile {path} holds {n:,} points but no ground point (ASPRS class 2) while the "
+            f"other tiles have ground: its {int(cells.sum()):,} cells without measured ground "
+            "are left without DTM (not interpolated across the tile), so blocks there have no "
+            "ground reference; classify its ground (e.g. PDAL filters.smrf) or make the "
+            "rasters with --smrf", CanopyBlocksWarning, stacklevel=3)
+    return out

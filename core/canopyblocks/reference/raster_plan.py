@@ -31,6 +31,7 @@ from ..errors import (
 from ..geo import as_crs, require_metric_crs
 from ..readers.las_header import check_header_extent, check_las_file
 from ..readers.las_summary import LasSummary, las_summary
+from ..readers.tile_checks import check_survey_tiles
 from .pdal import TileInfo, tile_info
 from .raster_grid import (
     Grid,
@@ -101,6 +102,8 @@ def las_plan(paths: list[Path], params: RasterParams, crs: object, area_poly: An
     checked = [check_tile_crs(i, target_in) for i in infos]
     tile_crss = [c for c, _ in checked]
     target = _target_crs(infos, tile_crss, target_in)
+    check_survey_tiles([(i.path, i.bounds) for i in infos if i.n_points > 0],
+                       max(params.resolution, 1.0))  # headers vs first points, datums
     src_wkts = [None if _horizontal(c).equals(_horizontal(target), ignore_axis_order=True)
                 else _horizontal(c).to_wkt() for c in tile_crss]
     boxes = _boxes(infos, tile_crss, target)

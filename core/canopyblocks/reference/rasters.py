@@ -57,7 +57,7 @@ from ..progress import Progress, as_progress
 from ..readers.cloud_checks import warn_if_normalised
 from ..readers.las import as_area
 from ..readers.las_header import check_header_extent
-from .dtm_fill import fill_and_write_dtm, rasterio_module, write_grid
+from .dtm_fill import fill_and_write_dtm, groundless_cells, rasterio_module, write_grid
 from .pdal import (
     expand_readers,
     find_pdal,
@@ -222,8 +222,11 @@ def make_reference_rasters(
         write_grid(p90_path, surf.p90, grid, out_crs)
         prog.update(0.93, "dsm_p90 done")
         stats.update(_check_outputs(dtm_path, max_path, grid, params, paths))
+        bare = None if smrf or kind is not None else groundless_cells(
+            [(r.path, r.n_points, r.n_ground, u.box) for r, u in zip(results, units)], grid, dtm)
+        stats["dtm_unsupported"] = 0 if bare is None else int(bare.sum())
         stats["dtm_filled"] = fill_and_write_dtm(dtm_path, mask_path, np.isfinite(surf.top),
-                                                 grid, out_crs)
+                                                 grid, out_crs, exclude=bare)
         prog.update(0.97, "DTM holes filled")
     log.info("reference rasters in %s: %s", out, stats)
     prog.report(1.0, "done")  # outputs are committed: too late to cancel

@@ -39,6 +39,7 @@ def survey_tiles(sources: str | os.PathLike[str] | Sequence[str | os.PathLike[st
         A folder holding no ``.las``/``.laz`` file, or no source at all.
     """
     from ..errors import InputError
+    from ..readers.tile_checks import duplicate_tiles
     from ..reference.raster_tiles import cloud_kind
 
     items = [sources] if isinstance(sources, (str, os.PathLike)) else list(sources)
@@ -59,7 +60,7 @@ def survey_tiles(sources: str | os.PathLike[str] | Sequence[str | os.PathLike[st
             out.append(p)
     if not out:
         raise InputError("no LAS/LAZ tile given")
-    return out
+    return duplicate_tiles(out)[0]  # the same points given twice: counted once, warned
 
 
 def corridor_area(blocks: Any, width: float, *, margin: float = CORRIDOR_MARGIN) -> Any:

@@ -31,6 +31,7 @@ import pandas as pd
 from ...atomic import atomic_output, check_writable, record_written
 from ...errors import CanopyBlocksWarning, InputError, NoUsableDataError
 from ...progress import Progress, as_progress
+from ...readers.tile_checks import check_tile_datums, duplicate_tiles
 from ..backends import BACKENDS, Backend, run_items
 from .cleanup import (
     complete_outputs,
@@ -173,11 +174,12 @@ def run_batch(granules: Sequence[str | os.PathLike[str]],
         raise InputError(f"backend must be one of {', '.join(BACKENDS)}; got {backend!r}")
     out = Path(out_dir)
     g_paths = drop_duplicate_granules(list_inputs(granules, (".h5",)))
-    t_paths = list_inputs(tiles, (".las", ".laz"))
+    t_paths = duplicate_tiles(list_inputs(tiles, (".las", ".laz")))[0]  # same points once
     refuse_output_in_inputs(out, [*granules, *tiles])
     check_writable(out, folder=True)
     prog.update(0.0, "indexing tiles and tracks")
     index = tile_index(t_paths)
+    check_tile_datums(t_paths)  # one vertical datum for all tiles
     _check_datums(cfg, t_paths[0])
     _check_same_config(out, cfg)
     out.mkdir(parents=True, exist_ok=True)

@@ -152,8 +152,12 @@ def run_chain(
                       stacklevel=2)
         photon_rate = preset
     prog = as_progress(progress)
+    from ...readers.tile_checks import duplicate_tiles
     from .flash_dual import waveform_chain
 
+    # the same points given twice (a copy, a link, a crop) are read once, with a warning
+    single = isinstance(las_paths, (str, os.PathLike))
+    las_paths = duplicate_tiles([las_paths] if single else list(las_paths))[0]
     waveform = waveform_chain(las_paths, out_dir, photons, sensor, beams=beams,
                                azimuth=azimuth, seed=seed, geoid=geoid, offset=offset,
                                options=sensor_options, noise=noise, progress=prog)

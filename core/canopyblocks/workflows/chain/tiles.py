@@ -28,5 +28,7 @@ def _tiles_crs(tiles: Sequence[Path]) -> Any:
     read by the one LAS CRS reader): the vertical datum of every raster made from them,
     also after reprojection; None when unstated."""
     from ...readers.las_crs import las_file_crs
+    from ...readers.tile_checks import check_tile_datums
 
+    check_tile_datums(tiles)  # tiles in two vertical datums: refused
     return las_file_crs(tiles[0]).crs

@@ -1,0 +1,168 @@
+"""Corpus cases of surveys whose tiles are not what their headers or names say, made from
+the Topography tile cut in two halves (west, east; adjacent tiles): the same points given
+twice (a renamed copy with an upper-case suffix, the same path twice, a symlink, a crop of
+a tile), a tile whose header extent is 5 km off its points, a tile without ground points
+among classified ones, tiles stating two vertical datums (CGVD28 and CGVD2013).  (COPC
+files and EPT datasets whose hierarchy lies are in ``copc_corpus``.)
+
+The accepted surveys must give the rasters of the whole tile, cell for cell (the halves
+hold exactly its points), with a warning naming the cause; the tile without ground must
+leave its cells without DTM.  Registered in :func:`badinputs.make_corpus.all_cases`; the
+runner ``survey`` joins the corpus test's runners through :data:`RUNNERS`.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import struct
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["survey_cases", "RUNNERS", "move_header", "crop_of"]
+
+
+def move_header(path: Path, dx: float, dy: float) -> None:
+    """Shift a LAS/LAZ header's stated extent (max/min x, y at bytes 179-211), not its points."""
+    raw = bytearray(path.read_bytes())
+    mx, mnx, my, mny = struct.unpack_from("<4d", raw, 179)
+    struct.pack_into("<4d", raw, 179, mx + dx, mnx + dx, my + dy, mny + dy)
+    path.write_bytes(bytes(raw))
+
+
+def crop_of(src: Path, out: Path) -> Path:
+    """The western half of a tile's points (a subset, in the file's order)."""
+    import laspy
+
+    las = laspy.read(src)
+    x = np.asarray(las.x)
+    _write(las, x < np.median(x), out)
+    return out
+
+
+def _write(las: Any, keep: np.ndarray, out: Path) -> None:
+    import laspy
+
+    part = laspy.LasData(las.header)
+    part.points = las.points[keep].copy()
+    part.update_header()
+    part.write(str(out))
+
+
+def _halves(base: Any, folder: Path, vertical: tuple[int, int] | None = None
+            ) -> tuple[Path, Path]:
+    """The Topography tile's west and east halves (optionally with vertical datums)."""
+    import laspy
+    import pyproj
+
+    las = laspy.read(base.topo)
+    x = np.asarray(las.x)
+    cut = float(np.floor(np.median(x)))
+    out = []
+    for i, (name, keep) in enumerate((("west", x < cut), ("east", x >= cut))):
+        p = folder / f"{name}.laz"
+        if vertical is None:
+            _write(las, keep, p)
+        else:
+            one = laspy.convert(las, file_version="1.4", point_format_id=6)
+            one.header.vlrs.clear()
+            one.header.add_crs(pyproj.CRS.from_user_input(f"EPSG:2949+{vertical[i]}"))
+            _write(one, keep, p)
+        out.append(p)
+    return out[0], out[1]
+
+
+def _survey(kind: str) -> Callable[[Path, Any], dict[str, Any]]:
+    def make(folder: Path, base: Any) -> dict[str, Any]:
+        west, east = _halves(base, folder, (5713, 6647) if kind == "datums" else None)
+        tiles: list[Path] = [west, east]
+        damaged = west
+        if kind == "copy":
+            damaged = Path(shutil.copy(west, folder / "tile1.LAZ"))
+        elif kind == "twice":
+            damaged = west
+        elif kind == "symlink":
+            damaged = folder / "link.laz"
+            os.symlink(west, damaged)
+        elif kind == "crop":
+            damaged = crop_of(west, folder / "crop.laz")
+        elif kind == "header-moved":
+            move_header(east, 5000.0, 0.0)
+            damaged, tiles = east, [west, east]
+        elif kind == "no-ground":
+            import laspy
+
+            las = laspy.read(east)
+            c = np.asarray(las.classification)
+            c[c == 2] = 1
+            las.classification = c
+            las.write(str(east))
+            damaged = east
+        elif kind == "datums":
+            damaged = east
+        if kind in ("copy", "twice", "symlink", "crop"):
+            tiles = [west, east, damaged]
+        return {"path": damaged, "tiles": tiles, "kind": kind, "truth": base.topo,
+                "west": west}
+    return make
+
+
+def run_survey(i: dict[str, Any], folder: Path) -> Any:
+    from canopyblocks.workflows.rasters import make_survey_rasters
+
+    return make_survey_rasters(i["tiles"], folder / "rasters", backend="serial")
+
+
+def _band(path: Path) -> np.ndarray:
+    import rasterio
+
+    with rasterio.open(path) as src:
+        a = src.read(1).astype(float)
+        a[a == src.nodata] = np.nan
+    return a
+
+
+def check_survey(case: Any, i: dict[str, Any], result: Any, ws: list[str]) -> None:
+    """Duplicates: the whole tile's rasters, cell for cell; no ground: no DTM beyond the
+    classified half (more than 3 m east of it)."""
+    from canopyblocks.reference.rasters import make_reference_rasters
+
+    assert any(Path(i["path"]).name in w for w in ws), f"no warning names the tile: {ws}"
+    if i["kind"] == "no-ground":
+        import laspy
+
+        dtm = _band(result.dtm)
+        west = laspy.read(i["west"])
+        with __import__("rasterio").open(result.dtm) as src:
+            t = src.transform
+        cx = t.c + (np.arange(dtm.shape[1]) + 0.5) * t.a
+        east_of = cx > float(np.max(west.x)) + 3.0
+        assert np.isnan(dtm[:, east_of]).all(), "DTM interpolated across the tile"
+        assert result.stats["dtm_unsupported"] > 0
+        return
+    whole = make_reference_rasters([i["truth"]], i["folder"] / "whole")
+    for name in ("dtm", "dsm_max", "dsm_p90"):
+        np.testing.assert_array_equal(_band(getattr(result, name)), _band(getattr(whole, name)),
+                                      err_msg=name)
+
+
+RUNNERS: dict[str, tuple[Callable[..., Any], Callable[..., None]]] = {
+    "survey": (run_survey, check_survey)}
+
+
+def survey_cases() -> list[Any]:
+    from .make_corpus import Case
+
+    same = ("same points", "same file", "part of the points")
+    cases = [Case(f"survey-{k}", "survey", _survey(k), warn_words=same)
+             for k in ("copy", "twice", "symlink", "crop")]
+    cases += [Case("survey-header-moved", "survey", _survey("header-moved"),
+                   needles=("its header says",), must_refuse=True),
+              Case("survey-no-ground", "survey", _survey("no-ground"),
+                   warn_words=("no ground point",)),
+              Case("survey-vertical-datums", "survey", _survey("datums"),
+                   needles=("different vertical datums",), must_refuse=True)]
+    return cases
