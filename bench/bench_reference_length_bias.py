@@ -86,16 +86,50 @@ def site_rows(name: str, azimuths: tuple[float, ...], seeds: int) -> pd.DataFram
                             blocks, cloud, statistic=stat,
                             top_level=level if stat == "pooled" else 98,
                             canopy_threshold=threshold)
-                    ref = refs[stat]
-                    use = blocks["use"].to_numpy(bool) & (ref["ref_flag"] == "ok").to_numpy()
-                    frames.append(pd.DataFrame({
-                        "site": name, "azimuth": az, "seed": seed, "statistic": stat,
-                        "length": blocks["length"].to_numpy(float), "use": use,
-                        "res_hmax": blocks["hmax"].to_numpy(float) - ref["ref_hmax"].to_numpy(),
-                        "res_h90": blocks["h90"].to_numpy(float) - ref["ref_h90"].to_numpy(),
-                        "res_ground": (blocks["ground"].to_numpy(float)
-                                       - ref["ref_ground"].to_numpy())}))
+                    frames.append(_frame(name, az, seed, stat, blocks, refs[stat]))
+                if "levels" not in refs:
+                    lv = refs["pooled"][["track", "length", "block", "ref_flag", "ref_h90",
+                                          "ref_ground"]].copy()
+                    for q in MATCH_LEVELS:
+                        lv[f"q{q}"] = block_footprint_reference(
+                            blocks, cloud, top_level=q, canopy_threshold=threshold
+                        )["ref_hmax"].to_numpy()
+                    refs["levels"] = lv
+                frames.append(_frame(name, az, seed, "pooled, level of n photons", blocks,
+                                     _matched(blocks, refs["levels"])))
     return pd.concat(frames, ignore_index=True)
+
+
+#: Percentiles of the reference to interpolate the one n canopy photons' 98th percentile
+#: reaches on average (diagnosis of the estimate's finite-sample bias).
+MATCH_LEVELS = (80, 85, 88, 90, 92, 94, 95, 96, 97, 98)
+
+
+def _matched(blocks: pd.DataFrame, levels: pd.DataFrame) -> pd.DataFrame:
+    """The pooled reference with Hmax at the level the 98th percentile (numpy's linear
+    method) of the block's n canopy photons has on average: order statistic
+    0.98 (n - 1) + 1 of n, whose expected CDF value is that over n + 1."""
+    key = ["length", "block"]
+    lv = blocks[key + ["n_between"]].merge(levels, on=key, how="left")
+    n = lv["n_between"].to_numpy(float)
+    q = 100.0 * (0.98 * (n - 1) + 1) / (n + 1)
+    table = lv[[f"q{v}" for v in MATCH_LEVELS]].to_numpy(float)
+    lv["ref_hmax"] = [np.interp(qi, MATCH_LEVELS, row) if np.isfinite(qi) else np.nan
+                      for qi, row in zip(q, table)]
+    return lv
+
+
+def _frame(name: str, az: float, seed: int, stat: str, blocks: pd.DataFrame,
+           ref: pd.DataFrame) -> pd.DataFrame:
+    key = ["length", "block"]  # the first seed's blocks: another seed may end elsewhere
+    ref = blocks[key].merge(ref.drop(columns="track"), on=key, how="left")
+    use = blocks["use"].to_numpy(bool) & (ref["ref_flag"] == "ok").to_numpy()
+    return pd.DataFrame({
+        "site": name, "azimuth": az, "seed": seed, "statistic": stat,
+        "length": blocks["length"].to_numpy(float), "use": use,
+        "res_hmax": blocks["hmax"].to_numpy(float) - ref["ref_hmax"].to_numpy(),
+        "res_h90": blocks["h90"].to_numpy(float) - ref["ref_h90"].to_numpy(),
+        "res_ground": blocks["ground"].to_numpy(float) - ref["ref_ground"].to_numpy()})
 
 
 def summary(rows: pd.DataFrame) -> pd.DataFrame:

@@ -190,3 +190,37 @@ def _blocks_on(line, n: int, crs) -> gpd.GeoDataFrame:  # noqa: ANN001
                        "s_start": s_start, "s_end": s_start + 50.0,
                        "x": xa + mid * ux, "y": ya + mid * uy})
     return gpd.GeoDataFrame(df, geometry=gpd.points_from_xy(df.x, df.y), crs=crs)
+
+
+def test_one_reason_per_block_by_the_stated_precedence() -> None:
+    """A block both sparse and outside the reference is 'reference outside' in the
+    residuals layer, in the facts and in the map legend alike."""
+    from canopyblocks.outputs.footprint_maps import _hatched_label
+    from canopyblocks.validation.facts import fact_rows
+    from canopyblocks.validation.residuals import (
+        LEFT_OUT_PRECEDENCE,
+        RESIDUAL_PAIRS,
+        compute_residuals,
+    )
+
+    blocks = _blocks(10.0, 5)
+    blocks["flag"] = ["sparse", "sparse", "low_confidence", "ok", "ok"]
+    blocks["use"] = [False, False, False, True, True]
+    for m in RESIDUAL_PAIRS:
+        blocks[m] = np.where(blocks["flag"] == "sparse", np.nan, 10.0)
+    blocks["hmax_sigma"] = 1.0
+    blocks["ground_sigma"] = 0.5
+    ref = blocks[["track", "length", "block"]].copy()
+    for r in RESIDUAL_PAIRS.values():
+        ref[r] = 9.0
+    ref["ref_flag"] = ["outside", "ok", "outside", "ok", "nodata"]
+    res = compute_residuals(blocks, ref)
+    want = ["reference outside", "sparse", "reference outside", "", "reference nodata"]
+    assert list(res["reason"]) == want
+    assert all(w in LEFT_OUT_PRECEDENCE for w in want if w)
+    facts = fact_rows(res, estimators="atl08", reference="footprint", layer="x",
+                      pairs=RESIDUAL_PAIRS, metrics=("hmax",))
+    assert facts[0]["left_out"] == "reference nodata 1; reference outside 2; sparse 1"
+    hatched = ~res["use"].to_numpy(bool)
+    assert _hatched_label(res, hatched, True) == (
+        "not in the statistics: reference nodata 1; reference outside 2; sparse 1")

@@ -91,10 +91,13 @@ def interval95(res: np.ndarray) -> tuple[float, float, float, float, str]:
 def left_out_reasons(rows: pd.DataFrame, value: str, ref: str) -> tuple[np.ndarray, np.ndarray]:
     """Per row: in the statistics (bool) and, when not, why (str).
 
-    Why: the block's own flag when not ``ok``; else ``reference <ref_flag>`` when the
-    reference is not ``ok``; else ``not used`` (``use`` false); else ``no value`` (a
-    non-finite value or reference).
+    Why, by :data:`~canopyblocks.validation.residuals.LEFT_OUT_PRECEDENCE`: ``reference
+    <ref_flag>`` when the reference is not ``ok``; else the block's own flag when not
+    ``ok``; else ``not used`` (``use`` false); else ``no value`` (a non-finite value or
+    reference).
     """
+    from .residuals import block_reasons
+
     n = len(rows)
     flag = (rows["flag"].astype(str).to_numpy(object) if "flag" in rows
             else np.full(n, "ok", object))
@@ -104,10 +107,8 @@ def left_out_reasons(rows: pd.DataFrame, value: str, ref: str) -> tuple[np.ndarr
            else np.ones(n, bool))
     finite = np.isfinite(pd.to_numeric(rows[value], errors="coerce").to_numpy(float)) & \
         np.isfinite(pd.to_numeric(rows[ref], errors="coerce").to_numpy(float))
-    ref_why = np.array([f"reference {f}" for f in rflag], dtype=object)
-    why = np.where(flag != "ok", flag,
-                   np.where(rflag != "ok", ref_why,
-                            np.where(~use, "not used", "no value")))
+    why = block_reasons(flag, rflag, use)
+    why = np.where(why == "", "no value", why)
     inside = use & finite
     return inside, np.where(inside, "", why).astype(object)
 
