@@ -224,3 +224,31 @@ def test_one_reason_per_block_by_the_stated_precedence() -> None:
     hatched = ~res["use"].to_numpy(bool)
     assert _hatched_label(res, hatched, True) == (
         "not in the statistics: reference nodata 1; reference outside 2; sparse 1")
+
+
+def test_block_bootstrap_widens_the_interval_of_autocorrelated_residuals() -> None:
+    """AR(1) residuals along a track (phi 0.6): the 95 % interval of the mean is
+    1.96 sigma / (1 - phi) / sqrt(n) by theory; resampling single blocks gives about half
+    of it, runs of adjacent blocks most of it. Independent residuals: both about alike."""
+    from scipy.signal import lfilter
+
+    from canopyblocks.validation.facts import interval95
+
+    n, phi = 400, 0.6
+    theory = 1.96 / (1 - phi) / math.sqrt(n)
+    single, runs = [], []
+    for seed in range(3):
+        rng = np.random.default_rng(seed)
+        e = lfilter([1.0], [1.0, -phi], rng.normal(size=n))  # e[i] = phi e[i-1] + noise
+        a = interval95(e)
+        b = interval95(e, track=np.zeros(n), run=10)
+        assert a[4] == "bootstrap" and b[4] == "block bootstrap"
+        single.append((a[1] - a[0]) / 2 / theory)
+        runs.append((b[1] - b[0]) / 2 / theory)
+    assert np.mean(single) < 0.55 and 0.6 < np.mean(runs) < 1.2
+    iid = np.random.default_rng(5).normal(size=n)
+    a, b = interval95(iid), interval95(iid, track=np.zeros(n), run=10)
+    assert (b[1] - b[0]) / (a[1] - a[0]) == pytest.approx(1.0, abs=0.25)
+    # runs never cross from one track to the next: two tracks of 3 values, runs of 4
+    c = interval95(np.arange(6.0), track=np.array([0, 0, 0, 1, 1, 1]), run=4)
+    assert c[4] == "bootstrap"

@@ -29,7 +29,8 @@ __all__ = ["LeadResult", "estimators_sentence", "lead_numbers", "summary_section
            "paper_section", "summary_lines", "datum_sentence", "bias_calibration_part",
            "SUMMARY_METRICS", "FOOTPRINT_WORDS", "CORRIDOR_WORDS", "lead_result",
            "low_confidence_sentence", "bias_offer_part", "truth_report_table", "details_stats",
-           "numbers_table", "counts_sentence", "footprint_words", "FOOTPRINT_STATISTIC_WORDS"]
+           "numbers_table", "counts_sentence", "footprint_words", "FOOTPRINT_STATISTIC_WORDS",
+           "BLOCK_BOOTSTRAP_WORDS"]
 
 #: How the report names the footprint reference's statistic (``ref_statistic``).
 FOOTPRINT_STATISTIC_WORDS = {
@@ -106,6 +107,12 @@ FILES_WORDS = (
     "MAE and the least-squares fit slope), and stats.csv (the run's own blocks, those of "
     "blocks.gpkg, against the corridor maximum, every group: the layer 'stats'). The "
     "figures measured on unseen tiles are the project's benchmarks, not this run's.")
+
+#: How the report says its intervals of photon blocks were made.
+BLOCK_BOOTSTRAP_WORDS = (
+    "a block bootstrap along the track, per block length (2,000 resamples of runs of "
+    "adjacent blocks 100 m long, as neighbouring blocks are not independent; the analytic "
+    "interval above 5,000 blocks)")
 
 #: Below this many blocks no interval is given.
 MIN_INTERVAL = 3
@@ -225,8 +232,7 @@ def summary_section(lead: LeadResult, *, source: str, n_tracks: int, n_photons: 
     else:
         paras.append("No block could be validated against this reference.")
     paras.append("Residual = block value minus reference value, metres. 95 % intervals: "
-                 "bootstrap over the blocks (2,000 resamples; the analytic interval above "
-                 "5,000 blocks). The table below holds the rows of facts.csv for these "
+                 + BLOCK_BOOTSTRAP_WORDS + ". The table below holds the rows of facts.csv for these "
                  f"estimators and this reference (statistics layer '{lead.layer}' of "
                  "validation.gpkg; the blocks used, all aspects and slopes together). "
                  + FILES_WORDS)
