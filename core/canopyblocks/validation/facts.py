@@ -58,15 +58,17 @@ TERRAIN: tuple[str, ...] = ("slope", "aspect", "aspect_class", "slope_class")
 KEY: tuple[str, ...] = ("track", "length", "block")
 
 
-def _run_starts(track: np.ndarray | None, n: int, run: int) -> np.ndarray:
-    """The positions where a run of ``run`` values starts inside one track."""
-    if track is None or run <= 1:
-        return np.arange(n)
+def _track_spans(track: np.ndarray | None, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per value, the first position and the length of its track's run of values
+    (values of a track adjacent; no track: one run of all)."""
+    if track is None:
+        return np.zeros(n, np.int64), np.full(n, n, np.int64)
     t = np.asarray(track)
-    last = np.arange(n) + run - 1
-    ok = last < n
-    ok[ok] &= t[np.flatnonzero(ok)] == t[last[ok]]
-    return np.flatnonzero(ok)
+    new = np.concatenate([[True], t[1:] != t[:-1]])
+    first = np.flatnonzero(new)
+    lengths = np.diff(np.concatenate([first, [n]]))
+    which = np.cumsum(new) - 1
+    return first[which], lengths[which]
 
 
 def interval95(res: np.ndarray, *, track: np.ndarray | None = None,
@@ -75,10 +77,10 @@ def interval95(res: np.ndarray, *, track: np.ndarray | None = None,
 
     Returns ``(bias_lo, bias_hi, rmse_lo, rmse_hi, method)``: for up to
     :data:`MAX_BOOTSTRAP` values a percentile bootstrap (fixed random state) -- with
-    ``run`` > 1 a moving-block bootstrap: ``res`` in along-track order, ``track`` the
+    ``run`` > 1 a circular block bootstrap: ``res`` in along-track order, ``track`` the
     track of each value, each resample ``ceil(n / run)`` runs of ``run`` adjacent values
-    of one track, cut to ``n`` (``"block bootstrap"``; single values where no track is
-    that long) -- else the analytic one (normal interval of the mean; delta method for
+    of one track starting anywhere (wrapping round at the track's end, so every value is
+    drawn equally often), cut to ``n`` (``"block bootstrap"``) -- else the analytic one (normal interval of the mean; delta method for
     the RMSE). NaN for fewer than 2 values.
     """
     r = np.asarray(res, dtype=float)
@@ -89,9 +91,8 @@ def interval95(res: np.ndarray, *, track: np.ndarray | None = None,
         return np.nan, np.nan, np.nan, np.nan, ""
     if n <= MAX_BOOTSTRAP:
         tr = None if track is None else np.asarray(track)[fin]
-        starts = _run_starts(tr, n, run)
-        if starts.size == 0:
-            starts, run = np.arange(n), 1
+        run = max(1, int(run))
+        t0, tlen = _track_spans(tr, n)
         how = "block bootstrap" if run > 1 else "bootstrap"
         rng = np.random.default_rng(_STATE)
         means = np.empty(N_RESAMPLES)
@@ -100,8 +101,9 @@ def interval95(res: np.ndarray, *, track: np.ndarray | None = None,
         step = max(1, 400_000 // (m * run))  # resamples per chunk: memory bounded
         for i in range(0, N_RESAMPLES, step):
             k = min(step, N_RESAMPLES - i)
-            first = starts[rng.integers(0, starts.size, size=(k, m))]
-            idx = (first[:, :, None] + np.arange(run)).reshape(k, m * run)[:, :n]
+            first = rng.integers(0, n, size=(k, m))
+            a, ln = t0[first][:, :, None], tlen[first][:, :, None]
+            idx = (a + (first[:, :, None] - a + np.arange(run)) % ln).reshape(k, m * run)[:, :n]
             s = r[idx]
             means[i:i + k] = s.mean(axis=1)
             rms[i:i + k] = np.sqrt((s * s).mean(axis=1))
