@@ -24,3 +24,5 @@ echo "== co-registration (bench/bench_coregistration.py)"
 "$PY" bench/bench_coregistration.py
 echo "== per-block sigma on unseen tiles (bench/bench_block_sigma.py)"
 "$PY" bench/bench_block_sigma.py
+echo "== block reference bias per block length (bench/bench_reference_length_bias.py)"
+"$PY" bench/bench_reference_length_bias.py

@@ -187,6 +187,14 @@ def test_report_opens_with_the_recommended_estimators_like_with_like(chain_out) 
                      rf"([-+.\d]+) m{ci}, RMSE ([.\d]+) m{ci}, R² ([.\d]+) \(n = (\d+) "
                      r"blocks\)", first)
     assert said, first[:1500]
+    # every length said, not only 25 m; the layer names its reference's statistic and
+    # gives every block left out one reason
+    assert "At 50 m: ground bias" in first
+    assert set(res["ref_statistic"]) == {"pooled"}
+    assert "statistic 'pooled'" in first
+    left = res[~res["use"].astype(bool)]
+    assert (left["reason"].fillna("") != "").all()
+    assert (res.loc[res["use"].astype(bool), "reason"].fillna("") == "").all()
     g, h = truth[(25.0, "ground")], truth[(25.0, "hmax")]
     got = [float(v) for v in said.groups()]
     want = [g[1], g[2], g[3], g[0], h[1], h[2], h[3], h[0]]
@@ -243,8 +251,10 @@ def test_report_figures_and_bias_offer_agree_with_the_headline(chain_out) -> Non
     assert f"'{RECOMMENDED_PRESET}'" in summary and "footprint-matched" in summary
     assert "<img src='plots/residual_map.png'" in summary
     assert "<img src='plots/profile.png'" in summary
-    details = sec[f"The '{RECOMMENDED_PRESET}' estimator against the footprint-matched "
-                  "airborne reference (footprint RH98 and ground): details"]
+    from canopyblocks.workflows.chain.report import FOOTPRINT_WORDS
+
+    details = sec[f"The '{RECOMMENDED_PRESET}' estimator against the {FOOTPRINT_WORDS}: "
+                  "details"]
     assert "<img src='plots/validation_25m.png'" in details
     paper = sec["The paper's method against the corridor maximum"]
     assert "<img src='plots/paper_corridor_validation_25m.png'" in paper

@@ -207,7 +207,8 @@ def test_block_reference_is_the_mean_of_its_footprints(tile: LasPoints) -> None:
     angle = math.atan2(y1 - y0 - 40, x1 - x0 - 40)
     blocks = _blocks_along(x0 + 20, y0 + 20, angle, 25.0, 8, tile.crs)
     params = FootprintReferenceParams(diameter=13.0)
-    got = block_footprint_reference(blocks, tile, params, spacing=0.7)
+    got = block_footprint_reference(blocks, tile, params, spacing=0.7,
+                                    statistic="footprint-mean")
     # independent: footprints at s = (k + 0.5) * 0.7 on the straight line, block by s
     s = (np.arange(400) + 0.5) * 0.7
     s = s[s < 8 * 25.0]
@@ -225,7 +226,7 @@ def test_block_reference_is_the_mean_of_its_footprints(tile: LasPoints) -> None:
         assert got["ref_hmax"].iloc[b] == pytest.approx(sub["ref_rh98"].mean(), abs=1e-9)
         assert got["ref_h90"].iloc[b] == pytest.approx(sub["ref_rh90"].mean(), abs=1e-9)
         assert got["ref_cover"].iloc[b] == pytest.approx(sub["ref_cover"].mean(), abs=1e-9)
-    mx = block_footprint_reference(blocks, tile, params, spacing=0.7, statistic="max")
+    mx = block_footprint_reference(blocks, tile, params, spacing=0.7, statistic="footprint-max")
     sub = fp[owner == 3]
     assert mx["ref_top"].iloc[3] == pytest.approx(
         (sub["ref_ground"] + sub["ref_rh98"]).max(), abs=1e-9)

@@ -54,6 +54,10 @@ MOVED_MODULES: dict[str, str] = {
 
 #: module -> {name that moved out of it: module that holds it now}
 MOVED_NAMES: dict[str, dict[str, str]] = {
+    "canopyblocks.reference.footprint": {
+        "block_footprint_reference": "canopyblocks.reference.footprint_blocks",
+        "BlockStatistic": "canopyblocks.reference.footprint_blocks",
+    },
     "canopyblocks.validation": {
         "FileValidation": "canopyblocks.workflows.validate",
         "calibrate_bias_file": "canopyblocks.workflows.calibrate",

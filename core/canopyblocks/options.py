@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 __all__ = ["Option", "OPTIONS", "option_spec", "ESTIMATOR_PRESETS", "RECOMMENDED_PRESET",
-           "PHOTON_RATES", "DEFAULT_PHOTON_RATE", "Kind"]
+           "PHOTON_RATES", "DEFAULT_PHOTON_RATE", "REFERENCE_STATISTICS", "Kind"]
 
 #: What an option's value is: a file or folder path, a number, one of named choices, an
 #: on/off switch, a CRS (EPSG code, WKT or PROJ string), or free text.
@@ -37,6 +37,12 @@ RECOMMENDED_PRESET: str = ESTIMATOR_PRESETS[0]
 #: The ecosystem photon rates of a simulation (``simulate.params.POISSON_MEANS``).
 PHOTON_RATES: tuple[str, ...] = ("boreal", "temperate", "tropical")
 DEFAULT_PHOTON_RATE: str = "temperate"
+
+#: How a block's footprint-matched reference is made from its footprints' airborne returns
+#: (``reference.footprint_blocks``), the default first: ``pooled`` (the estimate's own
+#: statistic of the returns pooled over the block: like with like), ``footprint-mean`` /
+#: ``footprint-max`` (the mean / maximum over the footprints of each footprint's RH).
+REFERENCE_STATISTICS: tuple[str, ...] = ("pooled", "footprint-mean", "footprint-max")
 
 
 @dataclass(frozen=True)
@@ -144,6 +150,13 @@ _TABLE: tuple[Option, ...] = (
            "Vertical datum of the photon heights (ATL03/MABEL/GEDI: WGS84 ellipsoid)."),
     Option("--reference-vcrs", "reference_vcrs", "vertical datum of the reference", "crs",
            "Vertical/compound CRS of the reference heights."),
+    Option("--reference-statistic", "reference_statistic",
+           "how a block's footprint reference is made from its footprints", "choice",
+           "Block footprint reference: pooled (the estimate's own statistic -- e.g. the 98th "
+           "percentile of the canopy heights -- of the airborne returns pooled over the "
+           "block's footprints), footprint-mean or footprint-max (the mean or maximum over "
+           "the footprints of each footprint's RH of all returns).",
+           default=REFERENCE_STATISTICS[0], choices=REFERENCE_STATISTICS),
     Option("--reference", "reference", "what blocks are judged against", "choice",
            "Reference for blocks: corridor rasters, ATL08, or the footprint-matched airborne "
            "points.", choices=("corridor", "atl08", "footprint")),

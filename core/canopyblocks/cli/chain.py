@@ -81,6 +81,7 @@ from .vocabulary import deprecated_option, say_deprecated, take_alias
                    "like-with-like reference the report leads with (layers "
                    "residuals_footprint, stats_footprint); without it the report leads with "
                    "the corridor maximum.")
+@option("--reference-statistic")
 @click.pass_context
 def run_cmd(ctx: click.Context, tiles: tuple[str, ...], out_dir: str, photons: str | None,
             simulate: bool, beams: tuple[str, ...], channel: str | None, atl08: str | None,
@@ -90,7 +91,7 @@ def run_cmd(ctx: click.Context, tiles: tuple[str, ...], out_dir: str, photons: s
             calibrate: bool, realisations: int, estimator_preset: str,
             old_estimators: str | None,
             calibration: str | None, compare: bool, coregister: bool,
-            footprint_reference: bool, sensor: str, esfl_noise: float | None,
+            footprint_reference: bool, reference_statistic: str, sensor: str, esfl_noise: float | None,
             dual_noise: float | None) -> None:
     """Photons + airborne TILES -> blocks, reference rasters, validation, plots, report."""
     from ..options import RECOMMENDED_PRESET
@@ -135,7 +136,7 @@ def run_cmd(ctx: click.Context, tiles: tuple[str, ...], out_dir: str, photons: s
                            calibration=calibration,
                            compare_preset=RECOMMENDED_PRESET if compare else None,
                            coregister=coregister, footprint_reference=footprint_reference,
-                           sensor=sensor, noise=esfl_noise if sensor == "esfl" else dual_noise,
+                           reference_statistic=reference_statistic, sensor=sensor, noise=esfl_noise if sensor == "esfl" else dual_noise,
                            progress=progress)
     if quiet:
         return

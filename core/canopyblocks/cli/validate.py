@@ -53,6 +53,7 @@ def register(group: click.Group) -> None:
               "ground points, RH = weighted percentiles of all returns). --cut and "
               "--weighting shape the points definition; the waveform's beam has sigma = "
               "--diameter / 4 and reaches 3 sigma.")
+@option("--reference-statistic")
 @option("--points-crs")
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False),
               help="Output .gpkg (layers residuals, stats), or .csv/.parquet.")
@@ -87,7 +88,7 @@ def validate(ctx: click.Context, blocks_path: str, dtm: str | None, dsm_max: str
              dsm_p90: str | None, atl08: str | None, reference: str | None,
              points: tuple[str, ...], diameter: float | None, cut: float | None,
              weighting: str | None, footprint_definition: str | None,
-             points_crs: str | None, output: str, width: float | None, geoid: str | None, offset: float | None,
+             reference_statistic: str, points_crs: str | None, output: str, width: float | None, geoid: str | None, offset: float | None,
              reference_vcrs: str | None, photon_vcrs: str, slope_threshold: float,
              blocks_crs: str | None, old_crs: str | None, coregister: bool, coregister_vertical: bool,
              search_range: float, old_range: float | None, coregister_photons: str | None,
@@ -131,7 +132,7 @@ def validate(ctx: click.Context, blocks_path: str, dtm: str | None, dsm_max: str
             slope_threshold=slope_threshold, table_crs=blocks_crs, points_crs=points_crs,
             plots=plots, coregister=coregister, coregister_vertical=coregister_vertical,
             coreg_params=CoregParams(search_range=search_range) if coregister else None,
-            coregister_photons=coregister_photons,
+            coregister_photons=coregister_photons, reference_statistic=reference_statistic,
             progress=prog)
     if result.coregistration is not None and not quiet:
         for name, o in result.coregistration.offsets.items():

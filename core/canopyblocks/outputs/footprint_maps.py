@@ -117,7 +117,10 @@ def _crs_label(gdf: Any) -> str:
 
 def _hatched_label(gdf: pd.DataFrame, hatched: np.ndarray, only_used: bool) -> str:
     """The legend of the hatched (uncoloured) shapes, counted by reason as the report's
-    counts are: the block's flag, else the reference's, else not used, else no value."""
+    counts are (one reason a block, by ``validation.residuals.LEFT_OUT_PRECEDENCE``: the
+    reference's flag, else the block's, else not used, else no value)."""
+    from ..validation.residuals import block_reasons
+
     n = len(gdf)
     flag = (gdf["flag"].astype(str).to_numpy(object) if "flag" in gdf
             else np.full(n, "ok", object))
@@ -125,10 +128,8 @@ def _hatched_label(gdf: pd.DataFrame, hatched: np.ndarray, only_used: bool) -> s
              else np.full(n, "ok", object))
     use = (gdf["use"].fillna(False).to_numpy(bool) if (only_used and "use" in gdf)
            else np.ones(n, bool))
-    why = np.where(flag != "ok", flag,
-                   np.where(rflag != "ok", np.array([f"reference {f}" for f in rflag],
-                                                    dtype=object),
-                            np.where(~use, "not used", "no value")))
+    why = block_reasons(flag, rflag, use)
+    why = np.where(why == "", "no value", why)
     reasons, counts = np.unique(why[hatched].astype(str), return_counts=True)
     return "not in the statistics: " + "; ".join(
         f"{r} {int(c)}" for r, c in zip(reasons, counts, strict=True))

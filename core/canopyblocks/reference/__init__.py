@@ -11,12 +11,8 @@ from __future__ import annotations
 from .atl08 import atl08_reference_values, read_atl08_segments
 from .corridor import block_corridors
 from .datum import apply_vertical_offset, check_vertical_datums, vertical_part
-from .footprint import (
-    FootprintCloud,
-    block_footprint_reference,
-    density_weights,
-    footprint_reference,
-)
+from .footprint import FootprintCloud, density_weights, footprint_reference
+from .footprint_blocks import block_footprint_reference
 from .footprint_params import FootprintReferenceParams
 from .lidar_points import cell_percentile, crop_corridor
 from .pdal import PIPELINES, TileInfo, find_pdal, pdal_version, run_pipeline, tile_info

@@ -62,22 +62,21 @@ CloudIndex`; footprints are answered in spatially compact chunks (cells of 2 cut
 footprints on a straight track run by run), every chunk vectorised over its (footprint,
 point) pairs: weighted sums by ``bincount``, percentiles by one sort by (footprint,
 height above ground) and a search in the per-footprint normalised cumulative weights.
+Photon blocks: :mod:`~canopyblocks.reference.footprint_blocks`.
 """
 
 from __future__ import annotations
 
 import logging
 import math
-from typing import Literal
+from dataclasses import dataclass
 
-import geopandas as gpd
 import numpy as np
 import pandas as pd
 
 from ..errors import InputError, NoUsableDataError
 from ..progress import Progress, as_progress
 from ..readers.las import LasPoints
-from .corridor import positions_at, track_polyline
 from .footprint_index import CloudIndex
 from .footprint_params import (
     FOOTPRINT_REFERENCE_COLUMNS,
@@ -92,7 +91,7 @@ __all__ = [
     "FootprintReferenceParams",
     "FootprintCloud",
     "footprint_reference",
-    "block_footprint_reference",
+    "ReturnPairs",
     "density_weights",
     "RH_LEVELS",
     "REFERENCE_FLAG_OK",
@@ -174,9 +173,13 @@ class FootprintCloud:
 
     # ------------------------------------------------------------------ one chunk
     def evaluate(self, sx: np.ndarray, sy: np.ndarray,
-                 line: tuple[float, float, float, float] | None = None
-                 ) -> dict[str, np.ndarray]:
-        """Reference values of the footprints ``(sx, sy)`` (one compact chunk)."""
+                 line: tuple[float, float, float, float] | None = None,
+                 pairs_out: list[ReturnPairs] | None = None) -> dict[str, np.ndarray]:
+        """Reference values of the footprints ``(sx, sy)`` (one compact chunk).
+
+        ``pairs_out``: a list that also gets this chunk's returns of the footprints with a
+        ground plane (:class:`ReturnPairs`), for statistics pooled over several footprints.
+        """
         p = self.params
         k = sx.size
         R, rc = p.radius, p.cut_radius
@@ -245,6 +248,9 @@ class FootprintCloud:
             out["ref_cover_first"] = np.where(
                 good & (wf > 0), np.bincount(shot, w * (first & canopy), minlength=k) / wf,
                 np.nan)
+        if pairs_out is not None:
+            with np.errstate(invalid="ignore", divide="ignore"):
+                pairs_out.append(ReturnPairs(shot, hag, w / wsum[shot]))
         rh = _weighted_percentiles(shot, hag, w, cnt, RH_LEVELS)
         for j, q in enumerate(RH_LEVELS):
             out[f"ref_rh{q}"] = np.where(good, rh[j], np.nan)
@@ -258,6 +264,19 @@ class FootprintCloud:
         flag[~good] = REFERENCE_FLAG_NO_GROUND
         flag[out["ref_coverage"] < p.min_coverage] = REFERENCE_FLAG_OUTSIDE
         return out
+
+
+@dataclass(frozen=True)
+class ReturnPairs:
+    """The (footprint, return) pairs of a chunk of footprints, sorted by (footprint,
+    height): ``shot`` the footprint (index in the chunk), ``height`` the return's height
+    above its footprint's ground plane (m), ``weight`` its footprint weight over the
+    footprint's total (each footprint's weights sum to 1, as each shot's photons are
+    drawn from its own normalised profile)."""
+
+    shot: np.ndarray
+    height: np.ndarray
+    weight: np.ndarray
 
 
 def _starts(counts: np.ndarray) -> np.ndarray:
@@ -407,189 +426,10 @@ def footprint_reference(points: LasPoints | FootprintCloud, x: np.ndarray, y: np
     return pd.DataFrame({c: out[c] for c in FOOTPRINT_REFERENCE_COLUMNS})
 
 
-# ---------------------------------------------------------------------- photon blocks
-BlockStatistic = Literal["mean", "max"]
 
 
-def block_footprint_reference(blocks: gpd.GeoDataFrame | pd.DataFrame,
-                              points: LasPoints | FootprintCloud,
-                              params: FootprintReferenceParams | None = None, *,
-                              spacing: float = 0.7, statistic: BlockStatistic = "mean",
-                              top_level: int = 98, slope_threshold: float = 2.0,
-                              progress: Progress | None = None) -> pd.DataFrame:
-    """Footprint-matched reference per photon block (DESIGN 2.7).
+def __getattr__(name: str) -> object:
+    """Names that moved to another module keep working here (see canopyblocks._aliases)."""
+    from .._aliases import moved_name
 
-    Footprints every ``spacing`` metres along each ``(track, length)``'s track line (the
-    polyline of :func:`~canopyblocks.reference.corridor.track_polyline`, footprints at
-    ``s = (k + 0.5) * spacing``), assigned to the block whose ``[s_start, s_end)`` holds
-    them; per block the footprints flagged ``ok`` are reduced.
-
-    Parameters
-    ----------
-    blocks : GeoDataFrame
-        Block table (``track, length, block, s_start, s_end, x, y``), centres in the
-        points' CRS (metres).
-    points : LasPoints or FootprintCloud
-    params : FootprintReferenceParams, optional
-        Default ICESat-2, 13 m, points within R (the photon simulator's set).
-    spacing : float
-        Footprint spacing along the track, metres (ICESat-2: 0.7 m).
-    statistic : {"mean", "max"}
-        Reduction of the footprints' heights (top, top90, rh98); the ground and cover
-        are always the mean.
-    top_level : int
-        RH level taken as the canopy top (98: ``ref_top = ground + RH98``, like with
-        like with a photon top that is a high percentile; 100 for the highest point).
-    slope_threshold : float
-        Degrees below which the block's aspect class is ``flat``.
-
-    Returns
-    -------
-    DataFrame
-        Index of ``blocks``: ``track, length, block``, ``ref_ground`` (mean footprint
-        ground), ``ref_top`` (statistic of ground + RH``top_level``), ``ref_top90``
-        (statistic of ground + RH90), ``ref_hmax = ref_top - ref_ground``, ``ref_h90 =
-        ref_top90 - ref_ground``, ``ref_rh98`` (statistic of RH98), ``ref_cover`` (mean),
-        ``slope`` (mean footprint slope), ``aspect`` (circular mean), ``aspect_class``,
-        ``slope_class``, ``n_footprints``, ``coverage`` (share of the block's
-        footprints flagged ok) and ``ref_flag``: ``outside`` when any footprint of the
-        block is outside the points, ``nodata`` when none is ok, else ``ok``.
-    """
-    from ..arguments import check_frame, check_instance
-    check_frame(blocks, "block_footprint_reference: blocks", "a block table (DataFrame)")
-    check_instance(
-        points,
-        (LasPoints, FootprintCloud),
-        "block_footprint_reference: points",
-        "airborne points (read_las)",
-    )
-    from .terrain import aspect_class, slope_class
-
-    prog = as_progress(progress)
-    if statistic not in ("mean", "max"):
-        raise InputError(f"statistic={statistic!r}; use 'mean' or 'max'")
-    if top_level not in RH_LEVELS:
-        raise InputError(f"top_level={top_level!r}; use one of {RH_LEVELS}")
-    if not (math.isfinite(spacing) and spacing > 0):
-        raise InputError(f"spacing must be a positive number of metres, got {spacing!r}")
-    need = ("track", "length", "block", "s_start", "s_end", "x", "y")
-    missing = [c for c in need if c not in blocks.columns]
-    if missing:
-        raise InputError(f"the block table lacks column(s) {', '.join(missing)}")
-    cloud = points if isinstance(points, FootprintCloud) else FootprintCloud(
-        points, params or FootprintReferenceParams())
-    bcrs = getattr(blocks, "crs", None)
-    if bcrs is not None and not cloud.crs.equals(bcrs, ignore_axis_order=True):
-        raise InputError(
-            f"the blocks' CRS {bcrs.to_string()} differs from the points' "
-            f"{cloud.crs.to_string()}; reproject the block table first")
-    nb = len(blocks)
-    acc = {c: np.full(nb, np.nan) for c in
-           ("ref_ground", "ref_top", "ref_top90", "ref_rh98", "ref_cover", "slope", "aspect",
-            "coverage")}
-    n_fp = np.zeros(nb, np.int64)
-    outside = np.zeros(nb, bool)
-    s_start = blocks["s_start"].to_numpy(float)
-    s_end = blocks["s_end"].to_numpy(float)
-    keys = blocks[["track", "length"]].reset_index(drop=True)
-    groups = list(keys.groupby(["track", "length"], sort=False).groups.values())
-    for gi, g_idx in enumerate(groups):
-        rows = np.asarray(g_idx, dtype=np.int64)
-        s_nodes, xy_nodes = track_polyline(blocks.iloc[rows])
-        lo, hi = float(np.nanmin(s_start[rows])), float(np.nanmax(s_end[rows]))
-        k0, k1 = math.floor(lo / spacing - 0.5), math.ceil(hi / spacing - 0.5)
-        s = (np.arange(k0, k1 + 1) + 0.5) * spacing
-        s = s[(s >= lo) & (s < hi)]
-        # which block holds each footprint
-        order = rows[np.argsort(s_start[rows], kind="stable")]
-        j = np.searchsorted(s_start[order], s, side="right") - 1
-        inb = (j >= 0) & (s < s_end[order[np.maximum(j, 0)]])
-        s, owner = s[inb], order[j[inb]]
-        xy = positions_at(s_nodes, xy_nodes, s)
-        res = _evaluate_along(cloud, s, xy, s_nodes, xy_nodes,
-                              prog.sub(gi / len(groups), (gi + 1) / len(groups)))
-        ok = res["ref_flag"] == REFERENCE_FLAG_OK
-        np.add.at(n_fp, owner, 1)
-        outside[np.unique(owner[res["ref_flag"] == REFERENCE_FLAG_OUTSIDE])] = True
-        o = owner[ok]
-        cnt = np.bincount(o, minlength=nb)
-        has = cnt > 0
-        ground = res["ref_ground"][ok]
-        top = ground + res[f"ref_rh{top_level}"][ok]
-        top90 = ground + res["ref_rh90"][ok]
-
-        def mean(v: np.ndarray, o: np.ndarray = o, has: np.ndarray = has,
-                 cnt: np.ndarray = cnt) -> np.ndarray:
-            return np.bincount(o, v, minlength=nb)[has] / cnt[has]
-
-        def stat(v: np.ndarray, o: np.ndarray = o, has: np.ndarray = has) -> np.ndarray:
-            if statistic == "mean":
-                return mean(v)
-            m = np.full(nb, -np.inf)
-            np.maximum.at(m, o, v)
-            return m[has]
-
-        acc["ref_ground"][has] = mean(ground)
-        acc["ref_top"][has] = stat(top)
-        acc["ref_top90"][has] = stat(top90)
-        acc["ref_rh98"][has] = stat(res["ref_rh98"][ok])
-        acc["ref_cover"][has] = mean(res["ref_cover"][ok])
-        acc["slope"][has] = mean(res["ref_slope"][ok])
-        a = np.radians(res["ref_aspect"][ok])
-        fin = np.isfinite(a)
-        sin = np.bincount(o[fin], np.sin(a[fin]), minlength=nb)
-        cos = np.bincount(o[fin], np.cos(a[fin]), minlength=nb)
-        asp = np.degrees(np.arctan2(sin, cos)) % 360.0
-        asp[(sin == 0) & (cos == 0)] = np.nan
-        acc["aspect"][has] = asp[has]
-        tot = np.bincount(owner, minlength=nb)
-        sel = tot > 0
-        acc["coverage"][sel] = cnt[sel] / tot[sel]
-    out = pd.DataFrame({c: blocks[c].to_numpy() for c in ("track", "length", "block")},
-                       index=blocks.index)
-    out["ref_ground"] = acc["ref_ground"]
-    out["ref_top"] = acc["ref_top"]
-    out["ref_top90"] = acc["ref_top90"]
-    out["ref_hmax"] = acc["ref_top"] - acc["ref_ground"]
-    out["ref_h90"] = acc["ref_top90"] - acc["ref_ground"]
-    out["ref_rh98"] = acc["ref_rh98"]
-    out["ref_cover"] = acc["ref_cover"]
-    out["slope"] = acc["slope"]
-    out["aspect"] = acc["aspect"]
-    out["aspect_class"] = aspect_class(acc["aspect"], acc["slope"], slope_threshold) \
-        if nb else []
-    out["slope_class"] = slope_class(acc["slope"]) if nb else []
-    out["n_footprints"] = n_fp
-    out["coverage"] = np.nan_to_num(acc["coverage"], nan=0.0)
-    flag = np.full(nb, "ok", dtype=object)
-    flag[~np.isfinite(acc["ref_ground"])] = "nodata"
-    flag[outside] = "outside"
-    out["ref_flag"] = flag
-    prog.update(1.0, f"footprint reference for {nb:,} blocks")
-    return out
-
-
-def _evaluate_along(cloud: FootprintCloud, s: np.ndarray, xy: np.ndarray,
-                    s_nodes: np.ndarray, xy_nodes: np.ndarray,
-                    prog: Progress) -> dict[str, np.ndarray]:
-    """Reference values of footprints on a polyline, one straight run per segment."""
-    n = s.size
-    out = _empty_result(n)
-    if n == 0:
-        return out
-    seg = np.clip(np.searchsorted(s_nodes, s, side="right") - 1, 0, s_nodes.size - 2)
-    cuts = np.flatnonzero(np.diff(seg)) + 1
-    bounds = np.concatenate([[0], cuts, [n]])
-    cap = _max_shots(cloud)
-    for i in range(bounds.size - 1):  # loop over straight runs (polyline segments)
-        a, b = int(bounds[i]), int(bounds[i + 1])
-        k = int(seg[a])
-        line = (float(xy_nodes[k, 0]), float(xy_nodes[k, 1]), float(xy_nodes[k + 1, 0]),
-                float(xy_nodes[k + 1, 1]))
-        for c0 in range(a, b, cap):
-            c1 = min(c0 + cap, b)
-            res = cloud.evaluate(xy[c0:c1, 0], xy[c0:c1, 1], line=line)
-            for c in FOOTPRINT_REFERENCE_COLUMNS:
-                out[c][c0:c1] = res[c]
-        prog.update(b / n, f"footprint reference {b:,}/{n:,} footprints")
-    return out
+    return moved_name(__name__, name)

@@ -54,7 +54,8 @@ from ..geo import as_crs
 from ..progress import Progress, as_progress
 from ..readers.las import LasPoints, las_crs, read_las
 from ..reference.datum import apply_vertical_offset, check_vertical_datums
-from ..reference.footprint import FootprintCloud, block_footprint_reference, footprint_reference
+from ..reference.footprint import FootprintCloud, footprint_reference
+from ..reference.footprint_blocks import block_footprint_reference, estimate_statistic
 from ..reference.footprint_index import footprints_area
 from ..reference.footprint_params import (
     REFERENCE_FLAG_NO_GROUND,
@@ -403,8 +404,8 @@ def validate_blocks_footprint(
     *,
     params: FootprintReferenceParams | None = None,
     spacing: float = 0.7,
-    statistic: str = "mean",
-    top_level: int = 98,
+    statistic: str = "pooled",
+    top_level: int | None = None,
     geoid: str | os.PathLike[str] | None = None,
     offset: float | None = None,
     photon_vertical_crs: object = None,
@@ -415,9 +416,15 @@ def validate_blocks_footprint(
 ) -> ValidationResult:
     """Validate photon blocks against the footprint-matched reference (``validate
     --reference footprint``): like :func:`~.block_validation.validate_blocks`, with
-    the reference of :func:`~canopyblocks.reference.footprint.block_footprint_reference`
-    (ground = mean footprint ground, top = mean ground + RH98) and slope/aspect from the
-    footprints' ground planes; residual polygons are corridors one diameter wide.
+    the reference of :func:`~canopyblocks.reference.footprint_blocks.block_footprint_reference`
+    and slope/aspect from the footprints' ground planes; residual polygons are corridors
+    one diameter wide. ``statistic`` ``pooled`` (the default) takes the blocks' own
+    statistic of the returns pooled over each block (for the ``atl08`` estimators the
+    98th / 90th percentile of the returns above the classifier's canopy threshold; for a
+    ``pNN`` top, that percentile of all returns; :func:`~canopyblocks.reference.
+    footprint_blocks.estimate_statistic` of the table's ``estimators`` column);
+    ``footprint-mean`` the mean over the footprints of their RH. ``top_level``
+    overrides the percentile. The residuals name the statistic (``ref_statistic``).
     ``points_crs`` is the tiles' CRS when their files state none (``--points-crs``).
     """
     from ..reference.corridor import block_corridors
@@ -456,14 +463,19 @@ def validate_blocks_footprint(
     pv = photon_vertical_crs or blocks.attrs.get("vertical_datum") or GEDI_VERTICAL_CRS
     decision = check_vertical_datums(pv, ref_v, geoid=geoid, offset=offset)
     work = apply_vertical_offset(blocks, geoid=geoid, offset=offset)
+    label = blocks["estimators"].iloc[0] if "estimators" in blocks.columns else None
+    threshold, level = estimate_statistic(None if pd.isna(label) else str(label))
     ref = block_footprint_reference(blocks, pts, params, spacing=spacing,
-                                    statistic=statistic,  # type: ignore[arg-type]
-                                    top_level=top_level, slope_threshold=slope_threshold,
+                                    statistic=statistic,
+                                    top_level=level if top_level is None else top_level,
+                                    canopy_threshold=threshold,
+                                    slope_threshold=slope_threshold,
                                     progress=prog.sub(0.3, 0.95))
     corridors = block_corridors(blocks, width=params.diameter)
     residuals = compute_residuals(work, ref, ref, corridors=corridors)
     residuals["ref_rh98"] = ref["ref_rh98"].to_numpy(float)
     residuals["ref_cover"] = ref["ref_cover"].to_numpy(float)
+    residuals["ref_statistic"] = ref["ref_statistic"].to_numpy(object)
     stats = block_stats(residuals)
     prog.update(1.0, "validation done")
     return ValidationResult(residuals, stats, decision)

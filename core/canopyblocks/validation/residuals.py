@@ -4,6 +4,13 @@ All blocks are kept; the column ``use`` marks those that enter the statistics:
 block ``flag == "ok"`` (so not ``low_confidence``: its sigma too wide, DESIGN 1.12),
 the block's own ``use`` where the table has it, and reference ``ref_flag == "ok"``.
 The block's ``hmax_sigma`` and ``ground_sigma`` (m) are carried along.
+
+Every block left out has one reason (column ``reason``, empty for the blocks used), by
+the precedence :data:`LEFT_OUT_PRECEDENCE`: the reference first (a block the airborne
+points do not cover cannot be judged, whatever its photons gave: ``reference outside``,
+``reference nodata``, ...), then the block's own flag (``sparse``, ``inverted``,
+``implausible``, ``low_confidence``), then ``not used``; the report's counts and every
+layer use the same reasons.
 """
 
 from __future__ import annotations
@@ -18,7 +25,8 @@ from ..blocks.uncertainty import upgrade_table
 from ..errors import InputError
 from ..schema import BLOCK_COLUMNS, FLAG_OK, REFERENCE_COLUMNS, RESIDUAL_COLUMNS
 
-__all__ = ["compute_residuals", "RESIDUAL_PAIRS", "KEY_COLUMNS"]
+__all__ = ["compute_residuals", "RESIDUAL_PAIRS", "KEY_COLUMNS", "LEFT_OUT_PRECEDENCE",
+           "block_reasons"]
 
 log = logging.getLogger(__name__)
 
@@ -27,6 +35,25 @@ RESIDUAL_PAIRS: dict[str, str] = {
     "ground": "ref_ground", "top": "ref_top", "hmax": "ref_hmax", "h90": "ref_h90",
 }
 KEY_COLUMNS: tuple[str, ...] = ("track", "length", "block")
+
+#: The one reason of a block left out, first match wins: the reference's flag, the
+#: block's own flag (in the order of ``schema.FLAGS``), not used (the block table's
+#: ``use``), then (per metric, in the facts) no value.
+LEFT_OUT_PRECEDENCE: tuple[str, ...] = (
+    "reference outside", "reference nodata", "reference no_ground", "reference missing",
+    "sparse", "inverted", "implausible", "low_confidence", "not used", "no value")
+
+
+def block_reasons(flag: np.ndarray, ref_flag: np.ndarray, use: np.ndarray) -> np.ndarray:
+    """Per block the reason it is left out by :data:`LEFT_OUT_PRECEDENCE` (``""`` when it
+    is used): ``reference <ref_flag>`` when the reference is not ``ok``, else the block's
+    flag when not ``ok``, else ``not used`` when ``use`` is false."""
+    flag = np.asarray(flag, dtype=object).astype(str)
+    rflag = np.asarray(ref_flag, dtype=object).astype(str)
+    ref_why = np.char.add("reference ", rflag.astype(str)).astype(object)
+    return np.where(rflag != "ok", ref_why,
+                    np.where(flag != "ok", flag,
+                             np.where(~np.asarray(use, bool), "not used", ""))).astype(object)
 
 
 def _align(blocks: pd.DataFrame, other: pd.DataFrame, what: str) -> pd.DataFrame:
@@ -120,8 +147,11 @@ def compute_residuals(blocks: pd.DataFrame, ref_values: pd.DataFrame,
     # headline statistics take the blocks the block table uses (decided once, by
     # blocks.uncertainty.mark_use) where the reference is usable
     out["use"] = blocks["use"].to_numpy(bool) & (out["ref_flag"].to_numpy(object) == "ok")
+    out["reason"] = block_reasons(blocks["flag"].to_numpy(object),
+                                  out["ref_flag"].to_numpy(object),
+                                  blocks["use"].to_numpy(bool))
     order = [c for c in BLOCK_COLUMNS if c in out] + list(RESIDUAL_COLUMNS) + \
-        ["slope_class", "ref_flag"]
+        ["slope_class", "ref_flag", "reason"]
     out = out[order]
     out.index = blocks.index
     geom = corridors.geometry.to_numpy() if corridors is not None else \

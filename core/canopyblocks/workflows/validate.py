@@ -167,6 +167,7 @@ def validate_file(
     coregister_vertical: bool = False,
     coreg_params: Any = None,
     coregister_photons: str | os.PathLike[str] | None = None,
+    reference_statistic: str = "pooled",
     progress: Progress | None = None,
 ) -> FileValidation:
     """Validate the block or footprint table in ``path`` and write ``output``.
@@ -210,6 +211,10 @@ def validate_file(
         With ``coregister``: search the offset from these photons (the file the blocks
         were made from, read in the table's CRS) instead of the table's rows; the same
         offsets as ``coregister_file(coregister_photons, ...)``.
+    reference_statistic : {"pooled", "footprint-mean", "footprint-max"}
+        Blocks against the footprint reference: the blocks' own statistic of the returns
+        pooled over each block (the default), or the mean / maximum over its footprints
+        of their RH (:mod:`canopyblocks.reference.footprint_blocks`).
 
     Raises
     ------
@@ -302,7 +307,8 @@ def validate_file(
             before = _validate(kind, table, reference, dtm, dsm_max, dsm_p90, atl08, points,
                                footprint_params, width, geoid, offset,
                                reference_vertical_crs, photon_vertical_crs,
-                               slope_threshold, points_crs, prog.sub(0.3, 0.6), pixels)
+                               slope_threshold, points_crs, prog.sub(0.3, 0.6), pixels,
+                               statistic=reference_statistic)
             stats_before = before[1]
             shift = joint if coregister_vertical else replace(joint, vertical=0.0)
             table = apply_offset(table, shift, crs=table_crs)
@@ -311,7 +317,8 @@ def validate_file(
                                         points, footprint_params, width, geoid, offset,
                                         reference_vertical_crs, photon_vertical_crs,
                                         slope_threshold, points_crs,
-                                        prog.sub(0.6 if coregister else 0.0, 0.9), pixels)
+                                        prog.sub(0.6 if coregister else 0.0, 0.9), pixels,
+                                        statistic=reference_statistic)
     if int(residuals["use"].sum()) == 0:
         raise _no_results(kind, path, residuals)
     prog.update(0.9, "writing")
@@ -383,8 +390,8 @@ def _validate(kind: str, table: pd.DataFrame, reference: str, dtm: Any, dsm_max:
               width: float | None, geoid: Any, offset: float | None,
               reference_vertical_crs: Any,
               photon_vertical_crs: Any, slope_threshold: float, points_crs: Any,
-              prog: Progress, pixels: pd.DataFrame | None = None
-              ) -> tuple[pd.DataFrame, pd.DataFrame, str]:
+              prog: Progress, pixels: pd.DataFrame | None = None, *,
+              statistic: str = "pooled") -> tuple[pd.DataFrame, pd.DataFrame, str]:
     from ..validation.flash_footprints import sensor_of
 
     if kind == "footprints" and sensor_of(table) is not None:   # ESFL or dual rows
@@ -421,7 +428,7 @@ def _validate(kind: str, table: pd.DataFrame, reference: str, dtm: Any, dsm_max:
                                       photon_vertical_crs=photon_vertical_crs,
                                       reference_vertical_crs=reference_vertical_crs,
                                       slope_threshold=slope_threshold, points_crs=points_crs,
-                                      progress=prog)
+                                      statistic=statistic, progress=prog)
     else:
         from ..validation.block_validation import validate_blocks
 

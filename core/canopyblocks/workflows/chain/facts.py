@@ -85,14 +85,13 @@ def pooled_facts_part(residuals: pd.DataFrame, *, name: str, reference: str, lay
                       out: Path) -> tuple[list[str], dict[str, pd.DataFrame]]:
     """The facts of pooled residuals (``batch``): written to ``facts.csv`` in ``out``;
     the report's words (counts by reason, interval method) and its table."""
-    from .report import counts_sentence, lead_numbers, numbers_table
+    from .report import BLOCK_BOOTSTRAP_WORDS, counts_sentence, lead_numbers, numbers_table
 
     facts = facts_table(fact_rows(residuals, estimators=name, reference=reference,
                                   layer=layer, pairs=RESIDUAL_PAIRS, metrics=_METRICS))
     write_table(facts, out / FACTS_FILE, layer="facts")
     table = lead_numbers(facts)
     words = [counts_sentence(table),
-             "95 % intervals: bootstrap over the blocks (2,000 resamples; the analytic "
-             "interval above 5,000 blocks). facts.csv holds these numbers."]
+             f"95 % intervals: {BLOCK_BOOTSTRAP_WORDS}. facts.csv holds these numbers."]
     return [w for w in words if w], {"ground and canopy height (Hmax), all units pooled, "
                                      "with 95 % intervals": numbers_table(table)}

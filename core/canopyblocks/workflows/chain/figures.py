@@ -24,7 +24,7 @@ __all__ = ["EstimatorSet", "BiasOffer", "Figures", "chain_figures", "reference_s
            "estimator_words"]
 
 #: Short names of the references, for titles and captions.
-REFERENCE_SHORT = {"footprint": "footprint-matched reference (RH98 and ground)",
+REFERENCE_SHORT = {"footprint": "footprint-matched reference (block percentiles and ground)",
                    "corridor": "corridor maximum"}
 
 

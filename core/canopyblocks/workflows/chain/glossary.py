@@ -41,22 +41,39 @@ UNSEEN_FIGURES = (
 GLOSSARY: dict[str, str] = {
     "block": "a stretch of the track of the stated length (10, 25, 50 m ...); its heights "
              "come from the photons inside it.",
-    "Hmax": "canopy height of a block: canopy top minus ground, metres.",
+    "Hmax": "canopy height of a block (the recommended estimators): the 98th percentile "
+            "of the heights of its canopy "
+            "photons (those more than 0.6 m above the ground surface) above that surface, "
+            "metres; it grows with the block's length, as a longer block holds taller "
+            "trees.",
     "RH98": "relative height 98: the height above the ground below which 98 % of the "
             "return energy (or of the airborne points, weighted as the footprint) lies.",
     "footprint-matched airborne reference": "the airborne points seen as the sensor sees "
-            "them: footprints of the sensor's size placed along the block, their ground "
-            "and RH98 computed from the points weighted by the footprint; the like-with-like "
-            "reference.",
+            "them: footprints of the sensor's size every 0.7 m along the block, each point "
+            "weighted by the footprint (a Gaussian). Its ground is the mean over the "
+            "footprints of the weighted ground points; its Hmax and h90 are the block's own "
+            "statistic of those points (statistic 'pooled', the default): the 98th and 90th "
+            "percentile of the heights above each footprint's ground plane of the points "
+            "more than 0.6 m above it, pooled over all the block's footprints, each "
+            "footprint counting once; its top is ground + Hmax. The like-with-like "
+            "reference: the same statistic, of the same kind of returns, at every block "
+            "length. The residual tables name the statistic (column ref_statistic).",
+    "footprint-mean": "the reference statistic of earlier releases, kept by that name "
+            "(--reference-statistic footprint-mean): the mean over the block's footprints "
+            "of each footprint's RH98 (RH90) of all its points, ground included. It does "
+            "not grow with the block's length, so against it the bias of Hmax changes with "
+            "the length.",
     "corridor maximum": "the highest DSM cell and the mean DTM cell of the corridor (the "
             "cells a strip of the corridor width along the block touches): the paper's "
             "reference; it sits above what sparse photons can see.",
     "bias": "mean of the residuals (value minus reference value), metres.",
     "RMSE": "root mean square of the residuals, metres.",
     "95 % interval": "the range that holds the true bias (or RMSE) with 95 % confidence: "
-            "bootstrap over the blocks or footprints (2,000 resamples, with replacement, from "
-            "a fixed random state so the same data give the same interval), or the "
-            "analytic interval above 5,000 blocks.",
+            "for blocks a block bootstrap along the track, per block length (2,000 "
+            "resamples of runs of adjacent blocks 100 m long -- 10 blocks of 10 m, 4 of "
+            "25 m, 2 of 50 m -- as neighbouring blocks share terrain and canopy; from a "
+            "fixed random state so the same data give the same interval); for footprints a "
+            "bootstrap over the footprints; the analytic interval above 5,000 blocks.",
     "R²": "the squared correlation of the values and the reference values (of the "
           "least-squares line), 0 to 1.",
     "sigma (hmax_sigma, ground_sigma)": "the predicted 1-sigma error of a block's Hmax or "
@@ -70,6 +87,13 @@ GLOSSARY: dict[str, str] = {
             "over a data gap. Its reference values are computed from the part covered, "
             "but it is left out of the statistics.",
     "implausible": "a block whose canopy height is taller than any tree.",
+    "left out": "a block written but not in the statistics has one reason, the first "
+            "that applies in this order: reference outside (or reference nodata, "
+            "no_ground, missing: the reference cannot judge it, whatever its photons "
+            "gave), sparse, inverted, implausible, low_confidence (the block's own flag), "
+            "not used, no value. The same reason in every section of the report and in "
+            "the column 'reason' of every residuals layer; the table of blocks written "
+            "counts the blocks' own flags, before any reference.",
     "aspect class": "the compass direction the terrain faces (downhill), N to NW in 45 "
             "degree sectors; flat = mean terrain slope below 2 degrees.",
     "slope class": "mean terrain slope of the block's corridor in degrees (2 m DTM, "
@@ -103,9 +127,12 @@ GLOSSARY: dict[str, str] = {
     "inverted": "a block whose canopy top came out below its ground (a negative height); "
                 "left out of the statistics.",
     "h90": "the height above the ground below which 90 % of a block's canopy photons (or "
-           "of the reference's canopy) lie, metres.",
-    "top": "canopy top: the elevation of the highest canopy photons (or airborne points) "
-           "of a block, metres.",
+           "of the reference's canopy points, pooled over the block's footprints) lie, "
+           "metres.",
+    "top": "canopy top: the block's ground plus its Hmax (elevation, metres), for the "
+           "estimate and the reference alike; a longer block's top can lie above or below "
+           "that of a shorter block inside it, as its Hmax is a percentile of more "
+           "photons.",
     "MAE": "mean absolute error: the mean of the residuals' absolute values, metres.",
     "OLS": "ordinary least squares: the straight-line fit of the values on the reference "
            "values.",

@@ -7,8 +7,9 @@ the statistics tables the report also shows (and the validation layers hold), so
 and tables cannot disagree.
 
 The like-with-like reference of photon blocks is the footprint-matched airborne
-reference (ground = mean ground of simulated footprints over the airborne points, top =
-that ground + the footprints' RH98; DESIGN 2.7).  The corridor maximum (the highest
+reference (ground = mean ground of simulated footprints over the airborne points; Hmax
+and H90 = the blocks' own percentiles of the canopy points pooled over their footprints,
+top = ground + Hmax; DESIGN 2.7). The summary gives every block length.  The corridor maximum (the highest
 DSM cell of the block's corridor) stays in the details, labelled as what it is.
 """
 
@@ -28,10 +29,29 @@ __all__ = ["LeadResult", "estimators_sentence", "lead_numbers", "summary_section
            "paper_section", "summary_lines", "datum_sentence", "bias_calibration_part",
            "SUMMARY_METRICS", "FOOTPRINT_WORDS", "CORRIDOR_WORDS", "lead_result",
            "low_confidence_sentence", "bias_offer_part", "truth_report_table", "details_stats",
-           "numbers_table", "counts_sentence"]
+           "numbers_table", "counts_sentence", "footprint_words", "FOOTPRINT_STATISTIC_WORDS",
+           "BLOCK_BOOTSTRAP_WORDS"]
 
+#: How the report names the footprint reference's statistic (``ref_statistic``).
+FOOTPRINT_STATISTIC_WORDS = {
+    "pooled": "statistic 'pooled': Hmax and h90 = the estimate's own statistic of the "
+              "airborne points pooled over the block's footprints -- for the recommended "
+              "estimators the 98th and 90th percentiles of the points more than 0.6 m "
+              "above the ground; ground = mean footprint ground",
+    "footprint-mean": "statistic 'footprint-mean': the mean over the block's footprints of "
+                      "their RH98 and RH90 of all points; ground = mean footprint ground",
+    "footprint-max": "statistic 'footprint-max': the highest of the block's footprints' "
+                     "ground + RH98; ground = mean footprint ground",
+}
 #: How the report names its two references.
-FOOTPRINT_WORDS = "footprint-matched airborne reference (footprint RH98 and ground)"
+FOOTPRINT_WORDS = ("footprint-matched airborne reference ("
+                   + FOOTPRINT_STATISTIC_WORDS["pooled"] + ")")
+
+
+def footprint_words(statistic: str = "pooled") -> str:
+    """The footprint reference named with its statistic."""
+    return ("footprint-matched airborne reference ("
+            + FOOTPRINT_STATISTIC_WORDS.get(statistic, f"statistic '{statistic}'") + ")")
 CORRIDOR_WORDS = "corridor maximum (highest DSM cell and mean DTM of the corridor)"
 
 #: The metrics the summary states (metres): ground elevation and canopy height.
@@ -87,6 +107,12 @@ FILES_WORDS = (
     "MAE and the least-squares fit slope), and stats.csv (the run's own blocks, those of "
     "blocks.gpkg, against the corridor maximum, every group: the layer 'stats'). The "
     "figures measured on unseen tiles are the project's benchmarks, not this run's.")
+
+#: How the report says its intervals of photon blocks were made.
+BLOCK_BOOTSTRAP_WORDS = (
+    "a block bootstrap along the track, per block length (2,000 resamples of runs of "
+    "adjacent blocks 100 m long, as neighbouring blocks are not independent; the analytic "
+    "interval above 5,000 blocks)")
 
 #: Below this many blocks no interval is given.
 MIN_INTERVAL = 3
@@ -190,6 +216,7 @@ def summary_section(lead: LeadResult, *, source: str, n_tracks: int, n_photons: 
     """The report's first section."""
     table = lead_numbers(lead.facts)
     length = _headline_length(table)
+    every = sorted(float(v) for v in pd.unique(table["length"])) if len(table) else []
     what = (f"Block heights of {', '.join(f'{v:g}' for v in lengths)} m blocks ({n_blocks} "
             f"blocks) from {n_photons:,} photons of {n_tracks} "
             f"{'beam' if n_tracks == 1 else 'beams'} "
@@ -200,13 +227,12 @@ def summary_section(lead: LeadResult, *, source: str, n_tracks: int, n_photons: 
     paras = [what, f"{who} ({estimators_sentence(lead.estimators)}), against the "
              f"{lead.reference}:"]
     if length is not None:
-        paras.append(f"At {length:g} m: {_sentence(table, length)}.")
+        paras.extend(f"At {v:g} m: {_sentence(table, v)}." for v in every)
         paras.append(counts_sentence(table))
     else:
         paras.append("No block could be validated against this reference.")
     paras.append("Residual = block value minus reference value, metres. 95 % intervals: "
-                 "bootstrap over the blocks (2,000 resamples; the analytic interval above "
-                 "5,000 blocks). The table below holds the rows of facts.csv for these "
+                 + BLOCK_BOOTSTRAP_WORDS + ". The table below holds the rows of facts.csv for these "
                  f"estimators and this reference (statistics layer '{lead.layer}' of "
                  "validation.gpkg; the blocks used, all aspects and slopes together). "
                  + FILES_WORDS)
@@ -221,14 +247,15 @@ def paper_section(paper: LeadResult, *, lead: LeadResult | None) -> ReportSectio
     from ...blocks.estimators import preset
 
     table = lead_numbers(paper.facts)
-    length = _headline_length(table)
-    said = _sentence(table, length) if length is not None else "no block validated"
+    every = sorted(float(v) for v in pd.unique(table["length"])) if len(table) else []
+    said = "; ".join(f"at {v:g} m: {_sentence(table, v)}" for v in every) \
+        or "no block validated"
     text = (f"The paper's method ({estimators_sentence(preset('paper'))}) was built for dense "
             "airborne (MABEL) photons. On sparse ICESat-2 photons its ground sits at least the "
             "ground window above the lowest photon, its canopy top at least the top window "
             "below the highest kept photon, and its 2.5-sigma filter removes real tree-top "
             "photons in many blocks, so its canopy height comes out metres low. Against the "
-            f"{paper.reference}, at {length if length is None else f'{length:g}'} m: {said}.")
+            f"{paper.reference}, {said}.")
     if lead is not None and lead.name != "paper":
         text += f" The '{lead.name}' estimators of the summary avoid these floors."
     return ReportSection("The paper's method and its known bias", [
@@ -321,7 +348,11 @@ def lead_result(s: Any, facts: pd.DataFrame | None = None,
     from ...blocks.estimators import RECOMMENDED_PRESET
 
     kind = reference or ("footprint" if s.fp_stats is not None else "corridor")
-    ref = FOOTPRINT_WORDS if kind == "footprint" else CORRIDOR_WORDS
+    stat = "pooled"
+    fp = s.fp_residuals
+    if fp is not None and "ref_statistic" in fp.columns and len(fp):
+        stat = str(fp["ref_statistic"].iloc[0])
+    ref = footprint_words(stat) if kind == "footprint" else CORRIDOR_WORDS
     stats = s.lead_stats if kind == "footprint" else s.corridor_stats
     layer = s.lead_layer if kind == "footprint" else s.corridor_layer
     rows = None

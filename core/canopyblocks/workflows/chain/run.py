@@ -50,6 +50,7 @@ def run_chain(
     compare_preset: str | None = RECOMMENDED_PRESET,
     coregister: bool = False,
     footprint_reference: bool = True,
+    reference_statistic: str = "pooled",
     progress: Progress | None = None,
     preset: str | None = None,
     sensor: str = "icesat2",
@@ -116,9 +117,14 @@ def run_chain(
     footprint_reference : bool
         Validate also against the footprint-matched airborne reference (DESIGN 2.7; the
         default): the like-with-like reference the report and the summary lead with
-        (ground = mean footprint ground, top = ground + RH98 of footprints of
-        ``diameter`` m over the airborne points); layers ``residuals_footprint``,
+        (ground = mean footprint ground; Hmax and H90 = the estimate's percentiles of
+        the canopy returns pooled over the block's footprints of ``diameter`` m over the
+        airborne points; top = ground + Hmax); layers ``residuals_footprint``,
         ``stats_footprint``.  False leads with the corridor maximum.
+    reference_statistic : {"pooled", "footprint-mean", "footprint-max"}
+        How the footprint reference makes a block's heights (the default ``pooled`` as
+        above; ``footprint-mean``: the mean over the footprints of each one's RH98 / RH90
+        of all returns; :mod:`canopyblocks.reference.footprint_blocks`).
     sensor : {"icesat2", "gedi", "esfl", "dual"}
         What to simulate without ``photons``: ICESat-2 photons (default), GEDI waveforms,
         flash-lidar (ESFL) cubes or dual-wavelength pairs; the waveform sensors go
@@ -174,7 +180,8 @@ def run_chain(
                "geoid": geoid, "offset": offset, "calibrate": calibrate,
                "realisations": realisations, "estimators": estimators,
                "calibration": calibration, "compare_preset": compare_preset,
-               "coregister": coregister, "footprint_reference": footprint_reference}
+               "coregister": coregister, "footprint_reference": footprint_reference,
+               "reference_statistic": reference_statistic}
     with new_files_removed_on_failure(out):
         out.mkdir(parents=True, exist_ok=True)
         st = RunState(out=out, tiles=[Path(p) for p in las_paths],

@@ -189,7 +189,9 @@ def _footprint(st: RunState, s: EstimatorSet) -> EstimatorSet:
         return s
     from ...validation.footprints import validate_blocks_footprint
 
-    vf = validate_blocks_footprint(s.blocks, st.tiles, **st.fkw())
+    vf = validate_blocks_footprint(s.blocks, st.tiles,
+                                   statistic=st.options.get("reference_statistic", "pooled"),
+                                   **st.fkw())
     return s.with_footprint(vf.residuals, vf.stats)
 
 
