@@ -6,6 +6,7 @@ from typing import Any
 
 import click
 
+from .sources import SurveySource
 from .common import (
     channel_option,
     explicit_value,
@@ -32,8 +33,9 @@ from .progress_bars import progress_bar
 @click.option("--reference", type=click.Choice(["corridor", "footprint"]), default="corridor",
               show_default=True, help="--method bias: corridor rasters or the "
               "footprint-matched airborne points (--points).")
-@click.option("--points", multiple=True, type=click.Path(dir_okay=False),
-              help="Airborne LAS/LAZ tile for --reference footprint (repeatable).")
+@click.option("--points", multiple=True, type=SurveySource(),
+              help="The airborne survey for --reference footprint: LAS/LAZ tiles, a folder, "
+                   "a glob pattern, a .vpc, a COPC or an ept.json (path or URL; repeatable).")
 @click.option("--beam", "beams", multiple=True,
               help="ATL03 beam (repeatable; cutoffs: the first; bias: default every beam).")
 @channel_option

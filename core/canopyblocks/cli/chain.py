@@ -6,6 +6,7 @@ from __future__ import annotations
 import click
 
 from ..options import PHOTON_RATES
+from .sources import SurveySource
 from .common import (
     WIDTH_HELP,
     channel_option,
@@ -23,7 +24,7 @@ from .vocabulary import deprecated_option, say_deprecated, take_alias
 
 
 @click.command("run")
-@click.argument("tiles", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.argument("tiles", nargs=-1, required=True, type=SurveySource())
 @click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False),
               help="Output folder.")
 @option("--photons", extra_help="Without it (or with --simulate), "

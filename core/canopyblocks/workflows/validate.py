@@ -245,6 +245,10 @@ def validate_file(
     if coregister and dtm is None:
         raise InputError("co-registration needs the DTM: give --dtm (and --dsm-max to use "
                          "the canopy surface too)")
+    if points:  # the survey as every command takes it (folders, patterns, .vpc, COPC, EPT)
+        from .rasters import survey_tiles
+
+        points = survey_tiles(points)
     footprints = is_footprint_table(path)
     if footprints:
         table = read_layer(path, LAYER_FOOTPRINTS) if Path(path).suffix.lower() == ".gpkg" \

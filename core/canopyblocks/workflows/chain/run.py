@@ -60,8 +60,11 @@ def run_chain(
 
     Parameters
     ----------
-    las_paths : sequence of path
-        Airborne LAS/LAZ tiles (metric CRS) covering the track.
+    las_paths : sequence of path or URL
+        The airborne survey (metric CRS) covering the track: LAS/LAZ tiles, folders,
+        glob patterns, a ``.vpc``, a COPC file or an EPT ``ept.json`` (paths or
+        ``https://``/``s3://`` URLs), as :func:`~canopyblocks.workflows.rasters.survey_tiles`
+        resolves them.
     out_dir : path
         Output folder: ``photons_atl03.h5`` (when simulated), ``blocks.gpkg``,
         ``rasters/{dtm,dsm_max,dsm_p90}.tif``, ``validation.gpkg`` (layers ``residuals``,
@@ -152,6 +155,7 @@ def run_chain(
                       stacklevel=2)
         photon_rate = preset
     prog = as_progress(progress)
+    from ..rasters import survey_tiles
     from .flash_dual import waveform_chain
 
     waveform = waveform_chain(las_paths, out_dir, photons, sensor, beams=beams,
@@ -173,7 +177,7 @@ def run_chain(
                "coregister": coregister, "footprint_reference": footprint_reference}
     with new_files_removed_on_failure(out):
         out.mkdir(parents=True, exist_ok=True)
-        st = RunState(out=out, tiles=[Path(p) for p in las_paths],
+        st = RunState(out=out, tiles=survey_tiles(las_paths),
                       params=params or BlockParams(lengths=(10.0, 25.0, 50.0)),
                       options=options, prog=prog)
         for stage in (photons_stage, blocks_stage, rasters_stage, validation_stage,

@@ -23,10 +23,10 @@ def _vertical_name(crs: Any) -> str | None:
     return None
 
 
-def _tiles_crs(tiles: Sequence[Path]) -> Any:
+def _tiles_crs(tiles: Sequence[Any]) -> Any:
     """The tiles' full (compound) CRS as their header states it (WKT or GeoTIFF keys,
     read by the one LAS CRS reader): the vertical datum of every raster made from them,
     also after reprojection; None when unstated."""
-    from ...readers.las_crs import las_file_crs
+    from ...readers.survey import source_crs
 
-    return las_file_crs(tiles[0]).crs
+    return source_crs(tiles[0]).crs
