@@ -6,7 +6,6 @@ import logging
 
 import click
 
-from .sources import SurveySource
 from .common import (
     lengths_option,
     min_signal_conf_option,
@@ -14,7 +13,7 @@ from .common import (
     vertical_options,
 )
 from .options import option
-from .sources import GranuleSource
+from .sources import GranuleSource, SurveySource
 
 log = logging.getLogger(__name__)
 

@@ -6,7 +6,6 @@ from typing import Any
 
 import click
 
-from .sources import SurveySource
 from .common import (
     channel_option,
     explicit_value,
@@ -18,6 +17,7 @@ from .common import (
 )
 from .options import option
 from .progress_bars import progress_bar
+from .sources import SurveySource
 
 
 @click.command("calibrate")

@@ -6,7 +6,6 @@ from __future__ import annotations
 import click
 
 from ..options import PHOTON_RATES
-from .sources import SurveySource
 from .common import (
     WIDTH_HELP,
     channel_option,
@@ -20,6 +19,7 @@ from .common import (
 )
 from .options import option
 from .progress_bars import progress_bar
+from .sources import SurveySource
 from .vocabulary import deprecated_option, say_deprecated, take_alias
 
 

@@ -7,8 +7,8 @@ from pathlib import Path
 
 import click
 
-from .sources import SurveySource
 from .progress_bars import progress_bar, summary
+from .sources import SurveySource
 
 log = logging.getLogger(__name__)
 

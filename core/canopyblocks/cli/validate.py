@@ -8,9 +8,9 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from ..options import OPTIONS
-from .sources import SurveySource
 from .common import vertical_options
 from .options import option
+from .sources import SurveySource
 from .vocabulary import ChoiceWithOld, deprecated_option, deprecated_value, take_alias
 
 if TYPE_CHECKING:

@@ -218,6 +218,7 @@ def read_survey(sources: Sequence[Any], *, bbox: Sequence[float] | None = None,
                                  to_crs)
     import numpy as np
 
+    from ..geo import as_crs
     from .las import LasPoints, read_las
 
     prog = as_progress(progress)
@@ -227,8 +228,10 @@ def read_survey(sources: Sequence[Any], *, bbox: Sequence[float] | None = None,
     n = len(clouds) + (1 if tiles else 0)
     if tiles:
         try:
-            parts.append(read_las(tiles, bbox=None if bbox is None else tuple(bbox),  # type: ignore[arg-type]
-                                  crs=crs, exclude_classes=exclude_classes, polygon=polygon,
+            box = None if bbox is None else (float(bbox[0]), float(bbox[1]), float(bbox[2]),
+                                             float(bbox[3]))
+            parts.append(read_las(tiles, bbox=box, crs=None if crs is None else as_crs(crs),
+                                  exclude_classes=exclude_classes, polygon=polygon,
                                   progress=prog.sub(0.0, 1.0 / n)))
         except NoUsableDataError:
             if not clouds:

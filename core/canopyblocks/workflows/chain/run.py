@@ -10,7 +10,6 @@ import logging
 import math
 import os
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 from ...atomic import check_writable, new_files_removed_on_failure
