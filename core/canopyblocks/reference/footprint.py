@@ -49,10 +49,8 @@ Heights above ground
     Points and class-2 points within the cut.
 ``ref_coverage``
     Share of a lattice of sample positions inside the cut circle (spacing = the
-    occupancy cell, >= 2 m) that fall in cells holding airborne points; the cells lie
-    at fixed multiples of the occupancy cell in the points' CRS, the cell is set by the
-    density over the occupied area (:func:`occupancy_cell`), so a footprint's coverage
-    does not depend on which other tiles were read.
+    occupancy cell, >= 2 m; :func:`~.footprint_index.occupancy_cell`) that fall in cells
+    holding airborne points, cells at fixed multiples of it: independent of what was read.
 ``ref_flag``
     ``ok``; ``outside`` when ``ref_coverage < min_coverage`` (the footprint reaches
     beyond the tiles, or over a data gap); ``no_ground`` when fewer than
@@ -81,7 +79,7 @@ from ..errors import InputError, NoUsableDataError
 from ..progress import Progress, as_progress
 from ..readers.las import LasPoints
 from .corridor import positions_at, track_polyline
-from .footprint_index import CloudIndex
+from .footprint_index import CloudIndex, occupancy_cell
 from .footprint_params import (
     FOOTPRINT_REFERENCE_COLUMNS,
     REFERENCE_FLAG_NO_GROUND,
@@ -121,24 +119,6 @@ def density_weights(x: np.ndarray, y: np.ndarray, cell: float) -> np.ndarray:
     return 1.0 / counts[inv].astype(np.float64)
 
 
-_DENSITY_CELL = 5.0
-"""Cell (m, at multiples of it in the points' CRS) on which the occupied area is counted."""
-
-
-def occupancy_cell(x: np.ndarray, y: np.ndarray) -> float:
-    """The coverage lattice's cell (m): about 16 points a cell at the points' density
-    over the area they occupy (points / occupied 5 m cells' area), at least 2 m, rounded
-    up to a step of ``2 * sqrt(2) ** k`` so that a neighbouring tile of the same survey
-    read or left out does not move it."""
-    ix = np.floor(np.asarray(x, float) / _DENSITY_CELL).astype(np.int64)
-    iy = np.floor(np.asarray(y, float) / _DENSITY_CELL).astype(np.int64)
-    cells = np.unique((ix - ix.min()) * (int(iy.max() - iy.min()) + 1) + (iy - iy.min()))
-    density = x.size / (cells.size * _DENSITY_CELL ** 2)
-    raw = max(2.0, math.sqrt(16.0 / density))
-    k = math.ceil(round(2.0 * math.log2(raw / 2.0), 9))
-    return 2.0 * math.sqrt(2.0) ** k
-
-
 class FootprintCloud:
     """The airborne points prepared once for footprint queries (index, classes, weights).
 
@@ -164,8 +144,7 @@ class FootprintCloud:
         self.base_weight = (density_weights(self.index.x, self.index.y, params.density_cell)
                             if params.weighting == "gaussian_density" else None)
         # occupancy grid for the coverage of each footprint: cells at fixed multiples of
-        # the occupancy cell in the points' CRS, the cell from the density over the
-        # occupied area: a footprint's coverage does not depend on what else was read
+        # the cell (points' CRS), so a footprint's coverage is independent of what was read
         x, y = self.index.x, self.index.y
         self.occ_cell = c = occupancy_cell(x, y)
         ix, iy = np.floor(x / c).astype(np.int64), np.floor(y / c).astype(np.int64)

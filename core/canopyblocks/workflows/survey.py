@@ -1,8 +1,8 @@
 """The survey argument of every command, and the CRS a run works in over it.
 
-:func:`survey_tiles` (also importable from :mod:`canopyblocks.workflows.rasters`) is the
-one resolver of ``run``, ``validate --points``, ``batch --tiles``, ``calibrate --points``,
-``rasters`` and the QGIS algorithms: files, folders, glob patterns, a ``.vpc``, a COPC
+:func:`~canopyblocks.workflows.rasters.survey_tiles` is the one resolver of ``run``,
+``validate --points``, ``batch --tiles``, ``calibrate --points``, ``rasters`` and the QGIS
+algorithms: files, folders, glob patterns, a ``.vpc``, a COPC
 file or an EPT dataset, local or by URL (:mod:`canopyblocks.readers.survey`).
 :func:`working_crs` is the CRS a run over a survey computes in: the survey's own when its
 metre is a ground metre, else the UTM zone of the survey's centre (a survey in Web
@@ -14,14 +14,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
-__all__ = ["survey_tiles", "working_crs", "survey_centre"]
-
-
-def survey_tiles(sources: Any) -> list[Any]:
-    """See :func:`canopyblocks.workflows.rasters.survey_tiles`."""
-    from .rasters import survey_tiles as resolve
-
-    return resolve(sources)
+__all__ = ["working_crs", "survey_centre"]
 
 
 def survey_centre(tiles: Sequence[Any]) -> tuple[float, float]:

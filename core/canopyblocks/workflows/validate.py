@@ -496,7 +496,10 @@ def validate_footprints_file(
     if plots is not None:
         check_writable(plots, folder=True)
     table = read_layer(src, layer if src.suffix.lower() == ".gpkg" else None)
-    result = validate_footprints(table, las_paths, progress=progress, **kwargs)  # type: ignore[arg-type]
+    from .rasters import survey_tiles
+
+    result = validate_footprints(table, survey_tiles(las_paths), progress=progress,  # type: ignore[arg-type]
+                                 **kwargs)
     ctx = new_files_removed_on_failure(plots) if plots is not None else None
     if ctx is not None:
         with ctx:
