@@ -153,9 +153,10 @@ def cloud_plan(source: str, kind: str, params: RasterParams, crs: object,
     # another output CRS than the source's: windows read through the reprojecting reader
     moved = ext.crs is not None and not _horizontal(ext.crs).equals(_horizontal(target),
                                                                      ignore_axis_order=True)
+    e0, e1, e2, e3 = ext.bounds
     bounds = ext.bounds if not moved else pyproj.Transformer.from_crs(
         _horizontal(ext.crs), _horizontal(target), always_xy=True).transform_bounds(
-            *ext.bounds, densify_pts=21)
+            e0, e1, e2, e3, densify_pts=21)
     if ext.n_points == 0:
         raise NoUsableDataError(f"{ext.source} holds no points")
     grid = _grid(_area(params.bounds, area_poly, bounds, target), params, target.to_wkt(),

@@ -498,8 +498,8 @@ def validate_footprints_file(
     table = read_layer(src, layer if src.suffix.lower() == ".gpkg" else None)
     from .rasters import survey_tiles
 
-    result = validate_footprints(table, survey_tiles(las_paths), progress=progress,  # type: ignore[arg-type]
-                                 **kwargs)
+    result = validate_footprints(table, survey_tiles(las_paths), progress=progress,
+                                 **kwargs)  # type: ignore[arg-type]
     ctx = new_files_removed_on_failure(plots) if plots is not None else None
     if ctx is not None:
         with ctx:
