@@ -203,3 +203,48 @@ def test_web_mercator_survey_gives_the_utm_residuals(survey, tmp_path: Path) -> 
             diff = np.abs(a[c].to_numpy(float) - b[c].to_numpy(float))[both]
             print(f"3857 vs UTM {layer} {c}: max |diff| {np.nanmax(diff):.4f} m")
             assert np.nanmax(diff) <= 0.05, (layer, c)
+
+
+@pytest.mark.parametrize("kind", ("vpc", "https_copc"))
+def test_calibrate_points_takes_every_form_of_the_survey(survey, kind: str) -> None:  # noqa: ANN001
+    from canopyblocks.blocks import BlockParams
+    from canopyblocks.blocks.estimators import preset
+    from canopyblocks.workflows.calibrate import calibrate_bias_file
+
+    fits = {k: calibrate_bias_file(str(survey["granule"]), BlockParams(lengths=(25.0,)),
+                                   preset("paper"), points=survey[k], reference="footprint",
+                                   offset=0.0, by_strength=False)
+            for k in ("laz", kind)}
+    assert fits[kind].models == fits["laz"].models and len(fits["laz"].models) > 0
+
+
+def test_run_simulates_over_a_copc(survey) -> None:  # noqa: ANN001
+    """`run` without photons over a COPC simulates in the COPC's own CRS (it used to pick a
+    UTM zone the COPC's rasters then refused with "leave the CRS out")."""
+    from canopyblocks.blocks import BlockParams
+    from canopyblocks.workflows.chain.run import run_chain
+
+    out = survey["root"] / "simulated_copc"
+    run_chain([str(survey["root"] / "survey.copc.laz")], out, realisations=0, azimuth=10.0,
+              params=BlockParams(lengths=(25.0,)), compare_preset=None)
+    r = _layer(out, "residuals_footprint")
+    assert r.crs.to_epsg() == 3005 and int(r["use"].sum()) > 5
+
+
+def test_rasters_of_a_web_mercator_tile_are_made_in_utm(survey, tmp_path: Path) -> None:  # noqa: ANN001
+    """`rasters` on an EPSG:3857 tile: 2 m cells on the ground (UTM), said in a warning,
+    not 2 m of Web Mercator (1.27 m at 50.7 N)."""
+    import pyproj
+    import rasterio
+
+    from canopyblocks.errors import CanopyBlocksWarning
+    from canopyblocks.workflows.rasters import make_survey_rasters
+
+    tile = _reprojected(Path(survey["laz"][0]), tmp_path / "merc.laz", 3857)
+    with pytest.warns(CanopyBlocksWarning, match="not a metre on the ground"):
+        made = make_survey_rasters([tile], tmp_path / "r", resolution=2.0, backend="serial")
+    with rasterio.open(made.dsm_max) as src:
+        assert pyproj.CRS(src.crs.to_wkt()).to_epsg() == 32609
+        assert src.res == (2.0, 2.0)
+        w, h = src.bounds.right - src.bounds.left, src.bounds.top - src.bounds.bottom
+    assert 180 < w < 215 and 235 < h < 265  # the tile's 188 x 243 m, not 1.58 times that

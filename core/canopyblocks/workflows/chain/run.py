@@ -157,7 +157,8 @@ def run_chain(
     from ..rasters import survey_tiles
     from .flash_dual import waveform_chain
 
-    waveform = waveform_chain(las_paths, out_dir, photons, sensor, beams=beams,
+    tiles = survey_tiles(las_paths)  # folders, patterns, .vpc, COPC, EPT: one resolver
+    waveform = waveform_chain(tiles, out_dir, photons, sensor, beams=beams,
                                azimuth=azimuth, seed=seed, geoid=geoid, offset=offset,
                                options=sensor_options, noise=noise, progress=prog)
     if waveform is not None:
@@ -176,7 +177,7 @@ def run_chain(
                "coregister": coregister, "footprint_reference": footprint_reference}
     with new_files_removed_on_failure(out):
         out.mkdir(parents=True, exist_ok=True)
-        st = RunState(out=out, tiles=survey_tiles(las_paths),
+        st = RunState(out=out, tiles=tiles,
                       params=params or BlockParams(lengths=(10.0, 25.0, 50.0)),
                       options=options, prog=prog)
         for stage in (photons_stage, blocks_stage, rasters_stage, validation_stage,
