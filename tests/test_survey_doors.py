@@ -106,14 +106,15 @@ def test_run_takes_every_form_of_the_survey(survey, kind: str) -> None:  # noqa:
 
 @pytest.mark.parametrize("kind", KINDS)
 def test_validate_points_takes_every_form_of_the_survey(survey, kind: str) -> None:  # noqa: ANN001
-    from canopyblocks.workflows.validate import validate
+    from canopyblocks.workflows.validate import validate_file
 
     blocks = _run(survey, "laz") / "blocks.gpkg"
     outs = {}
     for k in ("laz", kind):
         outs[k] = survey["root"] / f"validate_{k}.gpkg"
         if not outs[k].exists():
-            validate(blocks, outs[k], points=survey[k], reference="footprint", offset=0.0)
+            validate_file(blocks, outs[k], points=survey[k], reference="footprint",
+                          offset=0.0)
     a = gpd.read_file(outs[kind], layer="residuals").sort_values(["track", "length", "block"])
     b = gpd.read_file(outs["laz"], layer="residuals").sort_values(["track", "length", "block"])
     _same(a.reset_index(drop=True), b.reset_index(drop=True), kind)
