@@ -243,8 +243,11 @@ def read_header(src: ByteSource) -> CopcHeader:
         raise FileFormatError(f"{label}: not a COPC file (point format {fmt} "
                               f"{'without' if laszip is None else 'with'} LAZ compression; "
                               "COPC is LAZ with point format 6, 7 or 8)")
-    stated = crs_from_records(Path(label), list(hdr.vlrs or []) + _crs_evlrs(src, head),
-                              version, bool(getattr(hdr.global_encoding, "wkt", False)))
+    wkt_bit = bool(getattr(hdr.global_encoding, "wkt", False))
+    stated = crs_from_records(Path(label), list(hdr.vlrs or []), version, wkt_bit)
+    if stated.horizontal is None:  # LAS 1.4 allows the CRS after the points
+        stated = crs_from_records(Path(label), list(hdr.vlrs or []) + _crs_evlrs(src, head),
+                                  version, wkt_bit)
     mins, maxs = hdr.mins, hdr.maxs
     return CopcHeader(
         label=label, n_points=int(hdr.point_count), point_format=fmt, record_length=rec_len,
@@ -279,7 +282,8 @@ def _crs_evlrs(src: ByteSource, head: bytes) -> list[_Record]:
         _, user, record, length, _ = _EVLR_HEAD.unpack(
             src.fetch([(pos, pos + _EVLR_HEAD.size)], "the extended VLRs")[0])
         data = pos + _EVLR_HEAD.size
-        if user.rstrip(b"\0") == b"LASF_Projection" and record == 2112 and length:
+        if user.rstrip(b"\0") == b"LASF_Projection" and record == 2112 and \
+                0 < length <= src.size - data:
             out.append(_Record(2112, src.fetch([(data, data + int(length))], "the CRS")[0]))
         pos = data + int(length)
     return out
