@@ -173,23 +173,27 @@ def _entry(key: Sequence[int], offset: int, size: int, count: int) -> bytes:
 
 
 def write_copc(paths: Sequence[Path], out: Path, *, capacity: int = 20_000,
-               page_level: int | None = None, seed: int = 1, tree: Octree | None = None
-               ) -> Octree:
+               page_level: int | None = None, seed: int = 1, tree: Octree | None = None,
+               crs: str = "vlr") -> Octree:
     """Write the tiles' points as one COPC file; the octree written.
 
     ``page_level``: nodes at this level and below go into hierarchy pages of their own (one
     per node of that level), so a reader must follow page entries.  ``tree``: an octree
-    already built from ``paths`` (the CRS is still read from ``paths``).
+    already built from ``paths`` (the CRS is still read from ``paths``).  ``crs``: where
+    the tiles' CRS (WKT) is written: ``"vlr"`` (before the points), ``"evlr"`` (an extended
+    VLR after the hierarchy, as copc-lib writes it) or ``"none"`` (not at all).
     """
     tree = tree or build_octree(tile_points(paths), capacity=capacity, seed=seed)
     pts = tree.points
-    wkt = _full_crs(paths)
+    wkt = _full_crs(paths) if crs != "none" else None
     wkt_data = (wkt.to_wkt().encode() + b"\0") if wkt is not None else b""
+    in_evlr = crs == "evlr" and bool(wkt_data)
     vlr = lazrs.LazVlr.new_for_compression(6, 0, use_variable_size_chunks=True)
     laz = _vlr(b"laszip encoded", 22204, bytes(vlr.record_data()))
-    n_vlrs = 2 + bool(wkt_data)
+    n_vlrs = 2 + (bool(wkt_data) and not in_evlr)
     info_len = 54 + 160
-    offset_to_points = 375 + info_len + len(laz) + ((54 + len(wkt_data)) if wkt_data else 0)
+    offset_to_points = 375 + info_len + len(laz) + (
+        (54 + len(wkt_data)) if wkt_data and not in_evlr else 0)
     raw = pts.points.array.tobytes()
     rec = 30
     with out.open("w+b") as fh:
@@ -210,15 +214,17 @@ def write_copc(paths: Sequence[Path], out: Path, *, capacity: int = 20_000,
         evlr_start = fh.tell()
         hier = _hierarchy(tree, offsets, sizes, evlr_start + 60, page_level)
         fh.write(_evlr(b"copc", 1000, hier[0]))
+        if in_evlr:
+            fh.write(_evlr(b"LASF_Projection", 2112, wkt_data))
         gps = np.asarray(pts.gps_time)
         info = struct.pack("<5d2Q2d11Q", *tree.center, tree.halfsize, tree.spacing,
                            evlr_start + 60, hier[1], float(gps.min()), float(gps.max()),
                            *([0] * 11))
         fh.seek(0)
-        fh.write(_header(pts, offset_to_points, n_vlrs, evlr_start, 1))
+        fh.write(_header(pts, offset_to_points, n_vlrs, evlr_start, 1 + in_evlr))
         fh.write(_vlr(b"copc", 1, info, b"copc info"))
         fh.write(laz)
-        if wkt_data:
+        if wkt_data and not in_evlr:
             fh.write(_vlr(b"LASF_Projection", 2112, wkt_data))
     return tree
 

@@ -284,3 +284,33 @@ def test_same_points_as_the_photon_simulator(tile: LasPoints) -> None:
                               FootprintReferenceParams(diameter=2 * sp.radius))
     np.testing.assert_array_equal(ref["ref_n_points"].to_numpy(), sim.truth["n_points"])
     np.testing.assert_array_equal(ref["ref_top"].to_numpy(), sim.truth["top"])
+
+
+def test_a_footprint_does_not_depend_on_what_else_was_read(sample) -> None:  # noqa: ANN001
+    """Blocks along the west edge of one tile (some footprints over the edge, so their
+    coverage is < 1): their reference and their footprints' coverage are the same whether
+    the neighbouring tile, 53-60 m from the track, is read or not, and whether the points
+    farther than 30 m from the track are read or not (another block length reads another
+    buffer)."""
+    one = read_las(sample("als/lasR_bcts_1.laz"))
+    both = read_las([sample("als/lasR_bcts_1.laz"), sample("als/lasR_bcts_2.laz")])
+    x0 = 885029.0
+    blocks = _blocks_along(x0, 629160.0, math.pi / 2, 25.0, 7, one.crs)
+    assert blocks["y"].max() + 12.5 + 6.5 <= 629400.0 - 53.0  # the tile 2 edge
+    near = one.subset(np.abs(one.x - x0) <= 30.0)
+    params = FootprintReferenceParams(diameter=13.0)
+    refs = [block_footprint_reference(blocks, pts, params) for pts in (one, both, near)]
+    fy = 629160.0 + (np.arange(250) + 0.5) * 0.7
+    fps = [footprint_reference(pts, np.full(fy.size, x0), fy, params)
+           for pts in (one, both, near)]
+    cov = fps[0]["ref_coverage"].to_numpy()
+    assert cov.min() < 0.9 <= cov.max()  # some footprints flagged over the edge, some not
+    assert (refs[0]["ref_flag"] == "ok").sum() >= 3
+    for ref, fp in zip(refs[1:], fps[1:]):
+        for col in ("ref_ground", "ref_top", "ref_cover", "n_footprints"):
+            np.testing.assert_array_equal(ref[col].to_numpy(), refs[0][col].to_numpy(),
+                                          err_msg=col)
+        assert (ref["ref_flag"] == refs[0]["ref_flag"]).all()
+        for col in ("ref_coverage", "ref_ground"):
+            np.testing.assert_array_equal(fp[col].to_numpy(), fps[0][col].to_numpy(),
+                                          err_msg=col)

@@ -21,6 +21,7 @@ __all__ = [
     "from_metric",
     "require_metric_crs",
     "to_metric_local_affine",
+    "ground_metres",
 ]
 
 WGS84 = pyproj.CRS.from_epsg(4326)
@@ -152,6 +153,26 @@ def require_metric_crs(crs: pyproj.CRS, what: str = "CRS") -> pyproj.CRS:
             "reproject the data to a metric CRS first"
         )
     return crs
+
+
+def ground_metres(crs: object) -> bool:
+    """Whether a CRS's metre is a metre on the ground (within a survey's extent): projected,
+    in metres, and not a Mercator projection (Web Mercator, EPSG:3857 -- USGS 3DEP's EPT
+    -- stretches lengths by 1/cos(latitude): 1.58 at 50.7 N).  A survey in such a CRS is
+    read and reprojected to a local metric CRS (the UTM zone of the track), never used as
+    metres."""
+    try:
+        c = as_crs(crs)
+    except CRSError:
+        return False
+    if c.is_compound:
+        c = next((s for s in c.sub_crs_list if s.is_projected or s.is_geographic), c)
+    if not c.is_projected:
+        return False
+    unit = c.axis_info[0].unit_conversion_factor if c.axis_info else 1.0
+    op = c.coordinate_operation
+    method = (op.method_name if op is not None else "").lower()
+    return abs(unit - 1.0) <= 1e-9 and not ("mercator" in method and "transverse" not in method)
 
 
 def require_metre_units(crs: object, what: str) -> None:

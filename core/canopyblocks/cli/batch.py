@@ -13,7 +13,7 @@ from .common import (
     vertical_options,
 )
 from .options import option
-from .sources import GranuleSource
+from .sources import GranuleSource, SurveySource
 
 log = logging.getLogger(__name__)
 
@@ -25,8 +25,9 @@ def register(group: click.Group) -> None:
 
 @click.command("batch")
 @click.argument("granules", nargs=-1, required=True, type=GranuleSource(exists=True))
-@click.option("--tiles", "tiles", multiple=True, required=True, type=click.Path(exists=True),
-              help="LAS/LAZ tile, or a folder of tiles (repeatable); one CRS.")
+@click.option("--tiles", "tiles", multiple=True, required=True, type=SurveySource(),
+              help="The airborne survey: LAS/LAZ tiles, a folder, a glob pattern, a .vpc, a "
+                   "COPC or an ept.json (path or URL; repeatable).")
 @click.option("-o", "--output", required=True, type=click.Path(file_okay=False),
               help="Output folder: parts/ (one folder per granule and beam), residuals.parquet "
                    "(every unit's validated blocks in one table), manifest.json, stats.csv, "

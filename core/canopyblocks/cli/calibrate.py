@@ -17,6 +17,7 @@ from .common import (
 )
 from .options import option
 from .progress_bars import progress_bar
+from .sources import SurveySource
 
 
 @click.command("calibrate")
@@ -32,8 +33,9 @@ from .progress_bars import progress_bar
 @click.option("--reference", type=click.Choice(["corridor", "footprint"]), default="corridor",
               show_default=True, help="--method bias: corridor rasters or the "
               "footprint-matched airborne points (--points).")
-@click.option("--points", multiple=True, type=click.Path(dir_okay=False),
-              help="Airborne LAS/LAZ tile for --reference footprint (repeatable).")
+@click.option("--points", multiple=True, type=SurveySource(),
+              help="The airborne survey for --reference footprint: LAS/LAZ tiles, a folder, "
+                   "a glob pattern, a .vpc, a COPC or an ept.json (path or URL; repeatable).")
 @click.option("--beam", "beams", multiple=True,
               help="ATL03 beam (repeatable; cutoffs: the first; bias: default every beam).")
 @channel_option

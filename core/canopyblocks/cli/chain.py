@@ -19,11 +19,12 @@ from .common import (
 )
 from .options import option
 from .progress_bars import progress_bar
+from .sources import SurveySource
 from .vocabulary import deprecated_option, say_deprecated, take_alias
 
 
 @click.command("run")
-@click.argument("tiles", nargs=-1, required=True, type=click.Path(dir_okay=False))
+@click.argument("tiles", nargs=-1, required=True, type=SurveySource())
 @click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False),
               help="Output folder.")
 @option("--photons", extra_help="Without it (or with --simulate), "

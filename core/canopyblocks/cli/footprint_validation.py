@@ -8,6 +8,7 @@ import click
 
 from ..errors import InputError
 from .common import vertical_options
+from .sources import SurveySource
 from .vocabulary import say_deprecated
 
 log = logging.getLogger(__name__)
@@ -21,7 +22,8 @@ def register(group: click.Group) -> None:
 @click.command("validate-footprints", hidden=True)
 @click.argument("footprints", metavar="FOOTPRINTS", type=click.Path(dir_okay=False))
 @click.option("--points", "points", multiple=True, required=True,
-              type=click.Path(dir_okay=False), help="Airborne LAS/LAZ tile (repeatable).")
+              type=SurveySource(), help="The airborne survey: LAS/LAZ tiles, a folder, a "
+              "glob pattern, a .vpc, a COPC or an ept.json (path or URL; repeatable).")
 @click.option("--diameter", type=float, default=22.0, show_default=True,
               help="Footprint diameter 2R, m (GEDI 22: sigma 5.5 m).")
 @click.option("--cut", type=float, default=1.5, show_default=True,

@@ -8,12 +8,13 @@ from pathlib import Path
 import click
 
 from .progress_bars import progress_bar, summary
+from .sources import SurveySource
 
 log = logging.getLogger(__name__)
 
 
 @click.command("rasters")
-@click.argument("las", nargs=-1, required=True, type=click.Path())
+@click.argument("las", nargs=-1, required=True, type=SurveySource())
 @click.option("-o", "--output", "out_dir", required=True, type=click.Path(file_okay=False),
               help="Output folder: dtm.tif, dsm_max.tif, dsm_p90.tif and dtm_fill_mask.tif "
                    "(1 where a DTM hole was filled).")

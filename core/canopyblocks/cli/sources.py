@@ -1,4 +1,5 @@
-"""Granule arguments of the command line: a local path, or an ``s3://`` / ``https://`` URL."""
+"""Granule and survey arguments of the command line: a local path, or an ``s3://`` /
+``https://`` URL; a survey also a folder, a glob pattern, a ``.vpc`` or an ``ept.json``."""
 
 from __future__ import annotations
 
@@ -6,7 +7,7 @@ from typing import Any
 
 import click
 
-__all__ = ["GranuleSource"]
+__all__ = ["GranuleSource", "SurveySource"]
 
 
 class GranuleSource(click.Path):
@@ -19,3 +20,15 @@ class GranuleSource(click.Path):
         if is_url(value):
             return str(value).strip()
         return super().convert(value, param, ctx)
+
+
+class SurveySource(click.ParamType):
+    """One survey source, passed on as given: the workflows' one resolver
+    (:func:`~canopyblocks.workflows.rasters.survey_tiles`) expands folders, patterns and
+    ``.vpc`` catalogs and refuses what is missing with the project's own message."""
+
+    name = "survey"
+
+    def convert(self, value: Any, param: click.Parameter | None,
+                ctx: click.Context | None) -> Any:
+        return str(value).strip()

@@ -10,6 +10,7 @@ import click
 from ..options import OPTIONS
 from .common import vertical_options
 from .options import option
+from .sources import SurveySource
 from .vocabulary import ChoiceWithOld, deprecated_option, deprecated_value, take_alias
 
 if TYPE_CHECKING:
@@ -34,8 +35,10 @@ def register(group: click.Group) -> None:
         help="Reference for blocks: corridor rasters (default), ATL08 (default with "
         "--atl08), or the footprint-matched airborne points (--points; default with "
         "--points and no --dtm). Footprint tables (GEDI) always use the footprint reference.")
-@click.option("--points", "points", multiple=True, type=click.Path(dir_okay=False),
-              help="Airborne LAS/LAZ tile for the footprint reference (repeatable).")
+@click.option("--points", "points", multiple=True, type=SurveySource(),
+              help="The airborne survey for the footprint reference: LAS/LAZ tiles, a "
+                   "folder, a glob pattern, a .vpc, a COPC or an ept.json (path or URL; "
+                   "repeatable).")
 @click.option("--diameter", type=float, default=None,
               help="Footprint diameter, m (default 13 for blocks, 22 for GEDI footprints).")
 @click.option("--cut", type=float, default=None,

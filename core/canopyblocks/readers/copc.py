@@ -245,8 +245,11 @@ def read_header(src: ByteSource) -> CopcHeader:
         raise FileFormatError(f"{label}: not a COPC file (point format {fmt} "
                               f"{'without' if laszip is None else 'with'} LAZ compression; "
                               "COPC is LAZ with point format 6, 7 or 8)")
-    stated = crs_from_records(Path(label), list(hdr.vlrs or []), version,
-                              bool(getattr(hdr.global_encoding, "wkt", False)))
+    wkt_bit = bool(getattr(hdr.global_encoding, "wkt", False))
+    stated = crs_from_records(Path(label), list(hdr.vlrs or []), version, wkt_bit)
+    if stated.horizontal is None:  # LAS 1.4 allows the CRS after the points
+        stated = crs_from_records(Path(label), list(hdr.vlrs or []) + _crs_evlrs(src, head),
+                                  version, wkt_bit)
     mins, maxs = hdr.mins, hdr.maxs
     h = CopcHeader(
         label=label, n_points=int(hdr.point_count), point_format=fmt, record_length=rec_len,
@@ -257,6 +260,37 @@ def read_header(src: ByteSource) -> CopcHeader:
         root=(int(info[5]), int(info[6])), stated=stated, points_at=int(offset_to_points))
     check_cube(h)
     return h
+
+
+@dataclass(frozen=True)
+class _Record:
+    """A CRS record read from an extended VLR (what the LAS CRS reader looks at)."""
+
+    record_id: int
+    record_data: bytes
+
+
+_EVLR_HEAD = struct.Struct("<H16sHQ32s")   # reserved, user, record, length, description
+
+
+def _crs_evlrs(src: ByteSource, head: bytes) -> list[_Record]:
+    """The WKT CRS records among the extended VLRs after the points (LAS 1.4 allows the
+    CRS there; copc-lib writes it there): each EVLR's 60-byte head is read, only a CRS
+    record's data."""
+    start, count = struct.unpack_from("<QI", head, 235)
+    out: list[_Record] = []
+    pos = int(start)
+    for _ in range(min(int(count), 64)):  # a handful of records
+        if not 0 < pos <= src.size - _EVLR_HEAD.size:
+            break
+        _, user, record, length, _ = _EVLR_HEAD.unpack(
+            src.fetch([(pos, pos + _EVLR_HEAD.size)], "the extended VLRs")[0])
+        data = pos + _EVLR_HEAD.size
+        if user.rstrip(b"\0") == b"LASF_Projection" and record == 2112 and \
+                0 < length <= src.size - data:
+            out.append(_Record(2112, src.fetch([(data, data + int(length))], "the CRS")[0]))
+        pos = data + int(length)
+    return out
 
 
 def _raw_vlrs(blob: bytes, n: int) -> list[tuple[bytes, int, bytes]]:
@@ -389,7 +423,8 @@ def _decompress(h: CopcHeader, blobs: list[bytes],
 
 
 def read_copc(source: str | os.PathLike[str], *, bounds: Sequence[float] | None = None,
-              polygon: Any = None, progress: Progress | None = None) -> Any:
+              polygon: Any = None, progress: Progress | None = None,
+              crs: object = None) -> Any:
     """Read the points of a COPC file inside ``bounds`` and/or ``polygon``.
 
     Parameters
@@ -401,6 +436,8 @@ def read_copc(source: str | os.PathLike[str], *, bounds: Sequence[float] | None 
         Metres in the file's CRS; points on its edge included.
     progress : Progress, optional
         Reports per batch of nodes; cancellable.
+    crs : CRS-like, optional
+        The CRS of a file that states none (a file that states another is refused).
 
     Returns
     -------
@@ -421,7 +458,7 @@ def read_copc(source: str | os.PathLike[str], *, bounds: Sequence[float] | None 
     prog = as_progress(progress)
     with ByteSource(_check_source(source)) as src:
         h = read_header(src)
-        crs = check_crs(h.stated, h.label)
+        crs = check_crs(h.stated, h.label, crs)
         nodes = select_nodes(src, h, area)
         cols = Columns(h.label)
         total = max(1, sum(n[3] for n in nodes))
@@ -438,12 +475,24 @@ def read_copc(source: str | os.PathLike[str], *, bounds: Sequence[float] | None 
     return cols.points(crs, h.stated.vertical_name, area)
 
 
-def check_crs(stated: LasCRS, label: str) -> pyproj.CRS:
-    """The horizontal CRS, refused as a LAZ tile's is (none, not metric, feet)."""
+def check_crs(stated: LasCRS, label: str, given: object = None) -> pyproj.CRS:
+    """The horizontal CRS, refused as a LAZ tile's is (none, not metric, feet); ``given``
+    is the CRS of a source that states none (one that states another is refused)."""
+    from ..geo import as_crs
+
     stated.require_metres()
+    want = None if given is None else as_crs(given, "point cloud CRS")
     if stated.horizontal is None:
-        raise CRSError(f"{label}: the source states no CRS; write it into the source "
-                       "(its WKT record or ept.json srs) and read it again")
+        if want is None:
+            raise CRSError(f"{label}: the source states no CRS; give its CRS (--crs, "
+                           "crs='EPSG:...' in Python) or write it into the source (its WKT "
+                           "record or ept.json srs)")
+        return require_metric_crs(want, f"{label} CRS")
+    if want is not None and not want.equals(stated.horizontal, ignore_axis_order=True) \
+            and not (want.is_compound and any(
+                c.equals(stated.horizontal, ignore_axis_order=True) for c in want.sub_crs_list)):
+        raise CRSError(f"{label}: the source's CRS {stated.horizontal.to_string()} differs "
+                       f"from the CRS given, {want.to_string()}; drop the CRS argument")
     if stated.crs is not None:
         require_metre_units(stated.crs, label)
     return require_metric_crs(stated.horizontal, f"{label} CRS")

@@ -223,7 +223,8 @@ def _node_points(info: EptInfo, key: Node) -> Any:
 
 
 def read_ept(source: str | os.PathLike[str], *, bounds: Sequence[float] | None = None,
-             polygon: Any = None, progress: Progress | None = None) -> Any:
+             polygon: Any = None, progress: Progress | None = None,
+             crs: object = None) -> Any:
     """Read the points of an EPT dataset inside ``bounds`` and/or ``polygon``.
 
     Parameters
@@ -235,6 +236,8 @@ def read_ept(source: str | os.PathLike[str], *, bounds: Sequence[float] | None =
         Metres in the dataset's CRS; points on its edge included.
     progress : Progress, optional
         Reports per node; cancellable.
+    crs : CRS-like, optional
+        The CRS of a dataset that states none (one that states another is refused).
 
     Returns
     -------
@@ -255,7 +258,7 @@ def read_ept(source: str | os.PathLike[str], *, bounds: Sequence[float] | None =
     area = Area(bounds, polygon)
     prog = as_progress(progress)
     info = EptInfo(_check_source(source))
-    crs = check_crs(info.stated, info.label)
+    crs = check_crs(info.stated, info.label, crs)
     nodes = select_nodes(info, area)
     cols = Columns(info.label)
     total = max(1, sum(n for _, n in nodes))

@@ -49,7 +49,8 @@ Heights above ground
     Points and class-2 points within the cut.
 ``ref_coverage``
     Share of a lattice of sample positions inside the cut circle (spacing = the
-    occupancy cell, >= 2 m) that fall in cells holding airborne points.
+    occupancy cell, >= 2 m; :func:`~.footprint_index.occupancy_cell`) that fall in cells
+    holding airborne points, cells at fixed multiples of it: independent of what was read.
 ``ref_flag``
     ``ok``; ``outside`` when ``ref_coverage < min_coverage`` (the footprint reaches
     beyond the tiles, or over a data gap); ``no_ground`` when fewer than
@@ -77,7 +78,7 @@ import pandas as pd
 from ..errors import InputError, NoUsableDataError
 from ..progress import Progress, as_progress
 from ..readers.las import LasPoints
-from .footprint_index import CloudIndex
+from .footprint_index import CloudIndex, occupancy_cell
 from .footprint_params import (
     FOOTPRINT_REFERENCE_COLUMNS,
     REFERENCE_FLAG_NO_GROUND,
@@ -141,17 +142,16 @@ class FootprintCloud:
         self.first = points.return_number[ids] <= 1
         self.base_weight = (density_weights(self.index.x, self.index.y, params.density_cell)
                             if params.weighting == "gaussian_density" else None)
-        # occupancy grid for the coverage of each footprint
+        # occupancy grid for the coverage of each footprint: cells at fixed multiples of
+        # the cell (points' CRS), so a footprint's coverage is independent of what was read
         x, y = self.index.x, self.index.y
-        x0, y0, x1, y1 = float(x.min()), float(y.min()), float(x.max()), float(y.max())
-        density = ids.size / max((x1 - x0) * (y1 - y0), 1.0)
-        self.occ_cell = max(2.0, math.sqrt(16.0 / density))
-        c = self.occ_cell
-        self.occ_x0, self.occ_y0 = x0, y0
-        self.occ_nx, self.occ_ny = int((x1 - x0) // c) + 1, int((y1 - y0) // c) + 1
+        self.occ_cell = c = occupancy_cell(x, y)
+        ix, iy = np.floor(x / c).astype(np.int64), np.floor(y / c).astype(np.int64)
+        self.occ_i0, self.occ_j0 = int(ix.min()), int(iy.min())
+        self.occ_nx = int(ix.max()) - self.occ_i0 + 1
+        self.occ_ny = int(iy.max()) - self.occ_j0 + 1
         occ = np.zeros(self.occ_nx * self.occ_ny, dtype=bool)
-        occ[((y - y0) // c).astype(np.int64) * self.occ_nx
-            + ((x - x0) // c).astype(np.int64)] = True
+        occ[(iy - self.occ_j0) * self.occ_nx + (ix - self.occ_i0)] = True
         self.occupied = occ
         r = params.cut_radius
         m = int(r // c)
@@ -164,8 +164,8 @@ class FootprintCloud:
         px = sx[:, None] + self.stencil[None, :, 0]
         py = sy[:, None] + self.stencil[None, :, 1]
         c = self.occ_cell
-        ix = np.floor((px - self.occ_x0) / c).astype(np.int64)
-        iy = np.floor((py - self.occ_y0) / c).astype(np.int64)
+        ix = np.floor(px / c).astype(np.int64) - self.occ_i0
+        iy = np.floor(py / c).astype(np.int64) - self.occ_j0
         valid = (ix >= 0) & (ix < self.occ_nx) & (iy >= 0) & (iy < self.occ_ny)
         hit = np.zeros(px.shape, dtype=bool)
         hit[valid] = self.occupied[iy[valid] * self.occ_nx + ix[valid]]

@@ -24,7 +24,8 @@ try:  # scipy's C++ counting sort of COO entries into CSR (stable; optional spee
 except ImportError:  # pragma: no cover - private scipy API moved
     _coo_tocsr = None
 
-__all__ = ["FootprintPairs", "CloudIndex", "footprint_weights", "footprints_area"]
+__all__ = ["FootprintPairs", "CloudIndex", "footprint_weights", "footprints_area",
+           "occupancy_cell"]
 
 log = logging.getLogger(__name__)
 
@@ -55,6 +56,24 @@ def footprints_area(x: np.ndarray, y: np.ndarray, radius: float) -> object:
     quad = 8
     r = float(radius) / math.cos(math.pi / (4 * quad))
     return shapely.MultiPoint(np.c_[x[ok], y[ok]]).buffer(r, quad_segs=quad)
+
+
+_DENSITY_CELL = 5.0
+"""Cell (m, at multiples of it in the points' CRS) on which the occupied area is counted."""
+
+
+def occupancy_cell(x: np.ndarray, y: np.ndarray) -> float:
+    """The coverage lattice's cell (m): about 16 points a cell at the points' density
+    over the area they occupy (points / occupied 5 m cells' area), at least 2 m, rounded
+    up to a step of ``2 * sqrt(2) ** k`` so that a neighbouring tile of the same survey
+    read or left out does not move it."""
+    ix = np.floor(np.asarray(x, float) / _DENSITY_CELL).astype(np.int64)
+    iy = np.floor(np.asarray(y, float) / _DENSITY_CELL).astype(np.int64)
+    cells = np.unique((ix - ix.min()) * (int(iy.max() - iy.min()) + 1) + (iy - iy.min()))
+    density = x.size / (cells.size * _DENSITY_CELL ** 2)
+    raw = max(2.0, math.sqrt(16.0 / density))
+    k = math.ceil(round(2.0 * math.log2(raw / 2.0), 9))
+    return 2.0 * math.sqrt(2.0) ** k
 
 
 def footprint_weights(r2: np.ndarray, radius: float) -> np.ndarray:

@@ -148,21 +148,26 @@ def cloud_plan(source: str, kind: str, params: RasterParams, crs: object,
                          "its ground class (the default)")
     extent_of, _ = cloud_reader(kind)
     ext = extent_of(source)
-    if ext.crs is None:
-        raise CRSError(f"{ext.source} states no CRS; a {kind.upper()} source must state one")
-    target = require_metric_crs(ext.crs, f"CRS of {ext.source}")
-    if crs is not None:
-        given = as_crs(crs, "output crs")
-        if not _horizontal(given).equals(_horizontal(target), ignore_axis_order=True):
-            raise CRSError(f"{ext.source} is in {crs_label(target)}, the output CRS asked is "
-                           f"{crs_label(given)}: a {kind.upper()} source is rasterised in its "
-                           "own CRS; leave the CRS out and reproject the rasters afterwards")
+    given = None if crs is None else as_crs(crs, "output crs")
+    if ext.crs is None and given is None:
+        raise CRSError(f"{ext.source} states no CRS; give its CRS (--crs, crs='EPSG:...')")
+    target = require_metric_crs(given if given is not None else ext.crs,
+                                f"CRS of {ext.source}")
+    # another output CRS than the source's: windows read through the reprojecting reader
+    moved = ext.crs is not None and not _horizontal(ext.crs).equals(_horizontal(target),
+                                                                     ignore_axis_order=True)
+    e0, e1, e2, e3 = ext.bounds
+    bounds = ext.bounds if not moved else pyproj.Transformer.from_crs(
+        _horizontal(ext.crs), _horizontal(target), always_xy=True).transform_bounds(
+            e0, e1, e2, e3, densify_pts=21)
     if ext.n_points == 0:
         raise NoUsableDataError(f"{ext.source} holds no points")
-    grid = _grid(_area(params.bounds, area_poly, ext.bounds, target), params, target.to_wkt(),
+    grid = _grid(_area(params.bounds, area_poly, bounds, target), params, target.to_wkt(),
                  ext.source)
     area_wkb = None if area_poly is None else area_poly.buffer(grid.radius).wkb
-    units = window_units(source, kind, grid, ext.bounds, area_wkb=area_wkb, ground=True)
+    units = window_units(source, kind, grid, bounds, area_wkb=area_wkb, ground=True,
+                         crs_wkt=_horizontal(target).to_wkt() if moved or ext.crs is None
+                         else None, moved=moved)
     if not units:
         raise CoverageError(f"{ext.source} does not meet the area {_fmt(grid.bounds)}")
     return Plan(units, grid, ext.source, target, authority_crs(target), [], False)

@@ -270,8 +270,11 @@ def cloud_reader(kind: str) -> tuple[Callable[..., Any], Callable[..., Any]]:
 
 
 def window_units(source: str, kind: str, grid: Grid, extent: Box, *, block: int = 512,
-                 area_wkb: bytes | None, ground: bool) -> list[TileUnit]:
-    """Units of ``block`` x ``block`` cells over the part of ``grid`` the source covers."""
+                 area_wkb: bytes | None, ground: bool, crs_wkt: str | None = None,
+                 moved: bool = False) -> list[TileUnit]:
+    """Units of ``block`` x ``block`` cells over the part of ``grid`` the source covers
+    (``crs_wkt``: the grid's CRS, the source's when it states none (``src_wkt``) or the
+    one its points are reprojected to with ``moved`` (``dst_wkt``))."""
     r = grid.radius
     res = grid.resolution
     c0 = max(0, math.floor((extent[0] - r - grid.origin_x) / res))
@@ -285,7 +288,9 @@ def window_units(source: str, kind: str, grid: Grid, extent: Box, *, block: int 
                    grid.origin_x + min(col + block, c1) * res, grid.top_y - row * res)
             units.append(TileUnit(path=source, grid=grid, box=box, neighbours=(),
                                   area_wkb=area_wkb, ground=ground, kind=kind,
-                                  cells=(row, min(row + block, r1), col, min(col + block, c1))))
+                                  cells=(row, min(row + block, r1), col, min(col + block, c1)),
+                                  src_wkt=None if moved else crs_wkt,
+                                  dst_wkt=crs_wkt if moved else None))
     return units
 
 
@@ -299,9 +304,16 @@ def _window_surfaces(unit: TileUnit) -> TileResult:
     g = unit.grid
     r = g.radius
     b = unit.box
+    area = None if unit.area_wkb is None else shapely.from_wkb(unit.area_wkb)
     try:
-        pts = read(unit.path, bounds=(b[0] - r, b[1] - r, b[2] + r, b[3] + r),
-                   polygon=None if unit.area_wkb is None else shapely.from_wkb(unit.area_wkb))
+        if unit.dst_wkt is not None:  # the source in another CRS: read into the grid's
+            from ..readers.survey import read_survey
+
+            pts = read_survey([unit.path], bbox=(b[0] - r, b[1] - r, b[2] + r, b[3] + r),
+                              polygon=area, to_crs=unit.dst_wkt)
+        else:
+            pts = read(unit.path, bounds=(b[0] - r, b[1] - r, b[2] + r, b[3] + r),
+                       polygon=area, crs=unit.src_wkt)
         x, y, z = (np.asarray(a, dtype=np.float64) for a in (pts.x, pts.y, pts.z))
         c = np.asarray(pts.classification, dtype=np.uint8)
     except NoUsableDataError:

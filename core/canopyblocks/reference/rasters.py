@@ -180,9 +180,10 @@ def make_reference_rasters(
     exe = find_pdal(pdal) if smrf else None
     prog.update(0.0, "reading tile headers")
     kind = cloud_kind(las_paths[0]) if len(las_paths) == 1 else None
-    if kind is None and any(cloud_kind(p) for p in las_paths):
-        raise InputError("a COPC or EPT source is read alone: give it without other tiles "
-                         "or sources (or merge them first)")
+    if kind is None and any(cloud_kind(p) == "ept" or (cloud_kind(p) and "://" in str(p))
+                            for p in las_paths):  # local COPC files among tiles: LAZ tiles
+        raise InputError("a remote COPC or an EPT source is read alone: give it without "
+                         "other tiles or sources (or merge them first)")
     plan = (cloud_plan(str(las_paths[0]), kind, params, crs, area_poly) if kind is not None
             else las_plan(paths, params, crs, area_poly, exe))
     units, grid, names, target = plan.units, plan.grid, plan.names, plan.target

@@ -50,9 +50,10 @@ import pyproj
 import shapely
 
 from ..errors import CanopyBlocksWarning, CRSError, InputError, NoUsableDataError
-from ..geo import as_crs
+from ..geo import as_crs, ground_metres
 from ..progress import Progress, as_progress
-from ..readers.las import LasPoints, las_crs, read_las
+from ..readers.las import LasPoints
+from ..readers.survey import read_survey, source_crs
 from ..reference.datum import apply_vertical_offset, check_vertical_datums
 from ..reference.footprint import FootprintCloud, footprint_reference
 from ..reference.footprint_blocks import block_footprint_reference, estimate_statistic
@@ -151,12 +152,20 @@ def _read_points(points: LasPoints | str | os.PathLike[str] | Sequence[str | os.
     paths = [points] if isinstance(points, (str, os.PathLike)) else list(points)
     if not paths:
         raise InputError("no LAS/LAZ tile given; pass --points TILE.laz")
-    crs = las_crs(paths[0])
+    crs = source_crs(paths[0]).horizontal
     if crs is None:
         if points_crs is None:
             raise CRSError(f"{paths[0]}: the file states no CRS; give the points' CRS")
         crs = as_crs(points_crs, "points CRS")
+    given = crs if points_crs is not None else None
     x, y, lon, lat = _positions(fp, crs, table_crs)
+    to_crs = None
+    if not ground_metres(crs):  # Web Mercator: read into the footprints' UTM zone
+        from ..geo import utm_crs_for
+
+        ok = np.isfinite(lon) & np.isfinite(lat)
+        to_crs = crs = utm_crs_for(lon[ok], lat[ok]) if ok.any() else crs
+        x, y, lon, lat = _positions(fp, crs, table_crs)
     fin = np.isfinite(x) & np.isfinite(y)
     if not fin.any():
         raise NoUsableDataError("no footprint has a finite position; nothing to validate")
@@ -164,7 +173,7 @@ def _read_points(points: LasPoints | str | os.PathLike[str] | Sequence[str | os.
     bbox = (float(x[fin].min() - m), float(y[fin].min() - m), float(x[fin].max() + m),
             float(y[fin].max() + m))
     try:
-        pts = read_las(paths, bbox=bbox, crs=crs if points_crs is not None else None,
+        pts = read_survey(paths, bbox=bbox, crs=given, to_crs=to_crs,
                        exclude_classes=params.exclude_classes, progress=prog,
                        polygon=footprints_area(x[fin], y[fin], m))  # discs, not the box
     except NoUsableDataError:
@@ -441,9 +450,13 @@ def validate_blocks_footprint(
         paths = [points] if isinstance(points, (str, os.PathLike)) else list(points)
         if not paths:
             raise InputError("no LAS/LAZ tile given; pass --points TILE.laz")
-        tiles_crs = las_crs(paths[0]) if points_crs is None \
+        tiles_crs = source_crs(paths[0]).horizontal if points_crs is None \
             else as_crs(points_crs, "points CRS")
-        if tiles_crs is not None and blocks.crs is not None and \
+        # a survey whose metre is not a ground metre (Web Mercator) is read into the
+        # blocks' CRS; any other is used in its own
+        to_crs = blocks.crs if tiles_crs is not None and not ground_metres(tiles_crs) \
+            else None
+        if to_crs is None and tiles_crs is not None and blocks.crs is not None and \
                 not tiles_crs.equals(blocks.crs, ignore_axis_order=True):
             blocks = blocks.to_crs(tiles_crs)   # the tiles' bbox is in their own CRS
             blocks = blocks.assign(x=blocks.geometry.x, y=blocks.geometry.y)
@@ -451,10 +464,10 @@ def validate_blocks_footprint(
         xb, yb = blocks["x"].to_numpy(float), blocks["y"].to_numpy(float)
         bbox = (float(np.nanmin(xb) - m), float(np.nanmin(yb) - m), float(np.nanmax(xb) + m),
                 float(np.nanmax(yb) + m))
-        pts = read_las(paths, bbox=bbox, exclude_classes=params.exclude_classes,
-                       crs=tiles_crs if points_crs is not None else None,
-                       progress=prog.sub(0.0, 0.3),
-                       polygon=footprints_area(xb, yb, m))  # the corridor, not the box
+        pts = read_survey(paths, bbox=bbox, exclude_classes=params.exclude_classes,
+                          crs=tiles_crs if points_crs is not None else None,
+                          progress=prog.sub(0.0, 0.3), to_crs=to_crs,
+                          polygon=footprints_area(xb, yb, m))  # the corridor, not the box
     if not pts.crs.equals(blocks.crs, ignore_axis_order=True):
         blocks = blocks.to_crs(pts.crs)
         blocks = blocks.assign(x=blocks.geometry.x, y=blocks.geometry.y)

@@ -89,6 +89,10 @@ def calibrate_bias_file(
         raise InputError("the corridor reference needs --dtm, --dsm-max and --dsm-p90")
     if reference == "footprint" and not points:
         raise InputError("the footprint reference needs the airborne tiles (--points)")
+    if points:  # the survey as every command takes it (folders, patterns, .vpc, COPC, EPT)
+        from .rasters import survey_tiles
+
+        points = survey_tiles(points)
     if crs is None and dtm is not None:
         horizontal = raster_horizontal_crs(dtm)
         crs = None if horizontal is None else horizontal.to_wkt()

@@ -24,42 +24,23 @@ CORRIDOR_MARGIN = 30.0
 """Metres kept around a corridor's half-width: the co-registration search (+-15 m),
 terrain slope and context for the DTM fill."""
 
-_TILE_SUFFIXES = (".las", ".laz")
-
-
 def survey_tiles(sources: str | os.PathLike[str] | Sequence[str | os.PathLike[str]]
                  ) -> list[Any]:
-    """The LAS/LAZ tiles of ``sources``: files as given, folders expanded (sorted); a COPC
-    file or EPT dataset (``*.copc.laz``, ``ept.json``; a path or an ``https://``/``s3://``
-    URL) as its string.
+    """The point-cloud sources of a survey argument, the one resolver of every command:
+    LAS/LAZ files as given, folders expanded (sorted), glob patterns expanded, a ``.vpc``
+    as the tiles it names; a COPC file or EPT dataset (``*.copc.laz``, ``ept.json``; a
+    path or an ``https://``/``s3://`` URL) as its string
+    (:func:`~canopyblocks.readers.survey.survey_sources`).
 
     Raises
     ------
     InputError
-        A folder holding no ``.las``/``.laz`` file, or no source at all.
+        A folder or pattern holding no tile, or no source at all.
     """
-    from ..errors import InputError
+    from ..readers.survey import survey_sources
     from ..readers.tile_checks import duplicate_tiles
-    from ..reference.raster_tiles import cloud_kind
 
-    items = [sources] if isinstance(sources, (str, os.PathLike)) else list(sources)
-    out: list[Any] = []
-    for item in items:
-        if cloud_kind(item) is not None or "://" in str(item):
-            out.append(str(item))  # a COPC/EPT source (a URL stays a string)
-            continue
-        p = Path(item)
-        if p.is_dir():
-            found = sorted(q for q in p.iterdir()
-                           if q.is_file() and q.suffix.lower() in _TILE_SUFFIXES)
-            if not found:
-                raise InputError(f"the folder {p} holds no .las or .laz file; give a folder "
-                                 "of LAS/LAZ tiles or the tiles themselves")
-            out.extend(found)
-        else:
-            out.append(p)
-    if not out:
-        raise InputError("no LAS/LAZ tile given")
+    out = survey_sources(sources)
     return duplicate_tiles(out)[0]  # the same points given twice: counted once, warned
 
 
@@ -149,6 +130,31 @@ def pool_runner(backend: str = "processes", workers: int | None = None,
     return run
 
 
+def _metric_output(tiles: Sequence[Any]) -> Any:
+    """None (the survey's own CRS) when its metre is a ground metre; else the UTM zone of
+    its centre, with a warning: a Web Mercator survey's "2 m" cells would be 2 m of the
+    projection (1.27 m on the ground at 50.7 N)."""
+    import warnings
+
+    from ..errors import CanopyBlocksWarning
+    from .survey import working_crs
+
+    own = _own_crs(tiles[0])
+    utm = working_crs(tiles) if own is not None else None
+    if utm is None or own.equals(utm, ignore_axis_order=True):
+        return None
+    warnings.warn(f"{tiles[0]} is in {own.name}, whose metre is not a metre on the ground: "
+                  f"the rasters are made in {utm.name} (EPSG:{utm.to_epsg()}); give --crs "
+                  "to choose another metric CRS", CanopyBlocksWarning, stacklevel=3)
+    return utm.to_wkt()
+
+
+def _own_crs(source: Any) -> Any:
+    from ..readers.survey import source_crs
+
+    return source_crs(source).horizontal
+
+
 def make_survey_rasters(
     sources: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
     out_dir: str | os.PathLike[str],
@@ -192,6 +198,9 @@ def make_survey_rasters(
         backend = "dask"
     cancelled = prog.cancelled
     runner = pool_runner(backend, workers, scheduler, cancelled)
-    return make_reference_rasters(survey_tiles(sources), out_dir, resolution=resolution,
+    tiles = survey_tiles(sources)
+    if crs is None:
+        crs = _metric_output(tiles)
+    return make_reference_rasters(tiles, out_dir, resolution=resolution,
                                   crs=crs, bounds=bounds, polygon=polygon, ground=ground,
                                   pdal=pdal, progress=prog, runner=runner)

@@ -250,6 +250,10 @@ def validate_file(
     if coregister and dtm is None:
         raise InputError("co-registration needs the DTM: give --dtm (and --dsm-max to use "
                          "the canopy surface too)")
+    if points:  # the survey as every command takes it (folders, patterns, .vpc, COPC, EPT)
+        from .rasters import survey_tiles
+
+        points = survey_tiles(points)
     footprints = is_footprint_table(path)
     if footprints:
         table = read_layer(path, LAYER_FOOTPRINTS) if Path(path).suffix.lower() == ".gpkg" \
@@ -499,7 +503,10 @@ def validate_footprints_file(
     if plots is not None:
         check_writable(plots, folder=True)
     table = read_layer(src, layer if src.suffix.lower() == ".gpkg" else None)
-    result = validate_footprints(table, las_paths, progress=progress, **kwargs)  # type: ignore[arg-type]
+    from .rasters import survey_tiles
+
+    result = validate_footprints(table, survey_tiles(las_paths), progress=progress,
+                                 **kwargs)  # type: ignore[arg-type]
     ctx = new_files_removed_on_failure(plots) if plots is not None else None
     if ctx is not None:
         with ctx:

@@ -2,14 +2,15 @@
 batch``.
 
 1. Tile index (headers) and units (granule, beam, tiles crossed).
-2. Reference rasters once per tile (``out/rasters/<tile>/``), reused by every unit and
-   every rerun.
-3. Units run serially, in local processes or on Dask; each writes its partition
+2. Units run serially, in local processes or on Dask; each writes its partition
    ``out/parts/<granule>/<beam>/{blocks,residuals}.parquet``; the manifest
    ``out/manifest.json`` records every unit's status, counts, warnings and error.
+   Each unit makes the survey's reference rasters over its beam's corridor
+   (``out/rasters/<granule>/<beam>/``; every tile of the unit together, as ``run`` does,
+   so the two give the same blocks and residuals).
    A rerun skips units whose partition is complete; a failed unit is reported and the
    others go on.
-4. A reduce reads the partitions in unit order and writes one merged table of every
+3. A reduce reads the partitions in unit order and writes one merged table of every
    unit's validated blocks, ``out/residuals.parquet`` (:func:`merged_residuals`),
    ``out/stats.csv`` and ``out/report.html``. The same inputs give byte-identical outputs
    on every backend.
@@ -31,7 +32,7 @@ import pandas as pd
 from ...atomic import atomic_output, check_writable, record_written
 from ...errors import CanopyBlocksWarning, InputError, NoUsableDataError
 from ...progress import Progress, as_progress
-from ...readers.tile_checks import check_tile_datums, duplicate_tiles
+from ...readers.tile_checks import check_tile_datums
 from ..backends import BACKENDS, Backend, run_items
 from .cleanup import (
     complete_outputs,
@@ -40,7 +41,7 @@ from .cleanup import (
     remove_partial_outputs,
 )
 from .units import Unit, drop_duplicate_granules, find_units, list_inputs, tile_index
-from .work import BatchConfig, build_tile_rasters, run_unit
+from .work import BatchConfig, corridor_reach, run_unit
 
 __all__ = ["BatchResult", "run_batch", "MANIFEST"]
 
@@ -123,9 +124,11 @@ def run_batch(granules: Sequence[str | os.PathLike[str]],
     ----------
     granules : sequence of path
         ATL03 files, or folders of them (``*.h5``).
-    tiles : sequence of path
-        LAS/LAZ tiles, or folders of them, in one CRS or several (e.g. UTM zones: each
-        unit is validated on the tiles of one CRS; the merged table is in the first's).
+    tiles : sequence of path or URL
+        The airborne survey: LAS/LAZ tiles, folders, glob patterns, a ``.vpc``, COPC
+        files or EPT datasets (as :func:`~canopyblocks.workflows.rasters.survey_tiles`
+        resolves them), in one CRS or several (e.g. UTM zones: each unit is validated on
+        the tiles of one CRS; the merged table is in the first's).
     out_dir : path
         Output folder (created; reused by a rerun).
     config : BatchConfig, optional
@@ -174,7 +177,9 @@ def run_batch(granules: Sequence[str | os.PathLike[str]],
         raise InputError(f"backend must be one of {', '.join(BACKENDS)}; got {backend!r}")
     out = Path(out_dir)
     g_paths = drop_duplicate_granules(list_inputs(granules, (".h5",)))
-    t_paths = duplicate_tiles(list_inputs(tiles, (".las", ".laz")))[0]  # same points once
+    from ..rasters import survey_tiles
+
+    t_paths = [str(t) for t in survey_tiles(tiles)]
     refuse_output_in_inputs(out, [*granules, *tiles])
     check_writable(out, folder=True)
     prog.update(0.0, "indexing tiles and tracks")
@@ -198,10 +203,10 @@ def run_batch(granules: Sequence[str | os.PathLike[str]],
 def _check_datums(cfg: BatchConfig, tile: str) -> None:
     """The one datum rule, before any work (each unit's validation applies it again)."""
     from ...errors import DatumError
-    from ...readers.las_crs import las_file_crs
+    from ...readers.survey import source_crs
     from ...reference.datum import check_vertical_datums
 
-    ref = cfg.reference_vcrs if cfg.reference_vcrs is not None else las_file_crs(tile).crs
+    ref = cfg.reference_vcrs if cfg.reference_vcrs is not None else source_crs(tile).crs
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # "unknown" is warned by each unit's validation
         try:
@@ -217,7 +222,8 @@ def _run(g_paths: list[str], index: list, out: Path, cfg: BatchConfig, *,
          prog: Progress, tmp: str) -> BatchResult:
     problems: dict[str, str] = {}
     missed: dict[str, str] = {}
-    units = find_units(g_paths, index, beams=beams, problems=problems, missed=missed)
+    units = find_units(g_paths, index, beams=beams, problems=problems, missed=missed,
+                       reach=corridor_reach(cfg))
     if not units:
         detail = "; ".join(f"{k}: {v}" for k, v in problems.items())
         raise NoUsableDataError(f"none of the {len(g_paths)} granule(s) crosses any of the "
@@ -240,15 +246,8 @@ def _run(g_paths: list[str], index: list, out: Path, cfg: BatchConfig, *,
     if skipped:
         log.info("%d of %d units already complete: skipped", skipped, len(units))
     raster_root = out / "rasters"
-    needed = sorted({t for u in todo for t in u.tiles}, key=lambda t: t.path)
-    prog.update(0.05, f"reference rasters for {len(needed)} tile(s)")
-    run_items(functools.partial(build_tile_rasters, raster_root=str(raster_root),
-                                resolution=cfg.resolution), needed, backend=backend,
-              workers=workers, scheduler=scheduler,
-              cancelled=lambda: _cancel_requested(prog), tmpdir=tmp)
-    prog.check()
     done_count = [0]
-    unit_prog = prog.sub(0.2, 0.9)
+    unit_prog = prog.sub(0.05, 0.9)
 
     def done(summary: dict) -> None:
         manifest[summary["key"]] = summary

@@ -151,14 +151,14 @@ def drop_duplicate_granules(paths: Sequence[str]) -> list[str]:
 def tile_index(paths: Sequence[str | os.PathLike[str]]) -> list[Tile]:
     """Header extents and CRSs of the tiles (tiles may be in several CRSs, e.g. UTM zones:
     each unit is validated on tiles of one CRS)."""
-    from ...readers.las import las_bounds, las_crs
+    from ...readers.survey import source_extent
 
     tiles = []
     for p in paths:
-        crs = las_crs(p)
+        bounds, crs = source_extent(p)
         if crs is None:
             raise CRSError(f"{p} states no CRS; batch needs tiles with a CRS in their header")
-        tiles.append(Tile(str(p), tuple(float(v) for v in las_bounds(p)),  # type: ignore[arg-type]
+        tiles.append(Tile(str(p), tuple(float(v) for v in bounds),  # type: ignore[arg-type]
                           crs.to_wkt()))
     return tiles
 
@@ -175,10 +175,12 @@ def track_line(granule: str, beam: str) -> tuple[np.ndarray, np.ndarray]:
 
 
 def find_units(granules: Sequence[str], tiles: Sequence[Tile], *,
-               beams: Sequence[str] = (), buffer: float = 10.0,
+               beams: Sequence[str] = (), buffer: float = 10.0, reach: float = 0.0,
                problems: dict[str, str] | None = None,
                missed: dict[str, str] | None = None) -> list[Unit]:
-    """Every (granule, beam) whose track line passes within ``buffer`` m of a tile.
+    """Every (granule, beam) whose track line passes within ``buffer`` m of a tile, with
+    every tile within ``max(buffer, reach)`` m of its track line (the tiles its corridor
+    rasters read).
 
     Units are sorted by granule then beam, so a batch is deterministic. A granule that
     cannot be read is left out; with ``problems`` given, its error is recorded there
@@ -219,7 +221,9 @@ def find_units(granules: Sequence[str], tiles: Sequence[Tile], *,
                 x, y = to_tiles.transform(lon, lat)
                 track = shapely.LineString(np.column_stack([x, y]))
                 line = track.buffer(buffer)
-                hit = [t for t, box in zip(group, boxes) if line.intersects(box)]
+                near = track.buffer(max(buffer, reach))
+                hit = [t for t, box in zip(group, boxes) if near.intersects(box)] \
+                    if any(line.intersects(box) for box in boxes) else []
                 if hit:
                     hits.append(hit)
                 else:

@@ -1,5 +1,6 @@
 """One unit of batch work, run in any process: photons of one beam over its tiles ->
-blocks -> validation against each tile's rasters -> partition files.
+blocks -> the survey's corridor rasters (as ``run`` makes them) -> validation -> partition
+files.
 
 Pure function of its arguments (picklable, no shared state), so serial, process-pool
 and Dask runs write identical partitions.
@@ -26,7 +27,7 @@ from .units import Tile, Unit
 if TYPE_CHECKING:
     from ...photons import PhotonTrack
 
-__all__ = ["BatchConfig", "run_unit", "raster_paths", "build_tile_rasters"]
+__all__ = ["BatchConfig", "run_unit", "raster_paths", "corridor_reach"]
 
 log = logging.getLogger(__name__)
 
@@ -89,20 +90,18 @@ class BatchConfig:
             raise InputError("give either a geoid raster or a constant offset, not both")
 
 
-def raster_paths(raster_root: Path, tile: Tile) -> dict[str, Path]:
-    """Where a tile's three reference rasters live."""
-    d = raster_root / tile.name
+def raster_paths(raster_root: Path, unit: Unit) -> dict[str, Path]:
+    """Where a unit's three corridor rasters live (``rasters/<granule>/<beam>/``)."""
+    d = raster_root / unit.partition
     return {n: d / f"{n}.tif" for n in RASTER_NAMES}
 
 
-def build_tile_rasters(tile: Tile, raster_root: str, resolution: float) -> str:
-    """Build a tile's rasters once (skipped when all three exist); returns the tile name."""
-    from ...reference.rasters import make_reference_rasters
+def corridor_reach(config: BatchConfig) -> float:
+    """Metres from a track within which a tile's points enter its corridor rasters (as
+    ``run`` reads them: half the corridor, half the longest block and the margin)."""
+    from ..rasters import CORRIDOR_MARGIN
 
-    paths = raster_paths(Path(raster_root), tile)
-    if not all(p.exists() for p in paths.values()):
-        make_reference_rasters([tile.path], paths["dtm"].parent, resolution=resolution)
-    return tile.name
+    return 0.5 * config.width + 0.5 * max(config.lengths) + CORRIDOR_MARGIN
 
 
 def _block_tile(blocks: pd.DataFrame, tiles: tuple[Tile, ...], crs: pyproj.CRS) -> np.ndarray:
@@ -168,41 +167,51 @@ def _utc(granule: str, delta_time: np.ndarray) -> np.ndarray:
     return utc_from_delta_time(delta_time).astype("datetime64[ms]").astype("datetime64[ns]")
 
 
+def _lonlat_box(unit: Unit, tcrs: pyproj.CRS, reach: float
+                ) -> tuple[float, float, float, float]:
+    """The unit's tiles' union widened by ``reach`` metres, in degrees (lon/lat box)."""
+    b = np.array([t.bounds for t in unit.tiles])
+    x0, y0 = b[:, 0].min() - reach, b[:, 1].min() - reach
+    x1, y1 = b[:, 2].max() + reach, b[:, 3].max() + reach
+    to_ll = pyproj.Transformer.from_crs(tcrs, "EPSG:4326", always_xy=True)
+    lon, lat = to_ll.transform(np.array([x0, x1, x0, x1]), np.array([y0, y0, y1, y1]))
+    return float(np.min(lon)), float(np.min(lat)), float(np.max(lon)), float(np.max(lat))
+
+
 def _work(unit: Unit, config: BatchConfig, out_dir: Path, raster_root: Path,
           summary: dict) -> None:
+    """One unit as ``run`` does it: the beam's blocks, the survey's corridor rasters
+    around them (every tile of the unit together, so blocks over a seam between tiles
+    see both), the blocks validated against them."""
     from ...blocks import BlockParams
     from ...blocks.estimators import estimate_blocks, preset
+    from ...errors import CoverageError
     from ...outputs.tables import write_table
     from ...validation.block_validation import validate_blocks
     from ..blocks import read_tracks
+    from ..rasters import corridor_area, make_survey_rasters
 
     tcrs = pyproj.CRS.from_wkt(unit.tiles[0].crs_wkt)
-    b = np.array([t.bounds for t in unit.tiles])
-    to_ll = pyproj.Transformer.from_crs(tcrs, "EPSG:4326", always_xy=True)
-    xs = np.array([b[:, 0].min(), b[:, 2].max(), b[:, 0].min(), b[:, 2].max()])
-    ys = np.array([b[:, 1].min(), b[:, 1].min(), b[:, 3].max(), b[:, 3].max()])
-    lon, lat = to_ll.transform(xs, ys)
-    bbox = (float(np.min(lon)), float(np.min(lat)), float(np.max(lon)), float(np.max(lat)))
-    tracks = read_tracks(unit.granule, beams=[unit.beam], bbox=bbox, crs=tcrs,
+    tracks = read_tracks(unit.granule, beams=[unit.beam],
+                         bbox=_lonlat_box(unit, tcrs, corridor_reach(config)), crs=tcrs,
                          min_signal_conf=config.min_signal_conf)
     params = BlockParams(lengths=config.lengths, min_signal_conf=config.min_signal_conf)
     blocks = estimate_blocks(tracks[0], params, preset(config.preset))
     summary["n_blocks"] = int(len(blocks))
-    where = _block_tile(blocks, unit.tiles, blocks.crs)
-    parts = []
-    for i, tile in enumerate(unit.tiles):
-        sub = blocks[where == i]
-        if len(sub) < 2:
-            continue
-        r = raster_paths(raster_root, tile)
-        res = validate_blocks(sub, dtm=r["dtm"], dsm_max=r["dsm_max"], dsm_p90=r["dsm_p90"],
-                              width=config.width, offset=config.offset, geoid=config.geoid,
-                              photon_vertical_crs=config.photon_vcrs,
-                              reference_vertical_crs=config.reference_vcrs)
-        parts.append(res.residuals.assign(tile=Path(tile.path).name))
-    if not parts:
-        raise NoUsableDataError(f"{unit.key}: no block lies on its tiles")
-    residuals = pd.concat(parts, ignore_index=True)
+    r = raster_paths(raster_root, unit)
+    try:
+        make_survey_rasters([t.path for t in unit.tiles], r["dtm"].parent,
+                            resolution=config.resolution, crs=blocks.crs,
+                            polygon=corridor_area(blocks, config.width), backend="serial")
+    except CoverageError as exc:
+        raise NoUsableDataError(f"{unit.key}: no block lies on its tiles ({exc})") from None
+    res = validate_blocks(blocks, dtm=r["dtm"], dsm_max=r["dsm_max"], dsm_p90=r["dsm_p90"],
+                          width=config.width, offset=config.offset, geoid=config.geoid,
+                          photon_vertical_crs=config.photon_vcrs,
+                          reference_vertical_crs=config.reference_vcrs)
+    where = _block_tile(res.residuals, unit.tiles, blocks.crs)
+    names = np.array([Path(t.path).name for t in unit.tiles] + [""], dtype=object)
+    residuals = res.residuals.assign(tile=names[where])
     residuals.insert(0, "granule", Path(unit.granule).name)
     if "time" not in residuals.columns and {"s_start", "s_end"} <= set(residuals.columns):
         residuals["time"] = _block_time(tracks[0], residuals["s_start"].to_numpy(float),

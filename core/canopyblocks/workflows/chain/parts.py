@@ -25,18 +25,19 @@ __all__: list[str] = []
 log = logging.getLogger(__name__)
 
 
-def _simulate(las_paths: Sequence[Path], out: Path, *, azimuth: float, diameter: float,
-              photon_rate: str, seed: int, realisations: int, progress: Progress
-              ) -> tuple[Path, Any, pd.DataFrame | None, Path | None]:
-    """Simulate one beam over the tiles; with ``realisations`` > 0 also the study of the
-    simulated photons against truth (13 and 17 m footprints) with its table and figure."""
-    from ...readers.las import read_las
+def _simulate(las_paths: Sequence[Any], out: Path, *, azimuth: float, diameter: float,
+              photon_rate: str, seed: int, realisations: int, progress: Progress,
+              crs: Any = None) -> tuple[Path, Any, pd.DataFrame | None, Path | None]:
+    """Simulate one beam over the tiles (their points reprojected to ``crs`` when it is
+    not theirs); with ``realisations`` > 0 also the study of the simulated photons against
+    truth (13 and 17 m footprints) with its table and figure."""
+    from ...readers.survey import read_survey
     from ...simulate import SimParams, line_through, seed002_experiment, simulate_photons
     from ...simulate.plots import plot_cover_residuals
     from ...simulate.writers import write_simulation_atl03
 
     try:
-        points = read_las(list(las_paths), progress=progress.sub(0.0, 0.2))
+        points = read_survey(list(las_paths), progress=progress.sub(0.0, 0.2), to_crs=crs)
     except FileFormatError:
         progress.check()  # read_las reports a cancellation as a read error
         raise

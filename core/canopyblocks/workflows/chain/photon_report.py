@@ -68,7 +68,7 @@ def photon_report(out: Path, *, tiles: list[Path], photons: Any, simulated: bool
         sections.append(paper_section(lead_result(paper, facts, ref_kind), lead=lr))
     sections.append(ReportSection("Inputs", [
         source,
-        "Airborne tiles: " + ", ".join(t.name for t in tiles) + ".",
+        "Airborne tiles: " + ", ".join(source_name(t) for t in tiles) + ".",
         f"Block lengths {', '.join(f'{v:g}' for v in params.lengths)} m; corridor width "
         f"{width:g} m; reference rasters at {resolution:g} m from PDAL; vertical datums: "
         + ("the tiles' own (the photons were simulated from them)." if simulated else datum),

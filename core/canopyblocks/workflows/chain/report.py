@@ -24,6 +24,7 @@ import numpy as np
 import pandas as pd
 
 from ...outputs.report import ReportSection, report_stats_table
+from ...readers.remote import source_name
 
 __all__ = ["LeadResult", "estimators_sentence", "lead_numbers", "summary_section",
            "paper_section", "summary_lines", "datum_sentence", "bias_calibration_part",
@@ -211,7 +212,7 @@ def counts_sentence(table: pd.DataFrame, what: str = "blocks") -> str:
 
 
 def summary_section(lead: LeadResult, *, source: str, n_tracks: int, n_photons: int,
-                    beams: Sequence[str], lengths: Sequence[float], tiles: Sequence[Path],
+                    beams: Sequence[str], lengths: Sequence[float], tiles: Sequence[Any],
                     n_blocks: int, map_png: Path | None) -> ReportSection:
     """The report's first section."""
     table = lead_numbers(lead.facts)
@@ -221,7 +222,7 @@ def summary_section(lead: LeadResult, *, source: str, n_tracks: int, n_photons: 
             f"blocks) from {n_photons:,} photons of {n_tracks} "
             f"{'beam' if n_tracks == 1 else 'beams'} "
             f"({', '.join(beams) or 'none'}) of {source}, validated against the airborne "
-            f"lidar tiles {', '.join(t.name for t in tiles)}.")
+            f"lidar tiles {', '.join(source_name(t) for t in tiles)}.")
     who = (f"The recommended estimators, '{lead.name}'" if lead.recommended
            else f"The estimators used, '{lead.name}'")
     paras = [what, f"{who} ({estimators_sentence(lead.estimators)}), against the "

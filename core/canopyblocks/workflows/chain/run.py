@@ -10,7 +10,6 @@ import logging
 import math
 import os
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 from ...atomic import check_writable, new_files_removed_on_failure
@@ -61,8 +60,11 @@ def run_chain(
 
     Parameters
     ----------
-    las_paths : sequence of path
-        Airborne LAS/LAZ tiles (metric CRS) covering the track.
+    las_paths : sequence of path or URL
+        The airborne survey (metric CRS) covering the track: LAS/LAZ tiles, folders,
+        glob patterns, a ``.vpc``, a COPC file or an EPT ``ept.json`` (paths or
+        ``https://``/``s3://`` URLs), as :func:`~canopyblocks.workflows.rasters.survey_tiles`
+        resolves them.
     out_dir : path
         Output folder: ``photons_atl03.h5`` (when simulated), ``blocks.gpkg``,
         ``rasters/{dtm,dsm_max,dsm_p90}.tif``, ``validation.gpkg`` (layers ``residuals``,
@@ -158,13 +160,11 @@ def run_chain(
                       stacklevel=2)
         photon_rate = preset
     prog = as_progress(progress)
-    from ...readers.tile_checks import duplicate_tiles
+    from ..rasters import survey_tiles
     from .flash_dual import waveform_chain
 
-    # the same points given twice (a copy, a link, a crop) are read once, with a warning
-    single = isinstance(las_paths, (str, os.PathLike))
-    las_paths = duplicate_tiles([las_paths] if single else list(las_paths))[0]
-    waveform = waveform_chain(las_paths, out_dir, photons, sensor, beams=beams,
+    tiles = survey_tiles(las_paths)  # folders, patterns, .vpc, COPC, EPT: one resolver
+    waveform = waveform_chain(tiles, out_dir, photons, sensor, beams=beams,
                                azimuth=azimuth, seed=seed, geoid=geoid, offset=offset,
                                options=sensor_options, noise=noise, progress=prog)
     if waveform is not None:
@@ -184,7 +184,7 @@ def run_chain(
                "reference_statistic": reference_statistic}
     with new_files_removed_on_failure(out):
         out.mkdir(parents=True, exist_ok=True)
-        st = RunState(out=out, tiles=[Path(p) for p in las_paths],
+        st = RunState(out=out, tiles=tiles,
                       params=params or BlockParams(lengths=(10.0, 25.0, 50.0)),
                       options=options, prog=prog)
         for stage in (photons_stage, blocks_stage, rasters_stage, validation_stage,

@@ -48,7 +48,7 @@ class RunState:
     """What the stages of one photon run hand on (filled stage by stage)."""
 
     out: Path
-    tiles: list[Path]
+    tiles: list[Any]               # the survey's sources (survey_tiles)
     params: BlockParams
     options: dict[str, Any]          # run_chain's keyword arguments, as given
     prog: Progress
@@ -94,6 +94,7 @@ class RunState:
 def photons_stage(st: RunState) -> None:
     """Simulated photons (their heights are the tiles' own: one datum by construction),
     or the file's, checked against the tiles' datum before minutes of work."""
+    from ..survey import working_crs
     from .parts import _simulate
 
     o = st.options
@@ -104,7 +105,7 @@ def photons_stage(st: RunState) -> None:
         st.photons, st.crs, st.truth_table, st.truth_png = _simulate(
             st.tiles, st.out, azimuth=o["azimuth"], diameter=o["diameter"],
             photon_rate=o["photon_rate"], seed=o["seed"], realisations=o["realisations"],
-            progress=st.prog.sub(0.0, 0.25))
+            progress=st.prog.sub(0.0, 0.25), crs=working_crs(st.tiles))
         st.offset, st.geoid = 0.0, None
         st.photon_vcrs = _tiles_crs(st.tiles) or st.crs
         st.width = o["diameter"] if st.width is None else st.width
@@ -112,6 +113,7 @@ def photons_stage(st: RunState) -> None:
     if not st.simulated:
         from ...reference.datum import check_vertical_datums
 
+        st.crs = working_crs(st.tiles)  # the survey's CRS (UTM when it is Web Mercator)
         check_vertical_datums("EPSG:4979", st.ref_vcrs, geoid=st.geoid, offset=st.offset)
 
 

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
 
@@ -23,12 +22,12 @@ def _vertical_name(crs: Any) -> str | None:
     return None
 
 
-def _tiles_crs(tiles: Sequence[Path]) -> Any:
+def _tiles_crs(tiles: Sequence[Any]) -> Any:
     """The tiles' full (compound) CRS as their header states it (WKT or GeoTIFF keys,
     read by the one LAS CRS reader): the vertical datum of every raster made from them,
     also after reprojection; None when unstated."""
-    from ...readers.las_crs import las_file_crs
+    from ...readers.survey import source_crs
     from ...readers.tile_checks import check_tile_datums
 
     check_tile_datums(tiles)  # tiles in two vertical datums: refused
-    return las_file_crs(tiles[0]).crs
+    return source_crs(tiles[0]).crs
