@@ -17,7 +17,6 @@ Labels (per length, as the engine's): noise, ground, between (canopy, class 2), 
 
 from __future__ import annotations
 
-from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -81,11 +80,9 @@ def atl08_block_table(track: PhotonTrack, params: BlockParams, classes: Atl08Cla
                       labels: bool = False, progress: Progress | None = None
                       ) -> tuple[gpd.GeoDataFrame, dict[float, np.ndarray]]:
     """The block table (DESIGN 5 columns) from the classes; labels per length if asked."""
-    from .engine import compute_blocks
+    from .engine import block_skeleton
 
-    skeleton = compute_blocks(track, replace(params, noise="none", min_signal_conf=None),
-                              progress=progress)
-    blocks = skeleton.copy()
+    blocks = block_skeleton(track, params, progress)
     cls = classes.classes
     s = np.asarray(track.s, float)
     hrel = classes.height

@@ -220,7 +220,7 @@ def block_features(track: PhotonTrack, classes: Atl08Classes, s_start: np.ndarra
     n = a.size
     s = np.asarray(track.s, float)
     cls = classes.classes
-    j = np.searchsorted(a, s, side="right") - 1
+    j = _interval_of(s, a)
     ok = (cls >= 0) & (j >= 0) & np.isfinite(s)
     jj = np.clip(j, 0, max(n - 1, 0))
     ok &= s < b[jj] if n else np.zeros_like(ok)
@@ -229,9 +229,13 @@ def block_features(track: PhotonTrack, classes: Atl08Classes, s_start: np.ndarra
     def count(mask: np.ndarray) -> np.ndarray:
         return np.bincount(row[mask], minlength=n).astype(float)
 
-    n_all = count(np.ones(row.size, bool))
+    # the photons of each class per interval, in one count (classes 0-3)
+    by_class = np.bincount(row * 4 + c, minlength=4 * n).reshape(n, 4).astype(float) \
+        if c.size and int(c.max()) <= 3 else np.column_stack(
+            [count(c == k) for k in range(4)]).reshape(n, 4)
+    n_all = by_class.sum(axis=1)
     gr = c == CLASS_GROUND
-    n_ground = count(gr)
+    n_ground = by_class[:, CLASS_GROUND]
     with np.errstate(invalid="ignore", divide="ignore"):
         bg = np.bincount(row, classes.background[ok], minlength=n) / n_all
         hg = classes.height[ok][gr]
@@ -265,12 +269,22 @@ def block_features(track: PhotonTrack, classes: Atl08Classes, s_start: np.ndarra
             "canopy_gradient": _canopy_gradient(s[ok] - a[row], row, c, hn, n),
             "geo_sigma": geo_b,
             "n_noise_top": count(above), "n_noise_ground": count(near_ground),
-            "n_canopy": count((c == CLASS_CANOPY) | (c == CLASS_TOP)),
-            "n_top": count(c == CLASS_TOP), "n_noise": count(c == CLASS_NOISE),
+            "n_canopy": by_class[:, CLASS_CANOPY] + by_class[:, CLASS_TOP],
+            "n_top": by_class[:, CLASS_TOP], "n_noise": by_class[:, CLASS_NOISE],
             "n_all": n_all, "background": np.where(np.isfinite(bg), bg, 0.0),
             "ground_spread": spread, "ground_offset": np.where(n_ground > 0, m1, np.nan),
             "relief": relief, "slope": slope, "length": b - a,
             "hmax": np.asarray(hmax, float)}
+
+
+def _interval_of(s: np.ndarray, a: np.ndarray) -> np.ndarray:
+    """Per photon, the last interval start ``a`` (sorted) at or before its ``s`` (-1: none):
+    ``np.searchsorted(a, s, side="right") - 1``; for photons in along-track order the
+    same from the intervals' first photons (one search per interval, not per photon)."""
+    if s.size < 2 or not bool(np.all(s[1:] >= s[:-1])):  # (NaN: False)
+        return np.searchsorted(a, s, side="right") - 1
+    first = np.searchsorted(s, a, side="left")  # photons before each start
+    return np.repeat(np.arange(-1, a.size), np.diff(first, prepend=0, append=s.size))
 
 
 #: Step of the canopy-top profile whose slope measures a block's canopy relief, m.
@@ -293,17 +307,32 @@ def _canopy_gradient(ds: np.ndarray, row: np.ndarray, cls: np.ndarray, height: n
     out = np.zeros(n)
     if not h.size:
         return out
-    order = np.lexsort((h, k, r))
-    r, k, h = r[order], k[order], h[order]
-    last = np.ones(r.size, bool)
-    last[:-1] = (r[1:] != r[:-1]) | (k[1:] != k[:-1])
-    r, k, h = r[last], k[last], h[last]  # one top per (block, step)
+    r, k, h = _step_tops(r, k, h)  # one top per (block, step), in (block, step) order
     nb = (r[1:] == r[:-1]) & (k[1:] == k[:-1] + 1)
     d2 = ((h[1:] - h[:-1]) / CANOPY_STEP) ** 2
     num = np.bincount(r[1:][nb], d2[nb], minlength=n)
     cnt = np.bincount(r[1:][nb], minlength=n)
     np.divide(num, cnt, out=out, where=cnt > 0)
     return np.minimum(np.sqrt(out), 3.0)
+
+
+def _step_tops(r: np.ndarray, k: np.ndarray, h: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The highest ``h`` of each (``r``, ``k``) pair, pairs in ascending order. Photons in
+    along-track order come in (block, step) order already: each run's maximum then, by one
+    ``np.maximum.reduceat`` (no sort); else a sort by (r, k, h) and each run's last."""
+    new = np.empty(r.size, bool)
+    new[0] = True
+    np.not_equal(r[1:], r[:-1], out=new[1:])
+    new[1:] |= k[1:] != k[:-1]
+    if bool(np.all(r[1:] >= r[:-1])) and bool(np.all((k[1:] >= k[:-1]) | new[1:])):
+        first = np.flatnonzero(new)
+        return r[first], k[first], np.maximum.reduceat(h, first)
+    order = np.lexsort((h, k, r))
+    r, k, h = r[order], k[order], h[order]
+    last = np.ones(r.size, bool)
+    last[:-1] = (r[1:] != r[:-1]) | (k[1:] != k[:-1])
+    return r[last], k[last], h[last]
 
 
 def geolocation_sigma(f: dict[str, np.ndarray] | pd.DataFrame, model: SigmaModel | None = None

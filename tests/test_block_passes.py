@@ -1,0 +1,93 @@
+"""The block table's and the per-block sigma features' one-pass paths over photons in
+along-track order give the same bits as the general paths (sorts, searches, the paper's
+engine) they stand in for: checked on random tracks, sorted and not, with ties, gaps and
+windows that cut the track."""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import replace
+
+import numpy as np
+import pandas as pd
+import pytest
+from pyproj import CRS
+
+from canopyblocks.blocks import BlockParams
+from canopyblocks.blocks.engine import block_skeleton, compute_blocks
+from canopyblocks.blocks.uncertainty import _interval_of, _step_tops
+from canopyblocks.photons import PhotonTrack
+
+SKELETON = ["track", "length", "block", "s_start", "s_end", "x", "y", "lon", "lat",
+            "n_photons"]
+
+
+def _track(seed: int, n: int, gaps: bool) -> PhotonTrack:
+    rng = np.random.default_rng(seed)
+    s = np.sort(rng.random(n) * n / 7.0) + 1234.5
+    if gaps:  # empty stretches: blocks missing from the table
+        s[n // 3:] += 500.0
+        s[2 * n // 3:] += 1e4
+    s[5:9] = s[5]  # ties
+    h = 300.0 + rng.normal(0.0, 5.0, n)
+    x = 500_000.0 + s * 0.8 + rng.normal(0.0, 1.0, n)
+    y = 4_000_000.0 + s * 0.6
+    return PhotonTrack(time=s / 7000.0, lat=np.zeros(n), lon=np.zeros(n), h=h, x=x, y=y, s=s,
+                       track="gt1l", crs=CRS.from_epsg(32613))
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("gaps", [False, True])
+def test_skeleton_is_the_engines_rows(seed: int, gaps: bool) -> None:
+    t = _track(seed, 20_000 + 997 * seed, gaps)
+    p = BlockParams(lengths=(10.0, 25.0, 100.0, 7.3), s0=None if seed else 1300.25)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # sparse blocks: none of this test's business
+        full = compute_blocks(t, replace(p, noise="none"), window_photons=3_000)
+    skel = block_skeleton(t, p)
+    pd.testing.assert_frame_equal(pd.DataFrame(skel[SKELETON]), pd.DataFrame(full[SKELETON]),
+                                  check_exact=True)
+    assert skel.geometry.geom_equals_exact(full.geometry, 0.0).all()
+    assert skel.dtypes.equals(full.dtypes)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_interval_of_matches_the_search(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    s = np.sort(rng.random(5000) * 1000.0)
+    s[100:110] = s[100]
+    a = np.unique(np.r_[rng.random(40) * 1100.0 - 50.0, s[100], s[0], s[-1]])
+    want = np.searchsorted(a, s, side="right") - 1
+    assert np.array_equal(_interval_of(s, a), want)
+    shuffled = rng.permutation(s)  # not in order: the search itself
+    assert np.array_equal(_interval_of(shuffled, a),
+                          np.searchsorted(a, shuffled, side="right") - 1)
+    with_nan = np.r_[s, np.nan]
+    assert np.array_equal(_interval_of(with_nan, a),
+                          np.searchsorted(a, with_nan, side="right") - 1)
+
+
+def _tops_by_sort(r: np.ndarray, k: np.ndarray, h: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    order = np.lexsort((h, k, r))
+    r, k, h = r[order], k[order], h[order]
+    last = np.ones(r.size, bool)
+    last[:-1] = (r[1:] != r[:-1]) | (k[1:] != k[:-1])
+    return r[last], k[last], h[last]
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_step_tops_in_order_and_not(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    n = 3000
+    r = np.sort(rng.integers(0, 60, n))
+    k = np.concatenate([np.sort(rng.integers(0, 5, np.count_nonzero(r == i)))
+                        for i in range(60)])
+    h = np.where(rng.random(n) < 0.3, 0.0, rng.random(n) * 30.0)
+    h[rng.random(n) < 0.05] = 7.0  # ties
+    for rr, kk, hh in ((r, k, h), (r[::-1].copy(), k, h)):  # in order, then not
+        got, want = _step_tops(rr, kk, hh), _tops_by_sort(rr, kk, hh)
+        for g, w in zip(got, want):
+            assert g.dtype == w.dtype and np.array_equal(g, w)
+    one = (np.array([3]), np.array([1]), np.array([2.5]))
+    assert all(np.array_equal(g, w) for g, w in zip(_step_tops(*one), one))
