@@ -13,10 +13,13 @@ import pandas as pd
 import pytest
 from pyproj import CRS
 
-from canopyblocks.blocks import BlockParams
+from canopyblocks.blocks import BlockParams, kernels
+from canopyblocks.blocks.atl08_classify import Atl08Classes
 from canopyblocks.blocks.engine import block_skeleton, compute_blocks
-from canopyblocks.blocks.uncertainty import _interval_of, _step_tops
+from canopyblocks.blocks.ground_surface import GroundSurface
+from canopyblocks.blocks.uncertainty_features import _interval_of, _step_tops, block_features
 from canopyblocks.photons import PhotonTrack
+from canopyblocks.readers.atl03_geolocation import GEOLOCATION_SIGMA_COLUMN
 
 SKELETON = ["track", "length", "block", "s_start", "s_end", "x", "y", "lon", "lat",
             "n_photons"]
@@ -91,3 +94,52 @@ def test_step_tops_in_order_and_not(seed: int) -> None:
             assert g.dtype == w.dtype and np.array_equal(g, w)
     one = (np.array([3]), np.array([1]), np.array([2.5]))
     assert all(np.array_equal(g, w) for g, w in zip(_step_tops(*one), one))
+
+
+def _classes(seed: int, n: int) -> tuple[PhotonTrack, Atl08Classes]:
+    """A track with random classes (none, noise, ground, canopy, top), heights above a
+    surface (some NaN), a background rate and a geolocation sigma (some unusable)."""
+    rng = np.random.default_rng(seed)
+    t = _track(seed, n, gaps=True)
+    cls = rng.choice(np.array([-1, 0, 1, 2, 3], np.int8), n, p=[0.02, 0.3, 0.3, 0.2, 0.18])
+    h = np.where(cls == 1, rng.normal(0.0, 0.4, n), rng.random(n) * 30.0 - 5.0)
+    h[cls == 0] = rng.normal(0.0, 20.0, np.count_nonzero(cls == 0))
+    h[rng.random(n) < 0.01] = np.nan
+    geo = rng.random(n) * 5.0
+    geo[rng.random(n) < 0.1] = np.nan
+    geo[rng.random(n) < 0.05] = 0.0
+    t.extra[GEOLOCATION_SIGMA_COLUMN] = geo
+    nodes = np.linspace(t.s[0] - 1.0, t.s[-1] + 1.0, 50)
+    surf = GroundSurface(nodes, 300.0 + np.sin(nodes / 50.0), np.ones(50, bool),
+                         np.zeros(n, bool))
+    return t, Atl08Classes(cls, h, surf, rng.random(n) * 1e-3, "estimated")
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("length", [10.0, 25.0, 100.0])
+def test_feature_sums_compiled_and_numpy_agree(monkeypatch, seed: int, length: float) -> None:
+    if kernels.compiled() is None:
+        pytest.skip("numba not installed: only the numpy code runs")
+    t, c = _classes(seed, 30_000)
+    a = np.arange(t.s[0] - 3.0, t.s[-1], length)
+    a = a[np.unique(np.searchsorted(a, t.s, side="right") - 1)]  # intervals with photons
+    b = a + length * (0.7 if seed == 2 else 1.0)  # (seed 2: gaps between them)
+    hmax = np.where(np.arange(a.size) % 7 == 0, np.nan, 12.0)
+    if seed == 1:
+        t.extra.pop(GEOLOCATION_SIGMA_COLUMN)
+    out = {}
+    for flag in ("0", "1"):
+        monkeypatch.setenv("CANOPYBLOCKS_NUMBA", flag)
+        out[flag] = block_features(t, c, a, b, hmax)
+    for k, v in out["0"].items():
+        assert v.dtype == out["1"][k].dtype and np.array_equal(
+            v.view(np.int64), out["1"][k].view(np.int64)), k
+    f = out["1"]
+    assert f["n_all"].sum() > 0.5 * 0.98 * t.s.size and f["canopy_gradient"].max() > 0
+    # one block by hand: the classes' counts and the ground photons' spread
+    i = a.size // 2
+    inb = (t.s >= a[i]) & (t.s < b[i]) & (c.classes >= 0)
+    assert f["n_all"][i] == np.count_nonzero(inb)
+    assert f["n_top"][i] == np.count_nonzero(inb & (c.classes == 3))
+    gh = c.height[inb & (c.classes == 1)]
+    assert np.isclose(f["ground_spread"][i], np.std(gh, ddof=1), rtol=1e-9, equal_nan=True)
