@@ -17,6 +17,7 @@ from canopyblocks.blocks import BlockParams, kernels
 from canopyblocks.blocks.atl08_classify import Atl08Classes
 from canopyblocks.blocks.engine import block_skeleton, compute_blocks
 from canopyblocks.blocks.ground_surface import GroundSurface
+from canopyblocks.blocks.grouped import percentiles_by_group
 from canopyblocks.blocks.uncertainty_features import _interval_of, _step_tops, block_features
 from canopyblocks.photons import PhotonTrack
 from canopyblocks.readers.atl03_geolocation import GEOLOCATION_SIGMA_COLUMN
@@ -143,3 +144,26 @@ def test_feature_sums_compiled_and_numpy_agree(monkeypatch, seed: int, length: f
     assert f["n_top"][i] == np.count_nonzero(inb & (c.classes == 3))
     gh = c.height[inb & (c.classes == 1)]
     assert np.isclose(f["ground_spread"][i], np.std(gh, ddof=1), rtol=1e-9, equal_nan=True)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_percentiles_in_runs_compiled_and_numpy_agree(monkeypatch, seed: int) -> None:
+    if kernels.compiled() is None:
+        pytest.skip("numba not installed: only the numpy code runs")
+    rng = np.random.default_rng(seed)
+    group = np.sort(rng.integers(0, 400, 20_000))  # runs, some groups empty
+    values = rng.random(20_000) * 30.0
+    values[rng.random(20_000) < 0.02] = 7.5  # ties
+    qs = (98.0, 90.0, 0.0, 100.0, 33.3)
+    monkeypatch.setenv("CANOPYBLOCKS_NUMBA", "0")
+    want = percentiles_by_group(group, values, qs, 410)
+    by_height = np.argsort(values, kind="stable")
+    want_sorted = percentiles_by_group(group[by_height], values[by_height], qs, 410,
+                                       values_sorted=True)
+    monkeypatch.setenv("CANOPYBLOCKS_NUMBA", "1")
+    got = percentiles_by_group(group, values, qs, 410)
+    for w in (want, want_sorted):
+        assert np.array_equal(got.view(np.int64), w.view(np.int64))
+    assert np.isnan(got[400:]).all()
+    i = int(group[0])  # one group by numpy's own percentile
+    assert np.array_equal(got[i], np.percentile(values[group == i], qs))

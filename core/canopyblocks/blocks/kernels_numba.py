@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["box_counts", "surface_pass", "run_percentile", "feature_sums"]
+__all__ = ["box_counts", "surface_pass", "run_percentile", "run_percentiles", "feature_sums"]
 
 
 @njit(cache=True, nogil=True)
@@ -224,3 +224,28 @@ def feature_sums(s: np.ndarray, a: np.ndarray, b: np.ndarray, cls: np.ndarray,
         d = (ch - ph) / step
         grad[cr] += d * d
         grad_n[cr] += 1
+
+
+@njit(cache=True, nogil=True)
+def run_percentiles(group: np.ndarray, values: np.ndarray, qs: np.ndarray,
+                    out: np.ndarray) -> None:
+    """``grouped.percentiles_by_group`` for groups in runs (``group`` non-decreasing): each
+    run's values sorted once, every percentile of ``qs`` picked as :func:`run_percentile`
+    does (``out``: groups x qs, NaN on entry)."""
+    n = group.size
+    i = 0
+    while i < n:
+        g = group[i]
+        j = i + 1
+        while j < n and group[j] == g:
+            j += 1
+        v = np.sort(values[i:j])
+        c = j - i
+        for m in range(qs.size):
+            pos = qs[m] / 100.0 * (c - 1)
+            lo = int(np.floor(pos))
+            hi = min(lo + 1, c - 1)
+            frac = pos - lo
+            a = v[lo]
+            out[g, m] = a + (v[hi] - a) * frac
+        i = j
