@@ -17,7 +17,7 @@ from canopyblocks.blocks import BlockParams, kernels
 from canopyblocks.blocks.atl08_classify import Atl08Classes
 from canopyblocks.blocks.engine import block_skeleton, compute_blocks
 from canopyblocks.blocks.ground_surface import GroundSurface
-from canopyblocks.blocks.grouped import percentiles_by_group
+from canopyblocks.blocks.grouped import percentile_by_group, percentiles_by_group
 from canopyblocks.blocks.uncertainty_features import _interval_of, _step_tops, block_features
 from canopyblocks.photons import PhotonTrack
 from canopyblocks.readers.atl03_geolocation import GEOLOCATION_SIGMA_COLUMN
@@ -165,5 +165,12 @@ def test_percentiles_in_runs_compiled_and_numpy_agree(monkeypatch, seed: int) ->
     for w in (want, want_sorted):
         assert np.array_equal(got.view(np.int64), w.view(np.int64))
     assert np.isnan(got[400:]).all()
+    for q in qs:  # one percentile at a time, compiled and not
+        one = percentile_by_group(group, values, q, 410)
+        monkeypatch.setenv("CANOPYBLOCKS_NUMBA", "0")
+        assert np.array_equal(one.view(np.int64),
+                              percentile_by_group(group, values, q, 410).view(np.int64))
+        monkeypatch.setenv("CANOPYBLOCKS_NUMBA", "1")
+        assert np.array_equal(one.view(np.int64), got[:, qs.index(q)].view(np.int64))
     i = int(group[0])  # one group by numpy's own percentile
     assert np.array_equal(got[i], np.percentile(values[group == i], qs))

@@ -85,9 +85,10 @@ def percentile_by_group(group: np.ndarray, values: np.ndarray, q: float,
     mod = (compiled() if enabled() and group.dtype.kind in "iu" and group.size
            and values.dtype == np.float64 else None)
     if mod is not None and bool(np.all(group[1:] >= group[:-1])):
-        out = np.full(n_groups, np.nan)
-        mod.run_percentile(group.astype(np.int64, copy=False), values, float(q), out)
-        return out
+        out = np.full((n_groups, 1), np.nan)
+        mod.run_percentiles(group.astype(np.int64, copy=False), values,
+                            np.array([float(q)]), out)
+        return out[:, 0]
     _, zs, starts, counts = sorted_groups(group, values, n_groups)
     return _pick(zs, starts, counts, q)
 

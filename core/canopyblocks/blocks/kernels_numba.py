@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["box_counts", "surface_pass", "run_percentile", "run_percentiles", "feature_sums"]
+__all__ = ["box_counts", "surface_pass", "run_percentiles", "feature_sums"]
 
 
 @njit(cache=True, nogil=True)
@@ -145,29 +145,6 @@ def box_counts(ss: np.ndarray, zs: np.ndarray, starts: np.ndarray, ends: np.ndar
 
 
 @njit(cache=True, nogil=True)
-def run_percentile(group: np.ndarray, values: np.ndarray, q: float, out: np.ndarray) -> None:
-    """``grouped.percentile_by_group`` for groups in runs (``group`` non-decreasing): each
-    run's values sorted on their own, the percentile picked with numpy's linear formula
-    (``out`` NaN on entry; the groups without values stay NaN)."""
-    n = group.size
-    i = 0
-    while i < n:
-        g = group[i]
-        j = i + 1
-        while j < n and group[j] == g:
-            j += 1
-        v = np.sort(values[i:j])
-        c = j - i
-        pos = q / 100.0 * (c - 1)
-        lo = int(np.floor(pos))
-        hi = min(lo + 1, c - 1)
-        frac = pos - lo
-        a = v[lo]
-        out[g] = a + (v[hi] - a) * frac
-        i = j
-
-
-@njit(cache=True, nogil=True)
 def feature_sums(s: np.ndarray, a: np.ndarray, b: np.ndarray, cls: np.ndarray,
                  height: np.ndarray, bgr: np.ndarray, geo: np.ndarray, has_geo: bool,
                  top: np.ndarray, step: float, by_class: np.ndarray, bg: np.ndarray,
@@ -230,8 +207,8 @@ def feature_sums(s: np.ndarray, a: np.ndarray, b: np.ndarray, cls: np.ndarray,
 def run_percentiles(group: np.ndarray, values: np.ndarray, qs: np.ndarray,
                     out: np.ndarray) -> None:
     """``grouped.percentiles_by_group`` for groups in runs (``group`` non-decreasing): each
-    run's values sorted once, every percentile of ``qs`` picked as :func:`run_percentile`
-    does (``out``: groups x qs, NaN on entry)."""
+    run's values sorted on their own, every percentile of ``qs`` picked with numpy's linear
+    formula (``out``: groups x qs, NaN on entry; the groups without values stay NaN)."""
     n = group.size
     i = 0
     while i < n:
