@@ -17,7 +17,6 @@ Labels (per length, as the engine's): noise, ground, between (canopy, class 2), 
 
 from __future__ import annotations
 
-from dataclasses import replace
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -27,6 +26,7 @@ from ..schema import LABEL_BETWEEN, LABEL_CANOPY, LABEL_GROUND, LABEL_NOISE
 from .atl08_classify import CLASS_CANOPY, CLASS_NOISE, CLASS_TOP, Atl08Classes
 from .ground_surface import block_mean_ground
 from .grouped import percentiles_by_group
+from .kernels import enabled
 from .params import BlockParams
 
 if TYPE_CHECKING:
@@ -81,17 +81,19 @@ def atl08_block_table(track: PhotonTrack, params: BlockParams, classes: Atl08Cla
                       labels: bool = False, progress: Progress | None = None
                       ) -> tuple[gpd.GeoDataFrame, dict[float, np.ndarray]]:
     """The block table (DESIGN 5 columns) from the classes; labels per length if asked."""
-    from .engine import compute_blocks
+    from .engine import block_skeleton
 
-    skeleton = compute_blocks(track, replace(params, noise="none", min_signal_conf=None),
-                              progress=progress)
-    blocks = skeleton.copy()
+    blocks = block_skeleton(track, params, progress)
     cls = classes.classes
     s = np.asarray(track.s, float)
     hrel = classes.height
-    # the canopy photons sorted by height once, for the percentiles of every length
     can_i = np.flatnonzero((cls == CLASS_CANOPY) | (cls == CLASS_TOP))
-    can_i = can_i[np.argsort(hrel[can_i])]
+    # photons in along-track order fall in the blocks in turn: the compiled percentiles
+    # sort each block's canopy heights on its own; else they are sorted by height once,
+    # for the percentiles of every length
+    in_turn = enabled() and s.size > 1 and bool(np.all(s[1:] >= s[:-1]))
+    if not in_turn:
+        can_i = can_i[np.argsort(hrel[can_i])]
     can_h = hrel[can_i]
     out_labels: dict[float, np.ndarray] = {}
     # the columns filled in as whole arrays (one assignment each, not one per length)
@@ -115,7 +117,7 @@ def atl08_block_table(track: PhotonTrack, params: BlockParams, classes: Atl08Cla
         cin = crow >= 0
         n_can = np.bincount(crow[cin], minlength=n)
         rh = percentiles_by_group(crow[cin], can_h[cin], (HMAX_PERCENTILE, 90.0), n,
-                                  values_sorted=True)
+                                  values_sorted=not in_turn)
         ground = block_mean_ground(classes.surface, sub["s_start"].to_numpy(float),
                                    sub["s_end"].to_numpy(float))
         hmax = np.where(n_can > 0, rh[:, 0], 0.0)

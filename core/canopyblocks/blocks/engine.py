@@ -9,6 +9,7 @@ from __future__ import annotations
 import logging
 import os
 import warnings
+from dataclasses import replace
 from typing import TYPE_CHECKING, Literal, overload
 
 import numpy as np
@@ -33,7 +34,13 @@ from .params import BlockParams
 from .plausibility import background_fraction, flag_implausible_blocks
 from .prepared import LengthResult, PreparedTrack
 from .uncertainty import mark_use
-from .windows import DEFAULT_WINDOW_PHOTONS, concat_length_results, window_cuts, window_of
+from .windows import (
+    DEFAULT_WINDOW_PHOTONS,
+    _block_index,
+    concat_length_results,
+    window_cuts,
+    window_of,
+)
 
 if TYPE_CHECKING:
     import geopandas as gpd
@@ -42,7 +49,7 @@ MAX_TRACK_SPAN_M = 1.0e9
 """Longest along-track extent accepted, metres (an orbit is ~4e7 m; fills are ~3.4e38)."""
 
 __all__ = ["compute_blocks", "LABEL_OUTSIDE", "PreparedTrack", "prepare_track", "LengthResult",
-           "blocks_for_length"]
+           "blocks_for_length", "block_skeleton"]
 
 log = logging.getLogger(__name__)
 
@@ -308,7 +315,6 @@ def compute_blocks(track: PhotonTrack, params: BlockParams | None = None, *,
     NoUsableDataError
         No photon with finite values at or after ``s0``.
     """
-    import geopandas as gpd
 
     params = BlockParams() if params is None else params
     if not isinstance(params, BlockParams):
@@ -342,11 +348,7 @@ def compute_blocks(track: PhotonTrack, params: BlockParams | None = None, *,
             assert res.labels is not None
             label_out[length] = _labels_in_track_order(pt, res.labels)
         prog.update((i + 1) / len(lengths), f"{length:g} m blocks: {res.block.size} blocks")
-    cols = {c: np.concatenate([f[c] for f in frames]) for c in BLOCK_COLUMNS if c != "lon"
-            and c != "lat"}
-    cols["lon"], cols["lat"] = _lonlat(cols["x"], cols["y"], track)
-    df = pd.DataFrame({c: cols[c] for c in BLOCK_COLUMNS})
-    gdf = gpd.GeoDataFrame(df, geometry=gpd.points_from_xy(df["x"], df["y"]), crs=track.crs)
+    gdf = _table(track, frames)
     if sparse_counts:
         detail = ", ".join(f"{n} of {int((gdf['length'] == L).sum())} at {L:g} m"
                            for L, n in sparse_counts.items())
@@ -362,6 +364,41 @@ def compute_blocks(track: PhotonTrack, params: BlockParams | None = None, *,
     if labels:
         return gdf, label_out
     return gdf
+
+
+def _table(track: PhotonTrack, frames: list[dict[str, np.ndarray]]) -> gpd.GeoDataFrame:
+    """The block table of the lengths' columns (:func:`_columns`), centres in WGS84 too."""
+    import geopandas as gpd
+
+    cols = {c: np.concatenate([f[c] for f in frames]) for c in BLOCK_COLUMNS if c != "lon"
+            and c != "lat"}
+    cols["lon"], cols["lat"] = _lonlat(cols["x"], cols["y"], track)
+    df = pd.DataFrame({c: cols[c] for c in BLOCK_COLUMNS})
+    return gpd.GeoDataFrame(df, geometry=gpd.points_from_xy(df["x"], df["y"]), crs=track.crs)
+
+
+def block_skeleton(track: PhotonTrack, params: BlockParams, progress: Progress | None = None
+                   ) -> gpd.GeoDataFrame:
+    """The rows :func:`compute_blocks` gives with ``noise="none"`` and no confidence
+    filter (same blocks, bounds, centres, ``n_photons``), without their heights: one pass
+    per length over the photons in along-track order (no histograms). ``n_kept``,
+    ``n_between`` are 0, the heights NaN, ``flag`` ``ok``: for the caller to fill."""
+    prog = as_progress(progress)
+    prog.update(0.0, f"blocks of track {track.track}")
+    pt = prepare_track(track, replace(params, noise="none", min_signal_conf=None))
+    frames = []
+    lengths = sorted(params.lengths)
+    for i, length in enumerate(lengths):
+        block, starts, counts = segment_starts(_block_index(pt.s, pt.s0, length))
+        nblk = block.size
+        x = np.add.reduceat(pt.x, starts) / counts if nblk else np.empty(0)
+        y = np.add.reduceat(pt.y, starts) / counts if nblk else np.empty(0)
+        zero, nan = np.zeros(nblk, np.int64), np.full(nblk, np.nan)
+        res = LengthResult(length, block, counts, zero, zero, nan, nan, nan,
+                           np.zeros(nblk, np.int8), x, y, None)
+        frames.append(_columns(track.track, pt.s0, res))
+        prog.update((i + 1) / len(lengths), f"{length:g} m blocks: {nblk} blocks")
+    return _table(track, frames)
 
 
 def _columns(track_id: str, s0: float, res: LengthResult) -> dict[str, np.ndarray]:

@@ -85,9 +85,10 @@ def percentile_by_group(group: np.ndarray, values: np.ndarray, q: float,
     mod = (compiled() if enabled() and group.dtype.kind in "iu" and group.size
            and values.dtype == np.float64 else None)
     if mod is not None and bool(np.all(group[1:] >= group[:-1])):
-        out = np.full(n_groups, np.nan)
-        mod.run_percentile(group.astype(np.int64, copy=False), values, float(q), out)
-        return out
+        out = np.full((n_groups, 1), np.nan)
+        mod.run_percentiles(group.astype(np.int64, copy=False), values,
+                            np.array([float(q)]), out)
+        return out[:, 0]
     _, zs, starts, counts = sorted_groups(group, values, n_groups)
     return _pick(zs, starts, counts, q)
 
@@ -95,9 +96,22 @@ def percentile_by_group(group: np.ndarray, values: np.ndarray, q: float,
 def percentiles_by_group(group: np.ndarray, values: np.ndarray, qs: list[float] | tuple[float, ...],
                          n_groups: int, *, values_sorted: bool = False) -> np.ndarray:
     """Several percentiles per group from one sort: array of shape (n_groups, len(qs));
-    ``values_sorted``: the values are in ascending order already."""
-    _, zs, starts, counts = sorted_groups(group, values, n_groups,
-                                          values_sorted=values_sorted)
+    ``values_sorted``: the values are in ascending order already. Groups in runs (as
+    :func:`percentile_by_group`) are sorted each on its own by a compiled loop where numba
+    is installed (the same values)."""
+    from .kernels import compiled, enabled
+
     if not len(qs):
         return np.empty((n_groups, 0))
+    group = np.asarray(group)
+    values = np.asarray(values)
+    mod = (compiled() if enabled() and group.dtype.kind in "iu" and group.size
+           and values.dtype == np.float64 else None)
+    if mod is not None and bool(np.all(group[1:] >= group[:-1])):
+        out = np.full((n_groups, len(qs)), np.nan)
+        mod.run_percentiles(group.astype(np.int64, copy=False), values,
+                            np.asarray(qs, np.float64), out)
+        return out
+    _, zs, starts, counts = sorted_groups(group, values, n_groups,
+                                          values_sorted=values_sorted)
     return np.column_stack([_pick(zs, starts, counts, float(q)) for q in qs])

@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["box_counts", "surface_pass"]
+__all__ = ["box_counts", "surface_pass", "run_percentiles", "feature_sums"]
 
 
 @njit(cache=True, nogil=True)
@@ -145,10 +145,70 @@ def box_counts(ss: np.ndarray, zs: np.ndarray, starts: np.ndarray, ends: np.ndar
 
 
 @njit(cache=True, nogil=True)
-def run_percentile(group: np.ndarray, values: np.ndarray, q: float, out: np.ndarray) -> None:
-    """``grouped.percentile_by_group`` for groups in runs (``group`` non-decreasing): each
-    run's values sorted on their own, the percentile picked with numpy's linear formula
-    (``out`` NaN on entry; the groups without values stay NaN)."""
+def feature_sums(s: np.ndarray, a: np.ndarray, b: np.ndarray, cls: np.ndarray,
+                 height: np.ndarray, bgr: np.ndarray, geo: np.ndarray, has_geo: bool,
+                 top: np.ndarray, step: float, by_class: np.ndarray, bg: np.ndarray,
+                 g1: np.ndarray, g2: np.ndarray, above: np.ndarray, near: np.ndarray,
+                 geo_sum: np.ndarray, geo_n: np.ndarray, grad: np.ndarray,
+                 grad_n: np.ndarray) -> None:
+    """``uncertainty_features._sums_numpy`` for photons in along-track order (``s``
+    non-decreasing; intervals ``[a, b)`` sorted; classes 0 noise .. 3 top, -1 none): one
+    walk over the photons, each sum added to in the photons' order as numpy's
+    ``np.bincount`` does (outputs zero on entry)."""
+    n = a.size
+    j = -1
+    cr, ck, ch = -1, 0, 0.0   # the (block, step) being read and its highest photon
+    pr, pk, ph = -1, 0, 0.0   # the one before
+    for i in range(s.size):
+        x = s[i]
+        while j + 1 < n and a[j + 1] <= x:
+            j += 1
+        c = cls[i]
+        if c < 0 or j < 0 or not np.isfinite(x) or not x < b[j]:
+            continue
+        by_class[j, c] += 1
+        bg[j] += bgr[i]
+        hv = height[i]
+        if c == 1:
+            g1[j] += hv
+            g2[j] += hv * hv
+        elif c == 0:
+            if hv > top[j] and hv <= top[j] + 10.0:
+                above[j] += 1
+            if abs(hv) <= 3.0:
+                near[j] += 1
+        if has_geo:
+            g = geo[i]
+            if np.isfinite(g) and g > 0:
+                geo_sum[j] += g
+                geo_n[j] += 1
+        if c >= 1:
+            h = 0.0 if c == 1 else hv
+            if not np.isfinite(h):
+                continue
+            k = int(np.int64(np.floor((x - a[j]) / step)))
+            if j == cr and k == ck:
+                ch = max(ch, h)
+                continue
+            if cr >= 0:  # the step before is complete
+                if pr == cr and ck == pk + 1:
+                    d = (ch - ph) / step
+                    grad[cr] += d * d
+                    grad_n[cr] += 1
+                pr, pk, ph = cr, ck, ch
+            cr, ck, ch = j, k, h
+    if cr >= 0 and pr == cr and ck == pk + 1:
+        d = (ch - ph) / step
+        grad[cr] += d * d
+        grad_n[cr] += 1
+
+
+@njit(cache=True, nogil=True)
+def run_percentiles(group: np.ndarray, values: np.ndarray, qs: np.ndarray,
+                    out: np.ndarray) -> None:
+    """``grouped.percentiles_by_group`` for groups in runs (``group`` non-decreasing): each
+    run's values sorted on their own, every percentile of ``qs`` picked with numpy's linear
+    formula (``out``: groups x qs, NaN on entry; the groups without values stay NaN)."""
     n = group.size
     i = 0
     while i < n:
@@ -158,10 +218,11 @@ def run_percentile(group: np.ndarray, values: np.ndarray, q: float, out: np.ndar
             j += 1
         v = np.sort(values[i:j])
         c = j - i
-        pos = q / 100.0 * (c - 1)
-        lo = int(np.floor(pos))
-        hi = min(lo + 1, c - 1)
-        frac = pos - lo
-        a = v[lo]
-        out[g] = a + (v[hi] - a) * frac
+        for m in range(qs.size):
+            pos = qs[m] / 100.0 * (c - 1)
+            lo = int(np.floor(pos))
+            hi = min(lo + 1, c - 1)
+            frac = pos - lo
+            a = v[lo]
+            out[g, m] = a + (v[hi] - a) * frac
         i = j

@@ -49,8 +49,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..errors import InputError
-from ..readers.atl03_geolocation import GEOLOCATION_SIGMA_COLUMN
 from ..schema import FLAG_LOW_CONFIDENCE, FLAG_OK
+from .uncertainty_features import block_features
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -185,125 +185,6 @@ class SigmaModel:
 def sigma_model() -> SigmaModel:
     """The package's fitted model (``uncertainty_model.json``)."""
     return SigmaModel.from_json(_MODEL_FILE.read_text())
-
-
-def block_features(track: PhotonTrack, classes: Atl08Classes, s_start: np.ndarray,
-                   s_end: np.ndarray, hmax: np.ndarray) -> dict[str, np.ndarray]:
-    """Raw per-interval quantities the model uses (sorted, non-overlapping intervals).
-
-    Parameters
-    ----------
-    track : PhotonTrack
-    classes : Atl08Classes
-        The classifier's result on ``track``.
-    s_start, s_end : ndarray
-        Along-track bounds of each block or segment (m), sorted by ``s_start``.
-    hmax : ndarray
-        The block's Hmax (m; NaN where none).
-
-    Returns
-    -------
-    dict
-        ``n_ground, n_canopy, n_top, n_noise, n_all``, ``n_noise_top`` (noise photons
-        0-10 m above ``hmax``), ``n_noise_ground`` (within 3 m of the surface),
-        ``background`` (photons per m along
-        per m height, mean over the block's photons), ``ground_spread`` (sd of the ground
-        photons about the surface, m; NaN under 2 of them), ``ground_offset`` (their mean
-        height above the surface, m), ``relief`` (the surface's second difference over
-        +-15 m about the centre, m), ``slope``, ``length`` (m),
-        ``hmax`` (m).
-    """
-    from .atl08_classify import CLASS_CANOPY, CLASS_GROUND, CLASS_NOISE, CLASS_TOP
-
-    a = np.asarray(s_start, float)
-    b = np.asarray(s_end, float)
-    n = a.size
-    s = np.asarray(track.s, float)
-    cls = classes.classes
-    j = np.searchsorted(a, s, side="right") - 1
-    ok = (cls >= 0) & (j >= 0) & np.isfinite(s)
-    jj = np.clip(j, 0, max(n - 1, 0))
-    ok &= s < b[jj] if n else np.zeros_like(ok)
-    row, c = jj[ok], cls[ok]
-
-    def count(mask: np.ndarray) -> np.ndarray:
-        return np.bincount(row[mask], minlength=n).astype(float)
-
-    n_all = count(np.ones(row.size, bool))
-    gr = c == CLASS_GROUND
-    n_ground = count(gr)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        bg = np.bincount(row, classes.background[ok], minlength=n) / n_all
-        hg = classes.height[ok][gr]
-        rg = row[gr]
-        m1 = np.bincount(rg, hg, minlength=n) / n_ground
-        m2 = np.bincount(rg, hg * hg, minlength=n) / n_ground
-        spread = np.sqrt(np.maximum(m2 - m1 * m1, 0.0) * n_ground / (n_ground - 1))
-    spread[n_ground < 2] = np.nan
-    surf = classes.surface
-    slope = np.abs(np.interp(b, surf.s, surf.z) - np.interp(a, surf.s, surf.z)) / (b - a)
-    mid = 0.5 * (a + b)
-    relief = np.abs(np.interp(mid - 15.0, surf.s, surf.z) + np.interp(mid + 15.0, surf.s, surf.z)
-                    - 2 * np.interp(mid, surf.s, surf.z))
-    hmx = np.asarray(hmax, float)
-    hn = classes.height[ok]
-    top_of_row = np.where(np.isfinite(hmx), hmx, 0.0)[row] if n else np.zeros(0)
-    noise = c == CLASS_NOISE
-    with np.errstate(invalid="ignore"):
-        above = noise & (hn > top_of_row) & (hn <= top_of_row + 10.0)
-        near_ground = noise & (np.abs(hn) <= 3.0)
-    geo = track.extra.get(GEOLOCATION_SIGMA_COLUMN)
-    if geo is not None and n:
-        g = np.asarray(geo, float)[ok]
-        fin = np.isfinite(g) & (g > 0)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            geo_b = (np.bincount(row[fin], g[fin], minlength=n)
-                     / np.bincount(row[fin], minlength=n))
-    else:
-        geo_b = np.full(n, np.nan)
-    return {"n_ground": n_ground,
-            "canopy_gradient": _canopy_gradient(s[ok] - a[row], row, c, hn, n),
-            "geo_sigma": geo_b,
-            "n_noise_top": count(above), "n_noise_ground": count(near_ground),
-            "n_canopy": count((c == CLASS_CANOPY) | (c == CLASS_TOP)),
-            "n_top": count(c == CLASS_TOP), "n_noise": count(c == CLASS_NOISE),
-            "n_all": n_all, "background": np.where(np.isfinite(bg), bg, 0.0),
-            "ground_spread": spread, "ground_offset": np.where(n_ground > 0, m1, np.nan),
-            "relief": relief, "slope": slope, "length": b - a,
-            "hmax": np.asarray(hmax, float)}
-
-
-#: Step of the canopy-top profile whose slope measures a block's canopy relief, m.
-CANOPY_STEP = 5.0
-
-
-def _canopy_gradient(ds: np.ndarray, row: np.ndarray, cls: np.ndarray, height: np.ndarray,
-                     n: int) -> np.ndarray:
-    """RMS slope (m/m) of each block's canopy-top profile: the highest signal photon above
-    the ground surface in :data:`CANOPY_STEP` m steps from the block's start (ground
-    photons count as 0 m), differenced between neighbouring steps; 0 with < 2 steps."""
-    from .atl08_classify import CLASS_CANOPY, CLASS_GROUND, CLASS_TOP
-
-    sig = (cls == CLASS_GROUND) | (cls == CLASS_CANOPY) | (cls == CLASS_TOP)
-    h = np.where(cls == CLASS_GROUND, 0.0, height)[sig]
-    r = row[sig]
-    k = np.floor(ds[sig] / CANOPY_STEP).astype(np.int64)
-    ok = np.isfinite(h)
-    h, r, k = h[ok], r[ok], k[ok]
-    out = np.zeros(n)
-    if not h.size:
-        return out
-    order = np.lexsort((h, k, r))
-    r, k, h = r[order], k[order], h[order]
-    last = np.ones(r.size, bool)
-    last[:-1] = (r[1:] != r[:-1]) | (k[1:] != k[:-1])
-    r, k, h = r[last], k[last], h[last]  # one top per (block, step)
-    nb = (r[1:] == r[:-1]) & (k[1:] == k[:-1] + 1)
-    d2 = ((h[1:] - h[:-1]) / CANOPY_STEP) ** 2
-    num = np.bincount(r[1:][nb], d2[nb], minlength=n)
-    cnt = np.bincount(r[1:][nb], minlength=n)
-    np.divide(num, cnt, out=out, where=cnt > 0)
-    return np.minimum(np.sqrt(out), 3.0)
 
 
 def geolocation_sigma(f: dict[str, np.ndarray] | pd.DataFrame, model: SigmaModel | None = None
