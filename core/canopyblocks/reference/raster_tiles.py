@@ -278,11 +278,19 @@ def window_units(source: str, kind: str, grid: Grid, extent: Box, *, block: int 
     c1 = min(grid.width, math.ceil((extent[2] + r - grid.origin_x) / res))
     r0 = max(0, math.floor((grid.top_y - extent[3] - r) / res))
     r1 = min(grid.height, math.ceil((grid.top_y - extent[1] + r) / res))
+    area = None
+    if area_wkb is not None:
+        import shapely
+
+        area = shapely.from_wkb(area_wkb)
+        shapely.prepare(area)
     units = []
     for row in range(r0, r1, block):  # a loop over windows (a few per km2 of survey)
         for col in range(c0, c1, block):
             box = (grid.origin_x + col * res, grid.top_y - min(row + block, r1) * res,
                    grid.origin_x + min(col + block, c1) * res, grid.top_y - row * res)
+            if area is not None and not area.intersects(shapely.box(*box)):
+                continue  # a window the corridor does not meet: nothing to read
             units.append(TileUnit(path=source, grid=grid, box=box, neighbours=(),
                                   area_wkb=area_wkb, ground=ground, kind=kind,
                                   cells=(row, min(row + block, r1), col, min(col + block, c1))))
