@@ -216,15 +216,15 @@ def make_reference_rasters(
             surf.dtm = read_windows(dtm_path, windows)
             if area_poly is not None:
                 surf.mask_outside(area_poly)
-        write_windows(max_path, surf.top, windows, out_crs, overviews=whole)
-        prog.update(0.88, "dsm_max done")
-        write_windows(p90_path, surf.p90, windows, out_crs, overviews=whole)
-        prog.update(0.92, "dsm_p90 done")
         stats.update(_check_outputs(surf, grid, params, paths))
         stats["dtm_filled"], _ = fill_and_write_windows(dtm_path, mask_path, surf.dtm,
                                                         np.isfinite(surf.top), windows,
                                                         out_crs, overviews=whole)
-        prog.update(0.97, "DTM holes filled")
+        prog.update(0.86, "dtm done, its holes filled")
+        write_windows(max_path, surf.top, windows, out_crs, overviews=whole)
+        prog.update(0.92, "dsm_max done")
+        write_windows(p90_path, surf.p90, windows, out_crs, overviews=whole)
+        prog.update(0.97, "dsm_p90 done")
     log.info("reference rasters in %s: %s", out, stats)
     prog.report(1.0, "done")  # outputs are committed: too late to cancel
     return ReferenceRasters(dtm=out / "dtm.tif", dsm_max=out / "dsm_max.tif",
