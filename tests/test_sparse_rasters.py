@@ -189,3 +189,17 @@ def test_tiled_surface_samples_as_the_dense_band(corridor_run, monkeypatch) -> N
     y = rng.uniform(y0, y1, 200000)
     np.testing.assert_array_equal(tiled.bilinear(x, y), dense.bilinear(x, y))
     assert np.isfinite(dense.bilinear(x, y)).sum() > 1000
+
+
+def test_area_test_equals_contains_xy() -> None:
+    from canopyblocks.reference.raster_windows import area_test
+
+    area = CORRIDOR.buffer(1.4)
+    box = (885000.0, 629150.0, 885200.0, 629700.0)
+    test = area_test(area, box, 2.0)
+    rng = np.random.default_rng(7)
+    x = np.r_[rng.uniform(884990, 885210, 300000), np.round(rng.uniform(884990, 885210, 50000))]
+    y = np.r_[rng.uniform(629140, 629710, 300000), np.round(rng.uniform(629140, 629710, 50000))]
+    want = shapely.contains_xy(area, x, y)
+    assert np.array_equal(test(x, y), want)
+    assert want.sum() > 1000

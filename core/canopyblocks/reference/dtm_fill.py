@@ -205,7 +205,7 @@ def _enclosed(uncovered: np.ndarray, windows: Windows) -> np.ndarray:
     from scipy.sparse.csgraph import connected_components
 
     cross = ndimage.generate_binary_structure(2, 1)
-    k, s = windows.ids.size, windows.size
+    k = windows.ids.size
     labels = np.zeros(uncovered.shape, dtype=np.int64)
     total = 0
     for slot in range(k):  # a loop over windows, each labelled whole
@@ -282,8 +282,8 @@ def fill_windows(dtm: np.ndarray, support: np.ndarray, windows: Windows
     g = windows.grid
 
     def value_at(cells: np.ndarray) -> np.ndarray:
-        slot, r, c, ok = windows.locate(cells)
-        return np.where(ok, dtm[slot, r, c], np.nan)
+        at, r, c, ok = windows.locate(cells)
+        return np.where(ok, dtm[at, r, c], np.nan)
 
     values, solvable = solve_holes(flat, value_at, g.width, g.height)
     if not solvable.all():  # the nearest measured cell
@@ -293,8 +293,8 @@ def fill_windows(dtm: np.ndarray, support: np.ndarray, windows: Windows
         tree = cKDTree(np.column_stack(np.divmod(known, g.width)))
         _, near = tree.query(np.column_stack(np.divmod(flat[~solvable], g.width)))
         values[~solvable] = value_at(known[near])
-    slot, r, c, _ = windows.locate(flat)
-    filled[slot, r, c] = values
+    at, r, c, _ = windows.locate(flat)
+    filled[at, r, c] = values
     return filled, holes
 
 

@@ -207,7 +207,7 @@ def _read_tiles(src: object, what: str) -> TiledValues:
     h, w = src.height, src.width  # type: ignore[attr-defined]
     bh, bw = src.block_shapes[0]  # type: ignore[attr-defined]
     index = np.full((-(-h // bh), -(-w // bw)), -1, dtype=np.int64)
-    blocks = []
+    blocks: list[np.ndarray] = []
     for i in range(index.shape[0]):  # a loop over tiles
         for j in range(index.shape[1]):
             win = Window(j * bw, i * bh, min(bw, w - j * bw), min(bh, h - i * bh))

@@ -39,10 +39,11 @@ from ..readers.cloud_checks import HeightTally
 from ..readers.las_header import MAX_OFFSET, check_las_file, check_nothing_beyond_count
 from .lidar_points import cell_groups, cell_neighbourhoods, max_and_percentile
 from .raster_grid import Grid
+from .raster_windows import SparseGrids, Windows, area_test
 
 __all__ = ["TileUnit", "TileResult", "SurveyGrids", "tile_surfaces", "merge_tiles",
            "plausible_box", "cell_stats", "make_units", "serial_runner", "Runner",
-           "cloud_kind", "cloud_reader", "window_units"]
+           "cloud_kind", "cloud_reader", "window_units", "merge_windows"]
 
 Box = tuple[float, float, float, float]
 _CHUNK = 2_000_000
@@ -227,12 +228,11 @@ def _read_tile(unit: TileUnit) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         transformer = pyproj.Transformer.from_crs(pyproj.CRS.from_wkt(unit.src_wkt),
                                                   pyproj.CRS.from_wkt(unit.dst_wkt),
                                                   always_xy=True)
-    area = None
+    in_area = None
     if unit.area_wkb is not None:
         import shapely
 
-        area = shapely.from_wkb(unit.area_wkb)
-        shapely.prepare(area)
+        in_area = area_test(shapely.from_wkb(unit.area_wkb), unit.box, g.resolution)
     parts: dict[str, list[np.ndarray]] = {"x": [], "y": [], "zi": [], "g": []}
     heights = HeightTally()
     tally: dict[str, Any] = {"n": 0, "noise": 0, "ground": 0}
@@ -264,10 +264,8 @@ def _read_tile(unit: TileUnit) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
                     x, y = transformer.transform(x, y)
                     x, y = np.asarray(x), np.asarray(y)
                 keep = ~noise & (x > lo[0]) & (x < lo[2]) & (y > lo[1]) & (y < lo[3])
-                if area is not None and keep.any():
-                    import shapely
-
-                    keep[keep] = shapely.contains_xy(area, x[keep], y[keep])
+                if in_area is not None and keep.any():
+                    keep[keep] = in_area(x[keep], y[keep])
                 parts["x"].append(x[keep])
                 parts["y"].append(y[keep])
                 parts["zi"].append(zi[keep])
@@ -432,6 +430,23 @@ def merge_tiles(results: Sequence[TileResult], grid: Grid, ground: bool) -> Surv
         out.p90[cells] = p90
     return SurveyGrids(dtm=out.dtm.reshape(shape), top=out.top.reshape(shape),
                        p90=out.p90.reshape(shape))
+
+
+def merge_windows(results: Any, windows: Windows, ground: bool) -> SparseGrids:
+    """The sparse grids from the units' own cells and their shared pairs (the values of
+    :func:`~canopyblocks.reference.raster_tiles.merge_tiles`, in windows)."""
+    g = windows.grid
+    out = SparseGrids(windows, windows.blocks(), windows.blocks(), windows.blocks())
+    for res in results:
+        out.assign(res.cells, res.dtm, res.top, res.p90)
+    with_pairs = [r for r in results if r.pair_cell.size]
+    if with_pairs:
+        cells, dtm, top, p90 = cell_stats(
+            np.concatenate([r.pair_cell for r in with_pairs]),
+            np.concatenate([r.pair_z for r in with_pairs]),
+            np.concatenate([r.pair_ground for r in with_pairs]), g.width * g.height, ground)
+        out.assign(cells, dtm, top, p90)
+    return out
 
 
 def make_units(paths: Sequence[str | os.PathLike[str]], boxes: Sequence[Box], grid: Grid, *,

@@ -12,7 +12,7 @@ tiles are the windows, and the windows that do not exist are absent tiles, which
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -21,7 +21,7 @@ import numpy as np
 from ..errors import InputError
 from .raster_grid import Grid
 
-__all__ = ["WINDOW", "MAX_CELLS", "Windows", "SparseGrids", "merge_windows"]
+__all__ = ["WINDOW", "MAX_CELLS", "Windows", "SparseGrids", "to_dense", "area_test"]
 
 WINDOW = 256
 """Cells on a window's side (and on a GeoTIFF tile's side)."""
@@ -178,20 +178,42 @@ def iter_windows(windows: Windows) -> Iterator[tuple[int, tuple[int, int, int, i
         yield slot, windows.clip(slot)
 
 
-def merge_windows(results: Any, windows: Windows, ground: bool) -> SparseGrids:
-    """The sparse grids from the units' own cells and their shared pairs (the values of
-    :func:`~canopyblocks.reference.raster_tiles.merge_tiles`, in windows)."""
-    from .raster_tiles import cell_stats
+def area_test(area: Any, box: Sequence[float], resolution: float
+              ) -> Callable[[np.ndarray, np.ndarray], np.ndarray]:
+    """``test(x, y)``: exactly ``shapely.contains_xy(area, x, y)``, fast for many points.
 
-    g = windows.grid
-    out = SparseGrids(windows, windows.blocks(), windows.blocks(), windows.blocks())
-    for res in results:
-        out.assign(res.cells, res.dtm, res.top, res.p90)
-    with_pairs = [r for r in results if r.pair_cell.size]
-    if with_pairs:
-        cells, dtm, top, p90 = cell_stats(
-            np.concatenate([r.pair_cell for r in with_pairs]),
-            np.concatenate([r.pair_z for r in with_pairs]),
-            np.concatenate([r.pair_ground for r in with_pairs]), g.width * g.height, ground)
-        out.assign(cells, dtm, top, p90)
-    return out
+    The part of the box (a tile's, metres) under the area's bounds is cut into square
+    cells (at least ``resolution``, at most ~20,000 of them); a point in a cell wholly
+    inside the area is in, one in a cell that misses the area (or outside the area's
+    bounds) is out, and only the points of the cells on the area's edge, and those outside
+    the box, are tested against the polygon.
+    """
+    import shapely
+
+    shapely.prepare(area)
+    ab = area.bounds
+    x0, y0 = max(float(box[0]), ab[0]), max(float(box[1]), ab[1])
+    x1, y1 = min(float(box[2]), ab[2]), min(float(box[3]), ab[3])
+    if not (all(math.isfinite(v) for v in (x0, y0, x1, y1)) and x1 > x0 and y1 > y0):
+        return lambda x, y: np.asarray(shapely.contains_xy(area, x, y))
+    step = max(float(resolution), math.sqrt((x1 - x0) * (y1 - y0) / 20_000))
+    nx, ny = math.ceil((x1 - x0) / step), math.ceil((y1 - y0) / step)
+    iy, ix = np.divmod(np.arange(nx * ny), nx)
+    eps = 1e-6  # each cell a little larger: a point on a cell edge is inside its box
+    cells = shapely.box(x0 + ix * step - eps, y0 + iy * step - eps,
+                        x0 + (ix + 1) * step + eps, y0 + (iy + 1) * step + eps)
+    state = np.where(shapely.contains_properly(area, cells), 1,
+                     np.where(shapely.intersects(area, cells), 2, 0)).astype(np.int8)
+
+    def test(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        cx = np.floor((x - x0) / step)
+        cy = np.floor((y - y0) / step)
+        st = np.where((x < ab[0]) | (x > ab[2]) | (y < ab[1]) | (y > ab[3]), 0, 2)
+        inside = (cx >= 0) & (cx < nx) & (cy >= 0) & (cy < ny) & (st == 2)
+        st[inside] = state[cy[inside].astype(np.int64) * nx + cx[inside].astype(np.int64)]
+        out = st == 1
+        edge = np.flatnonzero(st == 2)
+        out[edge] = shapely.contains_xy(area, x[edge], y[edge])
+        return out
+
+    return test

@@ -81,10 +81,11 @@ from .raster_tiles import (
     Runner,
     TileResult,
     cloud_kind,
+    merge_windows,
     serial_runner,
     tile_surfaces,
 )
-from .raster_windows import SparseGrids, Windows, merge_windows
+from .raster_windows import SparseGrids, Windows
 
 __all__ = ["NODATA", "Grid", "RasterParams", "ReferenceRasters", "make_reference_rasters",
            "check_tile_crs", "crs_label"]
