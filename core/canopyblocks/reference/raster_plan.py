@@ -42,7 +42,7 @@ from .raster_grid import (
 from .raster_grid import fmt_bounds as _fmt
 from .raster_grid import horizontal_crs as _horizontal
 from .raster_tiles import TileUnit, cloud_reader, make_units, plausible_box, window_units
-from .raster_windows import Windows
+from .raster_windows import CORRIDOR_WINDOW, WINDOW, Windows
 
 __all__ = ["Plan", "las_plan", "cloud_plan", "header_info"]
 
@@ -80,12 +80,25 @@ def _grid(area: Sequence[float], params: RasterParams, wkt: str, names: str,
                              f"{grid.height:.3g} cells at {params.resolution:g} m (limit "
                              f"{_MAX_CELLS:.0e}); use a coarser resolution or smaller bounds"
                              + ("" if poly is None else " (or the ground class, not SMRF)"))
-    windows = Windows.over(grid, poly)
+    windows = Windows.over(grid, poly, WINDOW if poly is None else CORRIDOR_WINDOW)
     windows.check_size(names)
     log.info("grid %d x %d cells of %g m at (%.2f, %.2f), %d windows of %d x %d", grid.width,
              grid.height, grid.resolution, grid.origin_x, grid.origin_y, windows.ids.size,
              windows.size, windows.size)
     return grid, windows
+
+
+def _under_tiles(poly: Any, boxes: np.ndarray, reach: float) -> Any:
+    """The part of ``poly`` within ``reach`` of the tiles' boxes (None for None): the
+    windows elsewhere along a corridor can hold no point."""
+    if poly is None:
+        return None
+    import shapely
+
+    b = boxes[np.isfinite(boxes).all(axis=1)]
+    near = shapely.union_all(shapely.box(b[:, 0] - reach, b[:, 1] - reach, b[:, 2] + reach,
+                                         b[:, 3] + reach))
+    return shapely.intersection(poly, near)
 
 
 def with_vertical(crs: pyproj.CRS) -> pyproj.CRS:
@@ -126,9 +139,10 @@ def las_plan(paths: list[Path], params: RasterParams, crs: object, area_poly: An
         arr = arr[meets] if meets.any() else arr
     union = (float(arr[:, 0].min()), float(arr[:, 1].min()), float(arr[:, 2].max()),
              float(arr[:, 3].max()))
-    grid, windows = _grid(_area(params.bounds, area_poly, union, target), params,
-                          target.to_wkt(), names, area_poly)
     tol = max(params.resolution, 1.0)
+    grid, windows = _grid(_area(params.bounds, area_poly, union, target), params,
+                          target.to_wkt(), names,
+                          _under_tiles(area_poly, arr, tol + params.resolution))
     wide = [(b[0] - tol, b[1] - tol, b[2] + tol, b[3] + tol) for b in boxes]
     area_wkb = None if area_poly is None else area_poly.buffer(grid.radius).wkb
     units = make_units(paths, wide, grid, src_wkts=src_wkts,
@@ -167,7 +181,9 @@ def cloud_plan(source: str, kind: str, params: RasterParams, crs: object,
     if ext.n_points == 0:
         raise NoUsableDataError(f"{ext.source} holds no points")
     grid, windows = _grid(_area(params.bounds, area_poly, ext.bounds, target), params,
-                          target.to_wkt(), ext.source, area_poly)
+                          target.to_wkt(), ext.source,
+                          _under_tiles(area_poly, np.asarray([ext.bounds], dtype=float),
+                                       params.resolution))
     area_wkb = None if area_poly is None else area_poly.buffer(grid.radius).wkb
     units = window_units(source, kind, grid, ext.bounds, area_wkb=area_wkb, ground=True)
     if not units:

@@ -21,10 +21,13 @@ import numpy as np
 from ..errors import InputError
 from .raster_grid import Grid
 
-__all__ = ["WINDOW", "MAX_CELLS", "Windows", "SparseGrids", "to_dense", "area_test"]
+__all__ = ["WINDOW", "CORRIDOR_WINDOW", "MAX_CELLS", "Windows", "SparseGrids", "to_dense", "area_test"]
 
 WINDOW = 256
-"""Cells on a window's side (and on a GeoTIFF tile's side)."""
+"""Cells on a window's side (and on a GeoTIFF tile's side) over a whole survey."""
+
+CORRIDOR_WINDOW = 64
+"""Cells on a window's side along a corridor (a thin area: small windows hold less)."""
 
 MAX_CELLS = 100_000_000
 """The most cells a run may hold (in its windows), about 2.4 GB for its rasters."""
@@ -59,23 +62,12 @@ class Windows:
         n_rows, n_cols = -(-grid.height // size), -(-grid.width // size)
         if area is None:
             return cls(grid, np.arange(n_rows * n_cols, dtype=np.int64), size)
-        import shapely
-
-        ext = size * grid.resolution
-        a = area.bounds  # only the windows under the area's box are tested
-        c0 = max(0, math.floor((a[0] - grid.origin_x) / ext))
-        c1 = min(n_cols, math.floor((a[2] - grid.origin_x) / ext) + 1)
-        r0 = max(0, math.floor((grid.top_y - a[3]) / ext))
-        r1 = min(n_rows, math.floor((grid.top_y - a[1]) / ext) + 1)
-        if c1 <= c0 or r1 <= r0:
+        if area.is_empty:
             return cls(grid, np.empty(0, np.int64), size)
-        rr, cc = np.meshgrid(np.arange(r0, r1), np.arange(c0, c1), indexing="ij")
-        rr, cc = rr.ravel(), cc.ravel()
-        boxes = shapely.box(grid.origin_x + cc * ext, grid.top_y - (rr + 1) * ext,
-                            grid.origin_x + (cc + 1) * ext, grid.top_y - rr * ext)
-        shapely.prepare(area)
-        meets = shapely.intersects(area, boxes)
-        return cls(grid, np.sort(rr[meets] * n_cols + cc[meets]).astype(np.int64), size)
+        found = [_meeting(grid, part, size, n_rows, n_cols)  # a loop over the area's parts
+                 for part in getattr(area, "geoms", [area])]
+        ids = np.unique(np.concatenate([f for f in found if f.size] or [np.empty(0)]))
+        return cls(grid, ids.astype(np.int64), size)
 
     def check_size(self, what: str) -> None:
         """Refuse a run whose windows would hold more than :data:`MAX_CELLS` cells."""
@@ -162,6 +154,26 @@ class SparseGrids:
         return to_dense(getattr(self, name), self.windows)
 
 
+def _meeting(grid: Grid, part: Any, size: int, n_rows: int, n_cols: int) -> np.ndarray:
+    """Flat ids of the windows whose box meets ``part`` (those under its bounds tested)."""
+    import shapely
+
+    ext = size * grid.resolution
+    a = part.bounds
+    c0 = max(0, math.floor((a[0] - grid.origin_x) / ext))
+    c1 = min(n_cols, math.floor((a[2] - grid.origin_x) / ext) + 1)
+    r0 = max(0, math.floor((grid.top_y - a[3]) / ext))
+    r1 = min(n_rows, math.floor((grid.top_y - a[1]) / ext) + 1)
+    if part.is_empty or c1 <= c0 or r1 <= r0:
+        return np.empty(0, np.int64)
+    rr, cc = np.meshgrid(np.arange(r0, r1), np.arange(c0, c1), indexing="ij")
+    rr, cc = rr.ravel(), cc.ravel()
+    boxes = shapely.box(grid.origin_x + cc * ext, grid.top_y - (rr + 1) * ext,
+                        grid.origin_x + (cc + 1) * ext, grid.top_y - rr * ext)
+    meets = shapely.intersects(part, boxes)
+    return (rr[meets] * n_cols + cc[meets]).astype(np.int64)
+
+
 def to_dense(blocks: np.ndarray, windows: Windows, fill: float = np.nan) -> np.ndarray:
     """``(windows, size, size)`` blocks as a dense ``(height, width)`` array."""
     g = windows.grid
@@ -183,7 +195,7 @@ def area_test(area: Any, box: Sequence[float], resolution: float
     """``test(x, y)``: exactly ``shapely.contains_xy(area, x, y)``, fast for many points.
 
     The part of the box (a tile's, metres) under the area's bounds is cut into square
-    cells (at least ``resolution``, at most ~20,000 of them); a point in a cell wholly
+    cells (at least ``resolution``, at most ~5,000 of them); a point in a cell wholly
     inside the area is in, one in a cell that misses the area (or outside the area's
     bounds) is out, and only the points of the cells on the area's edge, and those outside
     the box, are tested against the polygon.
@@ -196,7 +208,7 @@ def area_test(area: Any, box: Sequence[float], resolution: float
     x1, y1 = min(float(box[2]), ab[2]), min(float(box[3]), ab[3])
     if not (all(math.isfinite(v) for v in (x0, y0, x1, y1)) and x1 > x0 and y1 > y0):
         return lambda x, y: np.asarray(shapely.contains_xy(area, x, y))
-    step = max(float(resolution), math.sqrt((x1 - x0) * (y1 - y0) / 20_000))
+    step = max(float(resolution), math.sqrt((x1 - x0) * (y1 - y0) / 5_000))
     nx, ny = math.ceil((x1 - x0) / step), math.ceil((y1 - y0) / step)
     iy, ix = np.divmod(np.arange(nx * ny), nx)
     eps = 1e-6  # each cell a little larger: a point on a cell edge is inside its box
