@@ -85,7 +85,7 @@ def test_files_are_tiled_compressed_and_sparse(corridor_run) -> None:  # noqa: A
     rr, _ = corridor_run
     for path in (rr.dtm, rr.dsm_max, rr.dsm_p90, rr.dtm_fill_mask):
         with rasterio.open(path) as src:
-            assert src.profile["tiled"] and src.block_shapes[0] == (64, 64)
+            assert src.profile["tiled"] and src.block_shapes[0] == (256, 256)
             assert src.compression.name.lower() == "deflate"
     assert rr.stats["windows"] >= 1
 

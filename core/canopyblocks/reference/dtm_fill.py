@@ -34,7 +34,7 @@ import pyproj
 from ..errors import DependencyError
 from ..geo import as_crs
 from .raster_grid import NODATA, Grid, authority_crs
-from .raster_windows import Windows
+from .raster_windows import WINDOW, Windows
 
 __all__ = ["fill_dtm_holes", "fill_windows", "solve_holes", "MASK_FILLED", "MASK_MEASURED", "MASK_NODATA"]
 
@@ -312,32 +312,48 @@ def _profile(grid: Grid, crs: pyproj.CRS, dtype: str, nodata: float) -> dict[str
 def write_windows(path: Path, blocks: np.ndarray, windows: Windows, crs: pyproj.CRS,
                   dtype: str = "float32", nodata: float = NODATA,
                   overviews: bool = False) -> None:
-    """Write ``(windows, size, size)`` blocks as a tiled, DEFLATE-compressed GeoTIFF whose
-    tiles are the windows: a window without a value, and every window that does not exist,
-    is an absent tile (``SPARSE_OK``), read as ``nodata`` by GDAL and QGIS.  With
-    ``overviews`` (a whole survey), overviews by averaging are added."""
+    """Write ``(windows, size, size)`` blocks as a tiled, DEFLATE-compressed GeoTIFF of
+    :data:`~canopyblocks.reference.raster_windows.WINDOW`-cell tiles, each written once
+    from the windows in it: a tile without a value, and every tile without a window, is
+    absent (``SPARSE_OK``), read as ``nodata`` by GDAL and QGIS.  With ``overviews`` (a
+    whole survey), overviews by averaging are added."""
     rasterio = rasterio_module()
     from rasterio.windows import Window
 
-    size = windows.size
+    tile = max(WINDOW, windows.size)
+    per = tile // windows.size  # windows on a tile's side
     profile = _profile(windows.grid, crs, dtype, nodata)
-    profile.update(tiled=True, blockxsize=size, blockysize=size, compress="deflate",
+    profile.update(tiled=True, blockxsize=tile, blockysize=tile, compress="deflate",
                    predictor=3 if dtype.startswith("float") else 2, sparse_ok=True,
                    bigtiff="if_safer")
+    wr, wc = np.divmod(windows.ids, windows.n_cols)
+    tile_of = (wr // per) * (-(-windows.n_cols // per)) + wc // per
+    order = np.argsort(tile_of, kind="stable")
+    tile_of = tile_of[order]
+    starts = (np.flatnonzero(np.r_[True, tile_of[1:] != tile_of[:-1]]) if tile_of.size
+              else np.empty(0, np.int64))
+    g = windows.grid
     with rasterio.open(path, "w", **profile) as dst:
-        for slot in range(windows.ids.size):  # a loop over windows, one tile each
-            r0, c0, nr, nc = windows.clip(slot)
-            block = blocks[slot, :nr, :nc]
-            ok = np.isfinite(block) if block.dtype.kind == "f" else block != nodata
-            if not ok.any():
-                continue
-            data = np.where(ok, block, nodata).astype(dtype)
-            dst.write(data, 1, window=Window(c0, r0, nc, nr))
+        for k, first in enumerate(starts):  # a loop over tiles, each written once
+            last = starts[k + 1] if k + 1 < len(starts) else tile_of.size
+            slots = order[first:last]
+            r0 = int(wr[slots[0]] // per) * tile
+            c0 = int(wc[slots[0]] // per) * tile
+            nr, nc = min(tile, g.height - r0), min(tile, g.width - c0)
+            data = np.full((nr, nc), nodata, dtype=dtype)
+            for slot in slots:  # the windows of this tile (at most per * per)
+                wr0, wc0, wnr, wnc = windows.clip(int(slot))
+                block = blocks[slot, :wnr, :wnc]
+                ok = np.isfinite(block) if block.dtype.kind == "f" else block != nodata
+                data[wr0 - r0:wr0 - r0 + wnr, wc0 - c0:wc0 - c0 + wnc] = np.where(ok, block,
+                                                                                 nodata)
+            if (data != nodata).any():
+                dst.write(data, 1, window=Window(c0, r0, nc, nr))
         if overviews:
             from rasterio.enums import Resampling
 
             factors = [2 ** i for i in range(1, 16)
-                       if max(windows.grid.width, windows.grid.height) / 2 ** i >= size / 2]
+                       if max(g.width, g.height) / 2 ** i >= tile / 2]
             if factors:
                 dst.build_overviews(factors, Resampling.average if dtype.startswith("float")
                                     else Resampling.nearest)
