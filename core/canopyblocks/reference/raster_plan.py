@@ -142,7 +142,7 @@ def las_plan(paths: list[Path], params: RasterParams, crs: object, area_poly: An
     tol = max(params.resolution, 1.0)
     grid, windows = _grid(_area(params.bounds, area_poly, union, target), params,
                           target.to_wkt(), names,
-                          _under_tiles(area_poly, arr, tol + params.resolution))
+                          _under_tiles(area_poly, np.asarray(live), tol + params.resolution))
     wide = [(b[0] - tol, b[1] - tol, b[2] + tol, b[3] + tol) for b in boxes]
     area_wkb = None if area_poly is None else area_poly.buffer(grid.radius).wkb
     units = make_units(paths, wide, grid, src_wkts=src_wkts,
