@@ -12,7 +12,7 @@ tiles are the windows, and the windows that do not exist are absent tiles, which
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -182,12 +182,6 @@ def to_dense(blocks: np.ndarray, windows: Windows, fill: float = np.nan) -> np.n
         r0, c0, nr, nc = windows.clip(slot)
         out[r0:r0 + nr, c0:c0 + nc] = blocks[slot, :nr, :nc]
     return out
-
-
-def iter_windows(windows: Windows) -> Iterator[tuple[int, tuple[int, int, int, int]]]:
-    """``(slot, (row0, col0, rows, cols))`` of every window."""
-    for slot in range(windows.ids.size):  # a loop over windows
-        yield slot, windows.clip(slot)
 
 
 def area_test(area: Any, box: Sequence[float], resolution: float
