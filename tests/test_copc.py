@@ -337,3 +337,29 @@ def test_server_without_ranges(store, http):
     with pytest.raises(FileFormatError) as exc:
         read_copc(f"{http.url}/norange/survey.copc.laz", bounds=BOX)
     assert "norange/survey.copc.laz" in _one_line(exc, "byte-range")
+
+
+def test_small_node_copc_fetches_about_the_nodes_it_needs(tmp_path, tiles, laz):
+    """Nodes of at most 300 points (a few kB each): a corridor fetches the nodes it needs
+    and not the file between them (gaps are merged up to half the median node, not 64 KiB);
+    the same points as the local file."""
+    from canopyblocks.readers import copc
+
+    tree = build_octree(tile_points(tiles), capacity=300, max_level=10)
+    path = tmp_path / "small.copc.laz"
+    write_copc(tiles, path, tree=tree)
+    with copc.ByteSource(path) as src:
+        h = copc.read_header(src)
+        nodes = copc.select_nodes(src, h, copc.Area(None, corridor_polygon()))
+    needed = sum(n[2] for n in nodes)
+    size = path.stat().st_size
+    assert len(nodes) > 100 and needed < 0.4 * size
+    with RangeHTTPServer(tmp_path) as server:
+        remote.clear_cache()
+        server.tally.reset()
+        got = read_copc(f"{server.url}/small.copc.laz", polygon=corridor_polygon())
+        fetched = server.tally.nbytes
+    np.testing.assert_array_equal(table(got), table(read_copc(path, polygon=corridor_polygon())))
+    assert fetched < 2.0 * needed + 200_000, (fetched / size, needed / size)
+    assert copc.node_gap([(0, 4000), (9000, 12000), (20000, 90000)]) == 2000
+    assert copc.node_gap([(0, 1 << 20)] * 3) == remote.MAX_GAP

@@ -176,7 +176,7 @@ class ByteSource:
                     f"{self.label}: truncated or damaged ({what} at bytes {a}-{b}, the file "
                     f"has {self.size}); download or write it again")
         if self.remote is not None:
-            out = list(self.remote.fetch(list(ranges)))
+            out = list(self.remote.fetch(list(ranges), max_gap=node_gap(ranges)))
         else:
             out = [os.pread(self._fh.fileno(), b - a, a) for a, b in ranges]
         self.nbytes += sum(len(o) for o in out)
@@ -211,6 +211,20 @@ class CopcHeader:
     root: tuple[int, int]   # (offset, size) of the root hierarchy page
     stated: LasCRS
     points_at: int = 0      # offset to the point data (the chunk table's pointer)
+
+
+def node_gap(ranges: Sequence[tuple[int, int]]) -> int:
+    """The largest gap (bytes) between two nodes' chunks fetched in one request: half the
+    median chunk, at most the storage reader's ``MAX_GAP`` (64 KiB).  Small nodes far
+    apart are fetched one by one, not with the file between them: the bytes fetched follow
+    the nodes needed (at most about twice them), while neighbouring large nodes still go
+    in one request."""
+    from .remote import MAX_GAP
+
+    if not ranges:
+        return 0
+    sizes = np.asarray([b - a for a, b in ranges], dtype=np.int64)
+    return int(min(MAX_GAP, int(np.median(sizes)) // 2))
 
 
 def read_header(src: ByteSource) -> CopcHeader:

@@ -426,9 +426,10 @@ class RemoteFile(io.RawIOBase):
             raise self.error
         return size
 
-    def fetch(self, ranges: Sequence[tuple[int, int]]) -> list[bytes]:
-        """The bytes of each ``(start, end)`` range: neighbours coalesced into one request,
-        the requests run concurrently."""
+    def fetch(self, ranges: Sequence[tuple[int, int]],
+              max_gap: int = MAX_GAP) -> list[bytes]:
+        """The bytes of each ``(start, end)`` range: neighbours closer than ``max_gap`` bytes
+        coalesced into one request, the requests run concurrently."""
         if not ranges:
             return []
         order = sorted(range(len(ranges)), key=lambda i: ranges[i][0])
@@ -439,7 +440,7 @@ class RemoteFile(io.RawIOBase):
                 g = groups[-1]
                 g0 = ranges[g[0]][0]
                 g1 = max(ranges[j][1] for j in g)
-                if a <= g1 + MAX_GAP and max(b, g1) - g0 <= MAX_REQUEST:
+                if a <= g1 + max_gap and max(b, g1) - g0 <= MAX_REQUEST:
                     g.append(i)
                     continue
             groups.append([i])

@@ -20,7 +20,8 @@ from ..errors import InputError, NoUsableDataError
 from ..progress import Progress
 from .pdal import expand_readers, load_pipeline, run_pipeline, tile_info, write_pipeline
 
-__all__ = ["LidarPoints", "cell_neighbourhoods", "cell_percentile",
+__all__ = ["LidarPoints", "cell_neighbourhoods", "cell_percentile", "cell_groups",
+           "max_and_percentile",
            "cell_max_and_percentile",
            "crop_corridor"]
 
@@ -73,18 +74,36 @@ def cell_neighbourhoods(
         raise InputError(f"radius {radius} must be in (0, resolution={resolution}]")
     x = np.asarray(x, dtype=np.float64)
     y = np.asarray(y, dtype=np.float64)
-    col0 = np.floor((x - origin_x) / resolution).astype(np.int64)
-    row0 = np.floor((top_y - y) / resolution).astype(np.int64)
+    fx = (x - origin_x) / resolution
+    fy = (top_y - y) / resolution
+    col0 = np.floor(fx).astype(np.int64)
+    row0 = np.floor(fy).astype(np.int64)
+    fx -= col0  # the position in the own cell, 0..1 (a prefilter only)
+    fy -= row0
+    reach = radius / resolution + 1e-6
+    near = {-1: fy < reach - 0.5, 0: None, 1: fy > 1.5 - reach}
+    near_c = {-1: fx < reach - 0.5, 0: None, 1: fx > 1.5 - reach}
     cells, points = [], []
-    idx = np.arange(x.size, dtype=np.int64)
-    for dr in (-1, 0, 1):  # nine neighbour offsets, each vectorised over all points
-        for dc in (-1, 0, 1):
-            col = col0 + dc
-            row = row0 + dr
-            cx = origin_x + (col + 0.5) * resolution
-            cy = top_y - (row + 0.5) * resolution
-            ok = ((col >= 0) & (col < width) & (row >= 0) & (row < height)
-                  & (np.hypot(x - cx, y - cy) < radius))
+    for dr in (-1, 0, 1):  # nine neighbour offsets, each vectorised over the points that
+        for dc in (-1, 0, 1):  # can reach that cell (the exact test is the same for all)
+            a, b = near[dr], near_c[dc]
+            cand = (a & b if a is not None and b is not None else a if a is not None else b)
+            if cand is None:  # the own cell: only a point near a corner needs the test
+                idx = np.arange(x.size, dtype=np.int64)
+                col, row = col0, row0
+                test = np.flatnonzero((np.abs(fx - 0.5) > 0.49) | (np.abs(fy - 0.5) > 0.49))
+                ok = (col >= 0) & (col < width) & (row >= 0) & (row < height)
+                cx = origin_x + (col[test] + 0.5) * resolution
+                cy = top_y - (row[test] + 0.5) * resolution
+                ok[test] &= np.hypot(x[test] - cx, y[test] - cy) < radius
+            else:
+                idx = np.flatnonzero(cand)
+                col = col0[idx] + dc
+                row = row0[idx] + dr
+                cx = origin_x + (col + 0.5) * resolution
+                cy = top_y - (row + 0.5) * resolution
+                ok = ((col >= 0) & (col < width) & (row >= 0) & (row < height)
+                      & (np.hypot(x[idx] - cx, y[idx] - cy) < radius))
             cells.append(row[ok] * width + col[ok])
             points.append(idx[ok])
     return np.concatenate(cells), np.concatenate(points)
@@ -126,17 +145,52 @@ def cell_max_and_percentile(
     pct = np.full(n_cells, np.nan)
     if cell.size == 0:
         return top, pct
-    order = np.lexsort((values, cell))
+    uniq, _, top_u, pct_u = cell_groups(cell, values, q)
+    top[uniq] = top_u
+    pct[uniq] = pct_u
+    return top, pct
+
+
+def cell_groups(cell: np.ndarray, values: np.ndarray, q: float = 90.0
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The distinct cells (sorted), each pair's position among them, and each cell's
+    maximum and ``q``-th percentile (numpy's "linear" rule) of ``values``: one sort by
+    (cell, value), no array over the whole grid."""
+    v = np.asarray(values, dtype=np.float64)
+    order = _cell_value_order(cell, v)
     c = cell[order]
-    v = np.asarray(values, dtype=np.float64)[order]
-    uniq, start, count = np.unique(c, return_index=True, return_counts=True)
-    top[uniq] = v[start + count - 1]
+    v = v[order]
+    first = np.r_[True, c[1:] != c[:-1]]
+    start = np.flatnonzero(first)
+    uniq = c[start]
+    count = np.diff(np.r_[start, c.size])
+    inverse = np.empty(c.size, dtype=np.int64)
+    inverse[order] = np.cumsum(first) - 1
+    return (uniq, inverse, *max_and_percentile(v, start, count, q))
+
+
+def max_and_percentile(v: np.ndarray, start: np.ndarray, count: np.ndarray, q: float
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """Each group's maximum and ``q``-th percentile (numpy's "linear" rule) of values
+    ``v`` sorted within groups of ``count`` values from ``start``."""
     pos = (q / 100.0) * (count - 1)
     lo = np.floor(pos).astype(np.int64)
     hi = np.minimum(lo + 1, count - 1)
     a = v[start + lo]
-    pct[uniq] = a + (v[start + hi] - a) * (pos - lo)
-    return top, pct
+    return v[start + count - 1], a + (v[start + hi] - a) * (pos - lo)
+
+
+def _cell_value_order(cell: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """``np.lexsort((values, cell))`` (sorted by cell, then value, ties in input order),
+    from two plain sorts: the values' stable rank, then one int64 key per pair."""
+    n = values.size
+    cell = np.asarray(cell, dtype=np.int64)
+    lo, hi = int(cell.min()), int(cell.max())
+    if (hi - lo + 1) * n >= 2 ** 62:  # a key would not fit in 64 bits
+        return np.lexsort((values, cell))
+    rank = np.empty(n, dtype=np.int64)
+    rank[np.argsort(values, kind="stable")] = np.arange(n, dtype=np.int64)
+    return np.argsort((cell - lo) * n + rank)
 
 
 def crop_corridor(

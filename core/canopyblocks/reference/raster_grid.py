@@ -15,6 +15,7 @@ import logging
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import lru_cache
 from pathlib import Path
 from typing import Any, Literal
 
@@ -200,10 +201,11 @@ def check_tile_crs(info: TileInfo, assigned: pyproj.CRS | None) -> tuple[pyproj.
     stated = las_file_crs(info.path)
     stated.require_metres()
     wkt, override = info.crs_wkt, False
-    if stated.crs is not None:
+    stated_crs = stated.crs  # parsed once (a survey's tiles state one CRS: see _checked)
+    if stated_crs is not None:
         if wkt is None:
             log.info("PDAL read no CRS in %s; using the one its header states", info.path)
-        wkt, override = stated.crs.to_wkt(), wkt is None
+        wkt, override = _wkt(stated_crs), wkt is None
     if wkt is None:
         if assigned is None:
             raise CRSError(f"tile {info.path} has no CRS; give the CRS its coordinates are in "
@@ -212,9 +214,20 @@ def check_tile_crs(info: TileInfo, assigned: pyproj.CRS | None) -> tuple[pyproj.
         log.warning("tile %s has no CRS; reading it as %s (the given crs)", info.path,
                     assigned.to_string())
         return assigned, True
-    crs = as_crs(wkt, f"CRS of tile {info.path}")
-    require_metre_units(crs, f"tile {info.path}")
-    return crs, override
+    return _checked(wkt, str(info.path)), override
+
+
+@lru_cache(maxsize=64)
+def _wkt(crs: pyproj.CRS) -> str:
+    return crs.to_wkt()
+
+
+@lru_cache(maxsize=64)
+def _checked(wkt: str, path: str) -> pyproj.CRS:
+    """A tile's CRS from its WKT, checked metric (once per CRS and tile name)."""
+    crs = as_crs(wkt, f"CRS of tile {path}")
+    require_metre_units(crs, f"tile {path}")
+    return crs
 
 
 def _horizontal(crs: pyproj.CRS) -> pyproj.CRS:

@@ -43,6 +43,7 @@ from .raster_grid import (
 from .raster_grid import fmt_bounds as _fmt
 from .raster_grid import horizontal_crs as _horizontal
 from .raster_tiles import TileUnit, cloud_reader, make_units, plausible_box, window_units
+from .raster_windows import CORRIDOR_WINDOW, WINDOW, Windows
 
 __all__ = ["Plan", "las_plan", "cloud_plan", "header_info"]
 
@@ -63,21 +64,42 @@ class Plan:
     checked: list[tuple[pyproj.CRS, bool]]
     reprojected: bool
     pdal_version: str = ""
+    windows: Windows | None = None
 
 
 def _intersects(a: Sequence[float], b: Sequence[float]) -> bool:
     return a[0] < b[2] and b[0] < a[2] and a[1] < b[3] and b[1] < a[3]
 
 
-def _grid(area: Sequence[float], params: RasterParams, wkt: str, names: str) -> Grid:
+def _grid(area: Sequence[float], params: RasterParams, wkt: str, names: str,
+          poly: Any = None) -> tuple[Grid, Windows]:
+    """The grid over ``area`` and its windows that meet ``poly`` (all without one)."""
     grid = Grid.from_bounds(area, params.resolution, wkt)
-    if grid.width * grid.height > _MAX_CELLS:
-        raise InputError(f"the grid over {names} would have {grid.width:.3g} x "
-                         f"{grid.height:.3g} cells at {params.resolution:g} m (limit "
-                         f"{_MAX_CELLS:.0e}); use a coarser resolution or smaller bounds")
-    log.info("grid %d x %d cells of %g m at (%.2f, %.2f)", grid.width, grid.height,
-             grid.resolution, grid.origin_x, grid.origin_y)
-    return grid
+    if poly is None or params.ground == "smrf":  # PDAL's SMRF raster is dense
+        if grid.width * grid.height > _MAX_CELLS:
+            raise InputError(f"the grid over {names} would have {grid.width:.3g} x "
+                             f"{grid.height:.3g} cells at {params.resolution:g} m (limit "
+                             f"{_MAX_CELLS:.0e}); use a coarser resolution or smaller bounds"
+                             + ("" if poly is None else " (or the ground class, not SMRF)"))
+    windows = Windows.over(grid, poly, WINDOW if poly is None else CORRIDOR_WINDOW)
+    windows.check_size(names)
+    log.info("grid %d x %d cells of %g m at (%.2f, %.2f), %d windows of %d x %d", grid.width,
+             grid.height, grid.resolution, grid.origin_x, grid.origin_y, windows.ids.size,
+             windows.size, windows.size)
+    return grid, windows
+
+
+def _under_tiles(poly: Any, boxes: np.ndarray, reach: float) -> Any:
+    """The part of ``poly`` within ``reach`` of the tiles' boxes (None for None): the
+    windows elsewhere along a corridor can hold no point."""
+    if poly is None:
+        return None
+    import shapely
+
+    b = boxes[np.isfinite(boxes).all(axis=1)]
+    near = shapely.union_all(shapely.box(b[:, 0] - reach, b[:, 1] - reach, b[:, 2] + reach,
+                                         b[:, 3] + reach))
+    return shapely.intersection(poly, near)
 
 
 def with_vertical(crs: pyproj.CRS) -> pyproj.CRS:
@@ -120,8 +142,10 @@ def las_plan(paths: list[Path], params: RasterParams, crs: object, area_poly: An
         arr = arr[meets] if meets.any() else arr
     union = (float(arr[:, 0].min()), float(arr[:, 1].min()), float(arr[:, 2].max()),
              float(arr[:, 3].max()))
-    grid = _grid(_area(params.bounds, area_poly, union, target), params, target.to_wkt(), names)
     tol = max(params.resolution, 1.0)
+    grid, windows = _grid(_area(params.bounds, area_poly, union, target), params,
+                          target.to_wkt(), names,
+                          _under_tiles(area_poly, np.asarray(live), tol + params.resolution))
     wide = [(b[0] - tol, b[1] - tol, b[2] + tol, b[3] + tol) for b in boxes]
     area_wkb = None if area_poly is None else area_poly.buffer(grid.radius).wkb
     units = make_units(paths, wide, grid, src_wkts=src_wkts,
@@ -137,7 +161,7 @@ def las_plan(paths: list[Path], params: RasterParams, crs: object, area_poly: An
     out_crs = authority_crs(target if reprojected or assigned
                             else with_vertical(tile_crss[0]))
     return Plan(units, grid, names, target, out_crs, checked, reprojected,
-                infos[0].pdal_version)
+                infos[0].pdal_version, windows)
 
 
 def cloud_plan(source: str, kind: str, params: RasterParams, crs: object,
@@ -162,15 +186,17 @@ def cloud_plan(source: str, kind: str, params: RasterParams, crs: object,
             e0, e1, e2, e3, densify_pts=21)
     if ext.n_points == 0:
         raise NoUsableDataError(f"{ext.source} holds no points")
-    grid = _grid(_area(params.bounds, area_poly, bounds, target), params, target.to_wkt(),
-                 ext.source)
+    grid, windows = _grid(_area(params.bounds, area_poly, bounds, target), params,
+                          target.to_wkt(), ext.source,
+                          _under_tiles(area_poly, np.asarray([bounds], dtype=float),
+                                       params.resolution))
     area_wkb = None if area_poly is None else area_poly.buffer(grid.radius).wkb
     units = window_units(source, kind, grid, bounds, area_wkb=area_wkb, ground=True,
                          crs_wkt=_horizontal(target).to_wkt() if moved or ext.crs is None
                          else None, moved=moved)
     if not units:
         raise CoverageError(f"{ext.source} does not meet the area {_fmt(grid.bounds)}")
-    return Plan(units, grid, ext.source, target, authority_crs(target), [], False)
+    return Plan(units, grid, ext.source, target, authority_crs(target), [], False, "", windows)
 
 
 def header_info(path: str | os.PathLike[str]) -> TileInfo:

@@ -18,7 +18,8 @@ import pyproj
 from ..errors import CRSError, DependencyError, FileFormatError, InputError
 from ..geo import require_metre_units
 
-__all__ = ["RasterSurface", "read_surface", "clean_heights", "UNDECLARED_NODATA"]
+__all__ = ["RasterSurface", "TiledValues", "read_surface", "clean_heights",
+           "UNDECLARED_NODATA"]
 
 log = logging.getLogger(__name__)
 
@@ -41,14 +42,39 @@ def clean_heights(values: np.ndarray, what: str = "raster") -> np.ndarray:
     return values
 
 
+_DENSE_CELLS = 16_000_000  # a larger tiled raster is held by its tiles that hold values
+
+
+@dataclass(frozen=True)
+class TiledValues:
+    """A large raster band held only in its tiles that hold a value (a corridor's sparse
+    rasters): ``blocks[index[r // bh, c // bw], r % bh, c % bw]``, NaN where ``index`` is
+    -1."""
+
+    blocks: np.ndarray
+    index: np.ndarray
+    shape: tuple[int, int]
+
+    @property
+    def ndim(self) -> int:
+        """Always 2, like the dense band it stands for."""
+        return 2
+
+    def take(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """Values at integer cell positions (inside the band)."""
+        bh, bw = self.blocks.shape[1:]
+        k = self.index[rows // bh, cols // bw]
+        return np.where(k >= 0, self.blocks[np.maximum(k, 0), rows % bh, cols % bw], np.nan)
+
+
 @dataclass(frozen=True)
 class RasterSurface:
     """One raster band in memory, north-up.
 
     Attributes
     ----------
-    values : ndarray float64, shape (rows, cols)
-        Cell values (m), NaN where nodata.
+    values : ndarray float64, shape (rows, cols), or TiledValues
+        Cell values (m), NaN where nodata (a large tiled raster: its tiles with values).
     x0, y0 : float
         Map coordinates (m) of the upper-left corner of cell (0, 0).
     dx, dy : float
@@ -59,7 +85,7 @@ class RasterSurface:
         The file it came from ("" when built from an array).
     """
 
-    values: np.ndarray
+    values: np.ndarray | TiledValues
     x0: float
     y0: float
     dx: float
@@ -103,15 +129,18 @@ class RasterSurface:
         fc = np.where(inside, c - c0, 0.0)
         fr = np.where(inside, r - r0, 0.0)
         v = self.values
-        top = v[ri, ci] * (1 - fc) + v[ri, ci + 1] * fc
-        bottom = v[ri + 1, ci] * (1 - fc) + v[ri + 1, ci + 1] * fc
+        take = v.take if isinstance(v, TiledValues) else (lambda r, c: v[r, c])
+        top = take(ri, ci) * (1 - fc) + take(ri, ci + 1) * fc
+        bottom = take(ri + 1, ci) * (1 - fc) + take(ri + 1, ci + 1) * fc
         out = top * (1 - fr) + bottom * fr
         return np.where(inside, out, np.nan)
 
     def slope_degrees(self) -> float:
         """Median terrain slope of the raster (degrees), from central differences."""
-        gy, gx = np.gradient(self.values, self.dy, self.dx)
-        s = np.degrees(np.arctan(np.hypot(gx, gy)))
+        v = self.values
+        parts = list(v.blocks) if isinstance(v, TiledValues) else [v]  # tiles: within each
+        s = np.concatenate([np.degrees(np.arctan(np.hypot(*np.gradient(b, self.dy, self.dx))))
+                            .ravel() for b in parts if min(b.shape) > 1] or [np.empty(0)])
         s = s[np.isfinite(s)]
         return float(np.median(s)) if s.size else float("nan")
 
@@ -146,12 +175,48 @@ def read_surface(path: str | os.PathLike[str], *, what: str = "raster") -> Raste
             t = src.transform
             if t.b != 0 or t.d != 0 or t.e >= 0:
                 raise InputError(f"{what} {p} is not a north-up grid; warp it north-up first")
-            band = src.read(1, masked=True)
             crs = pyproj.CRS.from_user_input(src.crs.to_wkt())
+            values: np.ndarray | TiledValues = (_read_tiles(src, f"{what} {p}")
+                                                if _tiled_and_large(src) else
+                                                _read_dense(src, f"{what} {p}"))
     except rasterio.errors.RasterioIOError as exc:
         raise FileFormatError(f"{what} {p}: cannot read ({exc})") from None
     require_metre_units(crs, f"{what} {p}")
-    values = clean_heights(np.ma.filled(band.astype(np.float64), np.nan), f"{what} {p}")
-    if not np.isfinite(values).any():
+    valid = (values.blocks.size > 0 and bool(np.isfinite(values.blocks).any())
+             if isinstance(values, TiledValues) else bool(np.isfinite(values).any()))
+    if not valid:
         raise InputError(f"{what} {p} holds no valid cell (all nodata)")
     return RasterSurface(values, float(t.c), float(t.f), float(t.a), float(-t.e), crs, p)
+
+
+def _tiled_and_large(src: object) -> bool:
+    h, w = src.height, src.width  # type: ignore[attr-defined]
+    return bool(h * w > _DENSE_CELLS and src.profile.get("tiled"))  # type: ignore[attr-defined]
+
+
+def _read_dense(src: object, what: str) -> np.ndarray:
+    band = src.read(1, masked=True)  # type: ignore[attr-defined]
+    return clean_heights(np.ma.filled(band.astype(np.float64), np.nan), what)
+
+
+def _read_tiles(src: object, what: str) -> TiledValues:
+    """The band's tiles that hold a value (absent tiles of a sparse GeoTIFF read as nodata
+    and are left out)."""
+    from rasterio.windows import Window
+
+    h, w = src.height, src.width  # type: ignore[attr-defined]
+    bh, bw = src.block_shapes[0]  # type: ignore[attr-defined]
+    index = np.full((-(-h // bh), -(-w // bw)), -1, dtype=np.int64)
+    blocks: list[np.ndarray] = []
+    for i in range(index.shape[0]):  # a loop over tiles
+        for j in range(index.shape[1]):
+            win = Window(j * bw, i * bh, min(bw, w - j * bw), min(bh, h - i * bh))
+            a = src.read(1, window=win, masked=True)  # type: ignore[attr-defined]
+            if a.mask.all():
+                continue
+            full = np.full((bh, bw), np.nan)
+            full[:a.shape[0], :a.shape[1]] = clean_heights(
+                np.ma.filled(a.astype(np.float64), np.nan), what)
+            index[i, j] = len(blocks)
+            blocks.append(full)
+    return TiledValues(np.asarray(blocks).reshape(-1, bh, bw), index, (h, w))

@@ -37,12 +37,13 @@ import numpy as np
 from ..errors import FileFormatError
 from ..readers.cloud_checks import HeightTally
 from ..readers.las_header import MAX_OFFSET, check_las_file, check_nothing_beyond_count
-from .lidar_points import cell_max_and_percentile, cell_neighbourhoods
+from .lidar_points import cell_groups, cell_neighbourhoods, max_and_percentile
 from .raster_grid import Grid
+from .raster_windows import SparseGrids, Windows, area_test
 
 __all__ = ["TileUnit", "TileResult", "SurveyGrids", "tile_surfaces", "merge_tiles",
            "plausible_box", "cell_stats", "make_units", "serial_runner", "Runner",
-           "cloud_kind", "cloud_reader", "window_units"]
+           "cloud_kind", "cloud_reader", "window_units", "merge_windows"]
 
 Box = tuple[float, float, float, float]
 _CHUNK = 2_000_000
@@ -142,8 +143,7 @@ def cell_stats(cell: np.ndarray, z: np.ndarray, ground: np.ndarray, n_cells: int
     if cell.size == 0:
         e = np.empty(0)
         return np.empty(0, np.int64), e, e, e
-    uniq, inverse = np.unique(cell, return_inverse=True)
-    top, p90 = cell_max_and_percentile(inverse, z, uniq.size, 90.0)
+    uniq, inverse, top, p90 = cell_groups(cell, z, 90.0)
     dtm = np.full(uniq.size, np.nan)
     if with_ground and ground.any():
         g = ground.astype(bool)
@@ -167,6 +167,50 @@ def _shared(cells: np.ndarray, grid: Grid, neighbours: Sequence[Box]) -> np.ndar
     return out
 
 
+def _scaled_stats(cell: np.ndarray, zi: np.ndarray, ground: np.ndarray,
+                  z_scale: tuple[float, float], with_ground: bool
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`cell_stats` of ``zi * scale + offset`` from the file's integer heights: one
+    sort of int64 keys (cell, height), no float sort (the same values: the heights are
+    made by the same expression, and their order is the integers' when scale > 0)."""
+    scale, offset = z_scale
+    if cell.size == 0 or not scale > 0:
+        return cell_stats(cell, zi * scale + offset, ground, 0, with_ground)
+    lo, z0 = int(cell.min()), int(zi.min())
+    span = int(zi.max()) - z0 + 1
+    if (int(cell.max()) - lo + 1) * span >= 2 ** 62:
+        return cell_stats(cell, zi * scale + offset, ground, 0, with_ground)
+    key = np.sort((cell - lo) * span + (zi - z0))
+    c, zs = np.divmod(key, span)
+    v = (zs + z0) * scale + offset
+    first = np.r_[True, c[1:] != c[:-1]]
+    start = np.flatnonzero(first)
+    uniq = c[start] + lo
+    top, p90 = max_and_percentile(v, start, np.diff(np.r_[start, c.size]), 90.0)
+    dtm = np.full(uniq.size, np.nan)
+    if with_ground and ground.any():
+        inverse = np.searchsorted(uniq, cell[ground])
+        z = zi[ground] * scale + offset
+        s = np.bincount(inverse, weights=z, minlength=uniq.size)
+        n = np.bincount(inverse, minlength=uniq.size)
+        has = n > 0
+        dtm[has] = s[has] / n[has]
+    return uniq, dtm, top, p90
+
+
+def _shared_pairs(cell: np.ndarray, grid: Grid, neighbours: Sequence[Box]) -> np.ndarray:
+    """Whether each pair's cell is shared (:func:`_shared`), decided once per cell of the
+    pairs' row/column box."""
+    if cell.size == 0 or not neighbours:
+        return np.zeros(cell.size, dtype=bool)
+    row, col = np.divmod(cell, grid.width)
+    r0, c0 = int(row.min()), int(col.min())
+    n_cols = int(col.max()) - c0 + 1
+    rr, cc = np.divmod(np.arange((int(row.max()) - r0 + 1) * n_cols, dtype=np.int64), n_cols)
+    box = _shared((rr + r0) * grid.width + cc + c0, grid, neighbours)
+    return box[(row - r0) * n_cols + (col - c0)]
+
+
 def _read_tile(unit: TileUnit) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     """The unit's kept points (x, y, z, ground) and the tile's tally, one pass."""
     from ..readers.las_crs import _laspy
@@ -184,13 +228,12 @@ def _read_tile(unit: TileUnit) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         transformer = pyproj.Transformer.from_crs(pyproj.CRS.from_wkt(unit.src_wkt),
                                                   pyproj.CRS.from_wkt(unit.dst_wkt),
                                                   always_xy=True)
-    area = None
+    in_area = None
     if unit.area_wkb is not None:
         import shapely
 
-        area = shapely.from_wkb(unit.area_wkb)
-        shapely.prepare(area)
-    parts: dict[str, list[np.ndarray]] = {"x": [], "y": [], "z": [], "g": []}
+        in_area = area_test(shapely.from_wkb(unit.area_wkb), unit.box, g.resolution)
+    parts: dict[str, list[np.ndarray]] = {"x": [], "y": [], "zi": [], "g": []}
     heights = HeightTally()
     tally: dict[str, Any] = {"n": 0, "noise": 0, "ground": 0}
     ilo = np.full(2, np.iinfo(np.int64).max)
@@ -221,13 +264,11 @@ def _read_tile(unit: TileUnit) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
                     x, y = transformer.transform(x, y)
                     x, y = np.asarray(x), np.asarray(y)
                 keep = ~noise & (x > lo[0]) & (x < lo[2]) & (y > lo[1]) & (y < lo[3])
-                if area is not None and keep.any():
-                    import shapely
-
-                    keep[keep] = shapely.contains_xy(area, x[keep], y[keep])
+                if in_area is not None and keep.any():
+                    keep[keep] = in_area(x[keep], y[keep])
                 parts["x"].append(x[keep])
                 parts["y"].append(y[keep])
-                parts["z"].append(zi[keep] * scale[2] + offset[2])
+                parts["zi"].append(zi[keep])
                 parts["g"].append(c[keep] == 2)
             check_nothing_beyond_count(reader, unit.path, tally["n"])
     except FileFormatError:
@@ -240,6 +281,7 @@ def _read_tile(unit: TileUnit) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
                         float(ihi[0] * scale[0] + offset[0]), float(ihi[1] * scale[1] + offset[1]))
                        if tally["n"] else (nan, nan, nan, nan))
     tally["heights"] = heights
+    tally["z_scale"] = (float(scale[2]), float(offset[2])) if tally["n"] else (1.0, 0.0)
     pts = {k: (np.concatenate(v) if v else np.empty(0)) for k, v in parts.items()}
     return pts, tally
 
@@ -281,11 +323,19 @@ def window_units(source: str, kind: str, grid: Grid, extent: Box, *, block: int 
     c1 = min(grid.width, math.ceil((extent[2] + r - grid.origin_x) / res))
     r0 = max(0, math.floor((grid.top_y - extent[3] - r) / res))
     r1 = min(grid.height, math.ceil((grid.top_y - extent[1] + r) / res))
+    area = None
+    if area_wkb is not None:
+        import shapely
+
+        area = shapely.from_wkb(area_wkb)
+        shapely.prepare(area)
     units = []
     for row in range(r0, r1, block):  # a loop over windows (a few per km2 of survey)
         for col in range(c0, c1, block):
             box = (grid.origin_x + col * res, grid.top_y - min(row + block, r1) * res,
                    grid.origin_x + min(col + block, c1) * res, grid.top_y - row * res)
+            if area is not None and not area.intersects(shapely.box(*box)):
+                continue  # a window the corridor does not meet: nothing to read
             units.append(TileUnit(path=source, grid=grid, box=box, neighbours=(),
                                   area_wkb=area_wkb, ground=ground, kind=kind,
                                   cells=(row, min(row + block, r1), col, min(col + block, c1)),
@@ -354,17 +404,17 @@ def tile_surfaces(unit: TileUnit) -> TileResult:
     cell, idx = cell_neighbourhoods(pts["x"], pts["y"], origin_x=g.origin_x, top_y=g.top_y,
                                     resolution=g.resolution, width=g.width, height=g.height,
                                     radius=g.radius)
-    z = pts["z"][idx]
+    zi = np.asarray(pts["zi"], dtype=np.int64)[idx]
     gr = pts["g"][idx].astype(bool)
     del pts, idx
-    uniq = np.unique(cell)
-    shared_cells = uniq[_shared(uniq, g, unit.neighbours)]
-    shared = np.isin(cell, shared_cells)
+    shared = _shared_pairs(cell, g, unit.neighbours)
     own = ~shared
-    cells, dtm, top, p90 = cell_stats(cell[own], z[own], gr[own], g.width * g.height,
-                                      unit.ground)
+    cells, dtm, top, p90 = _scaled_stats(cell[own], zi[own], gr[own], t["z_scale"],
+                                         unit.ground)
+    z_scale, z_offset = t["z_scale"]
+    z = zi[shared] * z_scale + z_offset
     return TileResult(path=unit.path, cells=cells, dtm=dtm, top=top, p90=p90,
-                      pair_cell=cell[shared], pair_z=z[shared], pair_ground=gr[shared],
+                      pair_cell=cell[shared], pair_z=z, pair_ground=gr[shared],
                       n_points=int(t["n"]), n_noise=int(t["noise"]),
                       n_ground=int(t["ground"]), header_count=int(t["header_count"]),
                       bounds=t["bounds"], header_bounds=t["header_bounds"],
@@ -392,6 +442,23 @@ def merge_tiles(results: Sequence[TileResult], grid: Grid, ground: bool) -> Surv
         out.p90[cells] = p90
     return SurveyGrids(dtm=out.dtm.reshape(shape), top=out.top.reshape(shape),
                        p90=out.p90.reshape(shape))
+
+
+def merge_windows(results: Any, windows: Windows, ground: bool) -> SparseGrids:
+    """The sparse grids from the units' own cells and their shared pairs (the values of
+    :func:`~canopyblocks.reference.raster_tiles.merge_tiles`, in windows)."""
+    g = windows.grid
+    out = SparseGrids(windows, windows.blocks(), windows.blocks(), windows.blocks())
+    for res in results:
+        out.assign(res.cells, res.dtm, res.top, res.p90)
+    with_pairs = [r for r in results if r.pair_cell.size]
+    if with_pairs:
+        cells, dtm, top, p90 = cell_stats(
+            np.concatenate([r.pair_cell for r in with_pairs]),
+            np.concatenate([r.pair_z for r in with_pairs]),
+            np.concatenate([r.pair_ground for r in with_pairs]), g.width * g.height, ground)
+        out.assign(cells, dtm, top, p90)
+    return out
 
 
 def make_units(paths: Sequence[str | os.PathLike[str]], boxes: Sequence[Box], grid: Grid, *,

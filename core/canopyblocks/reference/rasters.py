@@ -57,7 +57,7 @@ from ..progress import Progress, as_progress
 from ..readers.cloud_checks import warn_if_normalised
 from ..readers.las import as_area
 from ..readers.las_header import check_header_extent
-from .dtm_fill import fill_and_write_dtm, groundless_cells, rasterio_module, write_grid
+from .dtm_fill import fill_and_write_windows, groundless_cells, read_windows, write_windows
 from .pdal import (
     expand_readers,
     find_pdal,
@@ -79,13 +79,13 @@ from .raster_grid import fmt_bounds as _fmt
 from .raster_plan import _names, cloud_plan, las_plan
 from .raster_tiles import (
     Runner,
-    SurveyGrids,
     TileResult,
     cloud_kind,
-    merge_tiles,
+    merge_windows,
     serial_runner,
     tile_surfaces,
 )
+from .raster_windows import SparseGrids, Windows
 
 __all__ = ["NODATA", "Grid", "RasterParams", "ReferenceRasters", "make_reference_rasters",
            "check_tile_crs", "crs_label"]
@@ -187,20 +187,25 @@ def make_reference_rasters(
     plan = (cloud_plan(str(las_paths[0]), kind, params, crs, area_poly) if kind is not None
             else las_plan(paths, params, crs, area_poly, exe))
     units, grid, names, target = plan.units, plan.grid, plan.names, plan.target
+    windows = plan.windows if plan.windows is not None else Windows.over(grid)
     results = _run(units, runner, prog.sub(0.02, 0.8))
     _check_tally(results, params, names)
-    surf = merge_tiles(results, grid, ground=not smrf)
+    read = [(r.path, r.n_points, r.n_ground, u.box) for r, u in zip(results, units)]
+    surf = merge_windows(results, windows, ground=not smrf)
+    del results
     if area_poly is not None:
-        _mask_outside(surf, grid, area_poly)
+        surf.mask_outside(area_poly)
     if not np.isfinite(surf.top).any():
         raise CoverageError(f"no point of {names} lies in the grid {_fmt(grid.bounds)} "
                             f"({crs_label(target)}); check the bounds and the CRS")
     out_crs = plan.out_crs
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    stats: dict[str, Any] = {"tiles_read": len(units), "tiles": len(paths), "units": len(units)}
+    stats: dict[str, Any] = {"tiles_read": len(units), "tiles": len(paths), "units": len(units),
+                             "windows": int(windows.ids.size)}
     if kind is not None:
         stats["tiles_read"], stats["tiles"] = 0, 0
+    whole = area_poly is None  # a whole survey's rasters get overviews
     with contextlib.ExitStack() as stack:
         dtm_path = stack.enter_context(atomic_output(out / "dtm.tif"))
         max_path = stack.enter_context(atomic_output(out / "dsm_max.tif"))
@@ -211,24 +216,20 @@ def make_reference_rasters(
             used = [u.path for u in units]
             _smrf_dtm(used, plan.checked, [Path(p) for p in used], paths, grid, target,
                       plan.reprojected, exe, dtm_path, prog.sub(0.8, 0.9))
-            dtm = _read_band(dtm_path)
+            surf.dtm = read_windows(dtm_path, windows)
             if area_poly is not None:
-                dtm[~_inside(grid, area_poly)] = np.nan
-        else:
-            dtm = surf.dtm
-        write_grid(dtm_path, dtm, grid, out_crs)
-        prog.update(0.85, "dtm done")
-        write_grid(max_path, surf.top, grid, out_crs)
-        prog.update(0.9, "dsm_max done")
-        write_grid(p90_path, surf.p90, grid, out_crs)
-        prog.update(0.93, "dsm_p90 done")
-        stats.update(_check_outputs(dtm_path, max_path, grid, params, paths))
-        bare = None if smrf or kind is not None else groundless_cells(
-            [(r.path, r.n_points, r.n_ground, u.box) for r, u in zip(results, units)], grid, dtm)
+                surf.mask_outside(area_poly)
+        stats.update(_check_outputs(surf, grid, params, paths))
+        bare = None if smrf or kind is not None else groundless_cells(read, windows, surf.dtm)
         stats["dtm_unsupported"] = 0 if bare is None else int(bare.sum())
-        stats["dtm_filled"] = fill_and_write_dtm(dtm_path, mask_path, np.isfinite(surf.top),
-                                                 grid, out_crs, exclude=bare)
-        prog.update(0.97, "DTM holes filled")
+        stats["dtm_filled"], _ = fill_and_write_windows(dtm_path, mask_path, surf.dtm,
+                                                        np.isfinite(surf.top), windows,
+                                                        out_crs, overviews=whole, exclude=bare)
+        prog.update(0.86, "dtm done, its holes filled")
+        write_windows(max_path, surf.top, windows, out_crs, overviews=whole)
+        prog.update(0.92, "dsm_max done")
+        write_windows(p90_path, surf.p90, windows, out_crs, overviews=whole)
+        prog.update(0.97, "dsm_p90 done")
     log.info("reference rasters in %s: %s", out, stats)
     prog.report(1.0, "done")  # outputs are committed: too late to cancel
     return ReferenceRasters(dtm=out / "dtm.tif", dsm_max=out / "dsm_max.tif",
@@ -284,22 +285,6 @@ def _check_tally(results: list[TileResult], params: RasterParams, names: str) ->
             "unclassified; use ground='smrf' (--smrf) to classify the ground first")
 
 
-def _inside(grid: Grid, poly: Any) -> np.ndarray:
-    """(height, width) bool: the cells whose centre lies in ``poly``."""
-    import shapely
-
-    cx = grid.origin_x + (np.arange(grid.width) + 0.5) * grid.resolution
-    cy = grid.top_y - (np.arange(grid.height) + 0.5) * grid.resolution
-    xx, yy = np.meshgrid(cx, cy)
-    return np.asarray(shapely.contains_xy(poly, xx, yy))
-
-
-def _mask_outside(surf: SurveyGrids, grid: Grid, poly: Any) -> None:
-    outside = ~_inside(grid, poly)
-    for a in (surf.dtm, surf.top, surf.p90):
-        a[outside] = np.nan
-
-
 def _smrf_dtm(used: list[str], checked: list[tuple[pyproj.CRS, bool]], used_paths: list[Path],
               paths: list[Path], grid: Grid, target: pyproj.CRS, reproject: bool, exe: Path,
               dtm_path: Path, prog: Progress) -> None:
@@ -331,24 +316,12 @@ def _smrf_dtm(used: list[str], checked: list[tuple[pyproj.CRS, bool]], used_path
             raise
 
 
-def _read_band(path: Path) -> np.ndarray:
-    """Band 1 of a raster PDAL wrote, float64 with NaN for nodata."""
-    with rasterio_module().open(path) as src:
-        a = src.read(1).astype(np.float64)
-    a[(a == NODATA) | ~np.isfinite(a)] = np.nan
-    return a
-
-
-def _check_outputs(dtm: Path, dsm: Path, grid: Grid, params: RasterParams,
+def _check_outputs(surf: SparseGrids, grid: Grid, params: RasterParams,
                    paths: list[Path]) -> dict[str, Any]:
     """Refuse empty rasters with a clear message; return valid-cell counts."""
-    rasterio = rasterio_module()
-    counts = {}
-    for name, p in (("dtm", dtm), ("dsm_max", dsm)):
-        with rasterio.open(p) as src:
-            a = src.read(1)
-            counts[name] = int(np.count_nonzero(a != NODATA))
-    counts["cells"] = grid.width * grid.height
+    measured = np.isfinite(surf.dtm)
+    counts = {"dtm": int(measured.sum()), "dsm_max": int(np.isfinite(surf.top).sum()),
+              "cells": grid.width * grid.height, "cells_held": surf.windows.n_cells}
     if counts["dsm_max"] == 0:
         raise CoverageError(f"no point of {', '.join(map(str, paths))} lies in the grid "
                             f"{_fmt(grid.bounds)}; check the bounds/CRS")
@@ -357,8 +330,6 @@ def _check_outputs(dtm: Path, dsm: Path, grid: Grid, params: RasterParams,
                 if params.ground == "class2" else "")
         raise NoUsableDataError(f"no ground point of {', '.join(map(str, paths))} in the "
                                 f"grid {_fmt(grid.bounds)}{hint}")
-    with rasterio.open(dtm) as src:
-        a = src.read(1)
-    ground = a[a != NODATA]
+    ground = surf.dtm[measured].astype(np.float32)  # as the file holds them
     warn_if_normalised(ground, np.full(ground.size, 2), ", ".join(map(str, paths)))
     return counts
