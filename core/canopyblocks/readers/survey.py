@@ -21,11 +21,12 @@ from __future__ import annotations
 import glob
 import json
 import os
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from ..errors import CRSError, FileFormatError, InputError, NoUsableDataError
+from ..errors import CanopyBlocksWarning, CRSError, FileFormatError, InputError, NoUsableDataError
 from ..progress import Progress, as_progress
 from .remote import is_url
 
@@ -140,7 +141,8 @@ def survey_sources(sources: Any) -> list[Any]:
     """The flat list of point-cloud sources of a survey argument (see the module notes).
 
     Local files come back as :class:`~pathlib.Path`, URLs and EPT datasets as strings;
-    duplicates (the same source given twice) are kept once, in the order first given.
+    a URL or dataset given twice is kept once, with a warning (local files given twice, or
+    their copies, are left to :func:`~canopyblocks.readers.tile_checks.duplicate_tiles`).
 
     Raises
     ------
@@ -177,13 +179,17 @@ def survey_sources(sources: Any) -> list[Any]:
     if not out:
         raise InputError("no point-cloud source given; give LAS/LAZ tiles, a folder, a .vpc, "
                          "a COPC or an ept.json")
+    # a URL or dataset given twice is read once, with a warning; local files (the same
+    # file, a copy, a link, a crop) are told apart by readers.tile_checks.duplicate_tiles
     seen: set[str] = set()
     unique = []
     for s in out:
-        key = str(s) if is_url(s) or isinstance(s, str) else os.path.abspath(s)
-        if key not in seen:
-            seen.add(key)
-            unique.append(s)
+        if isinstance(s, str) and s in seen:
+            warnings.warn(f"the survey source {s} is given twice: read once",
+                          CanopyBlocksWarning, stacklevel=2)
+            continue
+        seen.add(str(s))
+        unique.append(s)
     return unique
 
 

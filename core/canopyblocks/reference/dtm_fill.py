@@ -231,13 +231,14 @@ def groundless_cells(tiles: Sequence[tuple[str, int, int, Sequence[float]]],
         return None
     grid = windows.grid
     wr, wc = np.divmod(windows.ids, windows.n_cols)
-    step = np.arange(windows.size) + 0.5
-    cx = grid.origin_x + (wc[:, None] * windows.size + step) * grid.resolution
-    cy = grid.top_y - (wr[:, None] * windows.size + step) * grid.resolution
+    col = wc[:, None] * windows.size + np.arange(windows.size)  # (windows, size)
+    row = wr[:, None] * windows.size + np.arange(windows.size)
+    cx = grid.origin_x + (col + 0.5) * grid.resolution
+    cy = grid.top_y - (row + 0.5) * grid.resolution
     out = np.zeros(dtm.shape, dtype=bool)
     for path, n, _, box in bare:  # a loop over the groundless tiles, vectorised over cells
-        cols = (cx >= box[0]) & (cx <= box[2])
-        rows = (cy >= box[1]) & (cy <= box[3])
+        cols = (cx >= box[0]) & (cx <= box[2]) & (col < grid.width)  # not past the grid
+        rows = (cy >= box[1]) & (cy <= box[3]) & (row < grid.height)
         cells = rows[:, :, None] & cols[:, None, :] & ~np.isfinite(dtm)
         out |= cells
         warnings.warn(
