@@ -37,7 +37,8 @@ def register(group: click.Group) -> None:
 @click.option("--points", "points", multiple=True, type=click.Path(dir_okay=False),
               help="Airborne LAS/LAZ tile for the footprint reference (repeatable).")
 @click.option("--diameter", type=float, default=None,
-              help="Footprint diameter, m (default 13 for blocks, 22 for GEDI footprints).")
+              help="Footprint diameter of photon blocks, m (default 13; GEDI footprints are "
+                   "the instrument's 22 m).")
 @click.option("--cut", type=float, default=None,
               help="Footprint reference: points within cut x R count (default 1 for blocks, "
                    "1.5 = 3 sigma for GEDI footprints).")
@@ -114,6 +115,12 @@ def validate(ctx: click.Context, blocks_path: str, dtm: str | None, dsm_max: str
                              if v is not None}
     from ..errors import InputError
 
+    if footprints and diameter is not None:
+        from .simulate import WAVEFORM_FOOTPRINT
+
+        raise click.BadParameter(
+            f"applies to photon blocks only: the {WAVEFORM_FOOTPRINT['gedi']} is the "
+            "instrument's, as run and simulate use it; leave it out", param_hint="--diameter")
     if footprint_definition is not None and not footprints:
         raise InputError("--footprint-definition applies to GEDI footprint tables; photon "
                          "blocks are compared with the weighted points")
