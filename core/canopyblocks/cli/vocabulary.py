@@ -78,8 +78,8 @@ def take_alias(new_value: Any, old_value: Any, *, old: str, new: str,
         return new_value
     if _given(new) or (new_value not in (None, default, False, ())
                        and new_value != old_value):
-        raise click.UsageError(f"{old} is the deprecated spelling of {new}: give {new} "
-                               "only, not both")
+        raise click.UsageError(f"give {new} only, not also the deprecated {old} (its old "
+                               "spelling)")
     _say(f"{old} is deprecated and will be removed; use {new}")
     return old_value
 
