@@ -158,7 +158,6 @@ def test_calibrate_prints_the_blocks_command_that_gives_the_calibrated_blocks(
 
     sys.path.insert(0, str(Path(__file__).parent))
     from badinputs.base import _make_blocks, _make_rasters
-
     from canopyblocks import BlockParams
     from canopyblocks.blocks.estimators import preset
     from canopyblocks.workflows.blocks import read_tracks, run_blocks

@@ -99,7 +99,9 @@ def test_a_server_that_stops_answering_is_named_whenever_it_stops(
             break
         line = error_line(capsys)
         outcomes.append(line)
-        assert url in line and "503" in line, f"server stopped after {k} answers: {line}"
+        # the server's failure: its 503, or its silence when it stopped mid-answer
+        assert url in line and ("503" in line or "no answer" in line), \
+            f"server stopped after {k} answers: {line}"
         for bad in ("no usable photons", "not a GEDI", "no photons", "damaged"):
             assert bad not in line, f"server stopped after {k} answers: {line}"
     assert len(outcomes) >= 3

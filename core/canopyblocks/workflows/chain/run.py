@@ -153,11 +153,10 @@ def run_chain(
         photon_rate = preset
     prog = as_progress(progress)
     from ...readers.las import refuse_urls
-    from ...reference.raster_tiles import cloud_kind
     from .flash_dual import waveform_chain
 
     tiles = [las_paths] if isinstance(las_paths, (str, os.PathLike)) else list(las_paths)
-    refuse_urls([p for p in tiles if cloud_kind(p) is None])  # never mangled into a path
+    refuse_urls(tiles)  # the chain reads local tiles: a URL is named, never mangled
 
     waveform = waveform_chain(las_paths, out_dir, photons, sensor, beams=beams,
                                azimuth=azimuth, seed=seed, geoid=geoid, offset=offset,
@@ -178,7 +177,7 @@ def run_chain(
                "coregister": coregister, "footprint_reference": footprint_reference}
     with new_files_removed_on_failure(out):
         out.mkdir(parents=True, exist_ok=True)
-        st = RunState(out=out, tiles=[p if "://" in str(p) else Path(p) for p in tiles],
+        st = RunState(out=out, tiles=[Path(p) for p in tiles],
                       params=params or BlockParams(lengths=(10.0, 25.0, 50.0)),
                       options=options, prog=prog)
         for stage in (photons_stage, blocks_stage, rasters_stage, validation_stage,
