@@ -189,3 +189,22 @@ def test_calibrate_prints_the_blocks_command_that_gives_the_calibrated_blocks(
                                want[["top", "ground", "hmax"]].to_numpy(float), equal_nan=True)
     top = float(re.search(r"--top-cutoff (\S+)", lines[0]).group(1))
     assert top == pytest.approx(float(cal.table["top_cutoff"].iloc[0]))
+
+
+@pytest.mark.parametrize("setting, option", [({"k_sigma": 3.0}, "--k-sigma"),
+                                             ({"top_cutoff": 0.3}, "--top-cutoff"),
+                                             ({"ground_cutoff": 0.3}, "--ground-cutoff")])
+def test_the_python_api_refuses_what_the_default_estimators_ignore(setting, option,
+                                                                   sample) -> None:
+    """The same rule at the Python door (and so for QGIS): the paper's settings with the
+    recommended estimators are refused, never ignored."""
+    from canopyblocks import BlockParams
+    from canopyblocks.blocks.estimators import estimate_blocks
+    from canopyblocks.errors import InputError
+    from canopyblocks.readers import read_atl03
+
+    track = read_atl03(sample(ATL03), "gt1r")
+    with pytest.raises(InputError) as info:
+        estimate_blocks(track, BlockParams(lengths=(25.0,), **setting))
+    msg = str(info.value)
+    assert option in msg and "atl08 estimators" in msg and "--preset paper" in msg, msg

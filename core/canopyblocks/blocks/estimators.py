@@ -187,11 +187,15 @@ _INSTEAD = {"atl08": "the ATL08-style classifier's ground surface and canopy pho
             "p99": "a height percentile", "p100": "the highest kept photon"}
 
 
+_DEFAULT_K_SIGMA = BlockParams.__dataclass_fields__["k_sigma"].default
+
+
 def refuse_unused_cutoffs(track: PhotonTrack, params: BlockParams, est: Estimators) -> None:
-    """Refuse a top or ground cut-off that the estimators do not use (never ignore it).
+    """Refuse a top or ground cut-off, or a noise threshold ``k_sigma`` other than the
+    default, that the estimators do not use (never ignore it).
 
     The cut-offs set the paper's windows: the top one is used by ``top="paper"`` only,
-    the ground one by ``ground="paper"`` only.
+    the ground one by ``ground="paper"`` only; ``k_sigma`` by ``noise="sigma"`` only.
 
     Raises
     ------
@@ -202,6 +206,12 @@ def refuse_unused_cutoffs(track: PhotonTrack, params: BlockParams, est: Estimato
         ("--top-cutoff", params.top_cutoff, est.top),
         ("--ground-cutoff", params.ground_cutoff, est.ground)) if value is not None
         and part != "paper"]
+    if est.noise != "sigma" and params.k_sigma != _DEFAULT_K_SIGMA:
+        raise InputError(
+            f"track {track.track} ({track.source or 'in memory'}): --k-sigma "
+            f"{params.k_sigma:g} is the paper's noise filter (noise 'sigma'); the {est.name} "
+            f"estimators filter noise with {est.noise!r}: use --preset paper for it to act, "
+            "or leave it at its default")
     if not unused:
         return
     where = f"track {track.track} ({track.source or 'in memory'})"
