@@ -212,7 +212,7 @@ def options_cases() -> list[Any]:
          ("byte ranges",), ("crosses", "StorageError"),
          lambda f, b: {"served": _served(f, b)}),
     ]
-    for k in (2, 3, 4):
+    for k in (3,):
         rows.append((f"net-server-dies-after-{k}", "{url}/atl03.h5",
                      lambda f, b, e, u: ["blocks", f"{u}/atl03.h5", "-o",
                                          str(f / "out" / "b.csv")],
