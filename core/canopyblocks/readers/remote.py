@@ -42,6 +42,8 @@ from urllib.parse import urlsplit, urlunsplit
 
 from ..errors import DependencyError, FileFormatError
 from .earthdata import _EARTHDATA, earthdata_credentials
+from .tls_errors import tls_failed as _tls
+from .tls_errors import tls_message
 
 __all__ = ["StorageError", "is_url", "is_file_object", "source_arg", "source_label",
            "source_name", "RemoteFile", "open_source", "list_granules", "clear_cache",
@@ -315,35 +317,13 @@ def _explain(exc: BaseException, label: str, tries: int) -> StorageError:
                            + (f", HTTP {status}" if status else "") + ")")
 
 
-def _tls(exc: BaseException) -> bool:
-    """True for a failed TLS (https) handshake or certificate check."""
-    import ssl
-
-    return isinstance(exc, ssl.SSLError) or "SSL" in type(exc).__name__ \
-        or "Certificate" in type(exc).__name__
-
-
-def _tls_error(chain: list[BaseException], label: str) -> StorageError:
-    """The one line for a failed https handshake, in words of what the server did."""
-    text = " ".join(str(e) for e in chain).lower()
-    if "certificate" in text:
-        return StorageError(f"{label}: the server's https certificate is not trusted "
-                            "(certificate verify failed); check the address, or install the "
-                            "certificate authority it uses")
-    if "wrong_version" in text or "wrong version" in text or "record layer" in text:
-        return StorageError(f"{label}: the server does not speak https (it answered the "
-                            "TLS handshake in plain http); use the http:// URL")
-    return StorageError(f"{label}: the https (TLS) handshake with the server failed; check "
-                        "the address (http:// for a server without TLS)")
-
-
 def _explain_special(chain: list[BaseException], label: str, tries: int
                      ) -> StorageError | None:
     """What the server or the configuration did, for the failures with their own words."""
     s3 = label.lower().startswith("s3://")
     for e in chain:
         if _tls(e):
-            return _tls_error(chain, label)
+            return StorageError(tls_message(chain, label))
         if isinstance(e, _RangesIgnored):
             return StorageError(f"{label}: the server does not support byte ranges (it does "
                                 f"not answer byte-range requests: {e}); download the file "
