@@ -49,6 +49,7 @@ from badinputs.make_corpus import (  # noqa: E402
     all_cases,
 )
 from badinputs.odd_inputs_corpus import RUNNERS as ODD_RUNNERS  # noqa: E402
+from badinputs.options_corpus import RUNNERS as OPTIONS_RUNNERS  # noqa: E402
 from badinputs.survey_corpus import RUNNERS as SURVEY_RUNNERS  # noqa: E402
 from badinputs.xfail import XFAIL  # noqa: E402
 from canopyblocks.errors import CanopyBlocksError  # noqa: E402
@@ -541,6 +542,7 @@ RUNNERS.update(ISSUE29_RUNNERS)  # wrong background rates, foreign exceptions (i
 RUNNERS.update(COPC_RUNNERS)  # damaged COPC files and EPT datasets (badinputs/copc_corpus.py)
 RUNNERS.update(ODD_RUNNERS)  # ignored options, missing bckgrd_atlas, box reads
 RUNNERS.update(SURVEY_RUNNERS)  # copies, lying headers, groundless tiles, mixed datums
+RUNNERS.update(OPTIONS_RUNNERS)  # options that act or are refused, box context, network
 
 
 def judge_api(case: Case, inputs: dict[str, Any], folder: Path) -> str:

@@ -42,9 +42,11 @@ def test_noise_free_simulation_matches_its_reference(sample, tmp_path):
     assert (ref["ref_waveform_flag"] == "ok").all()
     np.testing.assert_allclose(ref["ref_ground"], fp["ground"], atol=1e-9)
     np.testing.assert_allclose(ref["ref_height"], fp["height"], atol=1e-9)
-    # unrounded (as before the file's float32 was applied) it loses footprints' ground
+    # unrounded (as before the file's float32 was applied) every footprint keeps its ground
+    # too: a canopy of one constant ratio is no edge (its gradients are float rounding)
     raw = dual_reference(pts, f.x, f.y, DualFormParams(noise=0.0), stored=np.float64)
-    assert (raw["ref_waveform_flag"] != "ok").sum() >= 5
+    assert (raw["ref_waveform_flag"] == "ok").all()
+    assert np.abs(raw["ref_ground"].to_numpy(float) - fp["ground"].to_numpy(float)).max() < 0.5
 
 
 def test_paper_noise_simulation_near_its_reference(sample, tmp_path):

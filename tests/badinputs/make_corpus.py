@@ -927,12 +927,14 @@ def all_cases() -> list[Case]:
     from .gedi_corpus import gedi_cases
     from .issue29_corpus import issue29_cases
     from .odd_inputs_corpus import odd_cases
+    from .options_corpus import options_cases
     from .survey_corpus import survey_cases
 
     cases = (baseline_cases() + atl03_cases() + atl08_cases() + las_cases() + raster_cases() + table_cases()
              + param_cases() + cli_cases() + gedi_cases()
              + coregistration_cases() + api_cases() + issue29_cases() + odd_cases()
-             + url_cases() + copc_cases() + survey_cases())
+             + url_cases() + copc_cases() + survey_cases()
+             + options_cases())
     ids = [c.id for c in cases]
     dup = {i for i in ids if ids.count(i) > 1}
     if dup:

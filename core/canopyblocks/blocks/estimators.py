@@ -179,6 +179,50 @@ def preset(name: str = RECOMMENDED_PRESET) -> Estimators:
         raise InputError(f"unknown preset {name!r}; use one of {', '.join(PRESETS)}") from None
 
 
+#: What each estimator part uses instead of the paper's window (said when a cut-off is
+#: refused).
+_INSTEAD = {"atl08": "the ATL08-style classifier's ground surface and canopy photons",
+            "surface": "a robust along-track ground surface",
+            "p95": "a height percentile", "p98": "a height percentile",
+            "p99": "a height percentile", "p100": "the highest kept photon"}
+
+
+_DEFAULT_K_SIGMA = BlockParams.__dataclass_fields__["k_sigma"].default
+
+
+def refuse_unused_cutoffs(track: PhotonTrack, params: BlockParams, est: Estimators) -> None:
+    """Refuse a top or ground cut-off, or a noise threshold ``k_sigma`` other than the
+    default, that the estimators do not use (never ignore it).
+
+    The cut-offs set the paper's windows: the top one is used by ``top="paper"`` only,
+    the ground one by ``ground="paper"`` only; ``k_sigma`` by ``noise="sigma"`` only.
+
+    Raises
+    ------
+    InputError
+        Naming the option, what the estimators use instead and the preset that uses it.
+    """
+    unused = [(name, part) for name, value, part in (
+        ("--top-cutoff", params.top_cutoff, est.top),
+        ("--ground-cutoff", params.ground_cutoff, est.ground)) if value is not None
+        and part != "paper"]
+    if est.noise != "sigma" and params.k_sigma != _DEFAULT_K_SIGMA:
+        raise InputError(
+            f"track {track.track} ({track.source or 'in memory'}): --k-sigma "
+            f"{params.k_sigma:g} is the paper's noise filter (noise 'sigma'); the {est.name} "
+            f"estimators filter noise with {est.noise!r}: use --preset paper for it to act, "
+            "or leave it at its default")
+    if not unused:
+        return
+    where = f"track {track.track} ({track.source or 'in memory'})"
+    names = " and ".join(n for n, _ in unused)
+    instead = " and ".join(dict.fromkeys(_INSTEAD.get(p, p) for _, p in unused))
+    raise InputError(
+        f"{where}: {names} {'is' if len(unused) == 1 else 'are'} not used by the {est.name} "
+        f"estimators (they set the paper's windows; these use {instead}); use --preset "
+        "paper for the cut-offs to act, or drop them")
+
+
 def percentile_by_block(block: np.ndarray, z: np.ndarray, q: float,
                         n_blocks: int) -> np.ndarray:
     """Per block, the ``q``-th percentile (0-100) of ``z`` (numpy's linear method).
@@ -250,6 +294,7 @@ def estimate_blocks(track: PhotonTrack, params: BlockParams | None = None,
     if not isinstance(est, Estimators):
         raise InputError(f"estimators must be an Estimators (or a preset name via preset()); "
                          f"got {type(est).__name__}")
+    refuse_unused_cutoffs(track, params, est)
     work = track
     removed = None
     if est.noise == "atl08":

@@ -133,11 +133,30 @@ def calibrate_cmd(ctx: click.Context, photons: str, method: str, dtm: str | None
 
         write_cutoff_calibration(cal, output)
     if not quiet:
-        click.echo("canopyblocks: use them one length at a time, e.g.", err=True)
+        click.echo("canopyblocks: use them one length at a time (the paper's method, which "
+                   "the cut-offs are for), e.g.", err=True)
         for row in cal.table.itertuples():
-            click.echo(f"  canopyblocks blocks PHOTONS --length {row.length:g} "
-                       f"--top-cutoff {row.top_cutoff:g} --ground-cutoff "
-                       f"{row.ground_cutoff:g} -o blocks_{row.length:g}m.gpkg", err=True)
+            click.echo("  " + blocks_command(photons, row.length, row.top_cutoff,
+                                             row.ground_cutoff, beam=beams[0] if beams else None,
+                                             channel=channel, min_signal_conf=min_signal_conf),
+                       err=True)
+
+
+def blocks_command(photons: str, length: float, top: float, ground: float, *,
+                   beam: str | None, channel: str | None, min_signal_conf: int | None) -> str:
+    """The ``blocks`` command that computes the calibrated blocks of one length: the
+    paper's method (the cut-offs are its windows) with the photons' options of the
+    calibration."""
+    import shlex
+
+    words = ["canopyblocks", "blocks", photons, "--preset", "paper", "--length", f"{length:g}"]
+    for name, value in (("--beam", beam), ("--channel", channel),
+                        ("--min-signal-conf", min_signal_conf)):
+        if value is not None:
+            words += [name, str(value)]
+    words += ["--top-cutoff", repr(float(top)), "--ground-cutoff", repr(float(ground)),
+              "-o", f"blocks_{length:g}m.gpkg"]
+    return shlex.join(words)
 
 
 def _bias(photons: str, params: object, *, quiet: bool, output: str | None,

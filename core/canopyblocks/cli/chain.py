@@ -120,6 +120,9 @@ def run_cmd(ctx: click.Context, tiles: tuple[str, ...], out_dir: str, photons: s
                                   old_estimators, old="--estimators",
                                   new="--preset") or RECOMMENDED_PRESET
     if estimator_preset in PHOTON_RATES:  # the old meaning of --preset
+        if explicit_value(ctx, "photon_rate", photon_rate) is not None:
+            raise click.UsageError(f"give --photon-rate only, not also the deprecated "
+                                   f"--preset {estimator_preset} (its old spelling)")
         say_deprecated(f"--preset {estimator_preset}", f"--photon-rate {estimator_preset}")
         photon_rate, estimator_preset = estimator_preset, RECOMMENDED_PRESET
     params = BlockParams(lengths=tuple(lengths) or (10.0, 25.0, 50.0),

@@ -28,8 +28,9 @@ log = logging.getLogger(__name__)
               metavar="MINX MINY MAXX MAXY",
               help="Area to rasterise, metres in the output CRS (default: all tiles).")
 @click.option("--polygon", type=click.Path(dir_okay=False), default=None,
-              help="Area to rasterise: a WKT polygon, or a GeoPackage/GeoJSON/shapefile of "
-                   "polygons, in the output CRS; cells whose centre is outside are nodata.")
+              help="Area to rasterise: a WKT polygon (in the output CRS), or a "
+                   "GeoPackage/GeoJSON/shapefile of polygons (reprojected to the output CRS "
+                   "from its own); cells whose centre is outside are nodata.")
 @click.option("--backend", type=click.Choice(["serial", "processes", "dask"]),
               default="processes", show_default=True,
               help="Where the tiles are read: here, on local processes or on Dask.")
@@ -63,7 +64,7 @@ def rasters_cmd(ctx: click.Context, las: tuple[str, ...], out_dir: str, resoluti
     with new_files_removed_on_failure(out_dir), progress_bar("rasters", quiet=quiet) as progress:
         result = make_survey_rasters(
             list(las), Path(out_dir), resolution=resolution, crs=crs,
-            bounds=bounds or None, polygon=read_polygon(polygon),
+            bounds=bounds or None, polygon=read_polygon(polygon, crs=crs, tiles=las),
             ground="smrf" if smrf else "class2", pdal=pdal_exe, backend=backend,
             workers=workers, scheduler=scheduler, progress=progress)
     g = result.grid

@@ -40,7 +40,8 @@ def register(group: click.Group) -> None:
                    "folder, a glob pattern, a .vpc, a COPC or an ept.json (path or URL; "
                    "repeatable).")
 @click.option("--diameter", type=float, default=None,
-              help="Footprint diameter, m (default 13 for blocks, 22 for GEDI footprints).")
+              help="Footprint diameter of photon blocks, m (default 13; GEDI footprints are "
+                   "the instrument's 22 m).")
 @click.option("--cut", type=float, default=None,
               help="Footprint reference: points within cut x R count (default 1 for blocks, "
                    "1.5 = 3 sigma for GEDI footprints).")
@@ -118,6 +119,12 @@ def validate(ctx: click.Context, blocks_path: str, dtm: str | None, dsm_max: str
                              if v is not None}
     from ..errors import InputError
 
+    if footprints and diameter is not None:
+        from .simulate import WAVEFORM_FOOTPRINT
+
+        raise click.BadParameter(
+            f"applies to photon blocks only: the {WAVEFORM_FOOTPRINT['gedi']} is the "
+            "instrument's, as run and simulate use it; leave it out", param_hint="--diameter")
     if footprint_definition is not None and not footprints:
         raise InputError("--footprint-definition applies to GEDI footprint tables; photon "
                          "blocks are compared with the weighted points")

@@ -71,14 +71,31 @@ def take_alias(new_value: Any, old_value: Any, *, old: str, new: str,
                default: Any = None) -> Any:
     """The value to use: the new option's, or the deprecated alias's (with a warning).
 
-    Both given with different values is a usage error naming both.
+    Both given (whatever their values) is a usage error naming both: which one was
+    meant cannot be told.
     """
     if old_value is None or old_value is False or old_value == ():
         return new_value
+    if _given(new) or (new_value not in (None, default, False, ())
+                       and new_value != old_value):
+        raise click.UsageError(f"give {new} only, not also the deprecated {old} (its old "
+                               "spelling)")
     _say(f"{old} is deprecated and will be removed; use {new}")
-    if new_value not in (None, default, False, ()) and new_value != old_value:
-        raise click.UsageError(f"give {new} only, not also the deprecated {old}")
     return old_value
+
+
+def _given(name: str) -> bool:
+    """True when option ``name`` of the running command was given (not its default)."""
+    from click.core import ParameterSource
+
+    ctx = click.get_current_context(silent=True)
+    if ctx is None:
+        return False
+    for param in ctx.command.params:
+        if name in param.opts and param.name is not None:
+            source = ctx.get_parameter_source(param.name)
+            return source not in (None, ParameterSource.DEFAULT, ParameterSource.DEFAULT_MAP)
+    return False
 
 
 def deprecated_value(value: Any, *, option: str, old: str, new: str) -> Any:

@@ -91,11 +91,19 @@ class H5File:
         tail = f" ({type(exc).__name__}: {exc})" if exc is not None else ""
         return FileFormatError(f"{self.path}: {what}{tail}")
 
+    def _storage_failed(self) -> None:
+        """Raise the storage's error when a granule in storage failed to answer: a read
+        error that says "absent" (False, empty) would name the file, not the server."""
+        remote = getattr(self._source, "error", None)
+        if isinstance(remote, FileFormatError):
+            raise remote
+
     def has(self, name: str) -> bool:
         """True when group or dataset ``name`` exists (False on any read error)."""
         try:
             return name in self._f
         except (OSError, KeyError, RuntimeError, ValueError):
+            self._storage_failed()
             return False
 
     def is_group(self, name: str) -> bool:
@@ -111,6 +119,7 @@ class H5File:
         try:
             return isinstance(self._f.get(name), kind)
         except (OSError, KeyError, RuntimeError, ValueError):
+            self._storage_failed()
             return False
 
     def keys(self, group: str = "/") -> list[str]:
@@ -119,6 +128,7 @@ class H5File:
             g = self._f[group]
             return sorted(g.keys()) if hasattr(g, "keys") else []
         except (OSError, KeyError, RuntimeError, ValueError):
+            self._storage_failed()
             return []
 
     def _dataset(self, name: str, what: str = "") -> Any:
@@ -248,6 +258,7 @@ class H5File:
                 return default
             return decode_attr(obj.attrs[key])
         except (OSError, KeyError, RuntimeError, ValueError, TypeError):
+            self._storage_failed()
             return default
 
     def attrs(self, name: str = "/") -> dict[str, object]:
@@ -256,6 +267,7 @@ class H5File:
             obj = self._f[name]
             return {k: decode_attr(obj.attrs[k]) for k in obj.attrs}
         except (OSError, KeyError, RuntimeError, ValueError, TypeError):
+            self._storage_failed()
             return {}
 
     def scalar(self, name: str, default: object = None) -> object:

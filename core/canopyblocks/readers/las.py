@@ -167,6 +167,7 @@ def las_bounds(paths: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
         raise InputError("no LAS/LAZ file given")
     from .las_summary import las_summary
 
+    refuse_urls(paths)
     lo = np.array([np.inf, np.inf])
     hi = -lo
     for path in (Path(p) for p in paths):
@@ -258,6 +259,7 @@ def read_las(
         from ..arguments import describe
         raise InputError(f"read_las needs LAS/LAZ paths (a str/Path or a list of them); got "
                          f"{describe(paths)}")
+    refuse_urls(paths)
     laspy = _laspy()
     prog = as_progress(progress)
     files = [Path(p) for p in paths]
@@ -371,6 +373,24 @@ def read_las(
     prog.update(1.0, f"{len(pts):,} points read")
     log.info("read %d points from %d file(s)", len(pts), len(files))
     return pts
+
+
+def refuse_urls(paths: Sequence[Any]) -> None:
+    """Refuse a URL among LAS/LAZ tile paths (a path would mangle it into a missing file):
+    these readers read local files (the COPC and EPT readers read URLs).
+
+    Raises
+    ------
+    FileFormatError
+        Naming the URL (without its query string) and what to do.
+    """
+    from .remote import is_url, source_label
+
+    for p in paths:
+        if is_url(p):
+            raise FileFormatError(
+                f"{source_label(p)}: a URL, and LAS/LAZ points are read here from local "
+                "files only; download the tile and give the local copy")
 
 
 def as_area(polygon: Any, what: str = "read_las: polygon") -> Any:

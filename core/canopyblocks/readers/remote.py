@@ -42,6 +42,8 @@ from urllib.parse import urlsplit, urlunsplit
 
 from ..errors import DependencyError, FileFormatError
 from .earthdata import _EARTHDATA, earthdata_credentials
+from .tls_errors import tls_failed as _tls
+from .tls_errors import tls_message
 
 __all__ = ["StorageError", "is_url", "is_file_object", "source_arg", "source_label",
            "source_name", "RemoteFile", "open_source", "list_granules", "clear_cache",
@@ -266,7 +268,7 @@ def _transient(exc: BaseException) -> bool:
     (not a time-out: a server silent that long is reported at once)."""
     chain = _chain(exc)
     if any("Credential" in type(e).__name__ or "ProfileNotFound" in type(e).__name__
-           or isinstance(e, _RangesIgnored) for e in chain):
+           or isinstance(e, _RangesIgnored) or _tls(e) for e in chain):
         return False
     if any(isinstance(e, _ShortAnswer) for e in chain):
         return True
@@ -320,6 +322,8 @@ def _explain_special(chain: list[BaseException], label: str, tries: int
     """What the server or the configuration did, for the failures with their own words."""
     s3 = label.lower().startswith("s3://")
     for e in chain:
+        if _tls(e):
+            return StorageError(tls_message(chain, label))
         if isinstance(e, _RangesIgnored):
             return StorageError(f"{label}: the server does not support byte ranges (it does "
                                 f"not answer byte-range requests: {e}); download the file "

@@ -28,6 +28,7 @@ from typing import Any
 
 from ..errors import CanopyBlocksWarning, CRSError, FileFormatError, InputError, NoUsableDataError
 from ..progress import Progress, as_progress
+from .las import refuse_urls
 from .remote import is_url
 
 __all__ = ["survey_sources", "source_kind", "source_crs", "source_extent", "read_survey",
@@ -176,6 +177,8 @@ def survey_sources(sources: Any) -> list[Any]:
             out.append(p)
         else:
             raise FileFormatError(f"{p}: no such file or folder")
+    # a plain LAS/LAZ tile is read from a local file (COPC and EPT by URL): named, not mangled
+    refuse_urls([s for s in out if is_url(s) and source_kind(s) == "las"])
     if not out:
         raise InputError("no point-cloud source given; give LAS/LAZ tiles, a folder, a .vpc, "
                          "a COPC or an ept.json")

@@ -46,6 +46,10 @@ __all__ = ["DualParams", "DualGround", "dual_wavelength_ground"]
 
 log = logging.getLogger(__name__)
 
+#: A gradient of the smoothed ratio counts as a rise only above this share of the shot's
+#: largest ratio (far below any rise in a waveform with noise; far above float rounding).
+RISE_FLOOR = 1e-6
+
 
 @dataclass(frozen=True)
 class DualParams:
@@ -199,6 +203,9 @@ def dual_wavelength_ground(visible: np.ndarray, nir: np.ndarray, *,
     else:
         gap_edge = np.zeros(n, bool)
 
+    # a rise must stand above the rounding of the ratio: a canopy of one constant ratio
+    # (a noise-free pair) has gradients of +-1e-17 whose sign is the rounding's
+    rise_floor = RISE_FLOOR * np.abs(ratio).max(axis=1, initial=0.0)
     start = np.full(n, np.nan)
     width = np.full(n, np.nan)
     for sigma in p.widths:  # a handful of widths; each is vectorised over every shot
@@ -220,9 +227,9 @@ def dual_wavelength_ground(visible: np.ndarray, nir: np.ndarray, *,
         c2 = win & mask[:, :-1] & mask[:, 1:] & (d2[:, :-1] > 0) & (d2[:, 1:] <= 0)
         if refined:
             steep = np.where(win, d1[:, :-1], 0.0).max(axis=1, initial=0.0)
-            c2 &= d1[:, :-1] > np.maximum(0.2 * steep, 1e-12)[:, None]
+            c2 &= d1[:, :-1] > np.maximum(0.2 * steep, rise_floor)[:, None]
         else:
-            c2 &= d1[:, :-1] > 0
+            c2 &= d1[:, :-1] > rise_floor[:, None]
         count = c2.sum(axis=1)
         single = count == 1
         j = np.argmax(c2, axis=1)

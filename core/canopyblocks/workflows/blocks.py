@@ -26,6 +26,7 @@ from ..photons import PhotonTrack
 from ..progress import Progress, as_progress
 from ..schema import LABEL_NAMES, LAYER_BLOCKS, LAYER_PHOTONS
 from .blocks_tracks import blocks_of_track, concat_blocks, read_track
+from .box_context import box_photons, context_margin, cut_to_box
 
 if TYPE_CHECKING:
     from ..blocks.estimators import Estimators
@@ -93,13 +94,16 @@ def read_tracks(
     bbox: tuple[float, float, float, float] | None = None,
     crs: Any = None,
     min_signal_conf: int | None = None,
+    context: float = 0.0,
     progress: Progress | None = None,
 ) -> list[PhotonTrack]:
     """Read the tracks of a photon file: the given ATL03 beams (default every beam
     with photons), a MABEL channel (default the one with most photons), or a table.
 
     All tracks are projected to one metric CRS (``crs`` or the UTM zone of the
-    first track).  Beams without usable photons are skipped with a warning.
+    first track).  Beams without usable photons are skipped with a warning.  With
+    ``bbox`` and ``context`` metres, each track also holds that much beyond the box, its
+    photons inside the box marked (:mod:`~canopyblocks.workflows.box_context`).
 
     Raises
     ------
@@ -118,7 +122,7 @@ def read_tracks(
         prog.update(i / max(1, len(selections)), f"reading {sel or source_name(path)}")
         try:
             t = read_track(path, sel, atl08=atl08, bbox=bbox, crs=crs,
-                           min_signal_conf=min_signal_conf)
+                           min_signal_conf=min_signal_conf, context=context)
         except NoUsableDataError as exc:
             problems.append(str(exc))
             continue
@@ -153,6 +157,7 @@ def run_blocks(
     for i, t in enumerate(tracks):
         sub = prog.sub(i / len(tracks), (i + 1) / len(tracks))
         b, lab = blocks_of_track(t, params, labels=labels, estimators=estimators, progress=sub)
+        b, lab = cut_to_box(t, b, lab)  # a track read with context: its box's blocks
         if lab is not None:
             all_labels[t.track] = lab
         frames.append(b)
@@ -313,6 +318,8 @@ def blocks_from_file(
         check_writable(profile)
     prog = as_progress(progress)
     want_labels = with_photons or profile is not None
+    # a box is read with the estimators' context along the track, then cut to it
+    context = 0.0 if bbox is None else context_margin(estimators)
     selections = select_tracks(source_arg(path), tuple(beams), channel)
     n_workers, sizes = (1, []) if len(selections) < 2 else _workers_for(path, selections,
                                                                        workers)
@@ -324,13 +331,14 @@ def blocks_from_file(
                 path, selections, params, workers=n_workers, sizes=sizes,
                 estimators=estimators, atl08=atl08, bbox=bbox, crs=crs,
                 min_signal_conf=params.min_signal_conf, labels=want_labels,
-                keep_tracks=want_labels, progress=prog.sub(0.0, 0.85))
+                keep_tracks=want_labels, context=context, progress=prog.sub(0.0, 0.85))
         else:
             tracks = read_tracks(path, beams=beams, channel=channel, atl08=atl08, bbox=bbox,
                                  crs=crs, min_signal_conf=params.min_signal_conf,
-                                 progress=prog.sub(0.0, 0.3))
+                                 context=context, progress=prog.sub(0.0, 0.3))
             blocks, labels = run_blocks(tracks, params, labels=want_labels,
                                         estimators=estimators, progress=prog.sub(0.3, 0.85))
+            tracks = [box_photons(t) for t in tracks]
             ids = [t.track for t in tracks]
     if calibration is not None:
         blocks = calibrate_blocks(blocks, calibration, track_strengths(path, ids))

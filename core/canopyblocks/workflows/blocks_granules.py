@@ -110,19 +110,17 @@ def granule_time_span(path: str | os.PathLike[str]) -> tuple[np.datetime64, np.d
 
 
 def read_polygon(path: str | os.PathLike[str]) -> Any:
-    """The union of the polygons of a vector file, as a one-row GeoSeries with its CRS."""
+    """The union of the polygons of a vector file, checked valid, as a one-row GeoSeries
+    with the file's CRS."""
     import geopandas as gpd
 
-    try:
-        g = gpd.read_file(path)
-    except Exception as exc:  # pyogrio/fiona raise their own types
-        raise InputError(f"--polygon {path}: cannot read it as a vector file ({exc})") from None
-    poly = g[g.geometry.geom_type.isin(["Polygon", "MultiPolygon"])]
-    if not len(poly):
-        raise InputError(f"--polygon {path}: it holds no polygon")
-    if poly.crs is None:
-        raise InputError(f"--polygon {path}: it states no CRS; save it with one")
-    return gpd.GeoSeries([poly.geometry.union_all()], crs=poly.crs)
+    from .polygons import polygon_geometry
+
+    geom, crs = polygon_geometry(path)
+    if crs is None:
+        raise InputError(f"--polygon {path}: it states no CRS (WKT text states none); save "
+                         "it as a GeoPackage or GeoJSON with its CRS")
+    return gpd.GeoSeries([geom], crs=crs)
 
 
 def blocks_from_granules(paths: Sequence[str | os.PathLike[str]], params: Any, *,

@@ -29,6 +29,7 @@ from ..photons import PhotonTrack
 from ..progress import Progress, as_progress
 from ..schema import BLOCK_COLUMNS
 from .backends import default_workers, run_items
+from .box_context import box_photons, cut_to_box, read_with_context
 
 if TYPE_CHECKING:
     from ..blocks.estimators import Estimators
@@ -56,6 +57,9 @@ class TrackJob:
     min_signal_conf: int | None = None
     labels: bool = False
     keep_track: bool = False
+    #: metres read beyond ``bbox`` along the track for the estimators' context
+    #: (:func:`~canopyblocks.workflows.box_context.context_margin`)
+    context: float = 0.0
     #: (length m, s0 m or None, Atl08Params or None): the track's ATL08-style segments
     #: instead of its blocks (:func:`~canopyblocks.workflows.segments.segments_of_track`)
     segments: tuple[float, float | None, Any] | None = None
@@ -82,7 +86,8 @@ def run_track_job(job: TrackJob) -> TrackOutcome:
         warnings.simplefilter("always")
         try:
             t = read_track(job.path, job.selection, atl08=job.atl08, bbox=job.bbox,
-                           crs=job.crs, min_signal_conf=job.min_signal_conf)
+                           crs=job.crs, min_signal_conf=job.min_signal_conf,
+                           context=job.context)
         except NoUsableDataError as exc:
             out = TrackOutcome(job, problem=str(exc))
         else:
@@ -94,6 +99,8 @@ def run_track_job(job: TrackJob) -> TrackOutcome:
             else:
                 blocks, labels = blocks_of_track(t, job.params, labels=job.labels,
                                                  estimators=job.estimators)
+                blocks, labels = cut_to_box(t, blocks, labels)
+                t = box_photons(t)
             out = TrackOutcome(job, track_id=t.track, crs=t.crs, blocks=blocks, labels=labels,
                                track=t if job.keep_track else None)
     out.warnings = tuple((str(w.message), w.category) for w in caught)
@@ -147,6 +154,7 @@ def blocks_in_workers(
     labels: bool = False,
     keep_tracks: bool = False,
     segments: tuple[float, float | None, Any] | None = None,
+    context: float = 0.0,
     progress: Progress | None = None,
 ) -> tuple[gpd.GeoDataFrame, list[str], list[PhotonTrack], dict[str, dict[float, np.ndarray]]]:
     """Blocks of the tracks ``selections`` of ``path`` (see :func:`select_tracks`), read and
@@ -177,7 +185,7 @@ def blocks_in_workers(
     jobs = [TrackJob(path=str(path), selection=dict(sel), params=params, estimators=estimators,
                      atl08=None if atl08 is None else str(atl08), bbox=bbox, crs=crs,
                      min_signal_conf=min_signal_conf, labels=labels, keep_track=keep_tracks,
-                     segments=segments)
+                     segments=segments, context=context)
             for sel in selections]
     finished = [0]
 
@@ -218,8 +226,10 @@ def blocks_in_workers(
 def read_track(path: str | os.PathLike[str], selection: dict, *,
                atl08: str | os.PathLike[str] | None = None,
                bbox: tuple[float, float, float, float] | None = None, crs: Any = None,
-               min_signal_conf: int | None = None) -> PhotonTrack:
-    """One track of a photon file (``selection``: an item of :func:`select_tracks`).
+               min_signal_conf: int | None = None, context: float = 0.0) -> PhotonTrack:
+    """One track of a photon file (``selection``: an item of :func:`select_tracks`);
+    with ``bbox`` and ``context`` metres, the box's photons and that much of the track
+    beyond it, the box's marked (:mod:`~canopyblocks.workflows.box_context`).
 
     Raises
     ------
@@ -228,7 +238,11 @@ def read_track(path: str | os.PathLike[str], selection: dict, *,
     """
     from ..readers import open_track
 
-    t = open_track(path, bbox=bbox, atl08=atl08, crs=crs, **selection)
+    if bbox is not None and context > 0:
+        t = read_with_context(open_track, path, selection, bbox=bbox, margin=context,
+                              atl08=atl08, crs=crs)
+    else:
+        t = open_track(path, bbox=bbox, atl08=atl08, crs=crs, **selection)
     if min_signal_conf is not None:
         _require_signal(t, min_signal_conf)
     if len(t) == 0:

@@ -78,42 +78,30 @@ def corridor_area(blocks: Any, width: float, *, margin: float = CORRIDOR_MARGIN)
     return shapely.union_all(parts)
 
 
-def read_polygon(value: str | os.PathLike[str] | None) -> Any:
-    """A polygon from WKT text or a vector file (the union of its polygons); None for None.
+def read_polygon(value: str | os.PathLike[str] | None, *, crs: Any = None,
+                 tiles: Sequence[Any] = ()) -> Any:
+    """A polygon from WKT text, a file holding WKT, or a vector file (the union of its
+    polygons), checked valid and in ``crs`` (default the CRS of the first LAS/LAZ tile of
+    ``tiles``): a file in another CRS is reprojected, with a warning; None for None.
 
     Raises
     ------
     InputError
-        Text that is neither WKT nor an existing file, or a file without polygons.
+        Text that is neither WKT nor an existing file, a file without polygons, an
+        invalid (e.g. self-intersecting) polygon.
     """
-    from ..errors import InputError
-
     if value is None:
         return None
-    import shapely
+    from .polygons import polygon_geometry
 
-    text = str(value).strip()
-    if text.upper().startswith(("POLYGON", "MULTIPOLYGON")):
-        try:
-            return shapely.from_wkt(text)
-        except shapely.errors.GEOSException as exc:
-            raise InputError(f"--polygon is not valid WKT ({exc}); give e.g. "
-                             "'POLYGON ((x0 y0, x1 y1, x2 y2, x0 y0))'") from None
-    p = Path(text)
-    if not p.is_file():
-        raise InputError(f"--polygon {text[:60]!r} is neither a WKT polygon nor an existing "
-                         "vector file (GeoPackage, GeoJSON, shapefile)")
-    import geopandas as gpd
+    if crs is None:
+        from ..readers.las import las_crs
+        from ..reference.raster_tiles import cloud_kind
 
-    try:
-        frame = gpd.read_file(p)
-    except Exception as exc:  # noqa: BLE001 - pyogrio/fiona raise several types
-        raise InputError(f"cannot read the polygon file {p}: {exc}") from None
-    polys = [g for g in frame.geometry if g is not None and
-             g.geom_type in ("Polygon", "MultiPolygon")]
-    if not polys:
-        raise InputError(f"{p} holds no polygon; give a file of polygons in the output CRS")
-    return shapely.union_all(polys)
+        local = [t for t in (survey_tiles(tiles) if tiles else [])
+                 if cloud_kind(t) is None and "://" not in str(t) and Path(t).is_file()]
+        crs = las_crs(local[0]) if local else None
+    return polygon_geometry(value, crs=crs)[0]
 
 
 def pool_runner(backend: str = "processes", workers: int | None = None,

@@ -365,6 +365,7 @@ def footprints_to_file(
     from ..atomic import check_writable, new_files_removed_on_failure
     from ..outputs.tables import check_output_path, write_layers
     from ..readers.flash_dual import flash_dual_sensor, refuse_unlabelled
+    from ..readers.remote import is_url
 
     check_output_path(output)
     sensor = flash_dual_sensor(path)   # anything else goes to the GEDI reader, which says why
@@ -380,10 +381,12 @@ def footprints_to_file(
                                        "--setting/--decompose/--all-rh":
                                            _not_default_gedi(params)},
                             progress=progress)
-    if options is not None and any(v is not None for v in vars(options).values()):
-        raise InputError(f"{path} is GEDI L1B: the flash-lidar and dual-wavelength options "
-                         "(--fraction, --cell, --noise-fit, --noise-threshold, --dual-method) "
-                         "do not apply")
+    given = [] if options is None else options.given()
+    if given and (is_url(path) or Path(path).is_file()):  # a missing file: the reader says so
+        raise InputError(f"{path} is GEDI L1B: {', '.join(given)} "
+                         f"{'applies' if len(given) == 1 else 'apply'} to flash-lidar (ESFL) "
+                         "and dual-wavelength files only; leave "
+                         f"{'it' if len(given) == 1 else 'them'} out")
     if plots_dir is not None:
         check_writable(plots_dir, folder=True)
         Path(plots_dir).mkdir(parents=True, exist_ok=True)

@@ -228,6 +228,13 @@ class SensorOptions:
     noise_threshold: float | None = None
     dual_method: str | None = None
 
+    def given(self) -> list[str]:
+        """The command line names of the options given (``--k-sigma`` for the threshold)."""
+        return [name for name, v in (("--fraction", self.fraction), ("--cell", self.cell),
+                                     ("--noise-fit", self.noise_fit),
+                                     ("--k-sigma", self.noise_threshold),
+                                     ("--dual-method", self.dual_method)) if v is not None]
+
     def esfl_params(self, path: object) -> Any:
         """EsflParams with the options given (the dual one refused)."""
         from ..waveforms.esfl import EsflParams

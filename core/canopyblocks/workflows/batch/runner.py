@@ -187,6 +187,7 @@ def run_batch(granules: Sequence[str | os.PathLike[str]],
     check_tile_datums(t_paths)  # one vertical datum for all tiles
     _check_datums(cfg, t_paths[0])
     _check_same_config(out, cfg)
+    created = not out.exists()
     out.mkdir(parents=True, exist_ok=True)
     remove_partial_outputs(out)  # left by a batch killed before its clean-up
     before = complete_outputs(out)
@@ -197,6 +198,8 @@ def run_batch(granules: Sequence[str | os.PathLike[str]],
     except BaseException:
         remove_partial_outputs(out)
         record_written(sorted(complete_outputs(out) - before))
+        if created and not any(out.iterdir()):  # no empty folder left by a failed batch
+            out.rmdir()
         raise
 
 
@@ -224,6 +227,12 @@ def _run(g_paths: list[str], index: list, out: Path, cfg: BatchConfig, *,
     missed: dict[str, str] = {}
     units = find_units(g_paths, index, beams=beams, problems=problems, missed=missed,
                        reach=corridor_reach(cfg))
+    if not units and problems and len(problems) == len(g_paths):  # none could be read
+        first = next(iter(problems.values()))
+        if len(problems) == 1:
+            raise NoUsableDataError(first)
+        raise NoUsableDataError(f"none of the {len(g_paths)} granules could be read: "
+                                f"{first} (and {len(problems) - 1} more alike)")
     if not units:
         detail = "; ".join(f"{k}: {v}" for k, v in problems.items())
         raise NoUsableDataError(f"none of the {len(g_paths)} granule(s) crosses any of the "

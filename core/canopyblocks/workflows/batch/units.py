@@ -209,7 +209,7 @@ def find_units(granules: Sequence[str], tiles: Sequence[Tile], *,
         except CanopyBlocksError as exc:
             if problems is None:
                 raise
-            problems[str(g)] = f"{type(exc).__name__}: {exc}"
+            problems[str(g)] = str(exc)  # the project's one line, naming the granule
             continue
         nearest = np.inf
         found = 0
