@@ -31,11 +31,11 @@ METHOD_WORDS = {
 
 def sensor_report_sections(fp: pd.DataFrame, val: Any, *, product: str, source: str,
                            simulated: bool, tiles: Sequence[str], words: str,
-                           maps: Sequence[Path], settings: str = "", warned: str = "",
+                           maps: Sequence[Path], settings: str = "",
                            stats: pd.DataFrame | None = None) -> list[Any]:
     """Inputs, footprints and comparison sections (``val``: a FootprintValidation;
-    ``settings``: the simulation's and the reading's, in words; ``warned``: the run's
-    warnings, repeated; ``stats``: the statistics to show, default ``val.stats``)."""
+    ``settings``: the simulation's and the reading's, in words; ``stats``: the
+    statistics to show, default ``val.stats``)."""
 
     from ..outputs.report import ReportSection
 
@@ -58,8 +58,7 @@ def sensor_report_sections(fp: pd.DataFrame, val: Any, *, product: str, source: 
     return [
         ReportSection("Inputs and method", [p for p in [
             f"{words.capitalize()} {kind}: {source}. Airborne tiles: {', '.join(tiles)}; "
-            f"vertical datums: {val.datum}.", settings, METHOD_WORDS[product],
-            warned] if p]),
+            f"vertical datums: {val.datum}.", settings, METHOD_WORDS[product]] if p]),
         ReportSection("Footprints", [
             f"{len(fp)} rows (layer 'footprints' of footprints.gpkg: ground, top, height, "
             "flag" + ("; layer 'pixels': the pixels each row merges)." if product == "ESFL"
@@ -67,5 +66,7 @@ def sensor_report_sections(fp: pd.DataFrame, val: Any, *, product: str, source: 
         ReportSection("Comparison with the airborne lidar", [
             ref, "Residual = estimate minus reference (m), over the rows flagged ok whose "
             "reference is ok; SD = the residuals' standard deviation."],
-            {"statistics (heights in m)": stats}, list(maps)),
+            {"statistics against the airborne points (m)" if product == "ESFL" else
+             "statistics against the formed pair" + (" (the round trip; m)" if simulated
+                                                     else " (m)"): stats}, list(maps)),
     ]

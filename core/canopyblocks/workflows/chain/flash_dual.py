@@ -78,7 +78,9 @@ def _sensor_summary(val: Any, product: str, out: Path, source: str, *,
     ind, own = facts[facts["reference"] == POINTS], facts[facts["reference"] != POINTS]
     formed = own_reference_label(simulated is not None, "waveform") + ": " + _DUAL_FORMED
     lines = [*facts_lines(ind, _SENSOR_WORDS, _ESFL_REF if esfl else _DUAL_POINTS_WORDS),
-             *facts_lines(own, _SENSOR_WORDS, formed)]
+             *facts_lines(own, _SENSOR_WORDS, ("the round trip (not an independent check), "
+                                               if simulated is not None else "")
+                          + _DUAL_FORMED)]
     paras = [] if simulated is None else [simulated_words(words, source,
                                                           azimuth=simulated[0],
                                                           seed=simulated[1])]
@@ -220,7 +222,7 @@ def run_sensor_chain(
     prog = as_progress(progress)
     out = check_writable(out_dir, folder=True)
     tiles = [Path(p) for p in las_paths]
-    from .waveform_report import input_warnings, warnings_paragraph, without_unsupported
+    from .waveform_report import input_warnings, without_unsupported
 
     with new_files_removed_on_failure(out), input_warnings() as warned:
         out.mkdir(parents=True, exist_ok=True)
@@ -264,14 +266,15 @@ def run_sensor_chain(
         sections = [summary, *sensor_report_sections(
             fp, val, product=product, source=Path(path).name, simulated=simulated,
             tiles=[t.name for t in tiles], words=words, maps=maps,
-            warned=warnings_paragraph(warned()), stats=without_unsupported(val.stats),
+            stats=without_unsupported(val.stats),
             settings=sensor_settings(product, options, path, noise if simulated else None,
                                      simulated)),
             gedi_glossary_section(["independent airborne quantities",
                                    *(["round trip"] if simulated and product == "dual"
                                      else []), "bias", "RMSE", "95 % interval", "R² (heights only)",
                                    "random seed", "reference outside"], reference="")]
-        report = write_report(out / "report.html", f"canopyblocks: {words} and validation",
+        report = write_report(out / "report.html", f"canopyblocks: {words} against the "
+                              "airborne lidar",
                               sections)
         prog.update(1.0, "done")
         return ChainResult(out_dir=out, photons=Path(path), blocks=footprints, rasters={},

@@ -247,8 +247,8 @@ def simulated_words(sensor: str, source: str, *, azimuth: float | None,
     how = "" if azimuth is None else f" along a line at azimuth {azimuth:g} degrees"
     rnd = "" if seed is None else f", random seed {seed}"
     return (f"{source} ({sensor}) is not an acquisition: it was simulated from the airborne "
-            f"tiles below{how}{rnd}, so the validation checks the processing chain against "
-            "the very points the waveforms were made from.")
+            f"tiles below{how}{rnd}, so every comparison below is with the very points the "
+            "waveforms were made from.")
 
 
 def _said(stats: pd.DataFrame, metric: str) -> str | None:
@@ -380,8 +380,7 @@ def gedi_sections(fp: pd.DataFrame, val: Any, facts: pd.DataFrame, *, l1b: Any,
             "Airborne tiles: " + ", ".join(t.name for t in tiles) + "; vertical datums: "
             + datum_sentence(val.datum, geoid=geoid, offset=offset, tiles=tiles_datum,
                              what="waveforms"),
-            gedi_simulation_words() if simulated is not None else "",
-            warnings_paragraph(warned)] if p]),
+            gedi_simulation_words() if simulated is not None else ""] if p]),
         ReportSection("Footprints", [
             f"{len(fp)} footprints (layer 'footprints' of footprints.gpkg: ground, top, "
             "RH25-RH100, cover (fraction), penetration, flags)."],
