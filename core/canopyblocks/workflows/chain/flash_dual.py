@@ -121,38 +121,42 @@ def _simulate_file(las_paths: Sequence[Any], out: Path, sensor: str, *, azimuth:
     return path
 
 
+def _esfl_words(p: Any, noise: float | None) -> tuple[str, str]:
+    """The ESFL reading's settings (``p``: EsflParams) and its simulation's, in words."""
+    from ...simulate.flash_cubes import FlashSimParams
+
+    s = FlashSimParams() if noise is None else FlashSimParams(noise_sd=float(noise))
+    return (f"Reading: energy fraction f = {p.fraction:g} of the brightest pixel; grid "
+            f"cell {p.cell:g} m; noise fit {p.noise_fit}; threshold = noise mean + "
+            f"{p.k:g} sd.",
+            f"noise sd {s.noise_sd:g} of the mean brightest-pixel peak, per pixel and bin; "
+            f"footprints {s.footprint:g} m across, every {s.spacing:g} m; {s.pixels} x "
+            f"{s.pixels} pixels of {s.pixel_size:g} m; {s.bin_size:g} m bins; a "
+            f"{s.pulse_ns:g} ns pulse.")
+
+
+def _dual_words(d: Any, noise: float | None) -> tuple[str, str]:
+    """The dual reading's settings (``d``: DualParams) and its simulation's, in words."""
+    from ...simulate.sensor_files import DualAlsParams
+
+    a = DualAlsParams() if noise is None else DualAlsParams(noise=float(noise))
+    return (f"Reading: the dual-wavelength method '{d.method}'; threshold = noise mean + "
+            f"{d.k:g} sd.",
+            f"noise sd {a.noise:g} of each pair's near-infrared peak; reflectances "
+            f"(visible, near-infrared) of leaves {a.leaf[0]:g}, {a.leaf[1]:g} and of soil "
+            f"{a.soil[0]:g}, {a.soil[1]:g}; a Gaussian footprint of sigma {a.sigma:g} m, "
+            f"every {a.spacing:g} m; {a.bin_size:g} m bins.")
+
+
 def sensor_settings(product: str, options: Any, path: Any, noise: float | None,
                     simulated: bool) -> str:
     """The simulation's and the reading's settings, in words, for the report's Inputs."""
     from ..waveforms_flash_dual import SensorOptions
 
     opts = options or SensorOptions()
-    if product == "ESFL":
-        from ...simulate.flash_cubes import FlashSimParams
-
-        p = opts.esfl_params(path)
-        reading = (f"Reading: energy fraction f = {p.fraction:g} of the brightest pixel; "
-                   f"grid cell {p.cell:g} m; noise fit {p.noise_fit}; threshold = noise "
-                   f"mean + {p.k:g} sd.")
-        if not simulated:
-            return reading
-        s = FlashSimParams() if noise is None else FlashSimParams(noise_sd=float(noise))
-        return (f"Simulation settings: noise sd {s.noise_sd:g} of the mean brightest-pixel "
-                f"peak, per pixel and bin; footprints {s.footprint:g} m across, every "
-                f"{s.spacing:g} m; {s.pixels} x {s.pixels} pixels of {s.pixel_size:g} m; "
-                f"{s.bin_size:g} m bins; a {s.pulse_ns:g} ns pulse. " + reading)
-    from ...simulate.sensor_files import DualAlsParams
-
-    d = opts.dual_params(path)
-    reading = (f"Reading: the dual-wavelength method '{d.method}'; threshold = noise mean "
-               f"+ {d.k:g} sd.")
-    if not simulated:
-        return reading
-    a = DualAlsParams() if noise is None else DualAlsParams(noise=float(noise))
-    return (f"Simulation settings: noise sd {a.noise:g} of each pair's near-infrared peak; "
-            f"reflectances (visible, near-infrared) of leaves {a.leaf[0]:g}, {a.leaf[1]:g} "
-            f"and of soil {a.soil[0]:g}, {a.soil[1]:g}; a Gaussian footprint of sigma "
-            f"{a.sigma:g} m, every {a.spacing:g} m; {a.bin_size:g} m bins. " + reading)
+    reading, sim = (_esfl_words(opts.esfl_params(path), noise) if product == "ESFL"
+                    else _dual_words(opts.dual_params(path), noise))
+    return f"Simulation settings: {sim} {reading}" if simulated else reading
 
 
 def run_sensor_chain(
