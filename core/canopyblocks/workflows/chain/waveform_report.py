@@ -310,7 +310,10 @@ def waveform_summary_section(stats: pd.DataFrame, *, source: str, n_footprints: 
     ind, own = _by_reference(facts, True), _by_reference(facts, False)
     said = facts_sentence(ind, _WORDS) if len(ind) else ""
     if said:
-        paras.append(f"Against {POINTS_WORDS}: {said}.")
+        paras.append(f"Against {POINTS_WORDS}: {said}. The points' percentiles count every "
+                     "return, a waveform only the energy above its detection threshold, so "
+                     "a waveform's RH98 below the points' is expected: the gap is measured "
+                     "here, not corrected.")
     own_said = facts_sentence(own, _WORDS) if len(own) else ""
     if own_said:
         paras.append(f"{own_reference_label(bool(simulated), reference)}: {own_said}. "
