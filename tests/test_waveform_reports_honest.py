@@ -127,6 +127,8 @@ def test_esfl_repeats_the_terminal_warning_and_states_its_settings(runs) -> None
     assert "Reading: energy fraction f = " in text
     facts = _facts(out)
     assert "cell_size" in facts and "length" not in facts
+    stats = pd.read_csv(out / "stats.csv")
+    assert "cell_size" in stats and "length" not in stats
     # elevations (ground, top) carry no R² and no fit, in facts.csv and in the table
     elev = facts[facts["metric"].isin(["ground", "top"])]
     assert elev["r2"].isna().all()

@@ -254,7 +254,9 @@ def run_sensor_chain(
         validation = write_layers({LAYER_RESIDUALS_FOOTPRINTS: val.residuals,
                                    LAYER_STATS_FOOTPRINTS: val.stats},
                                   out / "validation.gpkg")
-        write_table(val.stats, out / "stats.csv", layer="stats")
+        write_table(val.stats.rename(columns={"length": "cell_size" if product == "ESFL"
+                                              else "footprint_diameter"}),
+                    out / "stats.csv", layer="stats")
         plots_dir = out / "plots"
         plots_dir.mkdir(exist_ok=True)
         maps = [plot_footprint_map(val.residuals, c, plots_dir / f"footprints_{c}.png")
