@@ -160,8 +160,10 @@ def test_facts_recomputed_from_the_layers(runs, name) -> None:
         if n:
             assert bias == pytest.approx(r.bias, abs=1e-3), r
             assert rmse == pytest.approx(r.rmse, abs=1e-3), r
-            if n >= 2:
+            if n >= 2 and np.isfinite(r.bias_lo):
                 assert r.bias_lo <= r.bias <= r.bias_hi and r.rmse_lo <= r.rmse <= r.rmse_hi
+            elif n >= 2:   # a waveform run gives no interval below 10 footprints
+                assert n < 10 and r.interval == "none", r
         # every block left out is counted, by reason, and they add up
         why = r.left_out if isinstance(r.left_out, str) else ""
         left = sum(int(p.rsplit(" ", 1)[1]) for p in why.split("; ") if p)

@@ -91,6 +91,8 @@ def without_unsupported(table: pd.DataFrame) -> pd.DataFrame:
         for c in cols:
             if c in t:
                 t[c] = np.where(rows, np.nan, pd.to_numeric(t[c], errors="coerce"))
+    if "interval" in t:
+        t["interval"] = np.where(few, "none", t["interval"].astype(object))
     return t
 
 
