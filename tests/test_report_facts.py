@@ -124,7 +124,8 @@ def _recomputed(res: pd.DataFrame, length: float, metric: str, reference: str = 
     formed reference found no ground kept)."""
     sub = res[np.isclose(res["length"], length)] if "length" in res else res
     y = sub[metric].to_numpy(float)
-    points = reference == "airborne points"
+    # the points' own column beside a formed reference (ESFL's reference is the points)
+    points = reference == "airborne points" and f"{_PAIRS[metric]}_points" in sub
     x = sub[_PAIRS[metric] + ("_points" if points else "")].to_numpy(float)
     use = sub["use"].astype(bool).to_numpy()
     if points:
