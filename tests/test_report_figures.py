@@ -408,9 +408,9 @@ def test_too_few_for_an_interval_and_one_footprint_singular() -> None:
                          "bias_lo": np.nan, "bias_hi": np.nan, "rmse": 0.5,
                          "rmse_lo": np.nan, "rmse_hi": np.nan, "r2": np.nan}])
     said = facts_sentence(one, {})
-    assert "(n = 1 footprint; too few footprints for an interval)" in said
+    assert "(n = 1 footprint; too few footprints (1) for an interval or R²)" in said
     line = " ".join(facts_lines(one, {}, "ref"))
-    assert "nan" not in line and "too few footprints for an interval" in line
+    assert "nan" not in line and "too few footprints (1) for an interval or R²" in line
     assert "of 1 footprint " in line
 
 

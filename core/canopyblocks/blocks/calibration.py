@@ -199,8 +199,9 @@ def calibrate_cutoffs(
             warnings.warn(
                 f"{length:g} m blocks of track {track.track}: the best {what} cut-off "
                 f"{value:g} lies on the edge of the searched grid ({g[0]:g}..{g[-1]:g}); "
-                "the optimum may lie beyond it (at the low edge: the window floor of the "
-                "paper's method, see DESIGN 1.10, which the 'icesat2' preset avoids)",
+                "the optimum may lie beyond it (at the low edge: the paper's method keeps "
+                "the canopy top at least 1.75 m below the highest kept photon even with "
+                "cut-offs at 0, a floor the 'icesat2' preset avoids)",
                 CutoffEdgeWarning, stacklevel=2)
     # the paper's defaults on the same reference
     td, gd = p.cutoffs_for(p.lengths[0])

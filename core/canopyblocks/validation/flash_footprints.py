@@ -162,6 +162,7 @@ def _dual_formed(ref: pd.DataFrame, pts: LasPoints, x: np.ndarray, y: np.ndarray
     d = dual_reference(pts, x, y, form, params)  # type: ignore[arg-type]
     ref = ref.copy()
     for c in ("ref_ground", "ref_top", "ref_height"):
+        ref[f"{c}_points"] = ref[c].to_numpy(float)   # the points' own, kept beside
         ref[c] = d[c].to_numpy(float)
     flag = ref["ref_flag"].to_numpy(object).copy()
     flag[(flag == REFERENCE_FLAG_OK)
@@ -270,6 +271,9 @@ def validate_sensor_footprints(
         out[m] = values[m]
         out[r] = ref[r].to_numpy(float)
         out[f"res_{m}"] = values[m] - out[r].to_numpy(float)
+    for c in ("ref_ground_points", "ref_height_points", "ref_top_points"):
+        if c in ref:   # the dual pair's formed reference keeps the points' values beside
+            out[c] = ref[c].to_numpy(float)
     own = fp["flag"].astype(str).to_numpy(object) if "flag" in fp else \
         np.full(n, FLAG_OK, object)
     rflag = ref["ref_flag"].to_numpy(object)

@@ -316,7 +316,8 @@ def validate_footprints(
     out["ref_coverage"] = ref["ref_coverage"].to_numpy(float)
     out["use"] = (own == FLAG_OK) & (rflag == REFERENCE_FLAG_OK)
     out["reference"] = params.definition
-    for c in ("ref_ground_points", "ref_rh98_points"):   # beside the waveform-formed values
+    for c in ("ref_ground_points", "ref_rh98_points", "ref_rh50_points"):   # beside the
+        # waveform-formed values
         if c in ref:
             out[c] = ref[c].to_numpy(float)
     n_out = int((rflag == REFERENCE_FLAG_OUTSIDE).sum())
@@ -368,6 +369,7 @@ def _waveform_formed(ref: pd.DataFrame, pts: LasPoints, x: np.ndarray, y: np.nda
     ref = ref.copy()
     ref["ref_ground_points"] = ref["ref_ground"].to_numpy(float)   # the class-2 mean
     ref["ref_rh98_points"] = ref["ref_rh98"].to_numpy(float)
+    ref["ref_rh50_points"] = ref["ref_rh50"].to_numpy(float)
     for c in ("ref_ground", *(f"ref_rh{q}" for q in (50, 75, 90, 95, 98, 100)), "ref_cover"):
         ref[c] = wref[c].to_numpy(float)
     flag = ref["ref_flag"].to_numpy(object).copy()

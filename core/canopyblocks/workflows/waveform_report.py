@@ -31,8 +31,12 @@ METHOD_WORDS = {
 
 def sensor_report_sections(fp: pd.DataFrame, val: Any, *, product: str, source: str,
                            simulated: bool, tiles: Sequence[str], words: str,
-                           maps: Sequence[Path]) -> list[Any]:
-    """Inputs, footprints and validation sections (``val``: a FootprintValidation)."""
+                           maps: Sequence[Path], settings: str = "",
+                           stats: pd.DataFrame | None = None) -> list[Any]:
+    """Inputs, footprints and comparison sections (``val``: a FootprintValidation;
+    ``settings``: the simulation's and the reading's, in words; ``stats``: the
+    statistics to show, default ``val.stats``)."""
+
     from ..outputs.report import ReportSection
 
     flags = fp["flag"].value_counts().rename_axis("flag").reset_index(name="footprints")
@@ -48,19 +52,21 @@ def sensor_report_sections(fp: pd.DataFrame, val: Any, *, product: str, source: 
            "its first return above noise.")
     from ..outputs.report import footprint_stats_table
 
-    stats = footprint_stats_table(val.stats).rename(
+    stats = footprint_stats_table(val.stats if stats is None else stats).rename(
         columns={"n (blocks)": "n (footprints)", "sd": "SD (m)",
                  "footprint diameter (m)": "footprint or cell size (m)"})
     return [
-        ReportSection("Inputs and method", [
+        ReportSection("Inputs and method", [p for p in [
             f"{words.capitalize()} {kind}: {source}. Airborne tiles: {', '.join(tiles)}; "
-            f"vertical datums: {val.datum}.", METHOD_WORDS[product]]),
+            f"vertical datums: {val.datum}.", settings, METHOD_WORDS[product]] if p]),
         ReportSection("Footprints", [
             f"{len(fp)} rows (layer 'footprints' of footprints.gpkg: ground, top, height, "
             "flag" + ("; layer 'pixels': the pixels each row merges)." if product == "ESFL"
                       else ").")], {"rows per flag": flags}),
-        ReportSection("Validation against the airborne lidar", [
+        ReportSection("Comparison with the airborne lidar", [
             ref, "Residual = estimate minus reference (m), over the rows flagged ok whose "
             "reference is ok; SD = the residuals' standard deviation."],
-            {"statistics (heights in m)": stats}, list(maps)),
+            {"statistics against the airborne points (m)" if product == "ESFL" else
+             "statistics against the formed pair" + (" (the round trip; m)" if simulated
+                                                     else " (m)"): stats}, list(maps)),
     ]

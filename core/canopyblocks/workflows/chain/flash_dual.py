@@ -12,14 +12,13 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pandas as pd
 
 from ...atomic import check_writable, new_files_removed_on_failure
 from ...errors import InputError
 from ...progress import Progress, as_progress
 
-__all__ = ["run_sensor_chain", "waveform_chain", "SENSOR_NAMES", "sensor_summary_lines"]
+__all__ = ["run_sensor_chain", "waveform_chain", "SENSOR_NAMES"]
 
 log = logging.getLogger(__name__)
 
@@ -28,69 +27,75 @@ SENSOR_NAMES = {"esfl": ("ESFL", "flash-lidar (ESFL) cubes"),
                 "dual": ("dual", "dual-wavelength waveform pairs")}
 
 
-def _fmt(v: float, signed: bool = False) -> str:
-    if not np.isfinite(v):
-        return "n/a"
-    return f"{v:+.2f}" if signed else f"{v:.2f}"
-
-
-def sensor_summary_lines(stats: pd.DataFrame, product: str) -> list[str]:
-    """The answer first: height and ground against the reference, one line each."""
-    ref = ("the airborne points under each 5 m cell's pixels" if product == "ESFL" else
-           "the airborne points formed into the noise-free waveform pair the sensor would "
-           "record (22 m Gaussian footprint) and read by the same ground finder")
-    lines = []
-    for metric, words in (("height", "canopy height"), ("ground", "ground elevation")):
-        row = stats[stats["metric"] == metric]
-        if row.empty:
-            continue
-        r = row.iloc[0]
-        lines.append(f"{words}: RMSE {_fmt(r['rmse'])} m, bias {_fmt(r['bias'], True)} m, "
-                     f"SD {_fmt(r.get('sd', np.nan))} m, R² {_fmt(r['r2'])} "
-                     f"(n = {int(r['n'])}), against {ref}")
-    return lines
-
-
 _SENSOR_WORDS = {"height": "canopy height", "ground": "ground elevation",
                  "top": "canopy top elevation"}
 
 
+#: The dual pair's independent comparison: the points' own values under the footprint.
+_DUAL_POINTS = {"ground": "ref_ground_points", "height": "ref_height_points",
+                "top": "ref_top_points"}
+_ESFL_REF = ("the independent airborne points under each 5 m cell's pixels (ground = the "
+             "class-2 TIN averaged over the pixel centres, top = the highest point)")
+_DUAL_POINTS_WORDS = ("the independent airborne points under each footprint (ground = the "
+                      "footprint-weighted mean of the class-2 ground points; height = the "
+                      "footprint-weighted RH98 of all points above them)")
+_DUAL_FORMED = ("the airborne points formed into the noise-free waveform pair the sensor "
+                "would record (22 m Gaussian footprint) and read by the same ground finder")
+
+
 def _sensor_summary(val: Any, product: str, out: Path, source: str, *,
-                    simulated: tuple[float, int] | None, words: str
-                    ) -> tuple[pd.DataFrame, list[str], Any]:
+                    simulated: tuple[float, int] | None, words: str,
+                    warned: Sequence[str] = ()) -> tuple[pd.DataFrame, list[str], Any]:
     """The facts of an ESFL/dual run (``facts.csv``), its terminal lines and its
-    report's summary section, all from the one table."""
+    report's summary section, all from the one table: the independent airborne points
+    first, then (dual) the pair formed from them and read alike."""
     from ...outputs.report import ReportSection
     from .waveform_report import (
+        FORMED,
+        INTERVAL_WORDS,
+        POINTS,
         facts_lines,
         facts_sentence,
         footprint_counts,
         footprint_facts,
+        own_reference_label,
         simulated_words,
+        warnings_paragraph,
     )
 
+    res = val.residuals
     pairs = {m: f"ref_{m}" for m in ("height", "ground", "top")
-             if m in val.residuals.columns and f"ref_{m}" in val.residuals.columns}
+             if m in res.columns and f"ref_{m}" in res.columns}
     diameter = float(val.stats["length"].iloc[0]) if "length" in val.stats and \
         len(val.stats) else float("nan")
-    facts = footprint_facts(val.residuals, pairs=pairs, metrics=tuple(pairs),
-                            diameter=diameter, estimators=product,
-                            layer="stats_footprints", out=out)
-    ref = ("the airborne points under each 5 m cell's pixels" if product == "ESFL" else
-           "the airborne points formed into the noise-free waveform pair the sensor would "
-           "record (22 m Gaussian footprint) and read by the same ground finder")
-    lines = facts_lines(facts, _SENSOR_WORDS, ref)
-    paras = []
-    if simulated is not None:
-        paras.append(simulated_words(words, source, azimuth=simulated[0],
-                                     seed=simulated[1]))
-    said = facts_sentence(facts, _SENSOR_WORDS)
-    paras.append(f"Against {ref}: {said}." if said else
-                 "No footprint could be validated against the airborne reference.")
-    paras.append(footprint_counts(facts, "height"))
-    paras.append("Residual = value minus reference value, metres. 95 % intervals: bootstrap "
-                 "over the footprints (2,000 resamples). facts.csv holds every number of "
-                 "this summary.")
+    esfl = product == "ESFL"
+    facts = footprint_facts(res, pairs=pairs, metrics=tuple(pairs), diameter=diameter,
+                            estimators=product, layer="stats_footprints", out=out,
+                            reference=POINTS if esfl else FORMED,
+                            points=None if esfl else {m: c for m, c in _DUAL_POINTS.items()
+                                                      if c in res},
+                            size_name="cell_size" if esfl else "footprint_diameter")
+    ind, own = facts[facts["reference"] == POINTS], facts[facts["reference"] != POINTS]
+    formed = own_reference_label(simulated is not None, "waveform") + ": " + _DUAL_FORMED
+    lines = [*facts_lines(ind, _SENSOR_WORDS, _ESFL_REF if esfl else _DUAL_POINTS_WORDS),
+             *facts_lines(own, _SENSOR_WORDS, ("the round trip (not an independent check), "
+                                               if simulated is not None else "")
+                          + _DUAL_FORMED)]
+    paras = [] if simulated is None else [simulated_words(words, source,
+                                                          azimuth=simulated[0],
+                                                          seed=simulated[1])]
+    paras.append(warnings_paragraph(warned))
+    said = facts_sentence(ind, _SENSOR_WORDS)
+    if said:
+        paras.append(f"Against {_ESFL_REF if esfl else _DUAL_POINTS_WORDS}: {said}.")
+    own_said = facts_sentence(own, _SENSOR_WORDS)
+    if own_said:
+        paras.append(f"{formed}: {own_said}.")
+    if not (said or own_said):
+        paras.append("No footprint could be compared with the airborne reference.")
+    paras.append(footprint_counts(ind if esfl else own, "height"))
+    paras.append(INTERVAL_WORDS.replace("waveform value", "value") + " facts.csv holds "
+                 "every number of this summary.")
     return facts, lines, ReportSection("Summary", [p for p in paras if p])
 
 
@@ -114,6 +119,44 @@ def _simulate_file(las_paths: Sequence[Any], out: Path, sensor: str, *, azimuth:
     simulate_sensor_over_tiles(list(las_paths), sensor, path, azimuth=azimuth, seed=seed,
                                params=params, progress=progress)
     return path
+
+
+def _esfl_words(p: Any, noise: float | None) -> tuple[str, str]:
+    """The ESFL reading's settings (``p``: EsflParams) and its simulation's, in words."""
+    from ...simulate.flash_cubes import FlashSimParams
+
+    s = FlashSimParams() if noise is None else FlashSimParams(noise_sd=float(noise))
+    return (f"Reading: energy fraction f = {p.fraction:g} of the brightest pixel; grid "
+            f"cell {p.cell:g} m; noise fit {p.noise_fit}; threshold = noise mean + "
+            f"{p.k:g} sd.",
+            f"noise sd {s.noise_sd:g} of the mean brightest-pixel peak, per pixel and bin; "
+            f"footprints {s.footprint:g} m across, every {s.spacing:g} m; {s.pixels} x "
+            f"{s.pixels} pixels of {s.pixel_size:g} m; {s.bin_size:g} m bins; a "
+            f"{s.pulse_ns:g} ns pulse.")
+
+
+def _dual_words(d: Any, noise: float | None) -> tuple[str, str]:
+    """The dual reading's settings (``d``: DualParams) and its simulation's, in words."""
+    from ...simulate.sensor_files import DualAlsParams
+
+    a = DualAlsParams() if noise is None else DualAlsParams(noise=float(noise))
+    return (f"Reading: the dual-wavelength method '{d.method}'; threshold = noise mean + "
+            f"{d.k:g} sd.",
+            f"noise sd {a.noise:g} of each pair's near-infrared peak; reflectances "
+            f"(visible, near-infrared) of leaves {a.leaf[0]:g}, {a.leaf[1]:g} and of soil "
+            f"{a.soil[0]:g}, {a.soil[1]:g}; a Gaussian footprint of sigma {a.sigma:g} m, "
+            f"every {a.spacing:g} m; {a.bin_size:g} m bins.")
+
+
+def sensor_settings(product: str, options: Any, path: Any, noise: float | None,
+                    simulated: bool) -> str:
+    """The simulation's and the reading's settings, in words, for the report's Inputs."""
+    from ..waveforms_flash_dual import SensorOptions
+
+    opts = options or SensorOptions()
+    reading, sim = (_esfl_words(opts.esfl_params(path), noise) if product == "ESFL"
+                    else _dual_words(opts.dual_params(path), noise))
+    return f"Simulation settings: {sim} {reading}" if simulated else reading
 
 
 def run_sensor_chain(
@@ -183,7 +226,9 @@ def run_sensor_chain(
     prog = as_progress(progress)
     out = check_writable(out_dir, folder=True)
     tiles = [Path(p) for p in las_paths]
-    with new_files_removed_on_failure(out):
+    from .waveform_report import input_warnings, without_unsupported
+
+    with new_files_removed_on_failure(out), input_warnings() as warned:
         out.mkdir(parents=True, exist_ok=True)
         simulated = path is None
         if path is None:
@@ -209,7 +254,9 @@ def run_sensor_chain(
         validation = write_layers({LAYER_RESIDUALS_FOOTPRINTS: val.residuals,
                                    LAYER_STATS_FOOTPRINTS: val.stats},
                                   out / "validation.gpkg")
-        write_table(val.stats, out / "stats.csv", layer="stats")
+        write_table(val.stats.rename(columns={"length": "cell_size" if product == "ESFL"
+                                              else "footprint_diameter"}),
+                    out / "stats.csv", layer="stats")
         plots_dir = out / "plots"
         plots_dir.mkdir(exist_ok=True)
         maps = [plot_footprint_map(val.residuals, c, plots_dir / f"footprints_{c}.png")
@@ -218,16 +265,22 @@ def run_sensor_chain(
         words = SENSOR_NAMES["esfl" if product == "ESFL" else "dual"][1]
         facts, lines, summary = _sensor_summary(val, product, out, Path(path).name,
                                                 simulated=(azimuth, seed) if simulated
-                                                else None, words=words)
+                                                else None, words=words, warned=warned())
         from ..waveform_report import sensor_report_sections
-        from .glossary import glossary_section
+        from .glossary import gedi_glossary_section
 
         sections = [summary, *sensor_report_sections(
             fp, val, product=product, source=Path(path).name, simulated=simulated,
-            tiles=[t.name for t in tiles], words=words, maps=maps),
-            glossary_section(["bias", "RMSE", "95 % interval", "R²", "random seed",
-                              "reference outside"])]
-        report = write_report(out / "report.html", f"canopyblocks: {words} and validation",
+            tiles=[t.name for t in tiles], words=words, maps=maps,
+            stats=without_unsupported(val.stats),
+            settings=sensor_settings(product, options, path, noise if simulated else None,
+                                     simulated)),
+            gedi_glossary_section(["independent airborne quantities",
+                                   *(["round trip"] if simulated and product == "dual"
+                                     else []), "bias", "RMSE", "95 % interval", "R² (heights only)",
+                                   "random seed", "reference outside"], reference="")]
+        report = write_report(out / "report.html", f"canopyblocks: {words} against the "
+                              "airborne lidar",
                               sections)
         prog.update(1.0, "done")
         return ChainResult(out_dir=out, photons=Path(path), blocks=footprints, rasters={},

@@ -184,6 +184,15 @@ GEDI_GLOSSARY: dict[str, dict[str, str]] = {
             "percentile of all returns above it; the like-with-like reference.",
     },
     "": {
+        "independent airborne quantities": "what the airborne points themselves show under "
+            "a footprint (the class-2 ground, percentiles of the point heights above it), "
+            "with no model of the sensor: the comparison a result is judged by.",
+        "round trip": "a simulated file read back and compared with the simulator's own "
+            "noise-free waveform of the same points, read by the same algorithm: it checks "
+            "the processing chain, not the measurement, so it is near zero by construction.",
+        "R² (heights only)": "the squared correlation of the values and the reference "
+            "values, 0 to 1, given for heights only (an elevation's R² reflects the "
+            "terrain's relief) and for 10 footprints or more.",
         "bias": "mean of the residuals (value minus reference value): metres (cover: "
                 "fraction).",
         "RMSE": "root mean square of the residuals: metres (cover: fraction).",

@@ -66,12 +66,21 @@ def run_waveform_chain(
     )
     from ..waveforms import footprints_from_l1b
     from .result import ChainResult
-    from .waveform_report import _WORDS, facts_lines, footprint_facts, gedi_sections
+    from .waveform_report import (
+        _WORDS,
+        POINT_COLUMNS,
+        POINTS,
+        POINTS_WORDS,
+        facts_lines,
+        footprint_facts,
+        gedi_sections,
+        input_warnings,
+    )
 
     prog = as_progress(progress)
     out = check_writable(out_dir, folder=True)
     tiles = [Path(p) for p in las_paths]
-    with new_files_removed_on_failure(out):
+    with new_files_removed_on_failure(out), input_warnings() as warned:
         out.mkdir(parents=True, exist_ok=True)
         plots_dir = out / "plots"
         plots_dir.mkdir(exist_ok=True)
@@ -94,6 +103,8 @@ def run_waveform_chain(
         diameter = float(val.stats["length"].iloc[0]) if len(val.stats) else 22.0
         facts = footprint_facts(val.residuals, pairs=FOOTPRINT_METRICS,
                                 metrics=tuple(FOOTPRINT_METRICS), diameter=diameter,
+                                points={m: c for m, c in POINT_COLUMNS.items()
+                                        if c in val.residuals},
                                 estimators=f"GEDI L2A {getattr(params, 'setting', 'a1')}",
                                 layer=LAYER_STATS_FOOTPRINTS, out=out)
         from .tiles import _tiles_crs, _vertical_name
@@ -106,13 +117,18 @@ def run_waveform_chain(
         sections = gedi_sections(fp, val, facts, l1b=l1b, tiles=tiles, params=params,
                                  reference=reference,
                                  simulated=simulated, geoid=geoid, offset=offset,
-                                 tiles_datum=tiles_datum, wave_plots=wave_plots, maps=maps)
-        report = write_report(out / "report.html", "canopyblocks: GEDI footprints and "
-                              "validation", sections)
+                                 tiles_datum=tiles_datum, wave_plots=wave_plots, maps=maps,
+                                 warned=warned())
+        report = write_report(out / "report.html", "canopyblocks: GEDI footprints against "
+                              "the airborne lidar", sections)
         prog.update(1.0, "done")
         return ChainResult(out_dir=out, photons=str(l1b) if is_url(l1b) else Path(l1b), blocks=footprints, rasters={},
                            validation=validation, report=report,
                            plots=[*wave_plots, *maps], stats=val.stats,
                            simulated=simulated is not None,
-                           summary=facts_lines(facts, _WORDS,
-                                               "the footprint-matched airborne reference"))
+                           summary=[*facts_lines(facts[facts["reference"] == POINTS],
+                                                 _WORDS, POINTS_WORDS),
+                                    *facts_lines(facts[facts["reference"] != POINTS], _WORDS,
+                                                 "the points formed into waveforms ("
+                                                 + ("round trip)" if simulated else
+                                                    "like with like)"))])
