@@ -16,10 +16,4 @@ fi
 .venv-min/bin/python -m pip install -q pip==26.3
 .venv-min/bin/python -m pip install -q -r scripts/lock/min.txt
 .venv-min/bin/python -m pip install -q --no-deps --no-build-isolation -e .
-.venv-min/bin/python -m pip check >&2
-.venv-min/bin/python -m pip list --format=freeze | grep -iE \
-    '^(numpy|scipy|pandas|geopandas|shapely|pyproj|h5py|matplotlib|pyarrow|laspy|rasterio|s3fs|numba|distributed)=' \
-    | tr '\n' ' ' >&2
-echo >&2
-echo "canopyblocks: minimum-versions set-up took $(( $(date +%s) - t0 )) s" >&2
-exec .venv-min/bin/python -m pytest -p no:cacheprovider --ignore=tests/qgis -m "not qgis" "$@"
+exec bash scripts/suite_in_venv.sh .venv-min "$t0" "$@"
