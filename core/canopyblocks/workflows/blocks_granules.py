@@ -122,7 +122,9 @@ def read_polygon(path: str | os.PathLike[str]) -> Any:
         raise InputError(f"--polygon {path}: it holds no polygon")
     if poly.crs is None:
         raise InputError(f"--polygon {path}: it states no CRS; save it with one")
-    return gpd.GeoSeries([poly.geometry.union_all()], crs=poly.crs)
+    import shapely  # shapely's union_all: GeoSeries.union_all needs geopandas 1.0
+
+    return gpd.GeoSeries([shapely.union_all(poly.geometry.to_numpy())], crs=poly.crs)
 
 
 def blocks_from_granules(paths: Sequence[str | os.PathLike[str]], params: Any, *,
