@@ -100,7 +100,9 @@ def test_copc_corridor_is_the_laz_cropped(store, laz):
 
 
 def test_copc_box_agrees_with_laspy_copc_reader(store, laz):
-    import laspy
+    # the oracle: laspy's own COPC reader, whose box query returns too many points in laspy
+    # 2.4 (71,718 for 67,265 in the box; 2.5.3 agrees with the brute force)
+    laspy = pytest.importorskip("laspy", minversion="2.5.3")
 
     got = read_copc(str(store / "survey.copc.laz"), bounds=BOX)
     keep = (laz.x >= BOX[0]) & (laz.x <= BOX[2]) & (laz.y >= BOX[1]) & (laz.y <= BOX[3])

@@ -120,6 +120,8 @@ def test_not_plain_left_to_hdf5(tmp_path, case):  # noqa: ANN001
 def test_corrupt_chunk_is_refused_not_decoded(tmp_path, inflater):  # noqa: ANN001
     """Bytes damaged inside the fifth chunk: the threads give up and HDF5's read names the
     file -- no value of the damaged chunk comes back."""
+    if not hasattr(h5py.h5d.DatasetID, "chunk_iter"):
+        pytest.skip("h5py built on HDF5 before 1.12.3 has no chunk_iter to find the chunk")
     p = tmp_path / "e.h5"
     _write(p)
     with h5py.File(p, "r") as f:

@@ -66,7 +66,9 @@ def _load(path: Path) -> tuple[pd.DataFrame, pyproj.CRS | None]:
         return pd.read_csv(path, sep=None if suf == ".txt" else ",", engine="python"
                            if suf == ".txt" else "c"), None
     except (OSError, ValueError, pd.errors.ParserError, UnicodeDecodeError) as exc:
-        raise FileFormatError(f"{path}: cannot read as CSV ({exc})") from None
+        # one line: pandas 1.5's tokenizer messages end in a newline
+        why = " ".join(str(exc).split())
+        raise FileFormatError(f"{path}: cannot read as CSV ({why})") from None
 
 
 def _num(df: pd.DataFrame, col: str, path: Path) -> np.ndarray:

@@ -184,7 +184,10 @@ def _read_window(srcs: dict[str, Any], r0: int, r1: int, c0: int, c1: int,
         arr = np.full((r1 - r0, c1 - c0), np.nan)
         if rr1 > rr0 and cc1 > cc0:
             win = rasterio.windows.Window(cc0, rr0, cc1 - cc0, rr1 - rr0)
-            data = src.read(1, window=win, masked=True).astype(np.float64)
+            # inside an Env: rasterio 1.3 leaves GDAL's own handler (raw "ERROR 1:" lines
+            # on stderr) outside one; the error still comes as RasterioIOError
+            with rasterio.Env():
+                data = src.read(1, window=win, masked=True).astype(np.float64)
             vals = clean_heights(data.filled(np.nan), f"{name} raster")
             arr[rr0 - r0:rr1 - r0, cc0 - c0:cc1 - c0] = vals
         out[name] = arr
