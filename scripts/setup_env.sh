@@ -49,6 +49,7 @@ pip_quiet() {  # pip's own chatter (setuptools' editable-install notice) only wh
     fi
 }
 pip_quiet "pip==$PIP_VERSION"
+echo "canopyblocks: installing $(grep -c '==' "$lock") locked packages from $lock (a few minutes the first time)" >&2
 pip_quiet -r "$lock"
 pip_quiet --no-deps --no-build-isolation -e .
 rm -f "$log"

@@ -79,6 +79,17 @@ class CalibrationResult:
                        ground_cutoff=self.ground_cutoff)
 
 
+
+_LOW_EDGE = {
+    "top": " (at the low edge: the paper's method keeps the canopy top at least 1.75 m below "
+           "the highest kept photon even with cut-offs at 0, a floor the 'icesat2' preset "
+           "avoids)",
+    "ground": " (at the low edge: the paper's method keeps the mean ground at least 2 m above "
+              "the lowest kept photon even with cut-offs at 0, a floor the 'atl08' estimators' "
+              "ground surface avoids)",
+}
+"""Why an optimum on the low edge of the cut-off grid is a floor of the method, per window."""
+
 def _grid(values: Sequence[float] | None, what: str) -> np.ndarray:
     g = np.asarray(DEFAULT_GRID if values is None else values, dtype=np.float64).ravel()
     if g.size == 0 or not np.all((g > 0) & (g < 1)):
@@ -199,9 +210,7 @@ def calibrate_cutoffs(
             warnings.warn(
                 f"{length:g} m blocks of track {track.track}: the best {what} cut-off "
                 f"{value:g} lies on the edge of the searched grid ({g[0]:g}..{g[-1]:g}); "
-                "the optimum may lie beyond it (at the low edge: the paper's method keeps "
-                "the canopy top at least 1.75 m below the highest kept photon even with "
-                "cut-offs at 0, a floor the 'icesat2' preset avoids)",
+                "the optimum may lie beyond it" + (_LOW_EDGE[what] if value == g[0] else ""),
                 CutoffEdgeWarning, stacklevel=2)
     # the paper's defaults on the same reference
     td, gd = p.cutoffs_for(p.lengths[0])

@@ -350,10 +350,10 @@ def compute_blocks(track: PhotonTrack, params: BlockParams | None = None, *,
         prog.update((i + 1) / len(lengths), f"{length:g} m blocks: {res.block.size} blocks")
     gdf = _table(track, frames)
     if sparse_counts:
-        detail = ", ".join(f"{n} of {int((gdf['length'] == L).sum())} at {L:g} m"
+        detail = ", ".join(f"{n} of {int((gdf['length'] == L).sum())} {L:g} m blocks"
                            for L, n in sparse_counts.items())
         warnings.warn(
-            f"track {track.track}: {detail} blocks hold fewer than min_photons="
+            f"track {track.track}: {detail} hold fewer than min_photons="
             f"{params.min_photons} kept photons; they are flagged 'sparse' with NaN metrics",
             SparseBlockWarning, stacklevel=2,
         )
