@@ -20,6 +20,7 @@ __all__ = [
     "to_metric",
     "from_metric",
     "require_metric_crs",
+    "require_ground_metres",
     "to_metric_local_affine",
     "ground_metres",
 ]
@@ -173,6 +174,26 @@ def ground_metres(crs: object) -> bool:
     op = c.coordinate_operation
     method = (op.method_name if op is not None else "").lower()
     return abs(unit - 1.0) <= 1e-9 and not ("mercator" in method and "transverse" not in method)
+
+
+def require_ground_metres(crs: object, what: str = "CRS") -> pyproj.CRS:
+    """:func:`require_metric_crs`, and refuse a Mercator projection (Web Mercator, EPSG:3857),
+    whose metre is not a metre on the ground (:func:`ground_metres`); for a CRS the user asks
+    the outputs in.
+
+    Raises
+    ------
+    CRSError
+        Naming the CRS and what to give instead.
+    """
+    c = require_metric_crs(as_crs(crs, what), what)
+    if not ground_metres(c):
+        raise CRSError(
+            f"{what} {c.to_string()} is a Mercator projection: its metre is 1/cos(latitude) "
+            "metres on the ground (1.58 at 50.7 N), so cells and corridors would not have the "
+            "sizes asked; give a local metric CRS (e.g. the UTM zone of the survey) or leave "
+            "it out")
+    return c
 
 
 def require_metre_units(crs: object, what: str) -> None:

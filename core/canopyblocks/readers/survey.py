@@ -123,7 +123,12 @@ def _vpc_items(source: str | Path) -> list[str | Path]:
                        h.removeprefix("./"))
         else:
             p = Path(h)
-            out.append(p if p.is_absolute() else (Path(source).parent / p))
+            p = p if p.is_absolute() else (Path(source).parent / p)
+            if not p.exists():
+                raise FileFormatError(
+                    f"{label} names the tile {h}, but {p} does not exist; put the tile there "
+                    "or write the .vpc again (QGIS or pdal wrench build_vpc) from the tiles")
+            out.append(p)
     return out
 
 

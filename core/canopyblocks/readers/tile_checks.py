@@ -241,6 +241,20 @@ def check_first_points(path: str | os.PathLike[str], header: Box, tolerance: flo
         "or PDAL) after checking where it should be")
 
 
+def check_tile_headers(sources: Sequence[Any], tolerance: float = 1.0) -> None:
+    """:func:`check_first_points` for every local LAS/LAZ tile of a survey, against its own
+    header's extent (the sample :func:`duplicate_tiles` read, so no tile is opened twice):
+    every door that reads a survey refuses a tile its header misplaces, not only ``rasters``.
+    URLs and COPC/EPT sources are left to their readers."""
+    for src in sources:  # a loop over tiles: their cached samples
+        p = _local(src)
+        if p is None:
+            continue
+        t = _sample(p)
+        if t.box is not None and t.n > 0:
+            check_first_points(p, t.box, tolerance)
+
+
 def check_survey_tiles(tiles: Sequence[tuple[Any, Box]], tolerance: float) -> None:
     """The checks of a survey's LAS/LAZ tiles before any is read in full: each tile's first
     points within its header extent (:func:`check_first_points`, ``tolerance`` metres) and

@@ -28,7 +28,7 @@ from ..errors import (
     InputError,
     NoUsableDataError,
 )
-from ..geo import as_crs, require_metric_crs
+from ..geo import require_ground_metres, require_metric_crs
 from ..readers.las_header import check_header_extent, check_las_file
 from ..readers.las_summary import LasSummary, las_summary
 from ..readers.tile_checks import check_survey_tiles
@@ -119,8 +119,7 @@ def las_plan(paths: list[Path], params: RasterParams, crs: object, area_poly: An
     infos = [tile_info(p, pdal=exe) if exe is not None else header_info(p) for p in paths]
     infos = [_fix_broken_header(i, params.resolution) for i in infos]
     names = _names(paths)
-    target_in = None if crs is None else require_metric_crs(as_crs(crs, "output crs"),
-                                                            "output crs")
+    target_in = None if crs is None else require_ground_metres(crs, "output crs")
     checked = [check_tile_crs(i, target_in) for i in infos]
     tile_crss = [c for c, _ in checked]
     target = _target_crs(infos, tile_crss, target_in)
@@ -172,7 +171,7 @@ def cloud_plan(source: str, kind: str, params: RasterParams, crs: object,
                          "its ground class (the default)")
     extent_of, _ = cloud_reader(kind)
     ext = extent_of(source)
-    given = None if crs is None else as_crs(crs, "output crs")
+    given = None if crs is None else require_ground_metres(crs, "output crs")
     if ext.crs is None and given is None:
         raise CRSError(f"{ext.source} states no CRS; give its CRS (--crs, crs='EPSG:...')")
     target = require_metric_crs(given if given is not None else ext.crs,

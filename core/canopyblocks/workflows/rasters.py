@@ -38,10 +38,11 @@ def survey_tiles(sources: str | os.PathLike[str] | Sequence[str | os.PathLike[st
         A folder or pattern holding no tile, or no source at all.
     """
     from ..readers.survey import survey_sources
-    from ..readers.tile_checks import duplicate_tiles
+    from ..readers.tile_checks import check_tile_headers, duplicate_tiles
 
-    out = survey_sources(sources)
-    return duplicate_tiles(out)[0]  # the same points given twice: counted once, warned
+    out = duplicate_tiles(survey_sources(sources))[0]  # the same points twice: once, warned
+    check_tile_headers(out)  # a tile its header misplaces: refused by name, at every door
+    return out
 
 
 def corridor_area(blocks: Any, width: float, *, margin: float = CORRIDOR_MARGIN) -> Any:

@@ -225,16 +225,39 @@ def glossary_section(terms: Sequence[str] | None = None) -> ReportSection:
 
 def _fitted_tiles_seen(tiles: Sequence[Path | str]) -> list[str]:
     """The tiles of ``tiles`` the estimators or the sigma model were fitted on."""
-    import importlib
 
-    fitted_on = ""
+    seen = set()
+    for t in tiles:  # a loop over tiles: a header each
+        name = Path(str(t)).name.split(".")[0]
+        fitted = _fitted_by_content(t)
+        if name in CALIBRATION_TILES or fitted is not None:
+            seen.add(name if fitted is None or fitted == name else f"{name} (= {fitted})")
+    return sorted(seen)
+
+
+_CALIBRATION_HEADERS: dict[tuple[int, tuple[float, ...]], str] = {
+    (531662, (885022.37, 629157.18, 885210.15, 629399.99)): "lasR_bcts_1",
+    (823945, (885024.09, 629400.0, 885217.09, 629699.99)): "lasR_bcts_2",
+}
+"""The calibration tiles by their header's point count and extent (cm), so a renamed copy
+(or one in a .vpc) is recognised; a tile given by URL is named only."""
+
+
+def _fitted_by_content(tile: Path | str) -> str | None:
+    """The calibration tile whose points ``tile`` holds (by its header), or None."""
+    text = str(tile)
+    if "://" in text or not text.lower().endswith((".las", ".laz")):
+        return None
     try:
-        fitted_on = importlib.import_module("canopyblocks.blocks.uncertainty") \
-            .sigma_model().fitted_on
-    except Exception:  # noqa: BLE001 -- no model: name the tiles from the constant
-        fitted_on = ""
-    names = {Path(str(t)).name.split(".")[0] for t in tiles}
-    return sorted(n for n in names if n in CALIBRATION_TILES or (fitted_on and n in fitted_on))
+        import laspy
+
+        with laspy.open(text) as reader:
+            h = reader.header
+            key = (int(h.point_count), tuple(round(float(v), 2) for v in
+                                             (h.mins[0], h.mins[1], h.maxs[0], h.maxs[1])))
+    except Exception:  # noqa: BLE001 -- unreadable here: its reader reports it
+        return None
+    return _CALIBRATION_HEADERS.get(key)
 
 
 def training_caveat(tiles: Sequence[Path | str]) -> str:
