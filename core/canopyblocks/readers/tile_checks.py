@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import math
 import os
 import warnings
 from collections.abc import Sequence
@@ -251,8 +252,17 @@ def check_tile_headers(sources: Sequence[Any], tolerance: float = 1.0) -> None:
         if p is None:
             continue
         t = _sample(p)
-        if t.box is not None and t.n > 0:
+        if t.box is not None and t.n > 0 and _plausible(t.box):  # else fixed where read
             check_first_points(p, t.box, tolerance)
+
+
+def _plausible(box: Box) -> bool:
+    """A header extent that can be right (finite, within the offsets LAS allows, min <= max);
+    one that cannot is replaced by the points' own extent, with a warning, where it is read."""
+    from .las_header import MAX_OFFSET
+
+    return (all(math.isfinite(v) and abs(v) <= MAX_OFFSET for v in box)
+            and box[0] <= box[2] and box[1] <= box[3])
 
 
 def check_survey_tiles(tiles: Sequence[tuple[Any, Box]], tolerance: float) -> None:
