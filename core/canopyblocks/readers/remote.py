@@ -42,6 +42,7 @@ from urllib.parse import urlsplit, urlunsplit
 
 from ..errors import DependencyError, FileFormatError
 from .earthdata import _EARTHDATA, earthdata_credentials
+from .remote_guard import Stuck, guarded_call
 from .tls_errors import tls_failed as _tls
 from .tls_errors import tls_message
 
@@ -270,7 +271,7 @@ def _transient(exc: BaseException) -> bool:
     if any("Credential" in type(e).__name__ or "ProfileNotFound" in type(e).__name__
            or isinstance(e, _RangesIgnored) or _tls(e) for e in chain):
         return False
-    if any(isinstance(e, _ShortAnswer) for e in chain):
+    if any(isinstance(e, (_ShortAnswer, Stuck)) for e in chain):
         return True
     if _timed_out(exc) and _status(exc) is None:
         return False
@@ -415,8 +416,12 @@ class RemoteFile(io.RawIOBase):
                 raise self.error from None
         raise AssertionError("unreachable")
 
+    def _call(self, method: str, *args: Any, **kw: Any) -> Any:
+        """``fs.<method>(*args)`` within the time-out plus the connect time-out (remote_guard)."""
+        return guarded_call(self.fs, method, timeout_seconds() + CONNECT_TIMEOUT, *args, **kw)
+
     def _size(self) -> int:
-        info = self._retry(lambda: self.fs.info(self.remote_path))
+        info = self._retry(lambda: self._call("info", self.remote_path))
         if isinstance(info, dict) and info.get("type") == "directory":
             self.error = StorageError(
                 f"{self.label}: is a prefix (a folder of objects), not a granule; give one "
@@ -461,11 +466,12 @@ class RemoteFile(io.RawIOBase):
     def _get(self, spans: list[tuple[int, int]]) -> list[bytes]:
         def go() -> list[bytes]:
             if len(spans) == 1:
-                got = [self.fs.cat_file(self.remote_path, start=spans[0][0], end=spans[0][1])]
+                got = [self._call("cat_file", self.remote_path, start=spans[0][0],
+                                  end=spans[0][1])]
             else:
-                got = self.fs.cat_ranges([self.remote_path] * len(spans),
-                                         [s[0] for s in spans], [s[1] for s in spans],
-                                         on_error="raise")
+                got = self._call("cat_ranges", [self.remote_path] * len(spans),
+                                 [s[0] for s in spans], [s[1] for s in spans],
+                                 on_error="raise")
             for (a, b), blob in zip(spans, got):
                 if isinstance(blob, BaseException):
                     raise blob
