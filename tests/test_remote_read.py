@@ -144,10 +144,11 @@ def test_bbox_fetches_fewer_bytes_and_the_same_photons(s3_env, granule_dir):
     bbox = (-106.58, mid - 1_000 * 9.0e-6, -106.55, mid + 1_000 * 9.0e-6)  # 2 km of 30
     got = blocks_from_file(url, PARAMS, bbox=bbox, workers=1).blocks
     _same(got, blocks_from_file(granule_dir / "ATL03_long.h5", PARAMS, bbox=bbox).blocks)
-    # 2 km of 30 km: the photons of 1-2 chunks of 5 km per column, plus the segment index
-    # and the background records (bckgrd_atlas, read whole: the rate of the whole track)
-    assert s3_env.tally.nbytes < 0.6 * size, (s3_env.tally.nbytes, size)
-    assert s3_env.tally.nbytes < 0.6 * whole_bytes
+    # 2 km of 30 km plus the classifier's context (2 x 480 m, read then cut away): the
+    # photons of the 5 km chunks they touch per column, the segment index and the background
+    # records (bckgrd_atlas, read whole: the rate of the whole track)
+    assert s3_env.tally.nbytes < 0.85 * size, (s3_env.tally.nbytes, size)
+    assert s3_env.tally.nbytes < 0.85 * whole_bytes
     assert whole_bytes >= 0.8 * size  # the whole read really read the photons
     assert len(got) < len(whole) / 5
 
