@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from canopyblocks.errors import CRSError, FileFormatError, InputError
+from canopyblocks.errors import CanopyBlocksWarning, CRSError, FileFormatError, InputError
 from canopyblocks.readers import remote
 from canopyblocks.readers.las import LasPoints, read_las
 from canopyblocks.readers.survey import read_survey, source_crs, survey_sources
@@ -75,8 +75,9 @@ def test_every_spelling_of_a_survey_resolves_to_its_tiles(store: Path) -> None:
     assert survey_tiles(store / "tiles") == want
     assert survey_tiles([str(store / "tiles" / "*.laz")]) == want
     assert survey_tiles(str(store / "survey.vpc")) == want
-    # the same tile given twice (a folder and one of its files) is read once
-    assert survey_tiles([store / "tiles", want[1]]) == want
+    # the same tile given twice (a folder and one of its files) is read once, with a warning
+    with pytest.warns(CanopyBlocksWarning, match="given twice"):
+        assert survey_tiles([store / "tiles", want[1]]) == want
     assert survey_tiles(store / "ept") == [str(store / "ept" / "ept.json")]
     url = "https://example.org/a/survey.copc.laz"
     assert survey_tiles([url]) == [url]  # a URL stays as given, never a mangled path
