@@ -261,7 +261,6 @@ def test_validate_footprints_is_validate(tile, tile_path, footprints, tmp_path) 
         warnings.simplefilter("ignore", FootprintOutsideWarning)
         for name, args in {"old": ["validate-footprints", *common],
                            "new": ["validate", *common],
-                           "new22": ["validate", *common, "--diameter", "22"],
                            "points": ["validate", *common, "--footprint-definition",
                                       "points", "--weighting", "gaussian"]}.items():
             out = tmp_path / f"{name}.gpkg"
@@ -276,7 +275,11 @@ def test_validate_footprints_is_validate(tile, tile_path, footprints, tmp_path) 
     for m, off in OFFSETS.items():
         np.testing.assert_allclose(got["points"].loc[use, f"res_{m}"], off, atol=1e-6)
     assert set(got["new"]["reference"]) == {"waveform"}
-    for name in ("new", "new22"):
+    # --diameter is refused for GEDI footprints (the instrument's footprint is fixed)
+    r = run_cli("validate", *common, "--diameter", "22", "-o", str(tmp_path / "d.gpkg"))
+    assert r.returncode == 2 and "applies to photon blocks only" in r.stderr, r.stderr
+    assert not (tmp_path / "d.gpkg").exists()
+    for name in ("new",):
         for col in ("ref_ground", "ref_rh98", "res_rh98"):
             np.testing.assert_allclose(got[name][col], got["old"][col], equal_nan=True,
                                        err_msg=f"{name} {col}")
