@@ -58,7 +58,7 @@ def _track(z_blocks: dict[int, list[float]], spacing: float = 2.0) -> PhotonTrac
 @pytest.fixture()
 def three_blocks():
     tr = _track({0: Z_A, 1: Z_B, 3: Z_C})
-    with pytest.warns(SparseBlockWarning, match="1 of 3 at 25 m"):
+    with pytest.warns(SparseBlockWarning, match="1 of 3 25 m blocks"):
         out, labels = compute_blocks(tr, BlockParams(lengths=(25.0,), s0=0.0), labels=True)
     return tr, out, labels
 
