@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import math
 import struct
+from collections.abc import Sequence
 from pathlib import Path
 
 from ..errors import FileFormatError
@@ -100,6 +101,13 @@ def check_las_file(path: str | Path) -> None:
         raise
     except OSError as exc:
         raise FileFormatError(f"cannot read {p}: {exc}") from None
+
+
+def plausible_box(box: Sequence[float]) -> bool:
+    """Whether a header extent can be right (finite, within 1e9 m, min <= max)."""
+    b = [float(v) for v in box]
+    return (all(math.isfinite(v) and abs(v) <= MAX_OFFSET for v in b)
+            and b[0] <= b[2] and b[1] <= b[3])
 
 
 def check_header_extent(path: str | Path, header: tuple[float, float, float, float],

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import functools
 import hashlib
-import math
 import os
 import warnings
 from collections.abc import Sequence
@@ -34,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from ..errors import CanopyBlocksWarning, CRSError, FileFormatError
+from .las_header import plausible_box
 
 __all__ = ["SAMPLE", "duplicate_tiles", "check_first_points", "check_vertical_datums",
            "check_survey_tiles", "vertical_names", "check_tile_datums"]
@@ -252,17 +252,9 @@ def check_tile_headers(sources: Sequence[Any], tolerance: float = 1.0) -> None:
         if p is None:
             continue
         t = _sample(p)
-        if t.box is not None and t.n > 0 and _plausible(t.box):  # else fixed where read
+        if t.box is not None and t.n > 0 and plausible_box(t.box):  # else fixed where read
             check_first_points(p, t.box, tolerance)
 
-
-def _plausible(box: Box) -> bool:
-    """A header extent that can be right (finite, within the offsets LAS allows, min <= max);
-    one that cannot is replaced by the points' own extent, with a warning, where it is read."""
-    from .las_header import MAX_OFFSET
-
-    return (all(math.isfinite(v) and abs(v) <= MAX_OFFSET for v in box)
-            and box[0] <= box[2] and box[1] <= box[3])
 
 
 def check_survey_tiles(tiles: Sequence[tuple[Any, Box]], tolerance: float) -> None:

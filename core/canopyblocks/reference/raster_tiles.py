@@ -36,7 +36,11 @@ import numpy as np
 
 from ..errors import FileFormatError
 from ..readers.cloud_checks import HeightTally
-from ..readers.las_header import MAX_OFFSET, check_las_file, check_nothing_beyond_count
+from ..readers.las_header import (
+    check_las_file,
+    check_nothing_beyond_count,
+    plausible_box,
+)
 from .lidar_points import cell_groups, cell_neighbourhoods, max_and_percentile
 from .raster_grid import Grid
 from .raster_windows import SparseGrids, Windows, area_test
@@ -122,13 +126,6 @@ class SurveyGrids:
     dtm: np.ndarray
     top: np.ndarray
     p90: np.ndarray
-
-
-def plausible_box(box: Sequence[float]) -> bool:
-    """Whether a header extent can be right (finite, within 1e9 m, min <= max)."""
-    b = [float(v) for v in box]
-    return (all(math.isfinite(v) and abs(v) <= MAX_OFFSET for v in b)
-            and b[0] <= b[2] and b[1] <= b[3])
 
 
 def cell_stats(cell: np.ndarray, z: np.ndarray, ground: np.ndarray, n_cells: int,
