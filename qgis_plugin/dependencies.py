@@ -95,6 +95,11 @@ def dependency_problem(alg_id: str, display_name: str) -> str | None:
     missing = missing_packages(alg_id)
     if not missing:
         return None
+    from .venv_guard import venv_cause
+
+    cause = venv_cause()
+    if cause is not None:  # not a package to install: the shell's virtualenv hides them
+        return f"{display_name}: {cause}"
     env_note = ("(A package installed elsewhere can be made visible with Settings > Options > "
                 "System > Environment: PYTHONPATH, 'Append', its folder.)")
     if "canopyblocks" in missing:  # the core itself: its own, fuller instructions

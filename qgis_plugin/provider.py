@@ -85,7 +85,8 @@ class CanopyBlocksProvider(QgsProcessingProvider):
             return
         from .dependencies import PDAL_SETTING
 
-        ProcessingConfig.removeSetting(PDAL_SETTING)
+        if PDAL_SETTING in ProcessingConfig.settings:  # absent when load() did not finish
+            ProcessingConfig.removeSetting(PDAL_SETTING)
 
     def loadAlgorithms(self) -> None:  # noqa: N802 - QGIS API
         for cls in ALGORITHMS:

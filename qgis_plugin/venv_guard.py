@@ -19,7 +19,7 @@ import os
 import sys
 from pathlib import Path
 
-__all__ = ["in_qgis_application", "scrub_venv", "venv_problem", "VENV_ADVICE"]
+__all__ = ["in_qgis_application", "scrub_venv", "venv_cause", "venv_problem", "VENV_ADVICE"]
 
 VENV_ADVICE = (
     "run `deactivate` in that shell (QGIS takes the first python3 on PATH and its "
@@ -65,8 +65,26 @@ def scrub_venv() -> list[str]:
         return []
     gone = [p for p in sys.path if p and _inside(p, root)]
     sys.path[:] = [p for p in sys.path if p not in gone]
+    # QGIS's own Python keeps its packages in the base interpreter's site folders, which a
+    # virtualenv without system packages hides (Processing itself then fails to import yaml)
+    import site
+
+    sys.path.extend(p for p in site.getsitepackages([sys.base_prefix])
+                    if p not in sys.path and Path(p).is_dir())
     _removed.extend(gone)
     return gone
+
+
+def venv_cause() -> str | None:
+    """When QGIS runs inside a shell's virtualenv, the message naming it (the real cause of
+    any package QGIS's Python then cannot import: a virtualenv hides the system's packages);
+    None otherwise."""
+    root = _venv()
+    if root is None:
+        return None
+    return (f"QGIS was started from a shell with the virtualenv {root} active (or its bin "
+            f"first on PATH), so its Python cannot see the packages QGIS's own Python has; "
+            f"{VENV_ADVICE}")
 
 
 def venv_problem() -> str | None:
