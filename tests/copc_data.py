@@ -31,7 +31,7 @@ import numpy as np
 import pyproj
 
 __all__ = ["Octree", "build_octree", "write_copc", "write_ept", "tile_points",
-           "shifted_grid", "copc_damaged", "sibling_box"]
+           "shifted_grid", "copc_damaged", "sibling_box", "root_node"]
 
 
 @dataclass(frozen=True)
@@ -349,10 +349,20 @@ def sibling_box(raw: bytes) -> tuple[float, float, float, float]:
     return (x0 + 0.4 * side, y0 + 0.4 * side, x0 + 0.6 * side, y0 + 0.6 * side)
 
 
+def root_node(raw: bytes) -> tuple[int, ...]:
+    """The root page's first node with points: (d, x, y, z, offset, byte size, count) (the
+    node the ``"half"`` and ``"none"`` edits change; its byte size depends on the lazrs
+    that wrote the file)."""
+    root_at, root_size = struct.unpack_from("<2Q", raw, _INFO_AT + 40)
+    return next(e for e in (_E.unpack_from(raw, root_at + 32 * i)
+                            for i in range(root_size // 32)) if e[6] > 0)
+
+
 def copc_damaged(raw: bytes, edit: str) -> bytes:
     """The COPC bytes with one lie: a node's count halved or zeroed, a node pointed at
-    another node's chunk (its parent's: ``"other"``, its sibling's: ``"sibling"``), the
-    octree centre or the header extent moved 5 km."""
+    another node's chunk (its parent's: ``"other"``, its sibling's: ``"sibling"``), two
+    siblings' chunks exchanged (``"swap"``), the octree centre or the header extent moved
+    5 km."""
     b = bytearray(raw)
     root_at, root_size = struct.unpack_from("<2Q", raw, _INFO_AT + 40)
     root = [(root_at + 32 * i, _E.unpack_from(raw, root_at + 32 * i))
@@ -372,6 +382,10 @@ def copc_damaged(raw: bytes, edit: str) -> bytes:
     elif edit == "sibling":
         (_, e1), (at2, e2) = _level2(raw)[:2]
         _E.pack_into(b, at2, *e2[:4], e1[4], e1[5], e1[6])
+    elif edit == "swap":  # two siblings' chunks exchanged: every count still adds up
+        (at1, e1), (at2, e2) = _level2(raw)[:2]
+        _E.pack_into(b, at2, *e2[:4], e1[4], e1[5], e1[6])
+        _E.pack_into(b, at1, *e1[:4], e2[4], e2[5], e2[6])
     elif edit == "centre":
         cx = struct.unpack_from("<d", raw, _INFO_AT)[0]
         struct.pack_into("<d", b, _INFO_AT, cx + 5000.0)

@@ -34,6 +34,7 @@ from badinputs.survey_corpus import crop_of, move_header  # noqa: E402
 from copc_data import (  # noqa: E402
     build_octree,
     copc_damaged,
+    root_node,
     sibling_box,
     tile_points,
     write_copc,
@@ -196,8 +197,11 @@ def copc(tmp_path_factory, sample) -> tuple[Path, bytes]:  # noqa: ANN001
     return p, p.read_bytes()
 
 
-COPC_LIES = {"half": "holds 2,500 points in 49,390 bytes, its LAZ chunk holds 5,000 points",
-             "none": "holds 0 points in 49,390 bytes, its LAZ chunk holds 5,000 points",
+# {size}: the root node's chunk, in bytes (49,390 written by lazrs 0.8, 49,787 by 0.5)
+COPC_LIES = {"half": "holds 2,500 points in {size:,} bytes, its LAZ chunk holds 5,000 points "
+                     "in {size:,} bytes",
+             "none": "holds 0 points in {size:,} bytes, its LAZ chunk holds 5,000 points in "
+                     "{size:,} bytes",
              "other": "at the same LAZ chunk",
              "sibling": "at the same LAZ chunk",
              "centre": "its octree's cube is centred at (278500.00",
@@ -216,13 +220,30 @@ def test_a_copc_hierarchy_that_lies_is_refused(copc, tmp_path, edit) -> None:  #
     for box in boxes[:1] if edit == "sibling" else boxes:  # a box under the damaged node
         with pytest.raises(FileFormatError) as exc:
             read_copc(p, bounds=box)
-        assert str(p) in str(exc.value) and COPC_LIES[edit] in str(exc.value)
+        want = COPC_LIES[edit].format(size=root_node(copc[1])[5])
+        assert str(p) in str(exc.value) and want in str(exc.value), str(exc.value)
         assert "write the file again" in str(exc.value)
-    if edit == "sibling":  # only the node pointed elsewhere is read: its points are not
-        # in its cube (before: its sibling's 523 points read as its own)
-        with pytest.raises(FileFormatError, match="523 of the 523 points read for node "
-                           "2-0-1-1 lie outside its octree cube"):
+    if edit == "sibling":  # only the node pointed elsewhere is read; the whole
+        # hierarchy's counts, checked in a box read too, no longer add up (before: its
+        # sibling's 523 points read as its own)
+        with pytest.raises(FileFormatError, match="its hierarchy's nodes hold 73,363 points, "
+                           "its header says 73,403"):
             read_copc(p, bounds=sibling_box(copc[1]))
+
+
+def test_two_copc_nodes_swapped_are_refused_by_their_cubes(copc, tmp_path) -> None:  # noqa: ANN001
+    """Two siblings' chunks exchanged: every count adds up and every node begins its own
+    chunk; the points read for a node lie outside its cube."""
+    from canopyblocks.readers.copc import read_copc
+
+    p = tmp_path / "swap.copc.laz"
+    p.write_bytes(copc_damaged(copc[1], "swap"))
+    for box in (None, sibling_box(copc[1])):  # the node first in the file is named
+        with pytest.raises(FileFormatError) as exc:
+            read_copc(p, bounds=box)
+        assert str(p) in str(exc.value), str(exc.value)
+        assert "523 of the 523 points read for node 2-0-1-1 lie outside its octree cube" in \
+            str(exc.value)
 
 
 def test_an_ept_without_its_root_or_a_node_is_named(tmp_path, sample) -> None:  # noqa: ANN001
