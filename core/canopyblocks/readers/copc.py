@@ -34,7 +34,16 @@ from ..errors import CRSError, FileFormatError, InputError, NoUsableDataError
 from ..geo import require_metre_units, require_metric_crs
 from ..progress import Progress, as_progress
 from .cloud_checks import HeightTally, warn_if_normalised
-from .copc_checks import check_chunks, check_cube, check_node_points, check_total, chunk_starts
+from .copc_checks import (
+    check_chunks,
+    check_cube,
+    check_node_points,
+    check_page,
+    check_total,
+    check_whole_hierarchy,
+    chunk_starts,
+    page_entries,
+)
 from .las_crs import LasCRS, _laspy, crs_from_records
 from .remote import is_url, open_source, source_label
 
@@ -381,21 +390,16 @@ def select_nodes(src: ByteSource, h: CopcHeader, area: Area) -> list[tuple[Node,
         check_chunks(h, out, chunk_starts(src, h))
     if area.everything:
         check_total(h, entries)
+    else:  # a node left out of the hierarchy or zeroed would be missed silently
+        check_whole_hierarchy(src, h, entries)
     return sorted(out, key=lambda n: n[1])
 
 
 def _add_page(src: ByteSource, h: CopcHeader, entries: dict[Node, tuple[int, int, int]],
               where: tuple[int, int]) -> None:
     offset, size = where
-    if size % 32 or size <= 0:
-        raise FileFormatError(f"{h.label}: a damaged COPC hierarchy (a page of {size} bytes at "
-                              f"{offset}); write the file again")
-    blob = src.fetch([(offset, offset + size)], "a hierarchy page")[0]
-    rows = np.frombuffer(blob, dtype=np.dtype([("key", "<i4", 4), ("offset", "<u8"),
-                                               ("size", "<i4"), ("count", "<i4")]))
-    for k, o, s, c in zip(rows["key"].tolist(), rows["offset"].tolist(), rows["size"].tolist(),
-                          rows["count"].tolist()):
-        entries[(k[0], k[1], k[2], k[3])] = (o, s, c)
+    check_page(h, where)
+    entries.update(page_entries(src.fetch([(offset, offset + size)], "a hierarchy page")[0]))
 
 
 def _batches(nodes: list[tuple[Node, int, int, int]]) -> list[list[tuple[Node, int, int, int]]]:

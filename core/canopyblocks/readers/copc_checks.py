@@ -13,9 +13,14 @@ extent makes every node miss the area ("no points").  So, at no extra decompress
 * :func:`check_node_points`: the decompressed points of each node must lie within its cube
   and within the header's extent.
 
-Each refusal names the file, the node and what disagrees.  A node whose entry was zeroed
-altogether (count, offset and size 0) leaves its chunk unreferenced: seen only by a read of
-the whole file, where the hierarchy's counts must add up to the header's.
+* :func:`check_total`: the hierarchy's counts must add up to the header's.  A node whose
+  entry was zeroed altogether (count, offset and size 0) or left out leaves its chunk
+  unreferenced, which no check of the nodes read can see; so a read of a part of the file
+  (a box, a corridor, a raster's window) loads the hierarchy pages it did not need too
+  (:func:`check_whole_hierarchy`: their ranges fetched together, once per file and
+  process: 32 bytes a node) and checks the whole hierarchy's total, as a whole read does.
+
+Each refusal names the file, the node and what disagrees.
 """
 
 from __future__ import annotations
@@ -28,7 +33,8 @@ import numpy as np
 
 from ..errors import FileFormatError
 
-__all__ = ["check_cube", "chunk_starts", "check_chunks", "check_node_points", "check_total"]
+__all__ = ["check_cube", "chunk_starts", "check_chunks", "check_node_points", "check_total",
+           "check_whole_hierarchy", "check_page", "page_entries"]
 
 Node = tuple[int, int, int, int]
 NodeEntry = tuple[Node, int, int, int]
@@ -162,6 +168,54 @@ def check_total(h: Any, entries: dict[Node, tuple[int, int, int]]) -> None:
             f"{h.label}: its hierarchy's nodes hold {total:,} points, its header says "
             f"{h.n_points:,}; the hierarchy is damaged (a node's count is wrong or a node is "
             "missing from it): write the file again")
+
+
+def check_page(h: Any, where: tuple[int, int]) -> None:
+    """Refuse a hierarchy page entry of an impossible size."""
+    offset, size = where
+    if size % 32 or size <= 0:
+        raise FileFormatError(f"{h.label}: a damaged COPC hierarchy (a page of {size} bytes at "
+                              f"{offset}); write the file again")
+
+
+def page_entries(blob: bytes) -> dict[Node, tuple[int, int, int]]:
+    """``{key: (offset, byte size, count)}`` of one hierarchy page's 32-byte entries."""
+    rows = np.frombuffer(blob, dtype=np.dtype([("key", "<i4", 4), ("offset", "<u8"),
+                                               ("size", "<i4"), ("count", "<i4")]))
+    return {(k[0], k[1], k[2], k[3]): (o, s, c) for k, o, s, c in zip(
+        rows["key"].tolist(), rows["offset"].tolist(), rows["size"].tolist(),
+        rows["count"].tolist())}
+
+
+_WHOLE: set[tuple[str, int, int, tuple[int, int]]] = set()
+
+
+def check_whole_hierarchy(src: Any, h: Any, entries: dict[Node, tuple[int, int, int]]
+                          ) -> None:
+    """The whole hierarchy's counts must add up to the header's, also in a read of a part
+    of the file: the pages not loaded yet are fetched (each round's ranges together: one
+    round per level of nested pages), once per file and process."""
+    key = (h.label, int(src.size), int(h.points_at), tuple(h.root))
+    if key in _WHOLE:
+        return
+    every = dict(entries)
+    seen: set[tuple[int, int]] = set()
+    while True:  # one round per level of nested pages (a few)
+        pages = {k: (o, s) for k, (o, s, c) in every.items() if c == -1}
+        todo = sorted({p for p in pages.values() if p not in seen})
+        for k in pages:
+            del every[k]
+        if not todo:
+            break
+        for where in todo:  # a loop over pages, not entries
+            check_page(h, where)
+            seen.add(where)
+        for blob in src.fetch([(o, o + s) for o, s in todo], "the hierarchy pages"):
+            every.update(page_entries(blob))
+    check_total(h, every)
+    if len(_WHOLE) > 64:
+        _WHOLE.clear()
+    _WHOLE.add(key)
 
 
 def check_node_points(h: Any, rec: np.ndarray, batch: Sequence[NodeEntry]) -> None:

@@ -6,7 +6,10 @@ hierarchy ``ept-hierarchy/D-X-Y-Z.json`` (``{"D-X-Y-Z": point count}``; -1 = the
 entries continue in a file of its own) and one file per node in ``ept-data/``.
 :func:`read_ept` walks the hierarchy down the cubes that meet the area (sub-hierarchy files
 fetched only for those), reads those nodes' LAZ files one by one and keeps exactly the points
-inside: the same as reading the survey's LAZ tiles and cropping them.  Only the ``laszip``
+inside: the same as reading the survey's LAZ tiles and cropping them.  The hierarchy's counts
+must add up to ``ept.json``'s ``points``, also in a read of a part of the dataset (the other
+hierarchy files are read too, once per dataset and process): a node left out of the
+hierarchy or counted 0 would else be missed silently.  Only the ``laszip``
 data type is read; ``binary`` and ``zstandard`` datasets are refused in one line.
 
 URLs (``https://``, ``s3://``) go through :mod:`~canopyblocks.readers.remote` (the same
@@ -187,12 +190,46 @@ def select_nodes(info: EptInfo, area: Area) -> list[tuple[Node, int]]:
         d, x, y, z = key
         todo.extend((d + 1, 2 * x + (i & 1), 2 * y + ((i >> 1) & 1), 2 * z + ((i >> 2) & 1))
                     for i in range(8))
+    if area.everything:
+        _check_total(info, counts)
+    else:  # a node left out of the hierarchy or zeroed would be missed silently
+        _check_whole(info, counts)
+    return sorted(out)
+
+
+def _check_total(info: EptInfo, counts: dict[Node, int]) -> None:
+    """With the whole hierarchy loaded, its counts must add up to ``ept.json``'s."""
     total = sum(n for n in counts.values() if n > 0)
-    if area.everything and -1 not in counts.values() and total != info.n_points:
+    if -1 not in counts.values() and total != info.n_points:
         raise FileFormatError(f"{info.label}: its hierarchy's nodes hold {total:,} points, "
                               f"ept.json says {info.n_points:,}; the hierarchy is damaged (a "
                               "node is missing from it or miscounted): write the dataset again")
-    return sorted(out)
+
+
+_WHOLE: set[tuple[str, int]] = set()
+
+
+def _check_whole(info: EptInfo, counts: dict[Node, int]) -> None:
+    """The whole hierarchy's total, also in a read of a part of the dataset: the
+    hierarchy files not loaded yet are read too (in parallel from storage), once per
+    dataset and process."""
+    key = (info.url, info.n_points)
+    if key in _WHOLE:
+        return
+    every = dict(counts)
+    seen: set[Node] = set()
+    with ThreadPoolExecutor(max_workers=FETCH_THREADS if info.remote else 1) as pool:
+        while todo := [k for k, n in every.items() if n == -1 and k not in seen]:
+            for k in todo:  # one round per level of hierarchy files (a few)
+                del every[k]
+                seen.add(k)
+            for got in pool.map(info.hierarchy, todo):
+                every.update({k: n for k, n in got.items() if k not in seen or n != -1})
+    every = {k: n for k, n in every.items() if n != -1}
+    _check_total(info, every)
+    if len(_WHOLE) > 64:
+        _WHOLE.clear()
+    _WHOLE.add(key)
 
 
 def _check_cube(info: EptInfo, key: Node, las: Any) -> None:
