@@ -31,7 +31,8 @@ import numpy as np
 import pyproj
 
 __all__ = ["Octree", "build_octree", "write_copc", "write_ept", "tile_points",
-           "shifted_grid", "copc_damaged", "sibling_box", "root_node"]
+           "shifted_grid", "copc_damaged", "sibling_box", "root_node", "NODE", "node_box",
+           "node_entry", "ept_node_damaged", "copc_node_damaged", "NODE_EDITS"]
 
 
 @dataclass(frozen=True)
@@ -393,3 +394,89 @@ def copc_damaged(raw: bytes, edit: str) -> bytes:
         mx, mnx = struct.unpack_from("<2d", raw, 179)
         struct.pack_into("<2d", b, 179, mx + 5000.0, mnx + 5000.0)
     return bytes(b)
+
+
+# ---- one node's data that the hierarchy does not hold: for whole and window reads ----------
+NODE = (2, 0, 0, 1)
+"""The node damaged by :func:`ept_node_damaged` and :func:`copc_node_damaged` (a leaf of the
+Topography tile's octree at capacity 5,000: 523 points, listed in a sub-hierarchy)."""
+
+NODE_EDITS = {
+    "ept": ("node-missing", "node-truncated", "node-count", "node-counts-swapped",
+            "node-left-out", "node-zero"),
+    "copc": ("node-past-end", "node-size-past-end", "node-into-other", "node-zeroed",
+             "node-cut"),
+}
+"""The edits of each kind: a node's data file deleted or cut in half, its hierarchy count
+400, its count and its sibling's (2-0-1-1, 563 points) exchanged, its entry left out or
+counted 0; a COPC node's offset past the file's end, its byte size
+past it, its offset inside its parent's chunk, its entry zeroed, the file cut inside it."""
+
+
+def node_box(cube: Sequence[float], key: Sequence[int] = NODE
+             ) -> tuple[float, float, float, float]:
+    """The middle fifth of a node's cube seen from above (``cube``: the root cube's
+    minx, miny, minz, maxx, ...): a window read there reads the node."""
+    side = (cube[3] - cube[0]) / 2 ** key[0]
+    x0, y0 = cube[0] + key[1] * side, cube[1] + key[2] * side
+    return (x0 + 0.4 * side, y0 + 0.4 * side, x0 + 0.6 * side, y0 + 0.6 * side)
+
+
+def _entries(raw: bytes) -> dict[tuple[int, ...], tuple[int, tuple[int, ...]]]:
+    """Every node entry of a COPC file: key -> (its position, the entry)."""
+    root_at, root_size = struct.unpack_from("<2Q", raw, _INFO_AT + 40)
+    out, todo = {}, [(root_at, root_size)]
+    while todo:  # pages, not points
+        at, size = todo.pop()
+        for i in range(size // 32):
+            e = _E.unpack_from(raw, at + 32 * i)
+            if e[6] == -1:
+                todo.append((e[4], e[5]))
+            else:
+                out[tuple(e[:4])] = (at + 32 * i, e)
+    return out
+
+
+def node_entry(raw: bytes, key: Sequence[int] = NODE) -> tuple[int, ...]:
+    """A COPC node's entry: (d, x, y, z, offset, byte size, count)."""
+    return _entries(raw)[tuple(key)][1]
+
+
+def copc_node_damaged(raw: bytes, edit: str, key: Sequence[int] = NODE) -> bytes:
+    """The COPC bytes with node ``key``'s entry (or data) damaged by ``edit``
+    (:data:`NODE_EDITS`)."""
+    at, e = _entries(raw)[tuple(key)]
+    parent = node_entry(raw, (key[0] - 1, key[1] // 2, key[2] // 2, key[3] // 2))
+    if edit == "node-cut":  # the file ends in the middle of the node's chunk
+        return raw[:e[4] + e[5] // 2]
+    o, s, c = {"node-past-end": (len(raw) + e[4], e[5], e[6]),
+               "node-size-past-end": (e[4], len(raw), e[6]),
+               "node-into-other": (parent[4] + parent[5] // 2, e[5], e[6]),
+               "node-zeroed": (0, 0, 0)}[edit]
+    b = bytearray(raw)
+    _E.pack_into(b, at, *e[:4], o, s, c)
+    return bytes(b)
+
+
+def ept_node_damaged(folder: Path, edit: str, key: Sequence[int] = NODE) -> None:
+    """Damage node ``key`` of the EPT dataset in ``folder`` in place (:data:`NODE_EDITS`)."""
+    name = "-".join(map(str, key))
+    data = folder / "ept-data" / f"{name}.laz"
+    if edit == "node-missing":
+        data.unlink()
+        return
+    if edit == "node-truncated":
+        raw = data.read_bytes()
+        data.write_bytes(raw[:len(raw) // 2])
+        return
+    hier = next(h for h in sorted((folder / "ept-hierarchy").glob("*.json"))
+                if name in json.loads(h.read_text()))
+    counts = json.loads(hier.read_text())
+    if edit == "node-left-out":
+        del counts[name]
+    elif edit == "node-counts-swapped":  # the hierarchy's total still adds up
+        other = f"{key[0]}-{key[1]}-{key[2] + 1}-{key[3]}"
+        counts[name], counts[other] = counts[other], counts[name]
+    else:
+        counts[name] = {"node-count": 400, "node-zero": 0}[edit]
+    hier.write_text(json.dumps(counts))

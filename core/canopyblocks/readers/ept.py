@@ -91,7 +91,7 @@ class EptInfo:
         except StorageError as exc:
             if "not found (404)" in str(exc):
                 raise FileFormatError(f"{self.label}: {what} {rel} is missing (404); the "
-                                      "dataset is incomplete") from None
+                                      "dataset is incomplete (copy or upload it again)") from None
             raise
         except OSError as exc:
             raise FileFormatError(f"cannot read {where}: {exc.strerror or exc}") from None
@@ -256,7 +256,8 @@ def _node_points(info: EptInfo, key: Node) -> Any:
         return laspy.read(io.BytesIO(blob))
     except Exception as exc:  # noqa: BLE001 - laspy/lazrs raise several types
         raise FileFormatError(f"{info.label}: node ept-data/{name}.laz is not readable LAZ "
-                              f"({exc}); the dataset is damaged") from None
+                              f"({exc}): the file is truncated or damaged; copy or download "
+                              "the dataset again") from None
 
 
 def read_ept(source: str | os.PathLike[str], *, bounds: Sequence[float] | None = None,
@@ -308,8 +309,9 @@ def read_ept(source: str | os.PathLike[str], *, bounds: Sequence[float] | None =
             for (key, n), las in zip(batch, pool.map(lambda k: _node_points(info, k[0]), batch)):
                 if len(las.points) != n:
                     raise FileFormatError(
-                        f"{info.label}: node {'-'.join(map(str, key))} holds {len(las.points)} "
-                        f"points, its hierarchy says {n}; the dataset is damaged")
+                        f"{info.label}: node ept-data/{'-'.join(map(str, key))}.laz holds "
+                        f"{len(las.points):,} points, its hierarchy says {n:,}; the dataset "
+                        "is damaged: write it again (or copy or download it again)")
                 _check_cube(info, key, las)
                 cols.add_arrays(np.asarray(las.x), np.asarray(las.y), np.asarray(las.z),
                                 np.asarray(las.classification, dtype=np.uint8),
