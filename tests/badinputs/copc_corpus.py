@@ -2,8 +2,12 @@
 Topography tile (``tests/copc_data.py``), damaged: truncated COPC files, a plain LAZ given
 as COPC, a broken ``ept.json``, a missing node file, an unsupported EPT data type, a server
 that ignores byte ranges; hierarchies that lie (a node's count halved or zeroed, a node at
-another node's chunk, a moved octree centre or header, an EPT without its root or a node).  The undamaged ones must be read, and give the tile's own points
-(read here with plain laspy).
+another node's chunk, a moved octree centre or header, an EPT without its root or a node);
+a node whose data is not what the hierarchy says (an EPT node's file missing, cut in half,
+counted otherwise, left out or counted 0; a COPC node's offset or size past the file's end,
+inside another node's chunk, zeroed, the file cut inside it), read whole and by a window
+over the node, some over HTTP.  The undamaged ones must be read, and give the tile's own
+points (read here with plain laspy), those of the window for a window read.
 
 Registered in :func:`badinputs.make_corpus.all_cases`; the runner ``copc`` is added to the
 corpus test's runners through :data:`RUNNERS`.
@@ -94,6 +98,42 @@ def _ept(edit: str) -> Callable[[Path, Any], dict[str, Any]]:
     return make
 
 
+NODE_NEEDLES = {"node-missing": ("is missing",), "node-truncated": ("truncated",),
+                "node-count": ("hierarchy",), "node-counts-swapped": ("its hierarchy says",),
+                "node-left-out": ("hierarchy's nodes hold",),
+                "node-zero": ("hierarchy's nodes hold",),
+                "node-past-end": ("no LAZ chunk begins",),
+                "node-size-past-end": ("its LAZ chunk holds",),
+                "node-into-other": ("no LAZ chunk begins",),
+                "node-zeroed": ("hierarchy's nodes hold",), "node-cut": ("truncated",)}
+"""What the refusal of each node edit (``copc_data.NODE_EDITS``) must say."""
+
+
+def _node(kind: str, edit: str, window: bool, serve: bool = False
+          ) -> Callable[[Path, Any], dict[str, Any]]:
+    """A COPC or EPT whose node 2-0-0-1 is damaged by ``edit`` (none: undamaged), read
+    whole or by the middle fifth of the node's cube, locally or over HTTP."""
+    def make(folder: Path, base: Any) -> dict[str, Any]:
+        from copc_data import copc_node_damaged, ept_node_damaged, node_box
+
+        copc, ept = _made(base)
+        d = folder / "served"
+        d.mkdir()
+        if kind == "ept":
+            shutil.copytree(ept, d / "ept")
+            if edit != "none":
+                ept_node_damaged(d / "ept", edit)
+            p = d / "ept" / "ept.json"
+        else:
+            p = d / f"{edit}.copc.laz"
+            raw = copc.read_bytes()
+            p.write_bytes(raw if edit == "none" else copc_node_damaged(raw, edit))
+        cube = json.loads((ept / "ept.json").read_text())["bounds"]
+        return {"path": p, "kind": kind, "truth": base.topo, "serve": serve,
+                "bounds": node_box(cube) if window else None}
+    return make
+
+
 def run_copc(i: dict[str, Any], folder: Path) -> Any:
     from canopyblocks.readers.copc import read_copc
     from canopyblocks.readers.ept import read_ept
@@ -106,8 +146,8 @@ def run_copc(i: dict[str, Any], folder: Path) -> Any:
         p = Path(i["path"])
         remote.clear_cache()
         with RangeHTTPServer(p.parent.parent) as server:
-            return read(f"{server.url}/{p.parent.name}/{p.name}")
-    return read(i["path"])
+            return read(f"{server.url}/{p.parent.name}/{p.name}", bounds=i.get("bounds"))
+    return read(i["path"], bounds=i.get("bounds"))
 
 
 def check_copc(case: Any, i: dict[str, Any], result: Any, ws: list[str]) -> None:
@@ -116,6 +156,11 @@ def check_copc(case: Any, i: dict[str, Any], result: Any, ws: list[str]) -> None
 
     las = laspy.read(i["truth"])
     want = np.column_stack([np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)])
+    b = i.get("bounds")
+    if b is not None:  # a window read: the tile's points inside it, edges included
+        want = want[(want[:, 0] >= b[0]) & (want[:, 0] <= b[2]) & (want[:, 1] >= b[1])
+                    & (want[:, 1] <= b[3])]
+        assert len(want) == 144, f"the window holds {len(want)} of the tile's points"
     got = np.column_stack([result.x, result.y, result.z])
     assert got.shape == want.shape, f"{len(got)} points, the tile has {len(want)}"
     np.testing.assert_array_equal(got[np.lexsort(got.T[::-1])], want[np.lexsort(want.T[::-1])])
@@ -143,4 +188,28 @@ def copc_cases() -> list[Any]:
                    forbidden=("no points",), must_refuse=True) for e in LIES]
     cases += [Case(f"ept-hierarchy-{e}", "copc", _ept(e), needles=("hierarchy",),
                    forbidden=("no points",), must_refuse=True) for e in ("no-root", "no-entry")]
+    return cases + _node_cases()
+
+
+def _node_cases() -> list[Any]:
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from copc_data import NODE_EDITS
+
+    from .make_corpus import Case
+
+    cases = [Case(f"{k}-window-baseline", "copc", _node(k, "none", True), must_accept=True)
+             for k in ("copc", "ept")]
+    for kind, edits in NODE_EDITS.items():
+        for e in edits:
+            for read in ("whole", "window"):
+                cases.append(Case(f"{kind}-{e}-{read}", "copc", _node(kind, e, read == "window"),
+                                  needles=NODE_NEEDLES[e], forbidden=("no points",),
+                                  must_refuse=True))
+    cases += [Case(f"{k}-{e}-window-http", "copc", _node(k, e, True, serve=True),
+                   needles=NODE_NEEDLES[e], forbidden=("no points",), must_refuse=True)
+              for k, e in (("ept", "node-missing"), ("ept", "node-truncated"),
+                           ("ept", "node-left-out"), ("copc", "node-past-end"),
+                           ("copc", "node-zeroed"))]
     return cases
