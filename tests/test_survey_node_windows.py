@@ -167,3 +167,27 @@ def test_the_undamaged_window_holds_the_tiles_points(made, kind, tmp_path, capsy
                 getattr(tile, name[:-4])) as b:
             assert a.transform == b.transform and a.shape == b.shape
             np.testing.assert_array_equal(a.read(1), b.read(1), err_msg=name)
+
+
+def test_a_huge_hierarchy_is_not_read_whole_for_a_window(made, monkeypatch, caplog) -> None:  # noqa: ANN001
+    """Beyond a bounded number of hierarchy files, a window read does not read the rest of
+    the hierarchy for the total check (a national survey's EPT has thousands of them): the
+    window's points are read, the check left out and said in the log; the whole read still
+    refuses the node left out."""
+    import logging
+
+    from canopyblocks.readers import ept
+
+    path = _damaged(made, "ept", "node-left-out")
+    n_files = len(list((path.parent / "ept-hierarchy").glob("*.json")))
+    assert n_files > 2
+    monkeypatch.setattr(ept, "WHOLE_CHECK_FILES", 0)
+    monkeypatch.setattr(ept, "_WHOLE", set())
+    src = _source(made, path, "local")
+    with caplog.at_level(logging.INFO, logger="canopyblocks.readers.ept"):
+        pts = read_ept(src, bounds=(made["box"][0], made["box"][1], made["box"][0] + 1.0,
+                                    made["box"][1] + 1.0))
+    assert pts.x.size < TOTAL
+    assert "hierarchy's total is not checked" in caplog.text, caplog.text
+    with pytest.raises(FileFormatError, match="72,880 points, ept.json says 73,403"):
+        read_ept(src)

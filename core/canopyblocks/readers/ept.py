@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import io
 import json
+import logging
 import os
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -35,10 +36,16 @@ from .copc import Area, Columns, SourceExtent, _check_source, check_crs
 from .las_crs import LasCRS, _from_wkt, _laspy
 from .remote import StorageError, is_url, open_source, source_label
 
-__all__ = ["ept_extent", "read_ept", "EptInfo", "FETCH_THREADS"]
+__all__ = ["ept_extent", "read_ept", "EptInfo", "FETCH_THREADS", "WHOLE_CHECK_FILES"]
+
+log = logging.getLogger(__name__)
 
 #: Node files fetched at once from storage (one batch in memory at a time).
 FETCH_THREADS = 8
+#: at most this many hierarchy files beyond those a read of a part needs are read to check
+#: the whole hierarchy's total (a national survey's EPT has thousands: reading them all for a
+#: 13 m corridor would cost more than the corridor)
+WHOLE_CHECK_FILES = 64
 
 Node = tuple[int, int, int, int]
 
@@ -212,7 +219,8 @@ _WHOLE: set[tuple[str, int]] = set()
 def _check_whole(info: EptInfo, counts: dict[Node, int]) -> None:
     """The whole hierarchy's total, also in a read of a part of the dataset: the
     hierarchy files not loaded yet are read too (in parallel from storage), once per
-    dataset and process."""
+    dataset and process, up to :data:`WHOLE_CHECK_FILES` of them (beyond, the check is
+    left out and said in the log)."""
     key = (info.url, info.n_points)
     if key in _WHOLE:
         return
@@ -220,6 +228,11 @@ def _check_whole(info: EptInfo, counts: dict[Node, int]) -> None:
     seen: set[Node] = set()
     with ThreadPoolExecutor(max_workers=FETCH_THREADS if info.remote else 1) as pool:
         while todo := [k for k, n in every.items() if n == -1 and k not in seen]:
+            if len(seen) + len(todo) > WHOLE_CHECK_FILES:
+                log.info("%s: its hierarchy's total is not checked (more than %d hierarchy "
+                         "files beyond those the area needs)", info.label, WHOLE_CHECK_FILES)
+                _WHOLE.add(key)
+                return
             for k in todo:  # one round per level of hierarchy files (a few)
                 del every[k]
                 seen.add(k)
