@@ -69,6 +69,16 @@ class _RangeHandler(http.server.BaseHTTPRequestHandler):
             return True
         return False
 
+    def _collect(self) -> None:
+        """The garbage handed over becomes unreachable here, in this thread; a collection
+        starts now if automatic collections are on (as the first allocation would)."""
+        import gc
+
+        self.server.garbage.clear()
+        self.server.collections.append(gc.isenabled())
+        if gc.isenabled():
+            gc.collect()
+
     def do_HEAD(self) -> None:
         if self._refuse():
             return
@@ -99,6 +109,8 @@ class _RangeHandler(http.server.BaseHTTPRequestHandler):
             a = int(lo) if lo else max(0, size - int(hi))
             b = min(size - 1, int(hi)) if (hi and lo) else size - 1
         rel = self.path.split("?", 1)[0].lstrip("/")
+        if rel.startswith("collect/") and a > 0 and self.server.garbage:
+            self._collect()
         if rel.startswith("norange/"):  # a server without byte ranges: the whole object
             rng, a, b = None, 0, size - 1
         with p.open("rb") as fh:
@@ -131,6 +143,8 @@ class _HTTPServer(http.server.ThreadingHTTPServer):
     tally: Tally
     delay: float = 2.0
     fail_after: float = float("inf")
+    garbage: list[Any]
+    collections: list[bool]
 
 
 class RangeHTTPServer:
@@ -139,11 +153,16 @@ class RangeHTTPServer:
     for ``delay`` seconds, ``norange/...`` ignores byte ranges (the whole object, 200),
     ``short/...`` answers a range with half its bytes (a short 206), ``cut/...`` closes the
     connection half-way through an answer, others 404 when missing; after ``fail_after`` answered GETs every
-    GET gets 503 (a store that goes down in the middle of a read)."""
+    GET gets 503 (a store that goes down in the middle of a read).  ``collect/...`` drops the
+    objects in ``garbage`` at the first range not starting at byte 0 (HDF5 reading, past
+    the signature check) and collects them in the server's thread if collections are on
+    (``collections`` records whether they were)."""
 
     def __init__(self, root: Path, fail_after: float = float("inf")) -> None:
         self.server = _HTTPServer((LOOPBACK, 0), _RangeHandler)
         self.server.fail_after = fail_after
+        self.server.garbage = self.garbage = []
+        self.server.collections = self.collections = []
         self.server.root = Path(root).resolve()
         self.server.tally = self.tally = Tally()
         self._thread = threading.Thread(target=self.server.serve_forever, daemon=True)

@@ -299,7 +299,9 @@ def open_h5(path: str | os.PathLike[str] | IO[bytes], product: str = "HDF5"
     kind = "an HDF5 file" if product == "HDF5" else f"an HDF5 {product} file"
     from .remote import is_file_object, is_url
     if is_url(path) or is_file_object(path):
-        with _open_remote(path, kind) as (handle, label, source):
+        from .remote_guard import no_collection
+        # no collection while HDF5 reads through the source: it would wait for h5py's lock
+        with no_collection(), _open_remote(path, kind) as (handle, label, source):
             yield H5File(handle, label, product, source)
         return
     if not isinstance(path, (str, os.PathLike)):
