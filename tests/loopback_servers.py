@@ -94,7 +94,7 @@ class _RangeHandler(http.server.BaseHTTPRequestHandler):
     def do_GET(self) -> None:
         if self._refuse():
             return
-        if self.server.tally.requests >= self.server.fail_after:  # the store went down
+        if not self.server.claim():  # the store went down
             self.send_error(503, "Service Unavailable")
             return
         p = self._file()
@@ -143,7 +143,18 @@ class _HTTPServer(http.server.ThreadingHTTPServer):
     tally: Tally
     delay: float = 2.0
     fail_after: float = float("inf")
+    claimed: int = 0
     garbage: list[Any]
+    _claim_lock = threading.Lock()
+
+    def claim(self) -> bool:
+        """One more GET to answer, if fewer than ``fail_after`` were (concurrent GETs
+        counted as they arrive, so that exactly ``fail_after`` are answered)."""
+        with self._claim_lock:
+            if self.claimed >= self.fail_after:
+                return False
+            self.claimed += 1
+            return True
     collections: list[bool]
 
 
@@ -207,6 +218,7 @@ class S3Server:
 
         self.tally = Tally()
         self.fail_next_gets = 0
+        self._busy_lock = threading.Lock()
         app = DomainDispatcherApplication(create_backend_app)
         class Quiet(MotoRequestHandler):  # type: ignore[misc,valid-type]
             def log(self, *args: Any, **kwargs: Any) -> None:
@@ -215,6 +227,14 @@ class S3Server:
         self.server = make_server(LOOPBACK, 0, self._wrap(app), threaded=True,
                                   request_handler=Quiet)
         self._thread = threading.Thread(target=self.server.serve_forever, daemon=True)
+
+    def _busy(self) -> bool:
+        """True (and one fewer to fail) while ``fail_next_gets`` GETs are still to fail."""
+        with self._busy_lock:
+            if self.fail_next_gets <= 0:
+                return False
+            self.fail_next_gets -= 1
+            return True
 
     def _wrap(self, app: Callable[..., Iterable[bytes]]) -> Callable[..., Iterable[bytes]]:
         def counted(environ: dict, start_response: Callable[..., Any]) -> Iterable[bytes]:
@@ -225,8 +245,7 @@ class S3Server:
                 start_response("403 Forbidden", [("Content-Type", "application/xml"),
                                                  ("Content-Length", str(len(body)))])
                 return [body]
-            if ranged and environ.get("REQUEST_METHOD") == "GET" and self.fail_next_gets > 0:
-                self.fail_next_gets -= 1
+            if ranged and environ.get("REQUEST_METHOD") == "GET" and self._busy():
                 start_response("503 Slow Down", [("Content-Type", "application/xml"),
                                                  ("Content-Length", str(len(_SLOW)))])
                 return [_SLOW]
