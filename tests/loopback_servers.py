@@ -118,6 +118,8 @@ class _RangeHandler(http.server.BaseHTTPRequestHandler):
             body = fh.read(max(0, b - a + 1))
         if rel.startswith("short/") and rng and len(body) > 1:  # a 206 with a short body
             body, b = body[:len(body) // 2], a + len(body) // 2 - 1
+        if rel.startswith("capped/") and rng and len(body) > self.server.cap:
+            body, b = body[:self.server.cap], a + self.server.cap - 1  # a proxy's limit
         if rel.startswith("cut/") and len(body) > 1:  # closed in the middle of the answer
             self.send_response(206 if rng else 200)
             self.send_header("Content-Length", str(len(body)))
@@ -143,6 +145,7 @@ class _HTTPServer(http.server.ThreadingHTTPServer):
     tally: Tally
     delay: float = 2.0
     fail_after: float = float("inf")
+    cap: int = 40_000
     claimed: int = 0
     garbage: list[Any]
     _claim_lock = threading.Lock()
