@@ -1,5 +1,6 @@
 """A request that every aiohttp time-out lets wait forever ends at the hard limit and is tried
-again (CPython 3.11's sock_connect race, seen on loopback under load)."""
+again (CPython 3.11's sock_connect race, seen on loopback under load); no garbage collection
+starts in another thread while HDF5 reads a granule from storage."""
 
 from __future__ import annotations
 
