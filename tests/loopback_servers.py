@@ -69,6 +69,16 @@ class _RangeHandler(http.server.BaseHTTPRequestHandler):
             return True
         return False
 
+    def _collect(self) -> None:
+        """The garbage handed over becomes unreachable here, in this thread; a collection
+        starts now if automatic collections are on (as the first allocation would)."""
+        import gc
+
+        self.server.garbage.clear()
+        self.server.collections.append(gc.isenabled())
+        if gc.isenabled():
+            gc.collect()
+
     def do_HEAD(self) -> None:
         if self._refuse():
             return
@@ -84,7 +94,7 @@ class _RangeHandler(http.server.BaseHTTPRequestHandler):
     def do_GET(self) -> None:
         if self._refuse():
             return
-        if self.server.tally.requests >= self.server.fail_after:  # the store went down
+        if not self.server.claim():  # the store went down
             self.send_error(503, "Service Unavailable")
             return
         p = self._file()
@@ -99,6 +109,8 @@ class _RangeHandler(http.server.BaseHTTPRequestHandler):
             a = int(lo) if lo else max(0, size - int(hi))
             b = min(size - 1, int(hi)) if (hi and lo) else size - 1
         rel = self.path.split("?", 1)[0].lstrip("/")
+        if rel.startswith("collect/") and a > 0 and self.server.garbage:
+            self._collect()
         if rel.startswith("norange/"):  # a server without byte ranges: the whole object
             rng, a, b = None, 0, size - 1
         with p.open("rb") as fh:
@@ -106,6 +118,8 @@ class _RangeHandler(http.server.BaseHTTPRequestHandler):
             body = fh.read(max(0, b - a + 1))
         if rel.startswith("short/") and rng and len(body) > 1:  # a 206 with a short body
             body, b = body[:len(body) // 2], a + len(body) // 2 - 1
+        if rel.startswith("capped/") and rng and len(body) > self.server.cap:
+            body, b = body[:self.server.cap], a + self.server.cap - 1  # a proxy's limit
         if rel.startswith("cut/") and len(body) > 1:  # closed in the middle of the answer
             self.send_response(206 if rng else 200)
             self.send_header("Content-Length", str(len(body)))
@@ -131,6 +145,20 @@ class _HTTPServer(http.server.ThreadingHTTPServer):
     tally: Tally
     delay: float = 2.0
     fail_after: float = float("inf")
+    cap: int = 40_000
+    claimed: int = 0
+    garbage: list[Any]
+    _claim_lock = threading.Lock()
+
+    def claim(self) -> bool:
+        """One more GET to answer, if fewer than ``fail_after`` were (concurrent GETs
+        counted as they arrive, so that exactly ``fail_after`` are answered)."""
+        with self._claim_lock:
+            if self.claimed >= self.fail_after:
+                return False
+            self.claimed += 1
+            return True
+    collections: list[bool]
 
 
 class RangeHTTPServer:
@@ -139,11 +167,16 @@ class RangeHTTPServer:
     for ``delay`` seconds, ``norange/...`` ignores byte ranges (the whole object, 200),
     ``short/...`` answers a range with half its bytes (a short 206), ``cut/...`` closes the
     connection half-way through an answer, others 404 when missing; after ``fail_after`` answered GETs every
-    GET gets 503 (a store that goes down in the middle of a read)."""
+    GET gets 503 (a store that goes down in the middle of a read).  ``collect/...`` drops the
+    objects in ``garbage`` at the first range not starting at byte 0 (HDF5 reading, past
+    the signature check) and collects them in the server's thread if collections are on
+    (``collections`` records whether they were)."""
 
     def __init__(self, root: Path, fail_after: float = float("inf")) -> None:
         self.server = _HTTPServer((LOOPBACK, 0), _RangeHandler)
         self.server.fail_after = fail_after
+        self.server.garbage = self.garbage = []
+        self.server.collections = self.collections = []
         self.server.root = Path(root).resolve()
         self.server.tally = self.tally = Tally()
         self._thread = threading.Thread(target=self.server.serve_forever, daemon=True)
@@ -188,6 +221,7 @@ class S3Server:
 
         self.tally = Tally()
         self.fail_next_gets = 0
+        self._busy_lock = threading.Lock()
         app = DomainDispatcherApplication(create_backend_app)
         class Quiet(MotoRequestHandler):  # type: ignore[misc,valid-type]
             def log(self, *args: Any, **kwargs: Any) -> None:
@@ -196,6 +230,14 @@ class S3Server:
         self.server = make_server(LOOPBACK, 0, self._wrap(app), threaded=True,
                                   request_handler=Quiet)
         self._thread = threading.Thread(target=self.server.serve_forever, daemon=True)
+
+    def _busy(self) -> bool:
+        """True (and one fewer to fail) while ``fail_next_gets`` GETs are still to fail."""
+        with self._busy_lock:
+            if self.fail_next_gets <= 0:
+                return False
+            self.fail_next_gets -= 1
+            return True
 
     def _wrap(self, app: Callable[..., Iterable[bytes]]) -> Callable[..., Iterable[bytes]]:
         def counted(environ: dict, start_response: Callable[..., Any]) -> Iterable[bytes]:
@@ -206,8 +248,7 @@ class S3Server:
                 start_response("403 Forbidden", [("Content-Type", "application/xml"),
                                                  ("Content-Length", str(len(body)))])
                 return [body]
-            if ranged and environ.get("REQUEST_METHOD") == "GET" and self.fail_next_gets > 0:
-                self.fail_next_gets -= 1
+            if ranged and environ.get("REQUEST_METHOD") == "GET" and self._busy():
                 start_response("503 Slow Down", [("Content-Type", "application/xml"),
                                                  ("Content-Length", str(len(_SLOW)))])
                 return [_SLOW]

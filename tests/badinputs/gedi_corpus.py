@@ -103,6 +103,51 @@ def _l2_cli(option: str) -> Callable[[Path, Any], dict[str, Any]]:
     return make
 
 
+def _truncated_cli(keep: float) -> Callable[[Path, Any], dict[str, Any]]:
+    """``waveforms`` on a copy of the L1B cut short (``keep``: the fraction kept)."""
+    def make(folder: Path, base: Any) -> dict[str, Any]:
+        l1b, _ = unzipped(base.data_file, base.folder / "gedi")
+        raw = l1b.read_bytes()
+        path = folder / f"GEDI01_B_cut_{keep:g}.h5"
+        path.write_bytes(raw[:max(1, int(len(raw) * keep))])
+        out = folder / "out" / "footprints.gpkg"
+        return {"path": path, "args": ["waveforms", str(path), "-o", str(out)],
+                "outputs": [out]}
+    return make
+
+
+_SERVERS: dict[str, Any] = {}
+
+
+def _short_server(root: Path) -> str:
+    """The URL of a loopback HTTP server of ``root`` (tests/loopback_servers.py), started
+    once for the session (stopped at exit)."""
+    import atexit
+
+    from loopback_servers import RangeHTTPServer
+
+    if str(root) not in _SERVERS:
+        server = RangeHTTPServer(root).__enter__()
+        atexit.register(server.__exit__, None, None, None)
+        _SERVERS[str(root)] = server
+    return str(_SERVERS[str(root)].url)
+
+
+def _short_answers_cli(mode: str) -> Callable[[Path, Any], dict[str, Any]]:
+    """``waveforms`` on the L1B over http from a server whose range answers are short
+    (``short``: half of every one; ``capped``: at most 40,000 bytes, as behind a proxy)."""
+    def make(folder: Path, base: Any) -> dict[str, Any]:
+        l1b, _ = unzipped(base.data_file, base.folder / "gedi")
+        served = folder / "served" / mode
+        served.mkdir(parents=True)
+        (served / l1b.name).write_bytes(l1b.read_bytes())
+        url = f"{_short_server(folder / 'served')}/{mode}/{l1b.name}"
+        out = folder / "out" / "footprints.gpkg"
+        return {"path": None, "name": url, "args": ["waveforms", url, "-o", str(out)],
+                "outputs": [out]}
+    return make
+
+
 def _gedi_option(sensor: str, spacing: str) -> Callable[[Path, Any], dict[str, Any]]:
     """``simulate --sensor S --shot-spacing X``: honoured for gedi, refused for others."""
     def make(folder: Path, base: Any) -> dict[str, Any]:
@@ -129,6 +174,14 @@ def gedi_cases() -> list[Any]:
                       needles=("none of the",), must_refuse=True))
     cases.append(Case("cli-waveforms-gedi-l2a-file-as-l2b", "cli", _l2_cli("--l2b"),
                       needles=("l2b",), must_refuse=True))
+    for keep in (0.000001, 0.001, 0.5, 0.9999):  # cut short: never "not a GEDI file"
+        cases.append(Case(f"cli-waveforms-gedi-truncated-{keep:g}", "cli", _truncated_cli(keep),
+                          needles=("download it again",), forbidden=("not a gedi",),
+                          must_refuse=True))
+    for mode in ("short", "capped"):  # the server's answers short: named, not the file
+        cases.append(Case(f"cli-waveforms-gedi-over-http-{mode}-answers", "cli",
+                          _short_answers_cli(mode), needles=("answers were short",),
+                          forbidden=("not a gedi",), must_refuse=True))
     for sensor, spacing, needle in (("gedi", "0.00001", "spacing"),
                                     ("esfl", "10", "shot-spacing"),
                                     ("dual", "10", "shot-spacing")):

@@ -299,7 +299,9 @@ def open_h5(path: str | os.PathLike[str] | IO[bytes], product: str = "HDF5"
     kind = "an HDF5 file" if product == "HDF5" else f"an HDF5 {product} file"
     from .remote import is_file_object, is_url
     if is_url(path) or is_file_object(path):
-        with _open_remote(path, kind) as (handle, label, source):
+        from .remote_guard import no_collection
+        # no collection while HDF5 reads through the source: it would wait for h5py's lock
+        with no_collection(), _open_remote(path, kind) as (handle, label, source):
             yield H5File(handle, label, product, source)
         return
     if not isinstance(path, (str, os.PathLike)):
@@ -312,21 +314,36 @@ def open_h5(path: str | os.PathLike[str] | IO[bytes], product: str = "HDF5"
     if p.is_dir():
         raise FileFormatError(f"{p}: is a folder, expected {kind}")
     if not _looks_like_hdf5(p):
-        raise FileFormatError(
-            f"{p}: not an HDF5 file (no HDF5 signature); expected {kind}"
-        )
+        size = p.stat().st_size
+        tiny = f"only {size} bytes: empty or cut short; download it again" if size < 8 else \
+            "no HDF5 signature"
+        raise FileFormatError(f"{p}: not an HDF5 file ({tiny}); expected {kind}")
     h5py = _import_h5py()
     try:
         handle = h5py.File(p, "r")
     except (OSError, RuntimeError, ValueError) as exc:
-        raise FileFormatError(
-            f"{p}: cannot open as HDF5, the file is truncated or corrupt ({exc})"
-        ) from None
+        raise FileFormatError(_open_failed(p, exc)) from None
     try:
         yield H5File(handle, p, product)
     finally:
         with contextlib.suppress(Exception):
             handle.close()
+
+
+def _open_failed(label: object, exc: BaseException, remote: bool = False) -> str:
+    """The line for a file HDF5 cannot open: cut short (HDF5 says how many bytes it holds
+    of how many its header promises) or corrupt, and what to do."""
+    import re
+
+    m = re.search(r"truncated file: eof = (\d+).*stored_eof = (\d+)", str(exc))
+    if m is None:
+        return (f"{label}: cannot open as HDF5, the file is truncated or corrupt ({exc}); "
+                "download it again")
+    has, promised = int(m.group(1)), int(m.group(2))
+    where = "the server holds" if remote else "it holds"
+    return (f"{label}: cannot open as HDF5, the file is truncated or corrupt ({where} "
+            f"{has:,} of the {promised:,} bytes its header promises: cut short, as by an "
+            "interrupted download or copy); download it again")
 
 
 def _signature_at(fh: Any, size: int | None) -> bool:
@@ -367,8 +384,7 @@ def _open_remote(value: Any, kind: str) -> Iterator[tuple[Any, str, Any]]:
         err = getattr(source, "error", None)
         if isinstance(err, FileFormatError):
             raise err from None
-        raise FileFormatError(
-            f"{label}: cannot open as HDF5, the file is truncated or corrupt ({exc})") from None
+        raise FileFormatError(_open_failed(label, exc, remote=True)) from None
     try:
         yield handle, label, source
     except CanopyBlocksError:

@@ -1,16 +1,49 @@
-"""A hard limit on one call of an asynchronous filesystem (s3fs, fsspec's HTTP).
+"""Guards for reads from storage: a hard limit on one call, no collection during HDF5's reads.
 
-CPython 3.11's ``sock_connect`` can miss the moment a connection completes and wait forever,
-under every aiohttp time-out (seen on loopback under load).  :func:`guarded_call` runs the
-filesystem's coroutine on its own loop with a limit; past it, :class:`Stuck` is raised, which
-:mod:`canopyblocks.readers.remote` counts as worth another try.
+* CPython 3.11's ``sock_connect`` can miss the moment a connection completes and wait
+  forever, under every aiohttp time-out.  :func:`guarded_call` runs the filesystem's
+  coroutine on its own loop with a limit; past it, :class:`Stuck` is raised, which
+  :mod:`canopyblocks.readers.remote` counts as worth another try.
+* h5py holds one lock for every HDF5 call, also while HDF5 reads a granule in storage
+  through its file object (which waits for the transport's thread, or for a server's).  A
+  garbage collection that starts in that other thread and frees an h5py object waits for
+  that lock: the read waits for the thread, the thread for the read, until the time-out
+  (measured: most reads of a granule from a server in the same process stalled for the
+  whole time-out, one in six failed).  :func:`no_collection` keeps automatic collections
+  off while a granule in storage is open (reference counting still frees the rest).
 """
 
 from __future__ import annotations
 
+import contextlib
+import gc
+import threading
+from collections.abc import Iterator
 from typing import Any
 
-__all__ = ["Stuck", "guarded_call"]
+__all__ = ["Stuck", "guarded_call", "no_collection"]
+
+_GC_LOCK = threading.Lock()
+#: [granules open under no_collection, whether collections were on before the first]
+_GC_STATE: list[Any] = [0, False]
+
+
+@contextlib.contextmanager
+def no_collection() -> Iterator[None]:
+    """No automatic garbage collection, in any thread, until the last of the nested or
+    concurrent blocks ends (then as before the first)."""
+    with _GC_LOCK:
+        if _GC_STATE[0] == 0:
+            _GC_STATE[1] = gc.isenabled()
+            gc.disable()
+        _GC_STATE[0] += 1
+    try:
+        yield
+    finally:
+        with _GC_LOCK:
+            _GC_STATE[0] -= 1
+            if _GC_STATE[0] == 0 and _GC_STATE[1]:
+                gc.enable()
 
 
 class Stuck(Exception):
