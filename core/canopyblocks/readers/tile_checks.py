@@ -6,7 +6,9 @@
   the number of points, the extent and the first :data:`SAMPLE` points (x, y, z to the
   millimetre, whatever their classes: a reclassified copy holds the same points; one LAZ
   chunk's start, a few milliseconds a tile), as ``batch`` compares granules by their
-  photons.  A tile whose header
+  photons.  Tiles whose headers agree (count and extent) but whose first points differ (a
+  copy with its points in another order) are compared by an order-free digest of all their
+  points (read in full only for such pairs).  A tile whose header
   extent lies within another's and whose sampled points are all points of that tile is a
   crop of it (that tile's points are read in full to check; only for nested extents).
 * :func:`check_first_points`: a tile skipped by its header extent (it does not meet the
@@ -83,6 +85,7 @@ class _Tile:
     def __init__(self, path: Path) -> None:
         self.path = path
         self.digest: str | None = None
+        self.header: tuple[int, ...] | None = None
         self.box: Box | None = None
         self.n = 0
         self.first = np.empty(0, np.dtype((np.void, 24)))
@@ -101,6 +104,7 @@ class _Tile:
         digest.update(np.round(ext * _MM).astype(np.int64).tobytes())
         digest.update(_keys(np.asarray(head.x), np.asarray(head.y), np.asarray(head.z)).tobytes())
         self.digest = digest.hexdigest()
+        self.header = (self.n, *np.round(ext * _MM).astype(np.int64).tolist())
         self.first = _keys(np.asarray(head.x), np.asarray(head.y), np.asarray(head.z))
         self.xy = np.c_[np.asarray(head.x, float), np.asarray(head.y, float)]
 
@@ -112,6 +116,59 @@ def _sample(path: Path) -> _Tile:
     except OSError:
         return _Tile(path)  # an empty sample: the tile's reader reports it
     return _cached_sample(str(path), st.st_size, st.st_mtime_ns)
+
+
+_MIX = (np.uint64(0x9E3779B97F4A7C15), np.uint64(0xBF58476D1CE4E5B9),
+        np.uint64(0x94D049BB133111EB))
+
+
+def _mix(v: np.ndarray) -> np.ndarray:
+    """A 64-bit finaliser (splitmix64) of each value: a well spread hash per point."""
+    v = v ^ (v >> np.uint64(30))
+    v = v * _MIX[1]
+    v = v ^ (v >> np.uint64(27))
+    v = v * _MIX[2]
+    return v ^ (v >> np.uint64(31))
+
+
+def point_hashes(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """One 64-bit hash per point of (x, y, z) to the millimetre (uint64)."""
+    q = np.round(np.column_stack([x, y, z]) * _MM).astype(np.int64).view(np.uint64)
+    with np.errstate(over="ignore"):
+        return _mix(_mix(_mix(q[:, 0] + _MIX[0]) ^ q[:, 1]) ^ q[:, 2])
+
+
+def _order_free(path: Path) -> tuple[int, int, int] | None:
+    """A digest of all the tile's points that does not depend on their order (the count
+    and two wrapping sums of per-point hashes), read once per file version."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return _cached_order_free(str(path), st.st_size, st.st_mtime_ns)
+
+
+@functools.lru_cache(maxsize=256)
+def _cached_order_free(path: str, size: int, mtime: int  # noqa: ARG001 - cache keys
+                       ) -> tuple[int, int, int] | None:
+    n, s1, s2 = 0, np.uint64(0), np.uint64(0)
+    try:
+        with _open(path) as reader:
+            for chunk in reader.chunk_iterator(2_000_000):  # a loop over chunks
+                h = point_hashes(np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z))
+                with np.errstate(over="ignore"):
+                    s1 = s1 + h.sum(dtype=np.uint64)
+                    s2 = s2 + _mix(h ^ _MIX[0]).sum(dtype=np.uint64)
+                n += h.size
+    except Exception:  # noqa: BLE001 - an unreadable tile is reported by its reader
+        return None
+    return n, int(s1), int(s2)
+
+
+def _same_content(a: Path, b: Path) -> bool:
+    """Whether two tiles hold the same points, in whatever order (full reads of both)."""
+    da = _order_free(a)
+    return da is not None and da == _order_free(b)
 
 
 @functools.lru_cache(maxsize=4096)
@@ -138,6 +195,7 @@ def duplicate_tiles(sources: Sequence[Any]) -> tuple[list[Any], list[tuple[Any, 
     dropped: list[tuple[Any, Any, str]] = []
     seen_files: dict[tuple[int, int], Any] = {}
     seen_digest: dict[str, Any] = {}
+    seen_header: dict[tuple[int, ...], list[tuple[Path, Any]]] = {}
     tiles: list[_Tile] = []
     for src in sources:  # a loop over tiles (a few reads each), not over points
         p = _local(src)
@@ -153,14 +211,26 @@ def duplicate_tiles(sources: Sequence[Any]) -> tuple[list[Any], list[tuple[Any, 
         if t.digest is not None and t.digest in seen_digest:
             dropped.append((src, seen_digest[t.digest], "same points"))
             continue
+        twin = next((s for q, s in seen_header.get(t.header or (), []) if _same_content(p, q)),
+                    None)  # the same header, other first points: the same points reordered?
+        if twin is not None:
+            dropped.append((src, twin, "reordered"))
+            continue
         seen_files[ident] = src
         if t.digest is not None:
             seen_digest[t.digest] = src
+        if t.header is not None:
+            seen_header.setdefault(t.header, []).append((p, src))
         tiles.append(t)
         kept.append(src)
     for t, big in _crops(tiles):
         kept = [k for k in kept if k is not t.path and str(k) != str(t.path)]
         dropped.append((t.path, big.path, "part of"))
+    from .cloud_duplicates import tiles_in_clouds
+
+    for src, cloud in tiles_in_clouds(kept, tiles):
+        kept = [k for k in kept if k is not src and str(k) != str(src)]
+        dropped.append((src, cloud, "in cloud"))
     for src, same, why in dropped:
         warnings.warn(_message(src, same, why), CanopyBlocksWarning, stacklevel=2)
     return kept, dropped
@@ -172,6 +242,13 @@ def _message(src: Any, same: Any, why: str) -> str:
     if why == "same points":
         return (f"{src} holds the same points as {same} (the same count, extent and "
                 f"coordinates): a copy, counted once, as {same}")
+    if why == "reordered":
+        return (f"{src} holds the same points as {same} in another order (the same count, "
+                f"extent and coordinates): a copy, counted once, as {same}")
+    if why == "in cloud":
+        return (f"{src}: every one of its points is a point of {same}, given too: the tile is "
+                f"left out so that no point is counted twice (give the tiles or {same}, not "
+                "both)")
     return (f"{src} holds a part of the points of {same} (its extent lies within that "
             f"tile's and the {SAMPLE} points sampled from it are all points of that tile): a "
             f"crop of it, left out so that no point is counted twice")
