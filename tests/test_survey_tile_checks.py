@@ -138,8 +138,9 @@ def test_a_copy_with_its_points_reordered_is_counted_once(survey, reference, tmp
 def cloud_of_both(survey, tmp_path_factory) -> Path:  # noqa: ANN001
     _, a, b = survey
     p = tmp_path_factory.mktemp("cloud") / "both.copc.laz"
-    write_copc([a, b], p, tree=build_octree(tile_points([a, b]), capacity=20_000),
-               page_level=3)
+    tree = build_octree(tile_points([a, b]), capacity=20_000)
+    write_copc([a, b], p, tree=tree, page_level=3)
+    write_ept([a, b], p.parent / "ept", tree=tree, split_level=3)
     return p
 
 
@@ -155,6 +156,10 @@ def test_tiles_beside_a_copc_of_them_are_counted_once(survey, reference, cloud_o
         msgs = [str(w.message) for w in caught]
         assert all(str(cloud_of_both) in m and "not both" in m for m in msgs), msgs
         assert any(str(a) in m for m in msgs) and any(str(b) in m for m in msgs)
+    ept = str(cloud_of_both.parent / "ept" / "ept.json")
+    with pytest.warns(CanopyBlocksWarning, match="every one of its points is a point of"):
+        assert duplicate_tiles([a, ept, b]) == ([ept], [(a, ept, "in cloud"),
+                                                         (b, ept, "in cloud")])
     r, ws = _rasters([a, b, cloud_of_both], tmp_path / "out")
     assert len(ws) == 2, ws
     for name in ("dtm", "dsm_max", "dsm_p90"):

@@ -1,7 +1,8 @@
 """Corpus cases of surveys whose tiles are not what their headers or names say, made from
 the Topography tile cut in two halves (west, east; adjacent tiles): the same points given
 twice (a renamed copy with an upper-case suffix, the same path twice, a symlink, a crop of
-a tile), a tile whose header extent is 5 km off its points, a tile without ground points
+a tile, a copy with its points in another order, a COPC of the whole tile given with its
+halves), a tile whose header extent is 5 km off its points, a tile without ground points
 among classified ones, tiles stating two vertical datums (CGVD28 and CGVD2013).  (COPC
 files and EPT datasets whose hierarchy lies are in ``copc_corpus``.)
 
@@ -23,6 +24,10 @@ from typing import Any
 import numpy as np
 
 __all__ = ["survey_cases", "RUNNERS", "move_header", "crop_of"]
+
+
+DUPLICATES = ("copy", "twice", "symlink", "crop", "shuffled", "copc-of-tiles")
+"""The survey cases that give the same points twice (counted once, with a warning)."""
 
 
 def move_header(path: Path, dx: float, dy: float) -> None:
@@ -50,6 +55,17 @@ def _write(las: Any, keep: np.ndarray, out: Path) -> None:
     part.points = las.points[keep].copy()
     part.update_header()
     part.write(str(out))
+
+
+def _shuffled(src: Path, out: Path) -> Path:
+    """A copy of a tile with its points in another order (the same header)."""
+    import laspy
+
+    las = laspy.read(src)
+    copy = laspy.LasData(las.header)
+    copy.points = las.points[np.random.default_rng(3).permutation(len(las.points))]
+    copy.write(str(out))
+    return out
 
 
 def _halves(base: Any, folder: Path, vertical: tuple[int, int] | None = None
@@ -89,6 +105,12 @@ def _survey(kind: str) -> Callable[[Path, Any], dict[str, Any]]:
             os.symlink(west, damaged)
         elif kind == "crop":
             damaged = crop_of(west, folder / "crop.laz")
+        elif kind == "shuffled":
+            damaged = _shuffled(west, folder / "shuffled.laz")
+        elif kind == "copc-of-tiles":
+            from .copc_corpus import _made
+
+            damaged = Path(shutil.copy(_made(base)[0], folder / "whole.copc.laz"))
         elif kind == "header-moved":
             move_header(east, 5000.0, 0.0)
             damaged, tiles = east, [west, east]
@@ -103,7 +125,7 @@ def _survey(kind: str) -> Callable[[Path, Any], dict[str, Any]]:
             damaged = east
         elif kind == "datums":
             damaged = east
-        if kind in ("copy", "twice", "symlink", "crop"):
+        if kind in DUPLICATES:
             tiles = [west, east, damaged]
         return {"path": damaged, "tiles": tiles, "kind": kind, "truth": base.topo,
                 "west": west}
@@ -156,9 +178,8 @@ RUNNERS: dict[str, tuple[Callable[..., Any], Callable[..., None]]] = {
 def survey_cases() -> list[Any]:
     from .make_corpus import Case
 
-    same = ("same points", "same file", "part of the points")
-    cases = [Case(f"survey-{k}", "survey", _survey(k), warn_words=same)
-             for k in ("copy", "twice", "symlink", "crop")]
+    same = ("same points", "same file", "part of the points", "is a point of")
+    cases = [Case(f"survey-{k}", "survey", _survey(k), warn_words=same) for k in DUPLICATES]
     cases += [Case("survey-header-moved", "survey", _survey("header-moved"),
                    needles=("its header says",), must_refuse=True),
               Case("survey-no-ground", "survey", _survey("no-ground"),
