@@ -188,8 +188,15 @@ def duplicate_tiles(sources: Sequence[Any]) -> tuple[list[Any], list[tuple[Any, 
     kept : list
         The sources in their order, each set of points once.
     dropped : list of (source, same_as, why)
-        Each tile left out, the tile kept instead and why ("same file", "same points",
-        "part of"); a :class:`~canopyblocks.errors.CanopyBlocksWarning` names each.
+        Each tile left out, the source kept instead and why ("same file", "same points",
+        "reordered", "part of", "in cloud": all its points are a kept COPC/EPT's, see
+        :mod:`~canopyblocks.readers.cloud_duplicates`); a
+        :class:`~canopyblocks.errors.CanopyBlocksWarning` names each.
+
+    Raises
+    ------
+    InputError
+        A tile sharing some, not all, of its points with a COPC/EPT source given too.
     """
     kept: list[Any] = []
     dropped: list[tuple[Any, Any, str]] = []
