@@ -40,8 +40,8 @@ def _cloud_box(src: Any) -> Box | None:
 
 def _cloud_hashes(src: Any, box: Box) -> np.ndarray:
     """The point hashes of a cloud's points inside ``box`` (padded), sorted."""
+    from .point_digest import point_hashes
     from .survey import source_kind
-    from .tile_checks import point_hashes
 
     if source_kind(src) == "copc":
         from .copc import read_copc as read
@@ -57,10 +57,10 @@ def _cloud_hashes(src: Any, box: Box) -> np.ndarray:
 
 def _tile_hashes(path: Path) -> np.ndarray:
     """Every point hash of a tile (read in full: only for a tile found in a cloud)."""
-    from .tile_checks import _open, point_hashes
+    from .point_digest import open_reader, point_hashes
 
     parts = []
-    with _open(path) as reader:
+    with open_reader(path) as reader:
         for chunk in reader.chunk_iterator(2_000_000):  # a loop over chunks
             parts.append(point_hashes(np.asarray(chunk.x), np.asarray(chunk.y),
                                       np.asarray(chunk.z)))

@@ -36,6 +36,7 @@ import numpy as np
 
 from ..errors import CanopyBlocksWarning, CRSError, FileFormatError
 from .las_header import plausible_box
+from .point_digest import MIX, mix, open_reader, point_hashes
 
 __all__ = ["SAMPLE", "duplicate_tiles", "check_first_points", "check_vertical_datums",
            "check_survey_tiles", "vertical_names", "check_tile_datums"]
@@ -59,20 +60,6 @@ def _local(source: object) -> Path | None:
     return p if p.is_file() and p.suffix.lower() in (".las", ".laz") else None
 
 
-def _open(path: Any) -> Any:
-    """A laspy reader with the single-threaded LAZ decompressor (the parallel one costs
-    about 70 ms to start on a 4 MB tile; a sample needs a few points)."""
-    from .las_crs import _laspy
-
-    laspy = _laspy()
-    try:
-        backend = laspy.LazBackend.Lazrs
-        return laspy.open(path, laz_backend=backend) if backend.is_available() \
-            else laspy.open(path)
-    except AttributeError:  # a laspy without LazBackend
-        return laspy.open(path)
-
-
 def _keys(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
     """One int64-like key per point (x, y, z to the millimetre), for set membership."""
     q = np.round(np.column_stack([x, y, z]) * _MM).astype(np.int64)
@@ -91,7 +78,7 @@ class _Tile:
         self.first = np.empty(0, np.dtype((np.void, 24)))
         self.xy = np.empty((0, 2))
         try:
-            with _open(path) as reader:
+            with open_reader(path) as reader:
                 h = reader.header
                 self.n = int(h.point_count)
                 self.box = (float(h.mins[0]), float(h.mins[1]), float(h.maxs[0]),
@@ -118,26 +105,6 @@ def _sample(path: Path) -> _Tile:
     return _cached_sample(str(path), st.st_size, st.st_mtime_ns)
 
 
-_MIX = (np.uint64(0x9E3779B97F4A7C15), np.uint64(0xBF58476D1CE4E5B9),
-        np.uint64(0x94D049BB133111EB))
-
-
-def _mix(v: np.ndarray) -> np.ndarray:
-    """A 64-bit finaliser (splitmix64) of each value: a well spread hash per point."""
-    v = v ^ (v >> np.uint64(30))
-    v = v * _MIX[1]
-    v = v ^ (v >> np.uint64(27))
-    v = v * _MIX[2]
-    return v ^ (v >> np.uint64(31))
-
-
-def point_hashes(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
-    """One 64-bit hash per point of (x, y, z) to the millimetre (uint64)."""
-    q = np.round(np.column_stack([x, y, z]) * _MM).astype(np.int64).view(np.uint64)
-    with np.errstate(over="ignore"):
-        return _mix(_mix(_mix(q[:, 0] + _MIX[0]) ^ q[:, 1]) ^ q[:, 2])
-
-
 def _order_free(path: Path) -> tuple[int, int, int] | None:
     """A digest of all the tile's points that does not depend on their order (the count
     and two wrapping sums of per-point hashes), read once per file version."""
@@ -153,12 +120,12 @@ def _cached_order_free(path: str, size: int, mtime: int  # noqa: ARG001 - cache 
                        ) -> tuple[int, int, int] | None:
     n, s1, s2 = 0, np.uint64(0), np.uint64(0)
     try:
-        with _open(path) as reader:
+        with open_reader(path) as reader:
             for chunk in reader.chunk_iterator(2_000_000):  # a loop over chunks
                 h = point_hashes(np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z))
                 with np.errstate(over="ignore"):
                     s1 = s1 + h.sum(dtype=np.uint64)
-                    s2 = s2 + _mix(h ^ _MIX[0]).sum(dtype=np.uint64)
+                    s2 = s2 + mix(h ^ MIX[0]).sum(dtype=np.uint64)
                 n += h.size
     except Exception:  # noqa: BLE001 - an unreadable tile is reported by its reader
         return None
