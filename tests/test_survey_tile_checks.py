@@ -185,6 +185,34 @@ def test_tiles_in_two_vertical_datums_are_refused(survey, tmp_path) -> None:  # 
     assert len(ws) == 1 and str(bare) in ws[0] and "states no vertical datum" in ws[0]
 
 
+def test_a_tile_without_vertical_datum_beside_cgvd28_declares_cgvd28_in_any_order(
+        survey, tmp_path) -> None:  # noqa: ANN001
+    """The datum the tiles state is declared whatever the order; the tile stating none is
+    named as assumed in it; ``run``'s reference datum is the same in both orders."""
+    import pyproj
+    import rasterio
+
+    from canopyblocks.workflows.chain.tiles import _tiles_crs
+
+    _, a, b = survey
+    a28 = _datum_copy(a, tmp_path / "a28.laz", 5713)
+    bare = _datum_copy(b, tmp_path / "bnone.laz", None)
+    wkts = {}
+    for k, order in enumerate(([a28, bare], [bare, a28])):
+        r, ws = _rasters(order, tmp_path / f"o{k}")
+        assert len(ws) == 1 and ws[0].startswith(f"{bare} states no vertical datum")
+        assert "taken to be in EPSG:5713 (CGVD28 height)" in ws[0]
+        for name in ("dtm", "dsm_max", "dsm_p90"):
+            with rasterio.open(getattr(r, name)) as src:
+                wkts.setdefault(name, set()).add(src.crs.to_wkt())
+        assert pyproj.CRS(_tiles_crs(order)).equals(pyproj.CRS("EPSG:3005+5713"))
+    for name, found in wkts.items():
+        assert len(found) == 1, name
+        crs = pyproj.CRS.from_wkt(found.pop())
+        assert crs.sub_crs_list[1].to_epsg() == 5713 and "nknown" not in crs.to_wkt(), name
+    assert (tmp_path / "o0" / "dtm.tif").read_bytes() == (tmp_path / "o1" / "dtm.tif").read_bytes()
+
+
 # ---- COPC / EPT hierarchies that lie ------------------------------------------------------
 
 

@@ -2,7 +2,8 @@
 the Topography tile cut in two halves (west, east; adjacent tiles): the same points given
 twice (a renamed copy with an upper-case suffix, the same path twice, a symlink, a crop of
 a tile), a tile whose header extent is 5 km off its points, a tile without ground points
-among classified ones, tiles stating two vertical datums (CGVD28 and CGVD2013).  (COPC
+among classified ones, tiles stating two vertical datums (CGVD28 and CGVD2013), a tile
+stating none beside one stating CGVD28 (CGVD28 declared, whatever the order).  (COPC
 files and EPT datasets whose hierarchy lies are in ``copc_corpus``.)
 
 The accepted surveys must give the rasters of the whole tile, cell for cell (the halves
@@ -52,9 +53,10 @@ def _write(las: Any, keep: np.ndarray, out: Path) -> None:
     part.write(str(out))
 
 
-def _halves(base: Any, folder: Path, vertical: tuple[int, int] | None = None
+def _halves(base: Any, folder: Path, vertical: tuple[int | None, int | None] | None = None
             ) -> tuple[Path, Path]:
-    """The Topography tile's west and east halves (optionally with vertical datums)."""
+    """The Topography tile's west and east halves (optionally with vertical datums; None:
+    the horizontal CRS alone)."""
     import laspy
     import pyproj
 
@@ -69,7 +71,9 @@ def _halves(base: Any, folder: Path, vertical: tuple[int, int] | None = None
         else:
             one = laspy.convert(las, file_version="1.4", point_format_id=6)
             one.header.vlrs.clear()
-            one.header.add_crs(pyproj.CRS.from_user_input(f"EPSG:2949+{vertical[i]}"))
+            v = vertical[i]
+            one.header.add_crs(pyproj.CRS.from_user_input(
+                "EPSG:2949" if v is None else f"EPSG:2949+{v}"))
             _write(one, keep, p)
         out.append(p)
     return out[0], out[1]
@@ -77,7 +81,8 @@ def _halves(base: Any, folder: Path, vertical: tuple[int, int] | None = None
 
 def _survey(kind: str) -> Callable[[Path, Any], dict[str, Any]]:
     def make(folder: Path, base: Any) -> dict[str, Any]:
-        west, east = _halves(base, folder, (5713, 6647) if kind == "datums" else None)
+        west, east = _halves(base, folder, {"datums": (5713, 6647), "datum-unstated": (
+            5713, None)}.get(kind))
         tiles: list[Path] = [west, east]
         damaged = west
         if kind == "copy":
@@ -103,6 +108,8 @@ def _survey(kind: str) -> Callable[[Path, Any], dict[str, Any]]:
             damaged = east
         elif kind == "datums":
             damaged = east
+        elif kind == "datum-unstated":  # the tile stating no datum first: it used to decide
+            damaged, tiles = east, [east, west]
         if kind in ("copy", "twice", "symlink", "crop"):
             tiles = [west, east, damaged]
         return {"path": damaged, "tiles": tiles, "kind": kind, "truth": base.topo,
@@ -143,6 +150,13 @@ def check_survey(case: Any, i: dict[str, Any], result: Any, ws: list[str]) -> No
         assert np.isnan(dtm[:, east_of]).all(), "DTM interpolated across the tile"
         assert result.stats["dtm_unsupported"] > 0
         return
+    if i["kind"] == "datum-unstated":  # the datum the other tile states, whatever the order
+        import pyproj
+
+        for name in ("dtm", "dsm_max", "dsm_p90"):
+            with __import__("rasterio").open(getattr(result, name)) as src:
+                crs = pyproj.CRS.from_wkt(src.crs.to_wkt())
+            assert crs.sub_crs_list[1].to_epsg() == 5713, (name, crs.name)
     whole = make_reference_rasters([i["truth"]], i["folder"] / "whole")
     for name in ("dtm", "dsm_max", "dsm_p90"):
         np.testing.assert_array_equal(_band(getattr(result, name)), _band(getattr(whole, name)),
@@ -164,5 +178,7 @@ def survey_cases() -> list[Any]:
               Case("survey-no-ground", "survey", _survey("no-ground"),
                    warn_words=("no ground point",)),
               Case("survey-vertical-datums", "survey", _survey("datums"),
-                   needles=("different vertical datums",), must_refuse=True)]
+                   needles=("different vertical datums",), must_refuse=True),
+              Case("survey-vertical-datum-unstated", "survey", _survey("datum-unstated"),
+                   warn_words=("states no vertical datum",), must_accept=True)]
     return cases

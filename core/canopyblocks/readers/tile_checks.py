@@ -287,7 +287,9 @@ def vertical_names(paths: Sequence[Any]) -> list[str]:
 def check_vertical_datums(paths: Sequence[Any], names: Sequence[str], *,
                           warn: bool = True) -> None:
     """Refuse tiles that state different vertical datums (``names``: each tile's,
-    "unknown" when it states none); warn when some state one and others none.
+    "unknown" when it states none); warn when some state one and others none: those are
+    taken to be in the stated datum, which the survey's rasters declare whatever the tiles'
+    order (:func:`~canopyblocks.readers.survey.survey_crs`).
 
     Raises
     ------
@@ -307,7 +309,10 @@ def check_vertical_datums(paths: Sequence[Any], names: Sequence[str], *,
             "one datum")
     if warn and known and "unknown" in first:
         (a, pa), = known.items()
+        none = [str(p) for p, n in zip(paths, names) if (n or "unknown") == "unknown"]
+        which = none[0] if len(none) == 1 else f"{none[0]} and {len(none) - 1} more tile(s)"
         warnings.warn(
-            f"{first['unknown']} states no vertical datum, {pa} states {a}: their heights "
-            f"are merged as if in one datum; check that the first tile's are in {a} too (a "
-            "tile in another datum would shift the DTM)", CanopyBlocksWarning, stacklevel=3)
+            f"{which} states no vertical datum, {pa} states {a}: its heights are taken to be "
+            f"in {a} too (the rasters declare it); if they are in another datum, convert the "
+            "tile to it first (a tile in another datum would shift the DTM)",
+            CanopyBlocksWarning, stacklevel=3)

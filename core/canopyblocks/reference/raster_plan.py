@@ -113,6 +113,16 @@ def with_vertical(crs: pyproj.CRS) -> pyproj.CRS:
         'VERT_DATUM["unknown",2005],UNIT["metre",1,AUTHORITY["EPSG","9001"]],AXIS["Up",UP]]]')
 
 
+def _datum_tile(crss: Sequence[pyproj.CRS]) -> int:
+    """The tile whose CRS the rasters declare, whatever the tiles' order: the first stating
+    a vertical datum (those stating one agree: checked), else the first."""
+    for i, c in enumerate(crss):  # a loop over tiles' CRSs
+        if c.is_compound and any(s.is_vertical and s.name.lower() not in ("unknown", "")
+                                 for s in c.sub_crs_list):
+            return i
+    return 0
+
+
 def las_plan(paths: list[Path], params: RasterParams, crs: object, area_poly: Any,
              exe: Path | None) -> Plan:
     """One unit per LAS/LAZ tile meeting the grid (``exe``: PDAL, for SMRF's CRS reading)."""
@@ -158,7 +168,7 @@ def las_plan(paths: list[Path], params: RasterParams, crs: object, area_poly: An
     reprojected = any(w is not None for w in src_wkts)
     assigned = tile_crss[0] is target_in  # a tile without a CRS, read as the given one
     out_crs = authority_crs(target if reprojected or assigned
-                            else with_vertical(tile_crss[0]))
+                            else with_vertical(tile_crss[_datum_tile(tile_crss)]))
     return Plan(units, grid, names, target, out_crs, checked, reprojected,
                 infos[0].pdal_version, windows)
 
