@@ -30,7 +30,7 @@ laspy = pytest.importorskip("laspy")
 rasterio = pytest.importorskip("rasterio")
 
 sys.path.insert(0, str(Path(__file__).parent))
-from badinputs.survey_corpus import crop_of, move_header  # noqa: E402
+from badinputs.survey_corpus import crop_of, grow_header, move_header  # noqa: E402
 from copc_data import (  # noqa: E402
     build_octree,
     copc_damaged,
@@ -114,6 +114,21 @@ def test_a_header_extent_moved_off_its_points_is_refused(survey, tmp_path) -> No
     assert str(moved) in msg and "its header says the points lie in (890024.09" in msg
     assert "256 of its first 256 points lie outside" in msg
     assert not (tmp_path / "out" / "dtm.tif").exists()
+
+
+def test_a_header_grown_500_km_is_named_not_the_grid_size(survey, tmp_path) -> None:  # noqa: ANN001
+    """Max x raised 500 km, every point still inside: the whole survey's grid would be too
+    large; the header is named first, in either order, and nothing is written."""
+    _, a, b = survey
+    grown = Path(shutil.copy(b, tmp_path / "grown.laz"))
+    grow_header(grown, 5.0e5)
+    for order in ([a, grown], [grown, a]):
+        with pytest.raises(FileFormatError) as exc:
+            make_survey_rasters(order, tmp_path / "out", backend="serial")
+        msg = str(exc.value)
+        assert msg.startswith(f"{grown}: its header says the points lie in (885024.09"), msg
+        assert "1385217.09" in msg and "cells" not in msg and "resolution" not in msg
+        assert not (tmp_path / "out" / "dtm.tif").exists()
 
 
 def test_a_tile_without_ground_is_not_interpolated_across(survey, reference, tmp_path) -> None:  # noqa: ANN001

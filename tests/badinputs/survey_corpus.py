@@ -1,7 +1,8 @@
 """Corpus cases of surveys whose tiles are not what their headers or names say, made from
 the Topography tile cut in two halves (west, east; adjacent tiles): the same points given
 twice (a renamed copy with an upper-case suffix, the same path twice, a symlink, a crop of
-a tile), a tile whose header extent is 5 km off its points, a tile without ground points
+a tile), a tile whose header extent is 5 km off its points, one whose header's max x is 2,000 km
+too far (every point inside; named, not the grid's size), a tile without ground points
 among classified ones, tiles stating two vertical datums (CGVD28 and CGVD2013), a tile
 stating none beside one stating CGVD28 (CGVD28 declared, whatever the order).  (COPC
 files and EPT datasets whose hierarchy lies are in ``copc_corpus``.)
@@ -23,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["survey_cases", "RUNNERS", "move_header", "crop_of"]
+__all__ = ["survey_cases", "RUNNERS", "move_header", "grow_header", "crop_of"]
 
 
 def move_header(path: Path, dx: float, dy: float) -> None:
@@ -31,6 +32,13 @@ def move_header(path: Path, dx: float, dy: float) -> None:
     raw = bytearray(path.read_bytes())
     mx, mnx, my, mny = struct.unpack_from("<4d", raw, 179)
     struct.pack_into("<4d", raw, 179, mx + dx, mnx + dx, my + dy, mny + dy)
+    path.write_bytes(bytes(raw))
+
+
+def grow_header(path: Path, dx: float) -> None:
+    """Raise a LAS/LAZ header's stated max x (byte 179) by ``dx``: every point still inside."""
+    raw = bytearray(path.read_bytes())
+    struct.pack_into("<d", raw, 179, struct.unpack_from("<d", raw, 179)[0] + dx)
     path.write_bytes(bytes(raw))
 
 
@@ -96,6 +104,9 @@ def _survey(kind: str) -> Callable[[Path, Any], dict[str, Any]]:
             damaged = crop_of(west, folder / "crop.laz")
         elif kind == "header-moved":
             move_header(east, 5000.0, 0.0)
+            damaged, tiles = east, [west, east]
+        elif kind == "header-grown":  # 2,000 km wider: the whole-survey grid too large
+            grow_header(east, 2.0e6)
             damaged, tiles = east, [west, east]
         elif kind == "no-ground":
             import laspy
@@ -175,6 +186,9 @@ def survey_cases() -> list[Any]:
              for k in ("copy", "twice", "symlink", "crop")]
     cases += [Case("survey-header-moved", "survey", _survey("header-moved"),
                    needles=("its header says",), must_refuse=True),
+              Case("survey-header-grown", "survey", _survey("header-grown"),
+                   needles=("its header says",), forbidden=("resolution", "cells"),
+                   must_refuse=True),
               Case("survey-no-ground", "survey", _survey("no-ground"),
                    warn_words=("no ground point",)),
               Case("survey-vertical-datums", "survey", _survey("datums"),

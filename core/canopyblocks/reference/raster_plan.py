@@ -152,9 +152,13 @@ def las_plan(paths: list[Path], params: RasterParams, crs: object, area_poly: An
     union = (float(arr[:, 0].min()), float(arr[:, 1].min()), float(arr[:, 2].max()),
              float(arr[:, 3].max()))
     tol = max(params.resolution, 1.0)
-    grid, windows = _grid(_area(params.bounds, area_poly, union, target), params,
-                          target.to_wkt(), names,
-                          _under_tiles(area_poly, np.asarray(live), tol + params.resolution))
+    try:
+        grid, windows = _grid(_area(params.bounds, area_poly, union, target), params,
+                              target.to_wkt(), names,
+                              _under_tiles(area_poly, np.asarray(live), tol + params.resolution))
+    except InputError:
+        _blame_headers(infos, tol)  # a header grown by a corrupt max x: named, not the grid
+        raise
     wide = [(b[0] - tol, b[1] - tol, b[2] + tol, b[3] + tol) for b in boxes]
     area_wkb = None if area_poly is None else area_poly.buffer(grid.radius).wkb
     units = make_units(paths, wide, grid, src_wkts=src_wkts,
@@ -252,6 +256,26 @@ def _trust_points(info: TileInfo, summary: LasSummary, resolution: float) -> Til
                        z_range=summary.z_range)
     return info
 
+
+
+def _blame_headers(infos: Sequence[TileInfo], tolerance: float, suspects: int = 4) -> None:
+    """On a grid too large: the tiles with the largest header extents checked against their
+    points (one pass over each), so that a header stating a wider extent than its points
+    (every point still inside it) is refused by name rather than the grid's size.
+
+    Raises
+    ------
+    FileFormatError
+        A tile whose header extent disagrees with its points by more than ``tolerance`` m.
+    """
+    area = np.array([(i.bounds[2] - i.bounds[0]) * (i.bounds[3] - i.bounds[1]) if
+                     i.n_points > 0 else -1.0 for i in infos], dtype=float)
+    for k in np.argsort(-area, kind="stable")[:suspects]:  # a loop over a few tiles
+        if area[k] >= 0:
+            summary = las_summary(infos[k].path)
+            if summary.n_points:
+                check_header_extent(infos[k].path, summary.header_bounds, summary.bounds,
+                                    tolerance=tolerance)
 
 
 def _names(paths: Sequence[Path]) -> str:
