@@ -4,7 +4,9 @@ twice (a renamed copy with an upper-case suffix, the same path twice, a symlink,
 a tile), a tile whose header extent is 5 km off its points, one whose header's max x is 2,000 km
 too far (every point inside; named, not the grid's size), a tile without ground points
 among classified ones, tiles stating two vertical datums (CGVD28 and CGVD2013), a tile
-stating none beside one stating CGVD28 (CGVD28 declared, whatever the order).  (COPC
+stating none beside one stating CGVD28 (CGVD28 declared, whatever the order); ``validate``
+against the footprint reference with a tile without ground (named), and with it alone
+(refused for its ground, not the track's coverage).  (COPC
 files and EPT datasets whose hierarchy lies are in ``copc_corpus``.)
 
 The accepted surveys must give the rasters of the whole tile, cell for cell (the halves
@@ -108,7 +110,7 @@ def _survey(kind: str) -> Callable[[Path, Any], dict[str, Any]]:
         elif kind == "header-grown":  # 2,000 km wider: the whole-survey grid too large
             grow_header(east, 2.0e6)
             damaged, tiles = east, [west, east]
-        elif kind == "no-ground":
+        elif kind in ("no-ground", "validate-no-ground", "validate-no-ground-alone"):
             import laspy
 
             las = laspy.read(east)
@@ -123,6 +125,8 @@ def _survey(kind: str) -> Callable[[Path, Any], dict[str, Any]]:
             damaged, tiles = east, [east, west]
         if kind in ("copy", "twice", "symlink", "crop"):
             tiles = [west, east, damaged]
+        elif kind == "validate-no-ground-alone":
+            tiles = [east]
         return {"path": damaged, "tiles": tiles, "kind": kind, "truth": base.topo,
                 "west": west}
     return make
@@ -174,8 +178,46 @@ def check_survey(case: Any, i: dict[str, Any], result: Any, ws: list[str]) -> No
                                       err_msg=name)
 
 
+def _blocks_across(i: dict[str, Any]) -> Any:
+    """25 m blocks along the tile's middle row, west half to east half, in its CRS."""
+    import geopandas as gpd
+    import laspy
+
+    from canopyblocks.readers.survey import source_crs
+
+    with laspy.open(i["truth"]) as r:
+        lo, hi = r.header.mins, r.header.maxs
+    bx = np.arange(float(lo[0]) + 20.0, float(hi[0]) - 20.0, 25.0)
+    by = np.full(bx.size, (float(lo[1]) + float(hi[1])) / 2.0)
+    return gpd.GeoDataFrame(
+        {"track": "gt1l", "length": 25.0, "block": np.arange(bx.size), "s_start": bx - 12.5,
+         "s_end": bx + 12.5, "x": bx, "y": by, "flag": "ok", "ground": 0.0, "top": 20.0,
+         "z90": 18.0, "hmax": 20.0, "h90": 18.0},
+        geometry=gpd.points_from_xy(bx, by), crs=source_crs(i["truth"]).horizontal)
+
+
+def run_validate(i: dict[str, Any], folder: Path) -> Any:
+    from canopyblocks.validation.footprints import validate_blocks_footprint
+
+    blocks = _blocks_across(i)
+    return blocks, validate_blocks_footprint(blocks, i["tiles"], offset=0.0).residuals
+
+
+def check_validate(case: Any, i: dict[str, Any], result: Any, ws: list[str]) -> None:
+    """The tile without ground named; its blocks (beyond the footprint's reach) without a
+    ground reference, the others with one."""
+    import laspy
+
+    assert any(Path(i["path"]).name in w and "no ground point" in w for w in ws), ws
+    blocks, res = result
+    cut = float(np.max(laspy.read(i["west"]).x))
+    x, g = blocks["x"].to_numpy(float), res["ref_ground"].to_numpy(float)
+    assert np.isnan(g[x > cut + 20.0]).all() and (x > cut + 20.0).any()
+    assert np.isfinite(g[x < cut - 20.0]).any()
+
+
 RUNNERS: dict[str, tuple[Callable[..., Any], Callable[..., None]]] = {
-    "survey": (run_survey, check_survey)}
+    "survey": (run_survey, check_survey), "survey-validate": (run_validate, check_validate)}
 
 
 def survey_cases() -> list[Any]:
@@ -191,6 +233,11 @@ def survey_cases() -> list[Any]:
                    must_refuse=True),
               Case("survey-no-ground", "survey", _survey("no-ground"),
                    warn_words=("no ground point",)),
+              Case("survey-validate-no-ground", "survey-validate",
+                   _survey("validate-no-ground"), warn_words=("no ground point",)),
+              Case("survey-validate-no-ground-alone", "survey-validate",
+                   _survey("validate-no-ground-alone"), needles=("classed ground",),
+                   forbidden=("covers the track",), must_refuse=True),
               Case("survey-vertical-datums", "survey", _survey("datums"),
                    needles=("different vertical datums",), must_refuse=True),
               Case("survey-vertical-datum-unstated", "survey", _survey("datum-unstated"),
