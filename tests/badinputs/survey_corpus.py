@@ -6,7 +6,8 @@ too far (every point inside; named, not the grid's size), a tile without ground 
 among classified ones, tiles stating two vertical datums (CGVD28 and CGVD2013), a tile
 stating none beside one stating CGVD28 (CGVD28 declared, whatever the order); ``validate``
 against the footprint reference with a tile without ground (named), and with it alone
-(refused for its ground, not the track's coverage).  (COPC
+(refused for its ground, not the track's coverage); a tile in US survey feet (refused
+first, with no warning of a UTM working CRS before).  (COPC
 files and EPT datasets whose hierarchy lies are in ``copc_corpus``.)
 
 The accepted surveys must give the rasters of the whole tile, cell for cell (the halves
@@ -26,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["survey_cases", "RUNNERS", "move_header", "grow_header", "crop_of"]
+__all__ = ["survey_cases", "RUNNERS", "move_header", "grow_header", "crop_of", "in_feet"]
 
 
 def move_header(path: Path, dx: float, dy: float) -> None:
@@ -121,6 +122,9 @@ def _survey(kind: str) -> Callable[[Path, Any], dict[str, Any]]:
             damaged = east
         elif kind == "datums":
             damaged = east
+        elif kind == "feet":  # the east half stating US survey feet, x/y in feet
+            damaged = in_feet(east, folder / "feet.laz")
+            tiles = [damaged]
         elif kind == "datum-unstated":  # the tile stating no datum first: it used to decide
             damaged, tiles = east, [east, west]
         if kind in ("copy", "twice", "symlink", "crop"):
@@ -130,6 +134,33 @@ def _survey(kind: str) -> Callable[[Path, Any], dict[str, Any]]:
         return {"path": damaged, "tiles": tiles, "kind": kind, "truth": base.topo,
                 "west": west}
     return make
+
+
+def in_feet(src: Path, out: Path) -> Path:
+    """A copy of a tile stating US survey feet (EPSG:2286), its x/y converted to feet."""
+    import laspy
+    import pyproj
+
+    las = laspy.convert(laspy.read(src), file_version="1.4", point_format_id=6)
+    las.header.vlrs.clear()
+    las.header.add_crs(pyproj.CRS.from_epsg(2286))
+    x, y = np.asarray(las.x) / 0.3048006096, np.asarray(las.y) / 0.3048006096
+    las.header.offsets = [float(x.min()), float(y.min()), las.header.offsets[2]]
+    las.x, las.y = x, y
+    las.write(str(out))
+    return out
+
+
+def run_survey_quiet(i: dict[str, Any], folder: Path) -> Any:
+    """:func:`run_survey` that must refuse without a warning first (none contradicts it)."""
+    import warnings
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            return run_survey(i, folder)
+        finally:
+            assert [str(w.message) for w in caught] == [], "a warning before the refusal"
 
 
 def run_survey(i: dict[str, Any], folder: Path) -> Any:
@@ -217,7 +248,8 @@ def check_validate(case: Any, i: dict[str, Any], result: Any, ws: list[str]) -> 
 
 
 RUNNERS: dict[str, tuple[Callable[..., Any], Callable[..., None]]] = {
-    "survey": (run_survey, check_survey), "survey-validate": (run_validate, check_validate)}
+    "survey": (run_survey, check_survey), "survey-validate": (run_validate, check_validate),
+    "survey-quiet": (run_survey_quiet, check_survey)}
 
 
 def survey_cases() -> list[Any]:
@@ -238,6 +270,8 @@ def survey_cases() -> list[Any]:
               Case("survey-validate-no-ground-alone", "survey-validate",
                    _survey("validate-no-ground-alone"), needles=("classed ground",),
                    forbidden=("covers the track",), must_refuse=True),
+              Case("survey-feet", "survey-quiet", _survey("feet"),
+                   needles=("feet are not supported",), forbidden=("UTM",), must_refuse=True),
               Case("survey-vertical-datums", "survey", _survey("datums"),
                    needles=("different vertical datums",), must_refuse=True),
               Case("survey-vertical-datum-unstated", "survey", _survey("datum-unstated"),
