@@ -283,3 +283,39 @@ def test_validate_footprints_is_validate(tile, tile_path, footprints, tmp_path) 
         for col in ("ref_ground", "ref_rh98", "res_rh98"):
             np.testing.assert_allclose(got[name][col], got["old"][col], equal_nan=True,
                                        err_msg=f"{name} {col}")
+
+
+def test_a_tile_without_ground_is_named_not_the_coverage(tile_path, sample, tmp_path) -> None:  # noqa: ANN001
+    """`validate --points` with a tile whose ground points were reclassified: a warning
+    names it (as `run`'s does) and its blocks have no ground reference; that tile alone is
+    refused for its missing ground, not sent to check the track's coverage."""
+    import laspy
+
+    las = laspy.read(sample("als/lasR_bcts_2.laz"))
+    c = np.asarray(las.classification)
+    c[c == 2] = 1
+    las.classification = c
+    bare = tmp_path / "noground.laz"
+    las.write(str(bare))
+    by = np.arange(629180.0, 629680.0, 25.0)  # north through lasR_bcts_1 into the bare tile
+    bx = np.full(by.size, 885120.0)
+    blocks = gpd.GeoDataFrame(
+        {"track": "gt2l", "length": 25.0, "block": np.arange(by.size), "s_start": by - 12.5,
+         "s_end": by + 12.5, "x": bx, "y": by, "flag": "ok", "ground": 340.0, "top": 360.0,
+         "z90": 358.0, "hmax": 20.0, "h90": 18.0},
+        geometry=gpd.points_from_xy(bx, by), crs="EPSG:3005")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        r = validate_blocks_footprint(blocks, [tile_path, bare], offset=0.0).residuals
+    named = [str(w.message) for w in caught if str(bare) in str(w.message)]
+    assert len(named) == 1 and "no ground point (ASPRS class 2)" in named[0], named
+    assert "no ground reference" in named[0] and "filters.smrf" in named[0]
+    over_bare = by > 629400.0 + 20.0   # more than the footprint's reach inside the bare tile
+    over_ground = by < 629400.0 - 20.0
+    assert r["ref_ground"].to_numpy(float)[over_bare].size == over_bare.sum() > 0
+    assert np.isnan(r["ref_ground"].to_numpy(float)[over_bare]).all()
+    assert np.isfinite(r["ref_ground"].to_numpy(float)[over_ground]).all()
+    with pytest.raises(NoUsableDataError) as exc:
+        validate_blocks_footprint(blocks, [bare], offset=0.0)
+    msg = str(exc.value)
+    assert str(bare) in msg and "classed ground" in msg and "covers" not in msg

@@ -16,7 +16,7 @@ import pytest
 from canopyblocks.errors import CRSError, FileFormatError
 
 sys.path.insert(0, str(Path(__file__).parent))
-from badinputs.survey_corpus import move_header  # noqa: E402
+from badinputs.survey_corpus import in_feet, move_header  # noqa: E402
 
 ALS = Path(__file__).parent / "data" / "als"
 
@@ -36,6 +36,28 @@ def test_a_misplaced_header_is_refused_by_the_resolver(tmp_path: Path) -> None:
         survey_tiles(folder)
     assert str(moved) in str(exc.value) and "its header says" in str(exc.value)
     assert "256 of its first 256 points lie outside" in str(exc.value)
+
+
+def test_a_tile_in_feet_is_refused_before_any_word_of_a_working_crs(tmp_path: Path) -> None:
+    """rasters and run refuse a survey in feet first: no warning that the rasters would be
+    made in UTM (which its refusal then contradicts)."""
+    import warnings
+
+    from canopyblocks.workflows.rasters import make_survey_rasters
+    from canopyblocks.workflows.survey import working_crs
+
+    feet = in_feet(ALS / "lasR_bcts_1.laz", tmp_path / "feet.laz")
+    for call in (lambda: make_survey_rasters([feet], tmp_path / "out", backend="serial"),
+                 lambda: working_crs([feet])):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            with pytest.raises(CRSError) as exc:
+                call()
+        msg = str(exc.value)
+        assert msg.startswith(f"{feet}: ") and "feet are not supported" in msg, msg
+        assert "convert the tile to metres" in msg
+        assert [str(w.message) for w in caught] == []
+    assert not (tmp_path / "out").exists()
 
 
 def test_a_vpc_naming_a_missing_tile_names_the_vpc(tmp_path: Path) -> None:

@@ -30,7 +30,7 @@ laspy = pytest.importorskip("laspy")
 rasterio = pytest.importorskip("rasterio")
 
 sys.path.insert(0, str(Path(__file__).parent))
-from badinputs.survey_corpus import crop_of, move_header  # noqa: E402
+from badinputs.survey_corpus import crop_of, grow_header, move_header  # noqa: E402
 from copc_data import (  # noqa: E402
     build_octree,
     copc_damaged,
@@ -199,6 +199,21 @@ def test_a_header_extent_moved_off_its_points_is_refused(survey, tmp_path) -> No
     assert not (tmp_path / "out" / "dtm.tif").exists()
 
 
+def test_a_header_grown_500_km_is_named_not_the_grid_size(survey, tmp_path) -> None:  # noqa: ANN001
+    """Max x raised 500 km, every point still inside: the whole survey's grid would be too
+    large; the header is named first, in either order, and nothing is written."""
+    _, a, b = survey
+    grown = Path(shutil.copy(b, tmp_path / "grown.laz"))
+    grow_header(grown, 5.0e5)
+    for order in ([a, grown], [grown, a]):
+        with pytest.raises(FileFormatError) as exc:
+            make_survey_rasters(order, tmp_path / "out", backend="serial")
+        msg = str(exc.value)
+        assert msg.startswith(f"{grown}: its header says the points lie in (885024.09"), msg
+        assert "1385217.09" in msg and "cells" not in msg and "resolution" not in msg
+        assert not (tmp_path / "out" / "dtm.tif").exists()
+
+
 def test_a_tile_without_ground_is_not_interpolated_across(survey, reference, tmp_path) -> None:  # noqa: ANN001
     from scipy.spatial import cKDTree
 
@@ -266,6 +281,34 @@ def test_tiles_in_two_vertical_datums_are_refused(survey, tmp_path) -> None:  # 
     bare = _datum_copy(b, tmp_path / "bnone.laz", None)
     r, ws = _rasters([a28, bare], tmp_path / "mixed")
     assert len(ws) == 1 and str(bare) in ws[0] and "states no vertical datum" in ws[0]
+
+
+def test_a_tile_without_vertical_datum_beside_cgvd28_declares_cgvd28_in_any_order(
+        survey, tmp_path) -> None:  # noqa: ANN001
+    """The datum the tiles state is declared whatever the order; the tile stating none is
+    named as assumed in it; ``run``'s reference datum is the same in both orders."""
+    import pyproj
+    import rasterio
+
+    from canopyblocks.workflows.chain.tiles import _tiles_crs
+
+    _, a, b = survey
+    a28 = _datum_copy(a, tmp_path / "a28.laz", 5713)
+    bare = _datum_copy(b, tmp_path / "bnone.laz", None)
+    wkts = {}
+    for k, order in enumerate(([a28, bare], [bare, a28])):
+        r, ws = _rasters(order, tmp_path / f"o{k}")
+        assert len(ws) == 1 and ws[0].startswith(f"{bare} states no vertical datum")
+        assert "taken to be in EPSG:5713 (CGVD28 height)" in ws[0]
+        for name in ("dtm", "dsm_max", "dsm_p90"):
+            with rasterio.open(getattr(r, name)) as src:
+                wkts.setdefault(name, set()).add(src.crs.to_wkt())
+        assert pyproj.CRS(_tiles_crs(order)).equals(pyproj.CRS("EPSG:3005+5713"))
+    for name, found in wkts.items():
+        assert len(found) == 1, name
+        crs = pyproj.CRS.from_wkt(found.pop())
+        assert crs.sub_crs_list[1].to_epsg() == 5713 and "nknown" not in crs.to_wkt(), name
+    assert (tmp_path / "o0" / "dtm.tif").read_bytes() == (tmp_path / "o1" / "dtm.tif").read_bytes()
 
 
 # ---- COPC / EPT hierarchies that lie ------------------------------------------------------

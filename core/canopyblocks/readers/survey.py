@@ -31,8 +31,8 @@ from ..progress import Progress, as_progress
 from .las import refuse_urls
 from .remote import is_url
 
-__all__ = ["survey_sources", "source_kind", "source_crs", "source_extent", "read_survey",
-           "TILE_SUFFIXES"]
+__all__ = ["survey_sources", "source_kind", "source_crs", "survey_crs", "source_extent",
+           "read_survey", "TILE_SUFFIXES"]
 
 TILE_SUFFIXES = (".las", ".laz")
 
@@ -66,6 +66,19 @@ def source_crs(source: Any) -> Any:
     from .las_crs import las_file_crs
 
     return las_file_crs(source)
+
+
+def survey_crs(sources: Sequence[Any]) -> Any:
+    """The CRS records a survey states, whatever its sources' order: those of the first
+    source stating a vertical datum (the sources stating one agree, or are refused by
+    :func:`~canopyblocks.readers.tile_checks.check_vertical_datums`), else the first's."""
+    first = None
+    for source in sources:  # a loop over sources: one header each, until one states a datum
+        stated = source_crs(source)
+        if stated.vertical is not None:
+            return stated
+        first = stated if first is None else first
+    return first
 
 
 def source_extent(source: Any) -> tuple[tuple[float, float, float, float], Any]:

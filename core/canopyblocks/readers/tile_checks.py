@@ -34,12 +34,13 @@ from typing import Any
 
 import numpy as np
 
-from ..errors import CanopyBlocksWarning, CRSError, FileFormatError
+from ..errors import CanopyBlocksWarning, CRSError, FileFormatError, NoUsableDataError
 from .las_header import plausible_box
 from .point_digest import MIX, mix, open_reader, point_hashes
 
 __all__ = ["SAMPLE", "duplicate_tiles", "check_first_points", "check_vertical_datums",
-           "check_survey_tiles", "vertical_names", "check_tile_datums"]
+           "check_survey_tiles", "vertical_names", "check_tile_datums", "warn_groundless",
+           "check_ground_read"]
 
 SAMPLE = 256
 """Points read at the start of a tile for its identity and to check its header extent."""
@@ -338,7 +339,9 @@ def vertical_names(paths: Sequence[Any]) -> list[str]:
 def check_vertical_datums(paths: Sequence[Any], names: Sequence[str], *,
                           warn: bool = True) -> None:
     """Refuse tiles that state different vertical datums (``names``: each tile's,
-    "unknown" when it states none); warn when some state one and others none.
+    "unknown" when it states none); warn when some state one and others none: those are
+    taken to be in the stated datum, which the survey's rasters declare whatever the tiles'
+    order (:func:`~canopyblocks.readers.survey.survey_crs`).
 
     Raises
     ------
@@ -358,7 +361,53 @@ def check_vertical_datums(paths: Sequence[Any], names: Sequence[str], *,
             "one datum")
     if warn and known and "unknown" in first:
         (a, pa), = known.items()
+        none = [str(p) for p, n in zip(paths, names) if (n or "unknown") == "unknown"]
+        which = none[0] if len(none) == 1 else f"{none[0]} and {len(none) - 1} more tile(s)"
         warnings.warn(
-            f"{first['unknown']} states no vertical datum, {pa} states {a}: their heights "
-            f"are merged as if in one datum; check that the first tile's are in {a} too (a "
-            "tile in another datum would shift the DTM)", CanopyBlocksWarning, stacklevel=3)
+            f"{which} states no vertical datum, {pa} states {a}: its heights are taken to be "
+            f"in {a} too (the rasters declare it); if they are in another datum, convert the "
+            "tile to it first (a tile in another datum would shift the DTM)",
+            CanopyBlocksWarning, stacklevel=3)
+
+
+def warn_groundless(path: Any, held: str, consequence: str, fix: str) -> None:
+    """The warning for a tile holding points but no ground point (class 2) among tiles that
+    have ground (``held``: e.g. "823,945 points"): what it costs and what to do."""
+    warnings.warn(
+        f"tile {path} holds {held} but no ground point (ASPRS class 2) while the other tiles "
+        f"have ground: {consequence}; {fix}", CanopyBlocksWarning, stacklevel=3)
+
+
+def check_ground_read(pts: Any, where: str, ground_class: int = 2) -> None:
+    """Check the ground of a survey's points read ``where`` (e.g. "under the footprints"):
+    refuse when none is ground; warn, naming it, for each tile read with points there but
+    no ground point while others have (its footprints get no ground reference).
+
+    ``pts``: :class:`~canopyblocks.readers.las.LasPoints` (per tile only when its ``row``
+    is known, i.e. LAS/LAZ tiles alone).
+
+    Raises
+    ------
+    NoUsableDataError
+        No point read is ground.
+    """
+    if len(pts) == 0:
+        return
+    ground = np.asarray(pts.classification) == ground_class
+    names = ", ".join(map(str, pts.sources[:4])) + (
+        f" and {len(pts.sources) - 4} more" if len(pts.sources) > 4 else "")
+    if not ground.any():
+        raise NoUsableDataError(
+            f"no point of {names} {where} is classed ground (ASPRS class {ground_class}): the "
+            "tiles are unclassified there; classify their ground (e.g. PDAL filters.smrf) and "
+            "validate again")
+    if pts.row is None or len(pts.sources) < 2:
+        return
+    edges = np.cumsum([_sample(Path(p)).n for p in pts.sources])
+    tile = np.searchsorted(edges, np.asarray(pts.row), side="right")
+    n_read = np.bincount(tile, minlength=edges.size)
+    n_ground = np.bincount(tile[ground], minlength=edges.size)
+    for i in np.flatnonzero((n_read > 0) & (n_ground == 0)):  # a loop over groundless tiles
+        warn_groundless(pts.sources[i], f"{int(n_read[i]):,} points {where}",
+                        "the blocks or footprints over it have no ground reference (left out "
+                        "as 'reference nodata')", "classify its ground (e.g. PDAL filters.smrf)")

@@ -222,9 +222,7 @@ def groundless_cells(tiles: Sequence[tuple[str, int, int, Sequence[float]]],
     -------
     bool blocks like ``dtm``, or None when no tile is groundless (or none has ground).
     """
-    import warnings
-
-    from ..errors import CanopyBlocksWarning
+    from ..readers.tile_checks import warn_groundless
 
     bare = [t for t in tiles if t[1] > 0 and t[2] == 0]
     if not bare or not any(t[2] > 0 for t in tiles):
@@ -241,12 +239,11 @@ def groundless_cells(tiles: Sequence[tuple[str, int, int, Sequence[float]]],
         rows = (cy >= box[1]) & (cy <= box[3]) & (row < grid.height)
         cells = rows[:, :, None] & cols[:, None, :] & ~np.isfinite(dtm)
         out |= cells
-        warnings.warn(
-            f"tile {path} holds {n:,} points but no ground point (ASPRS class 2) while the "
-            f"other tiles have ground: its {int(cells.sum()):,} cells without measured ground "
-            "are left without DTM (not interpolated across the tile), so blocks there have no "
-            "ground reference; classify its ground (e.g. PDAL filters.smrf) or make the "
-            "rasters with --smrf", CanopyBlocksWarning, stacklevel=3)
+        warn_groundless(path, f"{n:,} points", f"its {int(cells.sum()):,} cells without "
+                        "measured ground are left without DTM (not interpolated across the "
+                        "tile), so blocks there have no ground reference",
+                        "classify its ground (e.g. PDAL filters.smrf) or make the rasters "
+                        "with --smrf")
     return out
 
 

@@ -113,6 +113,16 @@ def with_vertical(crs: pyproj.CRS) -> pyproj.CRS:
         'VERT_DATUM["unknown",2005],UNIT["metre",1,AUTHORITY["EPSG","9001"]],AXIS["Up",UP]]]')
 
 
+def _datum_tile(crss: Sequence[pyproj.CRS]) -> int:
+    """The tile whose CRS the rasters declare, whatever the tiles' order: the first stating
+    a vertical datum (those stating one agree: checked), else the first."""
+    for i, c in enumerate(crss):  # a loop over tiles' CRSs
+        if c.is_compound and any(s.is_vertical and s.name.lower() not in ("unknown", "")
+                                 for s in c.sub_crs_list):
+            return i
+    return 0
+
+
 def las_plan(paths: list[Path], params: RasterParams, crs: object, area_poly: Any,
              exe: Path | None) -> Plan:
     """One unit per LAS/LAZ tile meeting the grid (``exe``: PDAL, for SMRF's CRS reading)."""
@@ -142,9 +152,13 @@ def las_plan(paths: list[Path], params: RasterParams, crs: object, area_poly: An
     union = (float(arr[:, 0].min()), float(arr[:, 1].min()), float(arr[:, 2].max()),
              float(arr[:, 3].max()))
     tol = max(params.resolution, 1.0)
-    grid, windows = _grid(_area(params.bounds, area_poly, union, target), params,
-                          target.to_wkt(), names,
-                          _under_tiles(area_poly, np.asarray(live), tol + params.resolution))
+    try:
+        grid, windows = _grid(_area(params.bounds, area_poly, union, target), params,
+                              target.to_wkt(), names,
+                              _under_tiles(area_poly, np.asarray(live), tol + params.resolution))
+    except InputError:
+        _blame_headers(infos, tol)  # a header grown by a corrupt max x: named, not the grid
+        raise
     wide = [(b[0] - tol, b[1] - tol, b[2] + tol, b[3] + tol) for b in boxes]
     area_wkb = None if area_poly is None else area_poly.buffer(grid.radius).wkb
     units = make_units(paths, wide, grid, src_wkts=src_wkts,
@@ -158,7 +172,7 @@ def las_plan(paths: list[Path], params: RasterParams, crs: object, area_poly: An
     reprojected = any(w is not None for w in src_wkts)
     assigned = tile_crss[0] is target_in  # a tile without a CRS, read as the given one
     out_crs = authority_crs(target if reprojected or assigned
-                            else with_vertical(tile_crss[0]))
+                            else with_vertical(tile_crss[_datum_tile(tile_crss)]))
     return Plan(units, grid, names, target, out_crs, checked, reprojected,
                 infos[0].pdal_version, windows)
 
@@ -242,6 +256,26 @@ def _trust_points(info: TileInfo, summary: LasSummary, resolution: float) -> Til
                        z_range=summary.z_range)
     return info
 
+
+
+def _blame_headers(infos: Sequence[TileInfo], tolerance: float, suspects: int = 4) -> None:
+    """On a grid too large: the tiles with the largest header extents checked against their
+    points (one pass over each), so that a header stating a wider extent than its points
+    (every point still inside it) is refused by name rather than the grid's size.
+
+    Raises
+    ------
+    FileFormatError
+        A tile whose header extent disagrees with its points by more than ``tolerance`` m.
+    """
+    area = np.array([(i.bounds[2] - i.bounds[0]) * (i.bounds[3] - i.bounds[1]) if
+                     i.n_points > 0 else -1.0 for i in infos], dtype=float)
+    for k in np.argsort(-area, kind="stable")[:suspects]:  # a loop over a few tiles
+        if area[k] >= 0:
+            summary = las_summary(infos[k].path)
+            if summary.n_points:
+                check_header_extent(infos[k].path, summary.header_bounds, summary.bounds,
+                                    tolerance=tolerance)
 
 
 def _names(paths: Sequence[Path]) -> str:

@@ -54,6 +54,7 @@ from ..geo import as_crs, ground_metres
 from ..progress import Progress, as_progress
 from ..readers.las import LasPoints
 from ..readers.survey import read_survey, source_crs
+from ..readers.tile_checks import check_ground_read
 from ..reference.datum import apply_vertical_offset, check_vertical_datums
 from ..reference.footprint import FootprintCloud, footprint_reference
 from ..reference.footprint_blocks import block_footprint_reference, estimate_statistic
@@ -181,6 +182,7 @@ def _read_points(points: LasPoints | str | os.PathLike[str] | Sequence[str | os.
             f"none of the {len(fp)} footprints lies over the airborne tiles "
             f"({', '.join(str(p) for p in paths)}): footprints span {tuple(round(v) for v in bbox)} "
             f"in {crs.to_string()}; give tiles under the footprints") from None
+    check_ground_read(pts, "under the footprints", params.ground_class)
     return pts, x, y, lon, lat
 
 
@@ -470,6 +472,7 @@ def validate_blocks_footprint(
                           crs=tiles_crs if points_crs is not None else None,
                           progress=prog.sub(0.0, 0.3), to_crs=to_crs,
                           polygon=footprints_area(xb, yb, m))  # the corridor, not the box
+        check_ground_read(pts, "near the blocks", params.ground_class)
     if not pts.crs.equals(blocks.crs, ignore_axis_order=True):
         blocks = blocks.to_crs(pts.crs)
         blocks = blocks.assign(x=blocks.geometry.x, y=blocks.geometry.y)

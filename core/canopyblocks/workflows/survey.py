@@ -35,11 +35,14 @@ def survey_centre(tiles: Sequence[Any]) -> tuple[float, float]:
 def working_crs(tiles: Sequence[Any]) -> Any:
     """The horizontal CRS a run over the survey computes in: the survey's own when its
     metre is a ground metre (:func:`~canopyblocks.geo.ground_metres`), else the UTM
-    zone of the survey's centre; None when the survey states no CRS."""
+    zone of the survey's centre; None when the survey states no CRS.  A survey in feet is
+    refused here, before any word of a working CRS (its feet are not converted)."""
     from ..geo import ground_metres, utm_crs_for
     from ..readers.survey import source_crs
 
-    crs = source_crs(tiles[0]).horizontal
+    stated = source_crs(tiles[0])
+    stated.require_metres()  # CRSError: positions or heights in feet
+    crs = stated.horizontal
     if crs is None or ground_metres(crs):
         return crs
     lon, lat = survey_centre(tiles)

@@ -24,10 +24,11 @@ def _vertical_name(crs: Any) -> str | None:
 
 def _tiles_crs(tiles: Sequence[Any]) -> Any:
     """The tiles' full (compound) CRS as their header states it (WKT or GeoTIFF keys,
-    read by the one LAS CRS reader): the vertical datum of every raster made from them,
-    also after reprojection; None when unstated."""
-    from ...readers.survey import source_crs
+    read by the one LAS CRS reader; the first tile stating a vertical datum, whatever their
+    order): the vertical datum of every raster made from them, also after reprojection;
+    None when unstated."""
+    from ...readers.survey import survey_crs
     from ...readers.tile_checks import check_tile_datums
 
     check_tile_datums(tiles)  # tiles in two vertical datums: refused
-    return source_crs(tiles[0]).crs
+    return survey_crs(tiles).crs
