@@ -34,6 +34,7 @@ from badinputs.survey_corpus import crop_of, move_header  # noqa: E402
 from copc_data import (  # noqa: E402
     build_octree,
     copc_damaged,
+    garbled_node,
     root_node,
     sibling_box,
     tile_points,
@@ -229,6 +230,25 @@ def test_a_copc_hierarchy_that_lies_is_refused(copc, tmp_path, edit) -> None:  #
         with pytest.raises(FileFormatError, match="its hierarchy's nodes hold 73,363 points, "
                            "its header says 73,403"):
             read_copc(p, bounds=sibling_box(copc[1]))
+
+
+def test_a_garbled_copc_chunk_names_its_node(copc, tmp_path, capsys) -> None:  # noqa: ANN001
+    """64 bytes inverted inside one node's chunk: the node named is that one (not the
+    first of its batch), with no decompressor text, and nothing is written."""
+    from canopyblocks.cli import main
+    from canopyblocks.readers.copc import read_copc
+
+    p = tmp_path / "garbled.copc.laz"
+    p.write_bytes(copc_damaged(copc[1], "garbled"))
+    want = (f"{p}: the point data of octree node {garbled_node(copc[1])} cannot be "
+            "decompressed: the file is damaged; copy or download it again, or write it again")
+    with pytest.raises(FileFormatError) as exc:
+        read_copc(p)
+    assert str(exc.value) == want
+    out = tmp_path / "r"
+    assert main(["-q", "rasters", str(p), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.strip() == f"canopyblocks: error: {want}" and not out.exists(), err
 
 
 def test_two_copc_nodes_swapped_are_refused_by_their_cubes(copc, tmp_path) -> None:  # noqa: ANN001
