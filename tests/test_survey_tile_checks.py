@@ -289,3 +289,29 @@ def test_an_ept_without_its_root_or_a_node_is_named(tmp_path, sample) -> None:  
         want = ("has no root node 0-0-0-0" if name == "noroot"
                 else "its hierarchy's nodes hold 72,880 points, ept.json says 73,403")
         assert want in str(exc.value), str(exc.value)
+
+
+@pytest.mark.parametrize("shift", [20.0, -35.0])
+def test_ept_bounds_moved_name_ept_json_not_a_node_file(tmp_path, sample, capsys,  # noqa: ANN001
+                                                         shift) -> None:
+    """ept.json's cube moved along x: the node files are whole; the refusal names ept.json's
+    bounds (before: a node file "holds another node's points"), and nothing is written."""
+    import json
+
+    from canopyblocks.cli import main
+
+    topo = sample("als/lidR_Topography.laz")
+    d = tmp_path / "ept"
+    write_ept([topo], d, tree=build_octree(tile_points([topo]), capacity=5000), split_level=1)
+    j = json.loads((d / "ept.json").read_text())
+    j["bounds"][0] += shift
+    j["bounds"][3] += shift
+    (d / "ept.json").write_text(json.dumps(j))
+    out = tmp_path / "r"
+    assert main(["-q", "rasters", str(d / "ept.json"), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"canopyblocks: error: {d / 'ept.json'}: ")
+    assert "do not fit in any one node's cube: ept.json's bounds (" in lines[0], err
+    assert "correct ept.json's bounds or write the dataset again" in lines[0], err
+    assert "another node's points" not in err and not out.exists()

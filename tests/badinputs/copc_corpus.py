@@ -95,6 +95,11 @@ def _ept(edit: str) -> Callable[[Path, Any], dict[str, Any]]:
             del j["0-0-0-0" if edit == "no-root" else
                   next(k for k, v in j.items() if k.startswith("2-") and v > 0)]
             h.write_text(json.dumps(j))
+        elif edit == "bounds-moved":  # ept.json's cube moved 20 m east
+            j = json.loads(meta)
+            j["bounds"][0] += 20.0
+            j["bounds"][3] += 20.0
+            (ept / "ept.json").write_text(json.dumps(j))
         return {"path": ept / "ept.json", "kind": "ept", "truth": base.topo}
     return make
 
@@ -187,6 +192,9 @@ def copc_cases() -> list[Any]:
                         "missing-hierarchy")]
     cases += [Case(f"copc-hierarchy-{e}", "copc", _copc(e), needles=("hierarchy", "octree"),
                    forbidden=("no points",), must_refuse=True) for e in LIES]
+    cases.append(Case("ept-bounds-moved", "copc", _ept("bounds-moved"),
+                      needles=("ept.json's bounds",), must_refuse=True,
+                      forbidden=("another node's points",)))
     cases.append(Case("copc-node-garbled", "copc", _copc("garbled"),
                       needles=("cannot be decompressed",), must_refuse=True,
                       forbidden=("ioerror", "fill whole buffer", "0-0-0-0")))
