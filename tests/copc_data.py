@@ -31,7 +31,8 @@ import numpy as np
 import pyproj
 
 __all__ = ["Octree", "build_octree", "write_copc", "write_ept", "tile_points",
-           "shifted_grid", "copc_damaged", "sibling_box", "root_node", "NODE", "node_box",
+           "shifted_grid", "copc_damaged", "garbled_node", "sibling_box", "root_node", "NODE",
+           "node_box",
            "node_entry", "ept_node_damaged", "copc_node_damaged", "NODE_EDITS"]
 
 
@@ -363,7 +364,7 @@ def copc_damaged(raw: bytes, edit: str) -> bytes:
     """The COPC bytes with one lie: a node's count halved or zeroed, a node pointed at
     another node's chunk (its parent's: ``"other"``, its sibling's: ``"sibling"``), two
     siblings' chunks exchanged (``"swap"``), the octree centre or the header extent moved
-    5 km."""
+    5 km; or one node's compressed bytes garbled (``"garbled"``)."""
     b = bytearray(raw)
     root_at, root_size = struct.unpack_from("<2Q", raw, _INFO_AT + 40)
     root = [(root_at + 32 * i, _E.unpack_from(raw, root_at + 32 * i))
@@ -393,7 +394,16 @@ def copc_damaged(raw: bytes, edit: str) -> bytes:
     elif edit == "header":
         mx, mnx = struct.unpack_from("<2d", raw, 179)
         struct.pack_into("<2d", b, 179, mx + 5000.0, mnx + 5000.0)
+    elif edit == "garbled":  # 64 bytes inside a level-2 node's chunk inverted
+        e = _level2(raw)[0][1]
+        mid = e[4] + e[5] // 2
+        b[mid:mid + 64] = bytes(v ^ 0xFF for v in b[mid:mid + 64])
     return bytes(b)
+
+
+def garbled_node(raw: bytes) -> str:
+    """The key (``level-x-y-z``) of the node whose chunk the ``"garbled"`` edit damages."""
+    return "-".join(map(str, _level2(raw)[0][1][:4]))
 
 
 # ---- one node's data that the hierarchy does not hold: for whole and window reads ----------

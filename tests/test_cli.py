@@ -156,3 +156,19 @@ def test_main_returns_exit_codes_in_process(sample, tmp_path, capsys) -> None:
     assert main(["blocks", str(tmp_path / "nope.h5"), "-o", str(tmp_path / "o.gpkg")]) == 2
     assert "does not exist" in capsys.readouterr().err
 
+
+
+@pytest.mark.parametrize("command, option", [("validate", "--points"), ("batch", "--tiles"),
+                                             ("calibrate", "--points")])
+def test_survey_help_says_exactly_what_is_read_by_url(command, option, capsys) -> None:
+    """The help of a survey option says what is read by URL (COPC, ept.json), and a plain
+    LAZ by URL is refused in one line that the help does not contradict."""
+    import re
+
+    from canopyblocks.options import SURVEY_SOURCES_HELP
+
+    assert main([command, "--help"]) == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert " ".join(SURVEY_SOURCES_HELP.split()) in text
+    assert "local LAS/LAZ tiles" in text and "(path or URL" not in text
+    assert re.search(r"COPC or an ept\.json, local or by URL", text)

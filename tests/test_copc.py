@@ -341,6 +341,23 @@ def test_server_without_ranges(store, http):
     assert "norange/survey.copc.laz" in _one_line(exc, "byte-range")
 
 
+def test_short_answers_for_a_survey_say_the_file_not_a_granule(tmp_path, store,
+                                                                monkeypatch):
+    """A COPC answered short over http: the advice fits a survey (download the file),
+    with no word borrowed from the photon-file reader."""
+    monkeypatch.setattr(remote, "RETRIES", 1)
+    monkeypatch.setattr(remote, "BACKOFF", 0.0)
+    (tmp_path / "short").mkdir()
+    shutil.copy(store / "survey.copc.laz", tmp_path / "short" / "survey.copc.laz")
+    with RangeHTTPServer(tmp_path) as server:
+        remote.clear_cache()
+        with pytest.raises(FileFormatError) as exc:
+            read_copc(f"{server.url}/short/survey.copc.laz", bounds=BOX)
+    line = _one_line(exc, "the server's answers were short")
+    assert line.endswith("run again later, or download the file and pass the local copy")
+    assert "granule" not in line
+
+
 def test_small_node_copc_fetches_about_the_nodes_it_needs(tmp_path, tiles, laz):
     """Nodes of at most 300 points (a few kB each): a corridor fetches the nodes it needs
     and not the file between them (gaps are merged up to half the median node, not 64 KiB);

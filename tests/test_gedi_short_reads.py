@@ -83,3 +83,35 @@ def test_a_truncated_local_file_is_named(keep, l1b_bytes, tmp_path, capsys) -> N
         assert f"it holds {n:,} of the {len(l1b_bytes):,} bytes" in line, line
     else:
         assert f"only {n} bytes" in line and "cut short" in line, line
+
+
+@pytest.mark.parametrize("start, stop", [(0.6, 1.0), (0.475, 0.525), (0.1, 0.15), (0.7, 0.75)])
+def test_a_zero_filled_file_of_full_size_is_named_damaged(start, stop, l1b_bytes, tmp_path,
+                                                          capsys) -> None:
+    """A preallocated download that stopped (its tail zeroed), or zeroed bytes inside: the
+    file says it is damaged, never "not a GEDI file" nor "a subset without datasets"."""
+    raw = bytearray(l1b_bytes)
+    a, b = int(len(raw) * start), int(len(raw) * stop)
+    raw[a:b] = bytes(b - a)
+    p = tmp_path / "GEDI01_B_zeroed.h5"
+    p.write_bytes(bytes(raw))
+    line = _refused([str(p)], tmp_path / "out" / "fp.gpkg", capsys)
+    assert f"{p}: the file is damaged (" in line and line.endswith("download it again"), line
+    assert "subset" not in line and "HDF5 lists" not in line and "(OSError" not in line, line
+
+
+def test_a_subset_without_datasets_and_a_foreign_hdf5_keep_their_own_words(
+        l1b_bytes, tmp_path, capsys) -> None:
+    """What HDF5 can read but is absent stays "subset" / "not a GEDI file"."""
+    import h5py
+
+    subset, other = tmp_path / "subset.h5", tmp_path / "other.h5"
+    subset.write_bytes(l1b_bytes)
+    with h5py.File(subset, "r+") as f:
+        del f["BEAM0101/geolocation/elevation_bin0"]
+    with h5py.File(other, "w") as f:
+        f["x"] = [1, 2]
+    line = _refused([str(subset), "--beam", "BEAM0101"], tmp_path / "o1" / "fp.gpkg", capsys)
+    assert "was the subset made without these datasets?" in line and "damaged" not in line
+    assert main(["-q", "waveforms", str(other), "-o", str(tmp_path / "o2" / "fp.gpkg")]) == 2
+    assert "not a GEDI L1B/L2A/L2B file" in capsys.readouterr().err

@@ -47,3 +47,42 @@ def test_header_counting_a_chunk_too_few_is_refused(tmp_path):
     with pytest.raises(FileFormatError, match="more points than the 90,000 its header") as e:
         read_las(p, crs="EPSG:32612")
     assert "3 chunks of 50,000" in str(e.value) and "\n" not in str(e.value)
+
+
+def _refused_line(capsys, tile, out) -> str:
+    """``rasters`` on ``tile``: exit 2, one line, no traceback, nothing written."""
+    from canopyblocks.cli import main
+
+    assert main(["-q", "rasters", str(tile), "--crs", "EPSG:32612", "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if ln.startswith("canopyblocks: error: ")]
+    assert len(lines) == 1, err
+    assert "Traceback" not in err and "IoError" not in err and "fill whole buffer" not in err
+    assert not out.exists()
+    return lines[0]
+
+
+@pytest.mark.parametrize("extra, held", [
+    (5_000, "the LAZ data runs out about"),  # inside the last chunk's capacity
+    (10_000, "the file holds at most 150,000 (its LAZ chunk table)"),  # beyond it
+])
+def test_laz_header_counting_more_points_than_the_file_holds(tmp_path, capsys, extra, held):
+    p = tmp_path / "over.laz"
+    _write(p, 1, "1.2")
+    raw = bytearray(p.read_bytes())
+    raw[107:111] = struct.pack("<I", N + extra)
+    p.write_bytes(bytes(raw))
+    line = _refused_line(capsys, p, tmp_path / "out")
+    assert f"{p}: its header counts {N + extra:,} points, more than the file holds (" in line
+    assert held in line and "write it again with a LAS tool" in line, line
+
+
+def test_las_header_counting_more_points_says_what_to_do(tmp_path, capsys):
+    p = tmp_path / "over.las"
+    _write(p, 1, "1.2")
+    raw = bytearray(p.read_bytes())
+    raw[107:111] = struct.pack("<I", N + 5_000)
+    p.write_bytes(bytes(raw))
+    line = _refused_line(capsys, p, tmp_path / "out")
+    assert f"its header counts {N + 5_000}" in line and f"hold {N} points" in line, line
+    assert "copy or download it again" in line and "write it again with a LAS tool" in line

@@ -91,8 +91,32 @@ def test_the_default_estimators_refuse_the_cut_offs_by_name(sample, tmp_path, ca
                     "0.2", "--ground-cutoff", "0.3", "-o", str(tmp_path / "b.csv"))
     assert code == 2
     line = error_line(err)
-    assert "--top-cutoff and --ground-cutoff are not used by the atl08 estimators" in line
-    assert "use --preset paper" in line and "vegr_atl03_clip.h5" in line
+    assert "--top-cutoff and --ground-cutoff set the paper's top and ground windows" in line
+    assert "--preset atl08 (the default) replaces them: use --preset paper" in line
+    assert "vegr_atl03_clip.h5" in line
+
+
+@pytest.mark.parametrize("args, fix", [
+    (["--noise", "conf", "--k-sigma", "3"],
+     "--noise conf replaces it: drop --noise conf for --k-sigma to act, or drop it"),
+    (["--top-estimator", "p98", "--top-cutoff", "0.9"],
+     "--top-estimator p98 replaces it: drop --top-estimator p98 for --top-cutoff to act"),
+    (["--ground-estimator", "surface", "--ground-cutoff", "0.2"],
+     "--ground-estimator surface replaces it: drop --ground-estimator surface for "
+     "--ground-cutoff to act"),
+])
+def test_with_preset_paper_the_refusal_names_the_option_that_replaced_the_part(
+        args, fix, sample, tmp_path, capsys) -> None:
+    """--preset paper is given: the advice names the part's option, not the preset, and
+    no name the help does not show (such as 'paper+')."""
+    out = tmp_path / "b.csv"
+    code, err = run(capsys, "blocks", str(sample(ATL03)), "--beam", "gt1r", "--preset",
+                    "paper", *args, "-o", str(out))
+    assert code == 2, err
+    line = error_line(err)
+    assert fix in line, line
+    assert "paper+" not in line and "--preset paper" not in line and "Invalid value" not in line
+    assert "Traceback" not in err and not out.exists()
 
 
 @pytest.mark.parametrize("args, new, old", [
@@ -207,4 +231,4 @@ def test_the_python_api_refuses_what_the_default_estimators_ignore(setting, opti
     with pytest.raises(InputError) as info:
         estimate_blocks(track, BlockParams(lengths=(25.0,), **setting))
     msg = str(info.value)
-    assert option in msg and "atl08 estimators" in msg and "--preset paper" in msg, msg
+    assert option in msg and "--preset atl08 (the default)" in msg and "--preset paper" in msg, msg

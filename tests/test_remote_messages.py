@@ -105,7 +105,7 @@ def test_a_prefix_is_not_a_granule(quick, monkeypatch, sample):
         monkeypatch.setenv("AWS_ENDPOINT_URL", s3.endpoint)
         for url in ("s3://granules/ATL03/", "s3://granules/ATL03"):
             remote.clear_cache()
-            msg = _refused(url, "is a prefix", "one granule's URL")
+            msg = _refused(url, "is a prefix", "one file's URL")
             assert "not an HDF5 file" not in msg
             with pytest.raises(CanopyBlocksError, match="is a prefix"):
                 file_info(url)

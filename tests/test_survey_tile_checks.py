@@ -34,6 +34,7 @@ from badinputs.survey_corpus import crop_of, grow_header, move_header  # noqa: E
 from copc_data import (  # noqa: E402
     build_octree,
     copc_damaged,
+    garbled_node,
     root_node,
     sibling_box,
     tile_points,
@@ -357,6 +358,25 @@ def test_a_copc_hierarchy_that_lies_is_refused(copc, tmp_path, edit) -> None:  #
             read_copc(p, bounds=sibling_box(copc[1]))
 
 
+def test_a_garbled_copc_chunk_names_its_node(copc, tmp_path, capsys) -> None:  # noqa: ANN001
+    """64 bytes inverted inside one node's chunk: the node named is that one (not the
+    first of its batch), with no decompressor text, and nothing is written."""
+    from canopyblocks.cli import main
+    from canopyblocks.readers.copc import read_copc
+
+    p = tmp_path / "garbled.copc.laz"
+    p.write_bytes(copc_damaged(copc[1], "garbled"))
+    want = (f"{p}: the point data of octree node {garbled_node(copc[1])} cannot be "
+            "decompressed: the file is damaged; copy or download it again, or write it again")
+    with pytest.raises(FileFormatError) as exc:
+        read_copc(p)
+    assert str(exc.value) == want
+    out = tmp_path / "r"
+    assert main(["-q", "rasters", str(p), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.strip() == f"canopyblocks: error: {want}" and not out.exists(), err
+
+
 def test_two_copc_nodes_swapped_are_refused_by_their_cubes(copc, tmp_path) -> None:  # noqa: ANN001
     """Two siblings' chunks exchanged: every count adds up and every node begins its own
     chunk; the points read for a node lie outside its cube."""
@@ -395,3 +415,29 @@ def test_an_ept_without_its_root_or_a_node_is_named(tmp_path, sample) -> None:  
         want = ("has no root node 0-0-0-0" if name == "noroot"
                 else "its hierarchy's nodes hold 72,880 points, ept.json says 73,403")
         assert want in str(exc.value), str(exc.value)
+
+
+@pytest.mark.parametrize("shift", [20.0, -35.0])
+def test_ept_bounds_moved_name_ept_json_not_a_node_file(tmp_path, sample, capsys,  # noqa: ANN001
+                                                         shift) -> None:
+    """ept.json's cube moved along x: the node files are whole; the refusal names ept.json's
+    bounds (before: a node file "holds another node's points"), and nothing is written."""
+    import json
+
+    from canopyblocks.cli import main
+
+    topo = sample("als/lidR_Topography.laz")
+    d = tmp_path / "ept"
+    write_ept([topo], d, tree=build_octree(tile_points([topo]), capacity=5000), split_level=1)
+    j = json.loads((d / "ept.json").read_text())
+    j["bounds"][0] += shift
+    j["bounds"][3] += shift
+    (d / "ept.json").write_text(json.dumps(j))
+    out = tmp_path / "r"
+    assert main(["-q", "rasters", str(d / "ept.json"), "-o", str(out)]) == 2
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"canopyblocks: error: {d / 'ept.json'}: ")
+    assert "do not fit in any one node's cube: ept.json's bounds (" in lines[0], err
+    assert "correct ept.json's bounds or write the dataset again" in lines[0], err
+    assert "another node's points" not in err and not out.exists()

@@ -22,11 +22,17 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 __all__ = ["Option", "OPTIONS", "option_spec", "ESTIMATOR_PRESETS", "RECOMMENDED_PRESET",
-           "PHOTON_RATES", "DEFAULT_PHOTON_RATE", "REFERENCE_STATISTICS", "Kind"]
+           "PHOTON_RATES", "DEFAULT_PHOTON_RATE", "REFERENCE_STATISTICS", "Kind",
+           "SURVEY_SOURCES_HELP"]
 
 #: What an option's value is: a file or folder path, a number, one of named choices, an
 #: on/off switch, a CRS (EPSG code, WKT or PROJ string), or free text.
 Kind = Literal["file", "folder", "number", "choice", "switch", "crs", "text"]
+
+#: What an airborne survey option (``--points``, ``--tiles``) accepts, said once: plain
+#: LAS/LAZ tiles are read from local files only, COPC and EPT also by URL.
+SURVEY_SOURCES_HELP = ("local LAS/LAZ tiles, a folder or glob pattern of them, or a .vpc; a "
+                       "COPC or an ept.json, local or by URL (https://, s3://); repeatable")
 
 #: The block estimator presets every front end offers, the recommended (the default) first.
 #: ``blocks.estimators.PRESETS`` holds what each name computes and checks it names these.

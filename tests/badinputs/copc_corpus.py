@@ -61,7 +61,8 @@ def _copc(edit: str, frac: float = 0.0) -> Callable[[Path, Any], dict[str, Any]]
         p = folder / ("norange" if edit == "norange" else "") / f"{edit}.copc.laz"
         p.parent.mkdir(exist_ok=True)
         raw = copc.read_bytes()
-        if edit in LIES:  # a hierarchy, octree centre or header that lies
+        if edit in (*LIES, "garbled"):  # a hierarchy, centre or header that lies, or a
+            # node's compressed bytes garbled
             from copc_data import copc_damaged
 
             raw = copc_damaged(raw, edit)
@@ -94,6 +95,11 @@ def _ept(edit: str) -> Callable[[Path, Any], dict[str, Any]]:
             del j["0-0-0-0" if edit == "no-root" else
                   next(k for k, v in j.items() if k.startswith("2-") and v > 0)]
             h.write_text(json.dumps(j))
+        elif edit == "bounds-moved":  # ept.json's cube moved 20 m east
+            j = json.loads(meta)
+            j["bounds"][0] += 20.0
+            j["bounds"][3] += 20.0
+            (ept / "ept.json").write_text(json.dumps(j))
         return {"path": ept / "ept.json", "kind": "ept", "truth": base.topo}
     return make
 
@@ -186,6 +192,12 @@ def copc_cases() -> list[Any]:
                         "missing-hierarchy")]
     cases += [Case(f"copc-hierarchy-{e}", "copc", _copc(e), needles=("hierarchy", "octree"),
                    forbidden=("no points",), must_refuse=True) for e in LIES]
+    cases.append(Case("ept-bounds-moved", "copc", _ept("bounds-moved"),
+                      needles=("ept.json's bounds",), must_refuse=True,
+                      forbidden=("another node's points",)))
+    cases.append(Case("copc-node-garbled", "copc", _copc("garbled"),
+                      needles=("cannot be decompressed",), must_refuse=True,
+                      forbidden=("ioerror", "fill whole buffer", "0-0-0-0")))
     cases += [Case(f"ept-hierarchy-{e}", "copc", _ept(e), needles=("hierarchy",),
                    forbidden=("no points",), must_refuse=True) for e in ("no-root", "no-entry")]
     return cases + _node_cases()

@@ -116,6 +116,22 @@ def _truncated_cli(keep: float) -> Callable[[Path, Any], dict[str, Any]]:
     return make
 
 
+def _zeroed_cli(start: float, stop: float) -> Callable[[Path, Any], dict[str, Any]]:
+    """``waveforms`` on a copy of the L1B of full size with bytes ``start``..``stop`` (the
+    fractions of its size) zeroed, as a preallocated download that stopped."""
+    def make(folder: Path, base: Any) -> dict[str, Any]:
+        l1b, _ = unzipped(base.data_file, base.folder / "gedi")
+        raw = bytearray(l1b.read_bytes())
+        a, b = int(len(raw) * start), int(len(raw) * stop)
+        raw[a:b] = bytes(b - a)
+        path = folder / f"GEDI01_B_zeroed_{start:g}_{stop:g}.h5"
+        path.write_bytes(bytes(raw))
+        out = folder / "out" / "footprints.gpkg"
+        return {"path": path, "args": ["waveforms", str(path), "-o", str(out)],
+                "outputs": [out]}
+    return make
+
+
 _SERVERS: dict[str, Any] = {}
 
 
@@ -178,6 +194,10 @@ def gedi_cases() -> list[Any]:
         cases.append(Case(f"cli-waveforms-gedi-truncated-{keep:g}", "cli", _truncated_cli(keep),
                           needles=("download it again",), forbidden=("not a gedi",),
                           must_refuse=True))
+    for start, stop in ((0.6, 1.0), (0.475, 0.525)):  # zeroed: damaged, not "not GEDI"
+        cases.append(Case(f"cli-waveforms-gedi-zeroed-{start:g}-{stop:g}", "cli",
+                          _zeroed_cli(start, stop), needles=("the file is damaged",),
+                          forbidden=("not a gedi", "subset"), must_refuse=True))
     for mode in ("short", "capped"):  # the server's answers short: named, not the file
         cases.append(Case(f"cli-waveforms-gedi-over-http-{mode}-answers", "cli",
                           _short_answers_cli(mode), needles=("answers were short",),

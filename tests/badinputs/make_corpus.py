@@ -324,6 +324,7 @@ def _las_header_lies(base: Base, src: Path) -> list[tuple[str, list[tuple[int, s
         ("format-99", [(H_FORMAT, "<B", 99)]),
         ("version-9", [(H_VERSION, "<2B", (9, 9))]),
         ("signature", [(0, "<4s", b"LASX")]),
+        ("count-plus-5000", [(H_COUNT, "<I", n + 5000)]),
     ]
 
 
@@ -434,7 +435,8 @@ def las_cases() -> list[Case]:
                  "bounds-swapped", "bounds-nan", "bounds-1e300", "bounds-z-wrong",
                  "zscale-zero", "xscale-zero", "zscale-negative", "scale-nan", "zscale-huge",
                  "offset-nan", "offset-1e300", "point-offset-plus8", "point-offset-huge",
-                 "record-length-wrong", "format-99", "version-9", "signature")
+                 "record-length-wrong", "format-99", "version-9", "signature",
+                 "count-plus-5000")
         for i, name in enumerate(names):
             def make(folder: Path, base: Base, i: int = i, src_attr: str = src_attr,
                      suffix: str = suffix) -> Inputs:
@@ -442,8 +444,12 @@ def las_cases() -> list[Case]:
                 patches = _las_header_lies(base, src)[i][1]
                 return {"path": patched(src, folder / f"cloud_lie.{suffix}", patches),
                         "truth": base.conifer_points}
+            counted = name == "count-plus-5000"  # the count named, not the decompressor
             cases.append(Case(f"{suffix}-header-{name}", "las", make,
-                              forbidden=("states no crs", "no points inside")))
+                              needles=("its header counts",) if counted else (),
+                              must_refuse=counted,
+                              forbidden=("states no crs", "no points inside",
+                                         "fill whole buffer", "ioerror")))
         rng = np.random.default_rng(11 if suffix == "laz" else 12)
         for i in range(4):
             pos = [int(v) for v in rng.integers(0, 227, size=2)]

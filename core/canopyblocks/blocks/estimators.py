@@ -61,7 +61,7 @@ if TYPE_CHECKING:
 
 __all__ = ["Estimators", "PRESETS", "preset", "estimate_blocks", "percentile_by_block",
            "GROUND_ESTIMATORS", "TOP_ESTIMATORS", "NOISE_ESTIMATORS", "RECOMMENDED_PRESET",
-           "PRESET_NAMES", "default_estimators"]
+           "PRESET_NAMES", "default_estimators", "unused_k_sigma"]
 
 log = logging.getLogger(__name__)
 
@@ -180,14 +180,51 @@ def preset(name: str = RECOMMENDED_PRESET) -> Estimators:
 
 
 #: What each estimator part uses instead of the paper's window (said when a cut-off is
-#: refused).
+#: refused), and what each noise filter is.
 _INSTEAD = {"atl08": "the ATL08-style classifier's ground surface and canopy photons",
             "surface": "a robust along-track ground surface",
             "p95": "a height percentile", "p98": "a height percentile",
             "p99": "a height percentile", "p100": "the highest kept photon"}
-
+_NOISE_FILTERS = {"conf": "ATL03's signal confidence", "density": "a photon-density filter",
+                  "atl08": "the ATL08-style classifier", "none": "no filter"}
+#: The command-line option naming each part of the estimators.
+_PART_OPTION = {"noise": "--noise", "ground": "--ground-estimator", "top": "--top-estimator"}
 
 _DEFAULT_K_SIGMA = BlockParams.__dataclass_fields__["k_sigma"].default
+
+
+def _setter(est: Estimators, part: str) -> tuple[str, bool]:
+    """The option or preset, as the user gave it, that set ``part`` of ``est`` to what it
+    is, and whether it is a preset."""
+    value = getattr(est, part)
+    base = PRESETS.get(est.name.rstrip("+"), PRESETS["paper"])
+    if getattr(base, part) != value or est.name not in PRESETS:
+        return f"{_PART_OPTION[part]} {value}", False
+    default = " (the default)" if est.name == RECOMMENDED_PRESET else ""
+    return f"--preset {est.name}{default}", True
+
+
+def _unused_because(est: Estimators, parts: list[str], options: list[str]) -> str:
+    """What makes ``options`` inert (the option or preset that set ``parts`` to other than
+    the paper's) and what to change."""
+    setters = list(dict.fromkeys(_setter(est, p) for p in parts))
+    names = " and ".join(options)
+    them = "it" if len(options) == 1 else "them"
+    which = " and ".join(s for s, _ in setters)
+    fix = ("use --preset paper" if any(is_preset for _, is_preset in setters)
+           else f"drop {which}")
+    return f"{which} {'replaces' if len(setters) == 1 else 'replace'} {them}: {fix} for " \
+           f"{names} to act, or drop {them}"
+
+
+def unused_k_sigma(est: Estimators, k_sigma: float) -> str | None:
+    """The refusal of a noise threshold ``k_sigma`` the estimators do not use (their
+    noise filter is not the paper's sigma filter), or None when it acts."""
+    if est.noise == "sigma":
+        return None
+    return (f"--k-sigma {k_sigma:g} is the threshold of the paper's noise filter (--noise "
+            f"sigma), but these estimators filter noise with {_NOISE_FILTERS[est.noise]}; "
+            + _unused_because(est, ["noise"], ["--k-sigma"]))
 
 
 def refuse_unused_cutoffs(track: PhotonTrack, params: BlockParams, est: Estimators) -> None:
@@ -200,27 +237,25 @@ def refuse_unused_cutoffs(track: PhotonTrack, params: BlockParams, est: Estimato
     Raises
     ------
     InputError
-        Naming the option, what the estimators use instead and the preset that uses it.
+        Naming the option, what the estimators use instead and the option or preset to
+        change for it to act.
     """
-    unused = [(name, part) for name, value, part in (
-        ("--top-cutoff", params.top_cutoff, est.top),
-        ("--ground-cutoff", params.ground_cutoff, est.ground)) if value is not None
-        and part != "paper"]
-    if est.noise != "sigma" and params.k_sigma != _DEFAULT_K_SIGMA:
-        raise InputError(
-            f"track {track.track} ({track.source or 'in memory'}): --k-sigma "
-            f"{params.k_sigma:g} is the paper's noise filter (noise 'sigma'); the {est.name} "
-            f"estimators filter noise with {est.noise!r}: use --preset paper for it to act, "
-            "or leave it at its default")
+    where = f"track {track.track} ({track.source or 'in memory'})"
+    if params.k_sigma != _DEFAULT_K_SIGMA and (why := unused_k_sigma(est, params.k_sigma)):
+        raise InputError(f"{where}: {why}")
+    unused = [(option, part) for option, value, part in (
+        ("--top-cutoff", params.top_cutoff, "top"),
+        ("--ground-cutoff", params.ground_cutoff, "ground"))
+        if value is not None and getattr(est, part) != "paper"]
     if not unused:
         return
-    where = f"track {track.track} ({track.source or 'in memory'})"
-    names = " and ".join(n for n, _ in unused)
-    instead = " and ".join(dict.fromkeys(_INSTEAD.get(p, p) for _, p in unused))
+    options, parts = [o for o, _ in unused], [p for _, p in unused]
+    instead = " and ".join(dict.fromkeys(_INSTEAD.get(getattr(est, p), getattr(est, p))
+                                         for p in parts))
     raise InputError(
-        f"{where}: {names} {'is' if len(unused) == 1 else 'are'} not used by the {est.name} "
-        f"estimators (they set the paper's windows; these use {instead}); use --preset "
-        "paper for the cut-offs to act, or drop them")
+        f"{where}: {' and '.join(options)} {'sets' if len(options) == 1 else 'set'} the "
+        f"paper's {' and '.join(parts)} window{'s' * (len(parts) > 1)}, but these "
+        f"estimators use {instead}; " + _unused_because(est, parts, options))
 
 
 def percentile_by_block(block: np.ndarray, z: np.ndarray, q: float,

@@ -6,6 +6,7 @@ import logging
 
 import click
 
+from ..options import SURVEY_SOURCES_HELP
 from .common import (
     lengths_option,
     min_signal_conf_option,
@@ -26,8 +27,7 @@ def register(group: click.Group) -> None:
 @click.command("batch")
 @click.argument("granules", nargs=-1, required=True, type=GranuleSource(exists=True))
 @click.option("--tiles", "tiles", multiple=True, required=True, type=SurveySource(),
-              help="The airborne survey: LAS/LAZ tiles, a folder, a glob pattern, a .vpc, a "
-                   "COPC or an ept.json (path or URL; repeatable).")
+              help=f"The airborne survey: {SURVEY_SOURCES_HELP}.")
 @click.option("-o", "--output", required=True, type=click.Path(file_okay=False),
               help="Output folder: parts/ (one folder per granule and beam), residuals.parquet "
                    "(every unit's validated blocks in one table), manifest.json, stats.csv, "

@@ -114,7 +114,7 @@ def blocks_cmd(ctx: click.Context, paths: tuple[str, ...], output: str,
     --bbox, --polygon and --time.
     """
     from ..workflows.blocks import blocks_from_file
-    from ..workflows.choices import estimators_from_options
+    from ..workflows.choices import estimators_from_options, refuse_unused_k_sigma
     from ..workflows.params import BlockParams
 
     with_photons = take_alias(with_photons, old_photons, old="--photons", new="--photon-layer")
@@ -123,12 +123,8 @@ def blocks_cmd(ctx: click.Context, paths: tuple[str, ...], output: str,
     profile = take_alias(profile, old_profile, old="--profile", new="--plot")
     estimators = estimators_from_options(explicit_value(ctx, "preset", preset), noise,
                                          ground_estimator, top_estimator, min_signal_conf)
-    if estimators.noise != "sigma" and (old_k is not None
-                                        or explicit_value(ctx, "k_sigma", k_sigma) is not None):
-        raise click.BadParameter(
-            f"is the paper's noise filter (--noise sigma); the {estimators.name} estimators "
-            f"filter noise with {estimators.noise}: use --preset paper for it to act, or "
-            "drop it", param_hint="--k-sigma")
+    if old_k is not None or explicit_value(ctx, "k_sigma", k_sigma) is not None:
+        refuse_unused_k_sigma(estimators, k_sigma)
     params = BlockParams(
         lengths=tuple(lengths) or (25.0,), s0=s0, k_sigma=k_sigma,
         min_signal_conf=min_signal_conf, top_cutoff=top_cutoff, ground_cutoff=ground_cutoff,

@@ -6,6 +6,7 @@ from typing import Any
 
 import click
 
+from ..options import SURVEY_SOURCES_HELP
 from .common import (
     channel_option,
     explicit_value,
@@ -34,8 +35,7 @@ from .sources import SurveySource
               show_default=True, help="--method bias: corridor rasters or the "
               "footprint-matched airborne points (--points).")
 @click.option("--points", multiple=True, type=SurveySource(),
-              help="The airborne survey for --reference footprint: LAS/LAZ tiles, a folder, "
-                   "a glob pattern, a .vpc, a COPC or an ept.json (path or URL; repeatable).")
+              help=f"The airborne survey for --reference footprint: {SURVEY_SOURCES_HELP}.")
 @click.option("--beam", "beams", multiple=True,
               help="ATL03 beam (repeatable; cutoffs: the first; bias: default every beam).")
 @channel_option

@@ -7,6 +7,7 @@ import logging
 import click
 
 from ..errors import InputError
+from ..options import SURVEY_SOURCES_HELP
 from .common import vertical_options
 from .sources import SurveySource
 from .vocabulary import say_deprecated
@@ -22,8 +23,7 @@ def register(group: click.Group) -> None:
 @click.command("validate-footprints", hidden=True)
 @click.argument("footprints", metavar="FOOTPRINTS", type=click.Path(dir_okay=False))
 @click.option("--points", "points", multiple=True, required=True,
-              type=SurveySource(), help="The airborne survey: LAS/LAZ tiles, a folder, a "
-              "glob pattern, a .vpc, a COPC or an ept.json (path or URL; repeatable).")
+              type=SurveySource(), help=f"The airborne survey: {SURVEY_SOURCES_HELP}.")
 @click.option("--diameter", type=float, default=22.0, show_default=True,
               help="Footprint diameter 2R, m (GEDI 22: sigma 5.5 m).")
 @click.option("--cut", type=float, default=1.5, show_default=True,

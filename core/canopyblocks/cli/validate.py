@@ -7,7 +7,7 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from ..options import OPTIONS
+from ..options import OPTIONS, SURVEY_SOURCES_HELP
 from .common import vertical_options
 from .options import option
 from .sources import SurveySource
@@ -36,9 +36,7 @@ def register(group: click.Group) -> None:
         "--atl08), or the footprint-matched airborne points (--points; default with "
         "--points and no --dtm). Footprint tables (GEDI) always use the footprint reference.")
 @click.option("--points", "points", multiple=True, type=SurveySource(),
-              help="The airborne survey for the footprint reference: LAS/LAZ tiles, a "
-                   "folder, a glob pattern, a .vpc, a COPC or an ept.json (path or URL; "
-                   "repeatable).")
+              help=f"The airborne survey for the footprint reference: {SURVEY_SOURCES_HELP}.")
 @click.option("--diameter", type=float, default=None,
               help="Footprint diameter of photon blocks, m (default 13; GEDI footprints are "
                    "the instrument's 22 m).")

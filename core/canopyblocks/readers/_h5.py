@@ -19,11 +19,18 @@ import numpy as np
 from ..errors import FileFormatError, InputError
 from .h5_chunks import read_chunks
 
-__all__ = ["H5File", "open_h5", "decode_attr", "HDF5_SIGNATURE"]
+__all__ = ["H5File", "open_h5", "decode_attr", "HDF5_SIGNATURE", "DamagedFileError"]
 
 log = logging.getLogger(__name__)
 
 HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+
+_H5_ERRORS = (OSError, KeyError, RuntimeError, ValueError)
+
+
+class DamagedFileError(FileFormatError):
+    """An HDF5 file whose own structures cannot be read where it says they are (damaged,
+    not a different product nor a subset): no reader should try it as another kind."""
 
 
 def _import_h5py() -> Any:
@@ -131,12 +138,50 @@ class H5File:
             self._storage_failed()
             return []
 
+    def unreadable(self, name: str = "/") -> str | None:
+        """The first group or object on the way to ``name`` that the file lists but HDF5
+        cannot read (a damaged file), or None when each part is readable or not listed
+        (absent: another product, or a subset made without it)."""
+        h5py = _import_h5py()
+        group = "/"
+        for part in [p for p in name.split("/") if p]:
+            try:
+                listed = part in list(self._f[group].keys())
+            except _H5_ERRORS:
+                self._storage_failed()
+                return group
+            if not listed:
+                return None
+            group = f"{group.rstrip('/')}/{part}"
+            try:
+                if not isinstance(self._f[group], h5py.Group):
+                    return None
+            except _H5_ERRORS:
+                self._storage_failed()
+                return group
+        try:
+            list(self._f[group].keys())
+        except _H5_ERRORS:
+            self._storage_failed()
+            return group
+        return None
+
+    def damaged(self, where: str) -> DamagedFileError:
+        """The refusal of a file whose HDF5 structures at ``where`` cannot be read."""
+        what = ("HDF5 cannot read the list of what it holds" if where == "/" else
+                f"it lists {where.lstrip('/')} but HDF5 cannot read it")
+        return DamagedFileError(
+            f"{self.path}: the file is damaged ({what}: its HDF5 structures or data were "
+            "overwritten, as by an interrupted download or copy); download it again")
+
     def _dataset(self, name: str, what: str = "") -> Any:
         h5py = _import_h5py()
         try:
             obj = self._f.get(name)
         except (OSError, KeyError, RuntimeError, ValueError) as exc:
             raise self._fail(f"cannot open dataset /{name}", exc) from None
+        if obj is None and (where := self.unreadable(name)) is not None:
+            raise self.damaged(where)
         if not isinstance(obj, h5py.Dataset):
             kind = "is a group, not a dataset" if obj is not None else "is missing"
             extra = f" ({what})" if what else ""

@@ -433,11 +433,35 @@ def _decompress(h: CopcHeader, blobs: list[bytes],
     try:
         lazrs.decompress_points_with_chunk_table(
             b"".join(blobs), h.laszip, out, [(b[3], b[2]) for b in batch], sel)
-    except Exception as exc:  # noqa: BLE001 - lazrs raises its own error types
-        keys = ", ".join("-".join(map(str, b[0])) for b in batch[:3])
-        raise FileFormatError(f"{h.label}: corrupt point data in octree node(s) {keys} ({exc}); "
-                              "write or download the file again") from None
+    except Exception:  # noqa: BLE001 - lazrs raises its own error types (not shown)
+        raise _damaged_nodes(h, blobs, batch, sel) from None
     return out.view(_dtype(h.record_length))
+
+
+def _damaged_nodes(h: CopcHeader, blobs: list[bytes], batch: list[tuple[Node, int, int, int]],
+                   sel: Any) -> FileFormatError:
+    """The refusal of a batch that failed to decompress, naming the nodes that fail on
+    their own (each decompressed alone: on the failure path only)."""
+    import lazrs
+
+    bad = []
+    for blob, node in zip(blobs, batch):
+        try:
+            lazrs.decompress_points_with_chunk_table(
+                blob, h.laszip, np.zeros(node[3] * h.record_length, np.uint8),
+                [(node[3], node[2])], sel)
+        except Exception:  # noqa: BLE001 - this node's chunk is the damaged one
+            bad.append("-".join(map(str, node[0])))
+    key = "-".join
+    if not bad:  # only together (never seen): name the batch
+        which = (f"one of the octree nodes {key(map(str, batch[0][0]))} .. "
+                 f"{key(map(str, batch[-1][0]))}")
+    else:
+        more = " ..." if len(bad) > 5 else ""
+        which = f"octree node{'s' * (len(bad) > 1)} {', '.join(bad[:5])}{more}"
+    return FileFormatError(
+        f"{h.label}: the point data of {which} cannot be decompressed: the file is "
+        "damaged; copy or download it again, or write it again")
 
 
 def read_copc(source: str | os.PathLike[str], *, bounds: Sequence[float] | None = None,

@@ -21,6 +21,7 @@ from __future__ import annotations
 import io
 import json
 import logging
+import math
 import os
 from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
@@ -245,8 +246,8 @@ def _check_whole(info: EptInfo, counts: dict[Node, int]) -> None:
     _WHOLE.add(key)
 
 
-def _check_cube(info: EptInfo, key: Node, las: Any) -> None:
-    """Refuse a node file whose points lie outside the node's cube (another node's data)."""
+def _outside(info: EptInfo, key: Node, las: Any) -> np.ndarray:
+    """Which points of node ``key`` lie outside its cube (from ept.json's bounds)."""
     b = info.bounds
     side = (b[3] - b[0]) / (1 << key[0])
     out = np.zeros(len(las.points), dtype=bool)
@@ -254,11 +255,39 @@ def _check_cube(info: EptInfo, key: Node, las: Any) -> None:
         lo = b[i] + key[i + 1] * side - 0.01
         a = np.asarray(v)
         out |= (a < lo) | (a > lo + side + 0.02)
-    if out.any():
+    return out
+
+
+def _check_cube(info: EptInfo, key: Node, las: Any) -> None:
+    """Refuse a node file whose points lie outside the node's cube: another node's data
+    (they fit in one other cube of the node's level), or ept.json's bounds (the root
+    node's points, or a node's points spread over several cubes)."""
+    out = _outside(info, key, las)
+    if not out.any():
+        return
+    if key == (0, 0, 0, 0) or not _in_one_cube(info, key[0], las):
         raise FileFormatError(
             f"{info.label}: {int(out.sum()):,} of the {out.size:,} points of node "
-            f"ept-data/{'-'.join(map(str, key))}.laz lie outside its cube: the file holds "
-            "another node's points; the dataset is damaged: write it again")
+            f"ept-data/{'-'.join(map(str, key))}.laz lie outside its cube and do not fit "
+            "in any one node's cube: ept.json's bounds "
+            f"({', '.join(f'{v:.2f}' for v in info.bounds)}) do not match the node files; "
+            "correct ept.json's bounds or write the dataset again")
+    raise FileFormatError(
+        f"{info.label}: {int(out.sum()):,} of the {out.size:,} points of node "
+        f"ept-data/{'-'.join(map(str, key))}.laz lie outside its cube: the file holds "
+        "another node's points; the dataset is damaged: write it again")
+
+
+def _in_one_cube(info: EptInfo, level: int, las: Any) -> bool:
+    """Whether the points' extent fits in one cube of ``level`` (within 1 cm)."""
+    b = info.bounds
+    side = (b[3] - b[0]) / (1 << level)
+    for i, v in enumerate((las.x, las.y, las.z)):
+        a = np.asarray(v)
+        if math.floor((a.min() - b[i] + 0.01) / side) != \
+                math.floor((a.max() - b[i] - 0.01) / side):
+            return False
+    return True
 
 
 def _node_points(info: EptInfo, key: Node) -> Any:

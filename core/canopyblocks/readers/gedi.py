@@ -35,7 +35,7 @@ import numpy.typing as npt
 from ..errors import CanopyBlocksWarning, FileFormatError, InputError, NoUsableDataError
 from ..progress import Progress, as_progress
 from ..waveforms.batch import WaveformBatch
-from ._h5 import H5File, decode_attr, open_h5
+from ._h5 import DamagedFileError, H5File, decode_attr, open_h5
 from .gedi_geometry import (
     DIGITISER_RANGE,
     INVALID_SHOT,
@@ -118,7 +118,14 @@ def _power(f: H5File, beam: str) -> str:
 
 
 def _beams_in(f: H5File) -> list[str]:
-    return sorted(k for k in f.keys() if _BEAM_RE.match(k) and f.is_group(k))
+    """The beam groups of ``f``; a damaged file (its root group or a beam it lists cannot
+    be read) is refused as damaged, never taken for another product or fewer beams."""
+    names = [k for k in f.keys() if _BEAM_RE.match(k)]
+    where = f.unreadable("/") if not names else next(
+        (w for k in names if not f.is_group(k) and (w := f.unreadable(k))), None)
+    if where is not None:
+        raise f.damaged(where)
+    return sorted(k for k in names if f.is_group(k))
 
 
 #: GEDI L1B/L2A elevations are heights above the WGS84 ellipsoid.
@@ -143,8 +150,8 @@ def is_gedi_l1b(path: str | os.PathLike[str]) -> bool:
     try:
         with open_h5(path) as f:
             return any(f.is_dataset(f"{b}/rxwaveform") for b in _beams_in(f))
-    except StorageError:
-        raise  # a granule in storage that cannot be fetched: said once, not tried again
+    except (StorageError, DamagedFileError):
+        raise  # said once (storage failing, or the file damaged), not tried as another kind
     except (FileFormatError, OSError):
         return False
 
@@ -213,6 +220,9 @@ def _check_beam(f: H5File, beam: str) -> None:
                          f"{', '.join(present) or 'no BEAMxxxx group'}")
     missing = [name for name in ("rxwaveform", *_PER_SHOT.values())
                if name not in _OPTIONAL and not f.is_dataset(f"{beam}/{name}")]
+    where = next((w for name in missing if (w := f.unreadable(f"{beam}/{name}"))), None)
+    if where is not None:
+        raise f.damaged(where)
     if missing:
         raise FileFormatError(f"{f.path}: {beam} lacks {', '.join(missing)}; not a complete "
                               "GEDI L1B beam (was the subset made without these datasets?)")

@@ -35,6 +35,7 @@ from .las_header import (
     check_header_extent,
     check_las_file,
     check_nothing_beyond_count,
+    points_unreadable,
 )
 
 __all__ = ["LasPoints", "read_las", "las_crs", "las_bounds", "as_area"]
@@ -346,9 +347,7 @@ def read_las(
             except CancelledError:
                 raise
             except Exception as exc:
-                raise FileFormatError(
-                    f"{path}: truncated or corrupt point data after {done:,} points ({exc})"
-                ) from None
+                raise points_unreadable(path, exc, int(header.point_count)) from None
             check_nothing_beyond_count(reader, path, done)
             heights.check(str(path))
             if done and not check_header_extent(

@@ -24,7 +24,8 @@ from pathlib import Path
 
 from ..errors import FileFormatError
 
-__all__ = ["check_las_file", "check_header_extent", "check_nothing_beyond_count", "MAX_SCALE",
+__all__ = ["check_las_file", "check_header_extent", "check_nothing_beyond_count",
+           "points_unreadable", "MAX_SCALE",
            "MAX_OFFSET"]
 
 MAX_SCALE = 1.0
@@ -90,8 +91,11 @@ def check_las_file(path: str | Path) -> None:
                 end = evlr_start if 0 < evlr_start <= size else size
                 held = (end - offset) // rec_len
                 if held < n:
-                    raise FileFormatError(f"{p} is truncated: {size} bytes hold {held} points "
-                                          f"of {rec_len} bytes, its header counts {n}")
+                    raise FileFormatError(
+                        f"{p} is truncated: {size} bytes hold {held} points of {rec_len} "
+                        f"bytes, its header counts {n}; the file was cut short (copy or "
+                        "download it again) or its header is wrong (write it again with a "
+                        "LAS tool, e.g. las2las or PDAL)")
                 if held > n and (end - offset) - n * rec_len >= rec_len:
                     raise FileFormatError(
                         f"{p}: the header counts {n} points but the file holds {held} "
@@ -184,6 +188,76 @@ def _chunk_table(reader: object, path: str | Path) -> tuple[list, int, bool]:
     its points are read)."""
     if getattr(reader, "header", None) is None:
         return [], 0, False  # not a laspy reader: nothing to ask
+    return _read_chunk_table(path)
+
+
+def points_unreadable(path: str | Path, exc: BaseException, count: int) -> FileFormatError:
+    """The refusal of a LAS/LAZ file whose points cannot be decompressed (``exc``, the
+    decompressor's error, is not shown): a header counting more points than the LAZ chunk
+    table holds is named as such, else the file is damaged."""
+    import logging
+
+    logging.getLogger(__name__).debug("%s: %s", path, exc)
+    table, chunk_size, variable = (_read_chunk_table(path) if Path(path).suffix.lower()
+                                   == ".laz" else ([], 0, False))
+    held = sum(int(c[0]) for c in table) if variable else len(table) * chunk_size
+    if table and held < count:
+        most = "" if variable else "at most "
+        return _counts_more(path, count, f"the file holds {most}{held:,} (its LAZ chunk "
+                                         "table)")
+    if table and not variable:
+        first = (len(table) - 1) * chunk_size
+        last = _points_decoded(path, first, count - first)
+        if last is not None and last < count - first:
+            return _counts_more(path, count, f"the LAZ data runs out about {last:,} points "
+                                             f"into its last chunk, {count - first - last:,} "
+                                             "short of that count")
+    return FileFormatError(
+        f"{path}: cannot decompress its points: the file is damaged or cut short; copy or "
+        "download it again, or write it again with a LAS tool (e.g. las2las or PDAL)")
+
+
+def _counts_more(path: str | Path, count: int, why: str) -> FileFormatError:
+    return FileFormatError(
+        f"{path}: its header counts {count:,} points, more than the file holds ({why}): "
+        "the tile is damaged or its header is wrong; write it again with a LAS tool (e.g. "
+        "las2las or PDAL) from a good copy")
+
+
+def _points_decoded(path: str | Path, start: int, wanted: int) -> int | None:
+    """How many of ``wanted`` points from point ``start`` (the last LAZ chunk's first)
+    decompress (bisection, on the failure path only; the coder may yield a few points
+    past the data's end); None when the decompressor cannot be set up."""
+    try:
+        import laspy
+        import lazrs
+
+        with laspy.open(path) as r:
+            vlr = next(v for v in r.header.vlrs if getattr(v, "record_id", None) == 22204)
+            offset, size = int(r.header.offset_to_point_data), int(r.header.point_format.size)
+
+        def decodes(k: int) -> bool:
+            with open(path, "rb") as fh:
+                fh.seek(offset)
+                d = lazrs.LasZipDecompressor(fh, vlr.record_data)
+                d.seek(start)
+                try:
+                    d.decompress_many(bytearray(k * size))
+                except Exception:  # noqa: BLE001 - lazrs's error: the data ran out
+                    return False
+            return True
+
+        lo, hi = 0, wanted
+        while lo < hi:
+            mid = (lo + hi + 1) // 2
+            lo, hi = (mid, hi) if decodes(mid) else (lo, mid - 1)
+        return lo
+    except Exception:  # noqa: BLE001 - no decompressor: nothing is claimed
+        return None
+
+
+def _read_chunk_table(path: str | Path) -> tuple[list, int, bool]:
+    """The LAZ chunk table of ``path`` as :func:`_chunk_table` returns it."""
     try:
         import laspy
         import lazrs

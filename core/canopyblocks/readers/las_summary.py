@@ -16,7 +16,7 @@ import numpy as np
 
 from ..errors import DependencyError, FileFormatError
 from .cloud_checks import HeightTally
-from .las_header import check_las_file, check_nothing_beyond_count
+from .las_header import check_las_file, check_nothing_beyond_count, points_unreadable
 
 __all__ = ["LasSummary", "las_summary", "NOISE_CLASSES"]
 
@@ -79,11 +79,12 @@ def las_summary(path: str | os.PathLike[str]) -> LasSummary:
     check_las_file(p)
     lo = np.full(3, np.iinfo(np.int64).max)
     hi = np.full(3, np.iinfo(np.int64).min)
-    n = n_noise = n_ground = 0
+    n = n_noise = n_ground = count = 0
     heights = HeightTally()
     try:
         with laspy.open(p) as reader:
             h = reader.header
+            count = int(h.point_count)
             scale = np.asarray(h.scales, float)
             offset = np.asarray(h.offsets, float)
             hb = (float(h.mins[0]), float(h.mins[1]), float(h.maxs[0]), float(h.maxs[1]))
@@ -103,8 +104,7 @@ def las_summary(path: str | os.PathLike[str]) -> LasSummary:
     except FileFormatError:
         raise
     except Exception as exc:  # laspy/lazrs raise several types on damaged data
-        raise FileFormatError(f"{p}: cannot read its points ({exc}); the file is damaged "
-                              "or truncated") from None
+        raise points_unreadable(p, exc, count) from None
     heights.check(str(p))
     if n == 0:
         nan = float("nan")

@@ -299,7 +299,7 @@ def _explain(exc: BaseException, label: str, tries: int) -> StorageError:
                          and not _connection_lost(exc)):
         return StorageError(
             f"{label}: not found (404); check the "
-            + ("bucket and key" if s3 else "address") + " of the granule")
+            + ("bucket and key" if s3 else "address") + " of the file")
     if isinstance(exc, PermissionError) or status in (401, 403):
         return StorageError(
             f"{label}: access denied ({status or 403}); "
@@ -332,7 +332,7 @@ def _explain_special(chain: list[BaseException], label: str, tries: int
         if isinstance(e, _ShortAnswer):
             return StorageError(f"{label}: the server's answers were short ({e}), {tries} "
                                 "tries; the object may be changing or the server faulty: "
-                                "run again later, or download the granule")
+                                "run again later, or download the file and pass the local copy")
         if "ProfileNotFound" in type(e).__name__:
             return StorageError(f"{label}: the AWS profile "
                                 f"{os.environ.get('AWS_PROFILE', '')!r} (AWS_PROFILE) is not "
@@ -424,13 +424,13 @@ class RemoteFile(io.RawIOBase):
         info = self._retry(lambda: self._call("info", self.remote_path))
         if isinstance(info, dict) and info.get("type") == "directory":
             self.error = StorageError(
-                f"{self.label}: is a prefix (a folder of objects), not a granule; give one "
-                "granule's URL (batch takes a prefix and reads every granule under it)")
+                f"{self.label}: is a prefix (a folder of objects), not a file; give one "
+                "file's URL (batch takes a prefix and reads every granule under it)")
             raise self.error
         size = info.get("size") if isinstance(info, dict) else None
         if not isinstance(size, int):
             self.error = StorageError(
-                f"{self.label}: the server does not tell the size of the granule; it cannot "
+                f"{self.label}: the server does not tell the size of the file; it cannot "
                 "be read by ranges (download it, then pass the local file)")
             raise self.error
         return size

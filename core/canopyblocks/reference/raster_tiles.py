@@ -40,6 +40,7 @@ from ..readers.las_header import (
     check_las_file,
     check_nothing_beyond_count,
     plausible_box,
+    points_unreadable,
 )
 from .lidar_points import cell_groups, cell_neighbourhoods, max_and_percentile
 from .raster_grid import Grid
@@ -271,8 +272,7 @@ def _read_tile(unit: TileUnit) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
     except FileFormatError:
         raise
     except Exception as exc:  # laspy/lazrs raise several types on damaged data
-        raise FileFormatError(f"{unit.path}: cannot read its points ({exc}); the file is "
-                              "damaged or truncated") from None
+        raise points_unreadable(unit.path, exc, int(tally.get("header_count", 0))) from None
     nan = float("nan")
     tally["bounds"] = ((float(ilo[0] * scale[0] + offset[0]), float(ilo[1] * scale[1] + offset[1]),
                         float(ihi[0] * scale[0] + offset[0]), float(ihi[1] * scale[1] + offset[1]))

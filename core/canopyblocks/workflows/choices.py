@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     from ..blocks.estimators import Estimators
 
-__all__ = ["estimators_from_options"]
+__all__ = ["estimators_from_options", "refuse_unused_k_sigma"]
 
 
 def estimators_from_options(preset: str | None, noise: str | None, ground: str | None,
@@ -39,3 +39,19 @@ def estimators_from_options(preset: str | None, noise: str | None, ground: str |
     if changes:
         est = replace(est, **changes, name="custom" if preset is None else f"{preset}+")
     return est
+
+
+def refuse_unused_k_sigma(estimators: Estimators, k_sigma: float) -> None:
+    """Refuse a noise threshold the user gave (even at its default) that ``estimators``
+    do not use, naming the option or preset to change.
+
+    Raises
+    ------
+    InputError
+        When the estimators' noise filter is not the paper's sigma filter.
+    """
+    from ..blocks.estimators import unused_k_sigma
+    from ..errors import InputError
+
+    if (why := unused_k_sigma(estimators, k_sigma)) is not None:
+        raise InputError(why)
