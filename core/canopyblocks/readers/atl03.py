@@ -45,8 +45,8 @@ from .photon_checks import (
     valid_photon_mask,
 )
 
-__all__ = ["BeamInfo", "BEAMS", "atl03_beams", "read_atl03", "beam_strength", "beam_spot",
-           "EXTRA_GROUP"]
+__all__ = ["BeamInfo", "BEAMS", "atl03_beams", "atl03_track_start", "read_atl03",
+           "beam_strength", "beam_spot", "EXTRA_GROUP"]
 
 log = logging.getLogger(__name__)
 
@@ -140,6 +140,19 @@ def _beam_info(f: H5File, beam: str, sc_orient: int | None) -> BeamInfo:
                               f"{', '.join(f.keys(f'{beam}/heights')[:6])}); the file is damaged")
     shape = f.shape(f"{beam}/heights/h_ph") if f.is_dataset(f"{beam}/heights/h_ph") else ()
     return BeamInfo(beam, strength, int(shape[0]) if len(shape) == 1 else 0, spot)
+
+
+def atl03_track_start(path: str | os.PathLike[str], beam: str) -> float | None:
+    """Along-track distance (m, ``segment_dist_x``) of the first segment of ``beam``
+    holding photons: the track's start, read from the geolocation segments alone (None
+    when no segment holds a photon)."""
+    with open_h5(path, "ATL03") as f:
+        hg = f"{beam}/heights/h_ph"
+        shape = f.shape(hg) if f.is_dataset(hg) else ()
+        if len(shape) != 1 or shape[0] == 0:
+            return None
+        segs = _read_segments(f, beam, int(shape[0]))
+    return float(np.min(segs.dist_x)) if segs.dist_x.size else None
 
 
 def atl03_beams(path: str | os.PathLike[str]) -> list[BeamInfo]:

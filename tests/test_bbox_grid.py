@@ -1,0 +1,140 @@
+"""``--bbox`` gives the full run's blocks: the same along-track grid (the origin a run of
+the whole track takes, not the box's first photon) and every block meeting the box whole.
+
+Independent check: the full run (no box) of the same file with the same estimators is the
+truth; every block of the box run must be one of its blocks (same track, length, index,
+start and end) with every column equal: photon counts, heights, flag, centre.  Boxes in the
+middle of a track and at its far end (further from the track's start than any margin read,
+so the origin must come from the track's start).  The paper's method, at 10, 25 and 50 m,
+on a simulated track over the bundled survey and on the bundled real ATL03 clip.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from canopyblocks import BlockParams, blocks_from_file
+from canopyblocks.blocks.estimators import preset
+
+ATL03 = "icesat2/vegr_atl03_clip.h5"
+LENGTHS = (10.0, 25.0, 50.0)
+#: boxes on the clip (it runs north to south, 820 m): its middle; its southern end, 684 m
+#: after its start
+CLIP_BOXES = {"middle": (-106.58, 41.5335, -106.56, 41.5365),
+              "far end": (-106.58, 41.5310, -106.56, 41.5330)}
+COLUMNS = ("s_start", "s_end", "n_photons", "n_kept", "n_between", "top", "ground", "hmax",
+           "z90", "h90", "flag", "x", "y", "lon", "lat")
+
+
+@pytest.fixture(scope="module")
+def simulated(tmp_path_factory, sample) -> str:
+    """A simulated ATL03-layout granule over the bundled survey: two beams (realisations)
+    along one line at 10 degrees."""
+    from canopyblocks.readers import read_las
+    from canopyblocks.simulate import SimParams, line_through, simulate_photons
+    from canopyblocks.simulate.writers import write_simulation_atl03
+
+    pts = read_las([sample("als/lasR_bcts_1.laz"), sample("als/lasR_bcts_2.laz")])
+    track = line_through(pts.bounds, 10.0, inset=7, name="gt1r")
+    sim = simulate_photons(pts, track, SimParams(), realisations=2, seed=1)
+    out = tmp_path_factory.mktemp("bbox_grid") / "sim.h5"
+    write_simulation_atl03(sim, out, realisations=(0, 1))
+    return str(out)
+
+
+def _runs(path: str, box: tuple[float, float, float, float], name: str,
+          s0: float | None = None, workers: int = 1) -> tuple[pd.DataFrame, pd.DataFrame]:
+    params = BlockParams(lengths=LENGTHS, s0=s0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        full = blocks_from_file(path, params, estimators=preset(name), workers=1).blocks
+        part = blocks_from_file(path, params, estimators=preset(name), bbox=box,
+                                workers=workers).blocks
+    return pd.DataFrame(full), pd.DataFrame(part)
+
+
+def _assert_full_run_blocks(full: pd.DataFrame, part: pd.DataFrame, per_length: int = 3
+                            ) -> None:
+    key = ["track", "length", "block"]
+    m = part.merge(full, on=key, how="left", suffixes=("_box", "_full"), indicator=True)
+    assert (m["_merge"] == "both").all(), "box blocks that are not blocks of the full run"
+    for col in COLUMNS:
+        a, b = m[f"{col}_box"], m[f"{col}_full"]
+        if pd.api.types.is_numeric_dtype(b):
+            np.testing.assert_allclose(a.to_numpy(float), b.to_numpy(float), rtol=0,
+                                       atol=1e-9, equal_nan=True, err_msg=col)
+        else:
+            assert (a.to_numpy() == b.to_numpy()).all(), col
+    for length in LENGTHS:  # a stretch of the track at each length, not a stray block
+        assert int((part["length"] == length).sum()) >= per_length, length
+
+
+def _box_of(path: str, lo: float, hi: float) -> tuple[float, float, float, float]:
+    """A box over the fraction ``lo``..``hi`` of the track's latitudes."""
+    from canopyblocks.readers import open_track
+
+    t = open_track(path)
+    a, b = float(np.min(t.lat)), float(np.max(t.lat))
+    return (float(np.min(t.lon)) - 0.01, a + lo * (b - a), float(np.max(t.lon)) + 0.01,
+            a + hi * (b - a))
+
+
+@pytest.mark.parametrize("where", sorted(CLIP_BOXES))
+def test_paper_box_blocks_are_the_full_runs_on_the_real_clip(where, sample) -> None:
+    full, part = _runs(str(sample(ATL03)), CLIP_BOXES[where], "paper")
+    _assert_full_run_blocks(full, part)
+
+
+@pytest.mark.parametrize("s0", [None, 0.0])
+@pytest.mark.parametrize("span", [(0.3, 0.6), (0.0, 0.2)])
+def test_paper_box_blocks_are_the_full_runs_on_a_simulated_track(simulated, s0, span) -> None:
+    full, part = _runs(simulated, _box_of(simulated, *span), "paper", s0=s0)
+    assert part["track"].nunique() == 2
+    _assert_full_run_blocks(full, part)
+
+
+def test_beams_blocked_in_worker_processes_give_the_same_blocks(simulated) -> None:
+    full, part = _runs(simulated, _box_of(simulated, 0.3, 0.6), "paper", workers=2)
+    assert part["track"].nunique() == 2
+    _assert_full_run_blocks(full, part)
+
+
+def test_edge_blocks_are_whole(sample) -> None:
+    """The first and last box blocks of each length reach beyond the box's photons and
+    still hold all of the full run's photons (not the box's share of them)."""
+    from canopyblocks.readers import read_atl03
+
+    box = CLIP_BOXES["middle"]
+    inside = read_atl03(sample(ATL03), "gt1r", bbox=box)
+    lo, hi = float(np.min(inside.s)), float(np.max(inside.s))
+    full, part = _runs(str(sample(ATL03)), box, "paper")
+    reaching = part[(part["s_start"] < lo) | (part["s_end"] > hi)]
+    _assert_full_run_blocks(full, reaching, per_length=2)  # one at each end
+
+
+@pytest.mark.parametrize("name", ["atl08", "icesat2"])
+def test_the_grid_is_the_full_runs_far_from_the_track_start(name, sample) -> None:
+    """Beyond the margin the classifier reads, the box's blocks still start where the
+    full run's do (their heights may differ there: the classifier's own context)."""
+    full, part = _runs(str(sample(ATL03)), CLIP_BOXES["far end"], name)
+    m = part.merge(full, on=["track", "length", "s_start", "s_end"], how="left",
+                   indicator=True)
+    assert len(part) >= 9 and (m["_merge"] == "both").all()
+
+
+def test_the_origin_is_the_track_start_without_reading_the_track(sample) -> None:
+    from canopyblocks.readers import open_track, read_atl03
+    from canopyblocks.readers.atl03 import atl03_track_start
+    from canopyblocks.workflows.box_context import grid_origin
+
+    path = str(sample(ATL03))
+    whole = read_atl03(path, "gt1r")
+    start = atl03_track_start(path, "gt1r")
+    assert start is not None and abs(start - float(np.min(whole.s))) < 25.0
+    got = grid_origin(open_track, path, {"beam": "gt1r"}, box_start=float(whole.s.max()),
+                      margin=50.0, estimators=preset("paper"), crs=whole.crs)
+    assert got == float(np.min(whole.s))
