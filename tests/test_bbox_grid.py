@@ -138,3 +138,21 @@ def test_the_origin_is_the_track_start_without_reading_the_track(sample) -> None
     got = grid_origin(open_track, path, {"beam": "gt1r"}, box_start=float(whole.s.max()),
                       margin=50.0, estimators=preset("paper"), crs=whole.crs)
     assert got == float(np.min(whole.s))
+
+
+@pytest.mark.parametrize("name", ["paper", "atl08"])
+def test_warnings_count_the_box_blocks_only(name, sample) -> None:
+    """The margin's blocks (cut away, some cut short) are not counted in the warnings."""
+    import re
+
+    from canopyblocks.errors import SparseBlockWarning
+
+    params = BlockParams(lengths=LENGTHS, min_photons=60)  # some sparse blocks
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        part = blocks_from_file(str(sample(ATL03)), params, estimators=preset(name),
+                                bbox=CLIP_BOXES["middle"], workers=1).blocks
+    said = [str(w.message) for w in caught if issubclass(w.category, SparseBlockWarning)]
+    n = int((part["flag"] == "sparse").sum())
+    assert n > 0 and len(said) == 1, said
+    assert re.search(rf"\b{n} of {len(part)} blocks\b", said[0]), said[0]

@@ -146,9 +146,11 @@ def test_bbox_fetches_fewer_bytes_and_the_same_photons(s3_env, granule_dir):
     _same(got, blocks_from_file(granule_dir / "ATL03_long.h5", PARAMS, bbox=bbox).blocks)
     # 2 km of 30 km plus the classifier's context (2 x 480 m, read then cut away): the
     # photons of the 5 km chunks they touch per column, the segment index and the background
-    # records (bckgrd_atlas, read whole: the rate of the whole track)
-    assert s3_env.tally.nbytes < 0.85 * size, (s3_env.tally.nbytes, size)
-    assert s3_env.tally.nbytes < 0.85 * whole_bytes
+    # records (bckgrd_atlas, read whole: the rate of the whole track), and the first chunk
+    # per column (the track's first photon: the origin of the full run's block grid); of a
+    # track of six chunks, so the share is high (measured 0.95; 0.80 without the start)
+    assert s3_env.tally.nbytes < 0.97 * size, (s3_env.tally.nbytes, size)
+    assert s3_env.tally.nbytes < 0.97 * whole_bytes
     assert whole_bytes >= 0.8 * size  # the whole read really read the photons
     assert len(got) < len(whole) / 5
 

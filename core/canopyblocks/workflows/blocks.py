@@ -13,6 +13,7 @@ import warnings
 from collections.abc import Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -26,7 +27,7 @@ from ..photons import PhotonTrack
 from ..progress import Progress, as_progress
 from ..schema import LABEL_NAMES, LAYER_BLOCKS, LAYER_PHOTONS
 from .blocks_tracks import blocks_of_track, concat_blocks, read_track
-from .box_context import box_params, box_photons, context_margin, cut_to_box
+from .box_context import blocks_in_box, box_photons, context_margin
 
 if TYPE_CHECKING:
     from ..blocks.estimators import Estimators
@@ -159,9 +160,9 @@ def run_blocks(
     all_labels: dict[str, dict[float, np.ndarray]] = {}
     for i, t in enumerate(tracks):
         sub = prog.sub(i / len(tracks), (i + 1) / len(tracks))
-        b, lab = blocks_of_track(t, box_params(t, params), labels=labels,
-                                 estimators=estimators, progress=sub)
-        b, lab = cut_to_box(t, b, lab)  # a track read with context: its box's blocks
+        # a track read with context: its box's blocks, on the full run's grid
+        b, lab = blocks_in_box(t, params, partial(blocks_of_track, t, labels=labels,
+                                                  estimators=estimators, progress=sub))
         if lab is not None:
             all_labels[t.track] = lab
         frames.append(b)

@@ -17,6 +17,7 @@ import os
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import partial
 from typing import TYPE_CHECKING, Any
 
 import geopandas as gpd
@@ -29,7 +30,7 @@ from ..photons import PhotonTrack
 from ..progress import Progress, as_progress
 from ..schema import BLOCK_COLUMNS
 from .backends import default_workers, run_items
-from .box_context import box_params, box_photons, cut_to_box, read_with_context
+from .box_context import blocks_in_box, box_photons, read_with_context
 
 if TYPE_CHECKING:
     from ..blocks.estimators import Estimators
@@ -97,9 +98,8 @@ def run_track_job(job: TrackJob) -> TrackOutcome:
                                            with_photons=job.keep_track)
                 labels = None
             else:
-                blocks, labels = blocks_of_track(t, box_params(t, job.params),
-                                                 labels=job.labels, estimators=job.estimators)
-                blocks, labels = cut_to_box(t, blocks, labels)
+                blocks, labels = blocks_in_box(t, job.params, partial(
+                    blocks_of_track, t, labels=job.labels, estimators=job.estimators))
                 t = box_photons(t)
             out = TrackOutcome(job, track_id=t.track, crs=t.crs, blocks=blocks, labels=labels,
                                track=t if job.keep_track else None)

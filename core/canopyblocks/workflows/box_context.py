@@ -16,7 +16,8 @@ whole track takes, its first usable photon, is found from the track's start
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import warnings
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 from typing import TYPE_CHECKING, Any
 
@@ -30,7 +31,7 @@ if TYPE_CHECKING:
     from ..photons import PhotonTrack
 
 __all__ = ["context_margin", "IN_BOX", "ORIGIN", "mark_box", "cut_to_box", "box_photons",
-           "box_params", "grid_origin", "read_with_context"]
+           "box_params", "blocks_in_box", "grid_origin", "read_with_context"]
 
 #: The column (of ``PhotonTrack.extra``, removed by :func:`cut_to_box`) marking the
 #: photons inside the box of a read with context.
@@ -108,6 +109,39 @@ def box_params(track: PhotonTrack, params: BlockParams) -> BlockParams:
     if origin is None or params.s0 is not None or len(origin) == 0:
         return params
     return replace(params, s0=float(origin[0]))
+
+
+def blocks_in_box(track: PhotonTrack, params: BlockParams,
+                  block: Callable[[BlockParams], tuple[gpd.GeoDataFrame, Any]]
+                  ) -> tuple[gpd.GeoDataFrame, Any]:
+    """``block(params)`` (a block table and labels) of a track; of a track read with
+    context: on the full run's grid (:func:`box_params`), cut to the box
+    (:func:`cut_to_box`), the warnings on sparse and implausible blocks counting the
+    box's blocks only (not those of the margin, cut away)."""
+    from ..blocks.plausibility import ImplausibleBlockWarning, flag_implausible_blocks
+    from ..errors import SparseBlockWarning
+    from ..schema import FLAG_IMPLAUSIBLE
+
+    if IN_BOX not in track.extra:
+        return block(params)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        blocks, labels = block(box_params(track, params))
+    blocks, labels = cut_to_box(track, blocks, labels)
+    for w in caught:
+        if not issubclass(w.category, (SparseBlockWarning, ImplausibleBlockWarning)):
+            warnings.warn(w.message, stacklevel=2)
+    flag = blocks["flag"].to_numpy()
+    n = int((flag == "sparse").sum())
+    if n:
+        warnings.warn(f"track {track.track}: {n} of {len(blocks)} blocks hold fewer than "
+                      f"min_photons={params.min_photons} photons kept; they are flagged "
+                      "'sparse' with NaN metrics", SparseBlockWarning, stacklevel=2)
+    tall = flag == FLAG_IMPLAUSIBLE
+    if tall.any():  # flagged again, to be counted among the box's blocks
+        blocks.loc[tall, "flag"] = "ok"
+        flag_implausible_blocks(blocks, track.track)
+    return blocks, labels
 
 
 def grid_origin(open_track: Any, path: Any, selection: dict, *, box_start: float,

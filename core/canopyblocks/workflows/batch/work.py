@@ -12,6 +12,7 @@ import logging
 import traceback
 import warnings
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -190,7 +191,7 @@ def _work(unit: Unit, config: BatchConfig, out_dir: Path, raster_root: Path,
     from ...validation.block_validation import validate_blocks
     from ..blocks import read_tracks
     from ..blocks_tracks import blocks_of_track
-    from ..box_context import box_params, context_margin, cut_to_box
+    from ..box_context import blocks_in_box, context_margin
     from ..rasters import corridor_area, make_survey_rasters
 
     tcrs = pyproj.CRS.from_wkt(unit.tiles[0].crs_wkt)
@@ -202,8 +203,8 @@ def _work(unit: Unit, config: BatchConfig, out_dir: Path, raster_root: Path,
                          bbox=_lonlat_box(unit, tcrs, corridor_reach(config)), crs=tcrs,
                          min_signal_conf=config.min_signal_conf,
                          context=context_margin(est, params.lengths), estimators=est)
-    blocks, _ = blocks_of_track(tracks[0], box_params(tracks[0], params), estimators=est)
-    blocks, _ = cut_to_box(tracks[0], blocks, None)
+    blocks, _ = blocks_in_box(tracks[0], params,
+                              partial(blocks_of_track, tracks[0], estimators=est))
     summary["n_blocks"] = int(len(blocks))
     r = raster_paths(raster_root, unit)
     try:
