@@ -119,11 +119,24 @@ def test_edge_blocks_are_whole(sample) -> None:
 @pytest.mark.parametrize("name", ["atl08", "icesat2"])
 def test_the_grid_is_the_full_runs_far_from_the_track_start(name, sample) -> None:
     """Beyond the margin the classifier reads, the box's blocks still start where the
-    full run's do (their heights may differ there: the classifier's own context)."""
+    full run's do; their heights may differ there (the classifier's windows start at the
+    first photon read), and a warning says so."""
     full, part = _runs(str(sample(ATL03)), CLIP_BOXES["far end"], name)
     m = part.merge(full, on=["track", "length", "s_start", "s_end"], how="left",
                    indicator=True)
     assert len(part) >= 9 and (m["_merge"] == "both").all()
+    with pytest.warns(UserWarning, match="can differ from a run over the whole track"):
+        blocks_from_file(str(sample(ATL03)), BlockParams(lengths=(25.0,)),
+                         estimators=preset(name), bbox=CLIP_BOXES["far end"], workers=1)
+
+
+@pytest.mark.parametrize(("name", "where"), [("paper", "far end"), ("atl08", "middle")])
+def test_no_such_warning_where_the_blocks_equal_the_full_runs(name, where, sample) -> None:
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        blocks_from_file(str(sample(ATL03)), BlockParams(lengths=(25.0,)),
+                         estimators=preset(name), bbox=CLIP_BOXES[where], workers=1)
+    assert not [w for w in caught if "whole track" in str(w.message)]
 
 
 def test_the_origin_is_the_track_start_without_reading_the_track(sample) -> None:

@@ -197,6 +197,25 @@ def read_with_context(open_track: Any, path: Any, selection: dict, *,
     wide = open_track(path, s_range=(lo - margin, hi + margin), **kw, **selection)
     origin = grid_origin(open_track, path, selection, box_start=lo, margin=margin,
                          estimators=estimators, crs=box.crs)
+    if origin is not None and len(wide) and float(np.nanmin(wide.s)) > origin and \
+            context_margin(estimators) > 0:
+        _warn_windows(wide, estimators, float(np.nanmin(wide.s)) - origin)
     if origin is not None:
         wide.extra[ORIGIN] = np.broadcast_to(np.float64(origin), (len(wide),))
     return mark_box(wide, bbox)
+
+
+def _warn_windows(track: PhotonTrack, estimators: Estimators | None, after: float) -> None:
+    """Warn that the estimators' windows of a box far along the track start elsewhere."""
+    from ..blocks.estimators import default_estimators
+    from ..errors import CanopyBlocksWarning
+
+    est = default_estimators() if estimators is None else estimators
+    warnings.warn(
+        f"{track.track} of {track.source or 'the photons'}: the box's context starts "
+        f"{after:,.0f} m after the track's start, and the {est.name} estimators' windows "
+        "(background segments, classifier and ground-surface windows) start at the first "
+        "photon read: the box's blocks lie on the full run's grid but their heights can "
+        "differ from a run over the whole track; for those, run without --bbox (the "
+        "paper's method, --preset paper, gives them with --bbox)",
+        CanopyBlocksWarning, stacklevel=3)
