@@ -6,7 +6,8 @@ truth; every block of the box run must be one of its blocks (same track, length,
 start and end) with every column equal: photon counts, heights, flag, centre.  Boxes in the
 middle of a track and at its far end (further from the track's start than any margin read,
 so the origin must come from the track's start).  The paper's method, at 10, 25 and 50 m,
-on a simulated track over the bundled survey and on the bundled real ATL03 clip.
+on a simulated track over the bundled survey and on the bundled real ATL03 clip; the
+icesat2 preset (density filter) on the clip.
 """
 
 from __future__ import annotations
@@ -116,11 +117,19 @@ def test_edge_blocks_are_whole(sample) -> None:
     _assert_full_run_blocks(full, reaching, per_length=2)  # one at each end
 
 
-@pytest.mark.parametrize("name", ["atl08", "icesat2"])
+@pytest.mark.parametrize("where", sorted(CLIP_BOXES))
+def test_density_filtered_box_blocks_are_the_full_runs(where, sample) -> None:
+    """The icesat2 preset's density filter: its background segments start at the track's
+    start in the box run too, so its blocks equal the full run's even far from it."""
+    full, part = _runs(str(sample(ATL03)), CLIP_BOXES[where], "icesat2")
+    _assert_full_run_blocks(full, part)
+
+
+@pytest.mark.parametrize("name", ["atl08", "mabel"])
 def test_the_grid_is_the_full_runs_far_from_the_track_start(name, sample) -> None:
     """Beyond the margin the classifier reads, the box's blocks still start where the
-    full run's do; their heights may differ there (the classifier's windows start at the
-    first photon read), and a warning says so."""
+    full run's do; their heights may differ there (the classifier's and the ground
+    surface's windows start at the first photon read), and a warning says so."""
     full, part = _runs(str(sample(ATL03)), CLIP_BOXES["far end"], name)
     m = part.merge(full, on=["track", "length", "s_start", "s_end"], how="left",
                    indicator=True)
@@ -130,7 +139,8 @@ def test_the_grid_is_the_full_runs_far_from_the_track_start(name, sample) -> Non
                          estimators=preset(name), bbox=CLIP_BOXES["far end"], workers=1)
 
 
-@pytest.mark.parametrize(("name", "where"), [("paper", "far end"), ("atl08", "middle")])
+@pytest.mark.parametrize(("name", "where"), [("paper", "far end"), ("icesat2", "far end"),
+                                             ("atl08", "middle")])
 def test_no_such_warning_where_the_blocks_equal_the_full_runs(name, where, sample) -> None:
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
@@ -148,9 +158,10 @@ def test_the_origin_is_the_track_start_without_reading_the_track(sample) -> None
     whole = read_atl03(path, "gt1r")
     start = atl03_track_start(path, "gt1r")
     assert start is not None and abs(start - float(np.min(whole.s))) < 25.0
-    got = grid_origin(open_track, path, {"beam": "gt1r"}, box_start=float(whole.s.max()),
-                      margin=50.0, estimators=preset("paper"), crs=whole.crs)
-    assert got == float(np.min(whole.s))
+    got, first = grid_origin(open_track, path, {"beam": "gt1r"},
+                             box_start=float(whole.s.max()), margin=50.0,
+                             estimators=preset("paper"), crs=whole.crs)
+    assert got == first == float(np.min(whole.s))
 
 
 @pytest.mark.parametrize("name", ["paper", "atl08"])
@@ -169,3 +180,29 @@ def test_warnings_count_the_box_blocks_only(name, sample) -> None:
     n = int((part["flag"] == "sparse").sum())
     assert n > 0 and len(said) == 1, said
     assert re.search(rf"\b{n} of {len(part)} blocks\b", said[0]), said[0]
+
+
+def test_the_density_filter_of_a_part_keeps_what_the_whole_keeps(sample) -> None:
+    """With ``origin`` at the track's first photon, a part of the track read with 420 m
+    each side (two segments and a box) keeps, away from its ends, exactly the photons the
+    filter of the whole track keeps; anchored on its own first photon it does not."""
+    from dataclasses import replace
+
+    from canopyblocks.blocks.density_filter import DensityParams, density_filter
+    from canopyblocks.readers import read_atl03
+
+    t = read_atl03(sample(ATL03), "gt1r")
+    s, h = np.asarray(t.s, float), np.asarray(t.h, float)
+    p = DensityParams()
+    whole = density_filter(s, h, p).keep
+    assert np.array_equal(density_filter(s, h, replace(p, origin=float(s.min()))).keep, whole)
+    lo = float(s.min()) + 110.0
+    part = s >= lo
+    inner = s[part] >= lo + 420.0
+    anchored = density_filter(s[part], h[part], replace(p, origin=float(s.min()))).keep
+    own = density_filter(s[part], h[part], p).keep
+    assert inner.sum() > 1000
+    assert np.array_equal(anchored[inner], whole[part][inner])
+    assert not np.array_equal(own[inner], whole[part][inner])
+    with pytest.raises(Exception, match="origin"):
+        DensityParams(origin=float("nan"))

@@ -161,8 +161,8 @@ def run_blocks(
     for i, t in enumerate(tracks):
         sub = prog.sub(i / len(tracks), (i + 1) / len(tracks))
         # a track read with context: its box's blocks, on the full run's grid
-        b, lab = blocks_in_box(t, params, partial(blocks_of_track, t, labels=labels,
-                                                  estimators=estimators, progress=sub))
+        b, lab = blocks_in_box(t, params, estimators, partial(
+            blocks_of_track, t, labels=labels, progress=sub))
         if lab is not None:
             all_labels[t.track] = lab
         frames.append(b)

@@ -98,8 +98,8 @@ def run_track_job(job: TrackJob) -> TrackOutcome:
                                            with_photons=job.keep_track)
                 labels = None
             else:
-                blocks, labels = blocks_in_box(t, job.params, partial(
-                    blocks_of_track, t, labels=job.labels, estimators=job.estimators))
+                blocks, labels = blocks_in_box(t, job.params, job.estimators, partial(
+                    blocks_of_track, t, labels=job.labels))
                 t = box_photons(t)
             out = TrackOutcome(job, track_id=t.track, crs=t.crs, blocks=blocks, labels=labels,
                                track=t if job.keep_track else None)

@@ -31,7 +31,8 @@ if TYPE_CHECKING:
     from ..photons import PhotonTrack
 
 __all__ = ["context_margin", "IN_BOX", "ORIGIN", "mark_box", "cut_to_box", "box_photons",
-           "box_params", "blocks_in_box", "grid_origin", "read_with_context"]
+           "START", "box_params", "box_estimators", "blocks_in_box", "grid_origin",
+           "read_with_context"]
 
 #: The column (of ``PhotonTrack.extra``, removed by :func:`cut_to_box`) marking the
 #: photons inside the box of a read with context.
@@ -40,6 +41,10 @@ IN_BOX = "_in_box"
 #: The column (of ``PhotonTrack.extra``, removed by :func:`box_photons`) holding, on every
 #: photon, the along-track origin of the full run's block grid (:func:`grid_origin`).
 ORIGIN = "_grid_origin"
+
+#: The column (as :data:`ORIGIN`) holding the along-track distance of the track's first
+#: photon, where the density filter's background segments of the full run start.
+START = "_track_start"
 
 #: How many of the widest along-track reach the margin spans: a photon's class depends
 #: on its box, whose count depends on its neighbours' classes (one reach each).
@@ -98,6 +103,7 @@ def cut_to_box(track: PhotonTrack, blocks: gpd.GeoDataFrame,
 def box_photons(track: PhotonTrack) -> PhotonTrack:
     """The photons inside the box of a read with context (the marks removed)."""
     track.extra.pop(ORIGIN, None)
+    track.extra.pop(START, None)
     inside = track.extra.pop(IN_BOX, None)
     return track if inside is None else track.subset(inside)
 
@@ -111,22 +117,38 @@ def box_params(track: PhotonTrack, params: BlockParams) -> BlockParams:
     return replace(params, s0=float(origin[0]))
 
 
-def blocks_in_box(track: PhotonTrack, params: BlockParams,
-                  block: Callable[[BlockParams], tuple[gpd.GeoDataFrame, Any]]
+def box_estimators(track: PhotonTrack, estimators: Estimators | None) -> Estimators | None:
+    """``estimators`` with, for a track read with context, the density filter's background
+    segments starting where the full run's do (the track's first photon)."""
+    start = track.extra.get(START)
+    if start is None or len(start) == 0:
+        return estimators
+    from ..blocks.estimators import default_estimators
+
+    est = default_estimators() if estimators is None else estimators
+    if est.noise != "density":
+        return estimators
+    return replace(est, density=replace(est.density, origin=float(start[0])))
+
+
+def blocks_in_box(track: PhotonTrack, params: BlockParams, estimators: Estimators | None,
+                  block: Callable[..., tuple[gpd.GeoDataFrame, Any]]
                   ) -> tuple[gpd.GeoDataFrame, Any]:
-    """``block(params)`` (a block table and labels) of a track; of a track read with
-    context: on the full run's grid (:func:`box_params`), cut to the box
-    (:func:`cut_to_box`), the warnings on sparse and implausible blocks counting the
-    box's blocks only (not those of the margin, cut away)."""
+    """``block(params, estimators=estimators)`` (a block table and labels) of a track; of a
+    track read with context: on the full run's grid (:func:`box_params`, with the full
+    run's density segments, :func:`box_estimators`), cut to the box (:func:`cut_to_box`),
+    the warnings on sparse and implausible blocks counting the box's blocks only (not
+    those of the margin, cut away)."""
     from ..blocks.plausibility import ImplausibleBlockWarning, flag_implausible_blocks
     from ..errors import SparseBlockWarning
     from ..schema import FLAG_IMPLAUSIBLE
 
     if IN_BOX not in track.extra:
-        return block(params)
+        return block(params, estimators=estimators)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        blocks, labels = block(box_params(track, params))
+        blocks, labels = block(box_params(track, params),
+                               estimators=box_estimators(track, estimators))
     blocks, labels = cut_to_box(track, blocks, labels)
     for w in caught:
         if not issubclass(w.category, (SparseBlockWarning, ImplausibleBlockWarning)):
@@ -145,15 +167,17 @@ def blocks_in_box(track: PhotonTrack, params: BlockParams,
 
 
 def grid_origin(open_track: Any, path: Any, selection: dict, *, box_start: float,
-                margin: float, estimators: Estimators | None, crs: Any) -> float | None:
+                margin: float, estimators: Estimators | None, crs: Any
+                ) -> tuple[float | None, float | None]:
     """The along-track origin of the block grid of a run of the whole track: its first
     photon with a finite position and height (with ``noise="density"``, the first the
-    density filter keeps, as the engine blocks the kept photons only).
+    density filter keeps, as the engine blocks the kept photons only); and the track's
+    first photon with a finite ``s`` and height (the density filter's start).
 
     Only the track's head is read: for an ATL03 beam ``margin`` + 100 m from its first
     geolocation segment, else up to ``margin`` beyond ``box_start`` (those readers read
     the whole track anyway).  None when the head holds no such photon (the box's own
-    start is then the origin, as before)."""
+    start is then the origin)."""
     from ..blocks.estimators import default_estimators
     from ..errors import NoUsableDataError
     from ..readers import detect_product
@@ -166,10 +190,11 @@ def grid_origin(open_track: Any, path: Any, selection: dict, *, box_start: float
     try:
         head = open_track(path, s_range=(-np.inf, upper), crs=crs, **selection)
     except NoUsableDataError:
-        return None
+        return None, None
     s, h = np.asarray(head.s, float), np.asarray(head.h, float)
-    ok = np.isfinite(s) & np.isfinite(h) & np.isfinite(np.asarray(head.x, float)) & \
-        np.isfinite(np.asarray(head.y, float))
+    fin = np.isfinite(s) & np.isfinite(h)
+    first = float(np.min(s[fin])) if fin.any() else None
+    ok = fin & np.isfinite(np.asarray(head.x, float)) & np.isfinite(np.asarray(head.y, float))
     est = default_estimators() if estimators is None else estimators
     if est.noise == "density":
         from ..blocks.density_filter import density_filter
@@ -179,7 +204,7 @@ def grid_origin(open_track: Any, path: Any, selection: dict, *, box_start: float
         from ..blocks.atl08_classify import classify_photons
 
         ok &= classify_photons(head, est.atl08).classes > 0
-    return float(np.min(s[ok])) if ok.any() else None
+    return (float(np.min(s[ok])) if ok.any() else None), first
 
 
 def read_with_context(open_track: Any, path: Any, selection: dict, *,
@@ -195,27 +220,30 @@ def read_with_context(open_track: Any, path: Any, selection: dict, *,
     lo, hi = float(np.nanmin(s)), float(np.nanmax(s))
     kw = {**kw, "crs": box.crs}
     wide = open_track(path, s_range=(lo - margin, hi + margin), **kw, **selection)
-    origin = grid_origin(open_track, path, selection, box_start=lo, margin=margin,
-                         estimators=estimators, crs=box.crs)
-    if origin is not None and len(wide) and float(np.nanmin(wide.s)) > origin and \
-            context_margin(estimators) > 0:
-        _warn_windows(wide, estimators, float(np.nanmin(wide.s)) - origin)
-    if origin is not None:
-        wide.extra[ORIGIN] = np.broadcast_to(np.float64(origin), (len(wide),))
+    origin, first = grid_origin(open_track, path, selection, box_start=lo, margin=margin,
+                                estimators=estimators, crs=box.crs)
+    if first is not None and len(wide) and float(np.nanmin(wide.s)) > first:
+        _warn_windows(wide, estimators, float(np.nanmin(wide.s)) - first)
+    for name, value in ((ORIGIN, origin), (START, first)):
+        if value is not None:
+            wide.extra[name] = np.broadcast_to(np.float64(value), (len(wide),))
     return mark_box(wide, bbox)
 
 
 def _warn_windows(track: PhotonTrack, estimators: Estimators | None, after: float) -> None:
-    """Warn that the estimators' windows of a box far along the track start elsewhere."""
+    """Warn that the estimators' windows of a box far along the track start elsewhere
+    (the classifier's and the ground surface's; the density filter's start at the track's
+    start, :func:`box_estimators`)."""
     from ..blocks.estimators import default_estimators
     from ..errors import CanopyBlocksWarning
 
     est = default_estimators() if estimators is None else estimators
+    if est.noise != "atl08" and est.ground != "surface":
+        return
     warnings.warn(
         f"{track.track} of {track.source or 'the photons'}: the box's context starts "
         f"{after:,.0f} m after the track's start, and the {est.name} estimators' windows "
-        "(background segments, classifier and ground-surface windows) start at the first "
-        "photon read: the box's blocks lie on the full run's grid but their heights can "
+        "(the classifier's and the ground surface's) start at the first photon read: the box's blocks lie on the full run's grid but their heights can "
         "differ from a run over the whole track; for those, run without --bbox (the "
         "paper's method, --preset paper, gives them with --bbox)",
         CanopyBlocksWarning, stacklevel=3)

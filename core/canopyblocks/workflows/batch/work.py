@@ -203,8 +203,7 @@ def _work(unit: Unit, config: BatchConfig, out_dir: Path, raster_root: Path,
                          bbox=_lonlat_box(unit, tcrs, corridor_reach(config)), crs=tcrs,
                          min_signal_conf=config.min_signal_conf,
                          context=context_margin(est, params.lengths), estimators=est)
-    blocks, _ = blocks_in_box(tracks[0], params,
-                              partial(blocks_of_track, tracks[0], estimators=est))
+    blocks, _ = blocks_in_box(tracks[0], params, est, partial(blocks_of_track, tracks[0]))
     summary["n_blocks"] = int(len(blocks))
     r = raster_paths(raster_root, unit)
     try:
