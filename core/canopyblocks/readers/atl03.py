@@ -144,15 +144,22 @@ def _beam_info(f: H5File, beam: str, sc_orient: int | None) -> BeamInfo:
 
 def atl03_track_start(path: str | os.PathLike[str], beam: str) -> float | None:
     """Along-track distance (m, ``segment_dist_x``) of the first segment of ``beam``
-    holding photons: the track's start, read from the geolocation segments alone (None
-    when no segment holds a photon)."""
+    holding photons: the track's start, read from the head of the geolocation segments
+    alone (None when no segment holds a photon)."""
+    g = f"{beam}/geolocation"
     with open_h5(path, "ATL03") as f:
-        hg = f"{beam}/heights/h_ph"
-        shape = f.shape(hg) if f.is_dataset(hg) else ()
-        if len(shape) != 1 or shape[0] == 0:
-            return None
-        segs = _read_segments(f, beam, int(shape[0]))
-    return float(np.min(segs.dist_x)) if segs.dist_x.size else None
+        shape = f.shape(f"{g}/segment_ph_cnt") if f.is_dataset(f"{g}/segment_ph_cnt") else ()
+        n = int(shape[0]) if len(shape) == 1 else 0
+        lo, step = 0, 1024
+        while lo < n:  # slices growing fourfold: a few small reads, however long the beam
+            sel = np.s_[lo:min(n, lo + step)]
+            cnt = f.read(f"{g}/segment_ph_cnt", sel, dtype=np.int64)
+            beg = f.read(f"{g}/ph_index_beg", sel, dtype=np.int64)
+            hit = (cnt > 0) & (beg > 0)
+            if hit.any():
+                return float(np.min(f.read(f"{g}/segment_dist_x", sel, dtype=np.float64)[hit]))
+            lo, step = lo + step, step * 4
+    return None
 
 
 def atl03_beams(path: str | os.PathLike[str]) -> list[BeamInfo]:
