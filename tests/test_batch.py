@@ -293,3 +293,28 @@ def test_the_same_photons_never_count_twice(inputs, tmp_path):
     assert "time_utc" in b.columns and b.columns.get_loc("time_utc") == b.columns.get_loc("time") + 1
     t = read_atl03(g0, "gt1r").time
     assert ((b["time"] >= t.min()) & (b["time"] <= t.max())).all()
+
+
+def test_a_unit_over_part_of_the_track_gives_the_whole_tracks_blocks(inputs, tmp_path):
+    """With one tile of two, the track runs on beyond the unit's box: its blocks are still
+    the whole track's (same grid, each block whole), every column equal."""
+    from canopyblocks import BlockParams, blocks_from_file
+    from canopyblocks.blocks.estimators import preset
+    from canopyblocks.outputs.tables import read_layer
+
+    g = str(inputs["granules"] / "ATL03_sim1.h5")
+    tile = sorted(inputs["tiles"].iterdir())[0]
+    out = tmp_path / "part"
+    cfg = BatchConfig(lengths=(10.0, 25.0, 50.0), width=13.0, offset=0.0, preset="paper")
+    run_batch([g], [tile], out, cfg, beams=["gt1r"])
+    got = read_layer(next((out / "parts").rglob("blocks.parquet")))
+    full = blocks_from_file(g, BlockParams(lengths=cfg.lengths), estimators=preset("paper"),
+                            beams=["gt1r"], crs=got.crs, workers=1).blocks
+    assert 10 < len(got) < len(full)  # a part of the track
+    m = got.merge(full, on=["track", "length", "block"], how="left",
+                  suffixes=("", "_full"), indicator=True)
+    assert (m["_merge"] == "both").all()
+    for c in ("s_start", "s_end", "n_photons", "n_kept", "top", "ground", "hmax", "h90"):
+        np.testing.assert_allclose(m[c].to_numpy(float), m[f"{c}_full"].to_numpy(float),
+                                   rtol=0, atol=1e-9, equal_nan=True, err_msg=c)
+    assert (m["flag"] == m["flag_full"]).all()

@@ -67,6 +67,9 @@ def test_the_margin_comes_from_the_estimators_windows() -> None:
 
     atl08 = preset("atl08").atl08
     assert context_margin(preset("paper")) == 0.0  # per block: no context
+    # ... but every block meeting the box is read whole: the longest block beyond it
+    assert context_margin(preset("paper"), (10.0, 50.0, 25.0)) == 50.0
+    assert context_margin(preset("icesat2"), (25.0,)) == context_margin(preset("icesat2")) + 25
     assert context_margin(None) == context_margin(preset("atl08"))
     assert context_margin(preset("atl08")) == REACH_FACTOR * (
         atl08.sparse_canopy_filter.segment + atl08.sparse_canopy_filter.along)

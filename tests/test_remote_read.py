@@ -133,6 +133,7 @@ def test_file_objects_identical_to_local(s3_env, sample):
         _same(blocks_from_file(fh, PARAMS).blocks, local)
 
 
+@pytest.mark.filterwarnings("ignore:.*can differ from a run over the whole track")
 def test_bbox_fetches_fewer_bytes_and_the_same_photons(s3_env, granule_dir):
     url = "s3://granules/ATL03/ATL03_long.h5"
     size = (granule_dir / "ATL03_long.h5").stat().st_size
@@ -146,9 +147,11 @@ def test_bbox_fetches_fewer_bytes_and_the_same_photons(s3_env, granule_dir):
     _same(got, blocks_from_file(granule_dir / "ATL03_long.h5", PARAMS, bbox=bbox).blocks)
     # 2 km of 30 km plus the classifier's context (2 x 480 m, read then cut away): the
     # photons of the 5 km chunks they touch per column, the segment index and the background
-    # records (bckgrd_atlas, read whole: the rate of the whole track)
-    assert s3_env.tally.nbytes < 0.85 * size, (s3_env.tally.nbytes, size)
-    assert s3_env.tally.nbytes < 0.85 * whole_bytes
+    # records (bckgrd_atlas, read whole: the rate of the whole track), and the first chunk
+    # per column (the track's first photon: the origin of the full run's block grid); of a
+    # track of six chunks, so the share is high (measured 0.95; 0.80 without the start)
+    assert s3_env.tally.nbytes < 0.97 * size, (s3_env.tally.nbytes, size)
+    assert s3_env.tally.nbytes < 0.97 * whole_bytes
     assert whole_bytes >= 0.8 * size  # the whole read really read the photons
     assert len(got) < len(whole) / 5
 

@@ -1,12 +1,14 @@
 """Corpus cases of options that did not act, inputs read past their context, and messages
 that named another cause: the estimator options the estimators ignore, an old and a new
 spelling together, ``validate --diameter`` on GEDI footprints, invalid and foreign
-``--polygon`` inputs, a ``--bbox`` that cut the classifier's context, a noise-free
+``--polygon`` inputs, a ``--bbox`` that cut the classifier's context or the paper's
+blocks (moved off the full run's grid, cut at the box's edge), a noise-free
 dual-wavelength file, and network reads (real loopback servers) that failed in the middle.
 
 Registered in :func:`badinputs.make_corpus.all_cases`; the runners ``options`` (the
 command line, in-process, one refusal line turned into the project's error) and
-``box-context`` / ``dual-free`` (numbers against an independent truth) join the corpus
+``box-context`` / ``box-grid`` / ``dual-free`` (numbers against an independent truth) join
+the corpus
 test's runners through :data:`RUNNERS`.
 """
 
@@ -126,6 +128,34 @@ def check_box(case: Any, i: dict[str, Any], result: Any, ws: list[str]) -> None:
     assert np.nanmax(d) < 1e-6, f"Hmax off by up to {np.nanmax(d):.2f} m"
 
 
+def run_box_grid(i: dict[str, Any], folder: Path) -> Any:
+    """``blocks --preset paper`` at 10, 25 and 50 m, on the command line, with and
+    without ``--bbox`` (no ``--s0``: the grid's origin is the command's own)."""
+    import pandas as pd
+
+    out = {}
+    for name, opts in (("full", []), ("box", [f"--bbox={','.join(map(str, BOX))}"])):
+        path = folder / f"{name}.csv"
+        _cli(["blocks", str(i["path"]), "--preset", "paper", "--length", "10", "--length",
+              "25", "--length", "50", *opts, "-o", str(path)])
+        out[name] = pd.read_csv(path)
+    return out["full"], out["box"]
+
+
+def check_box_grid(case: Any, i: dict[str, Any], result: Any, ws: list[str]) -> None:
+    full, box = result
+    m = box.merge(full, on=["track", "length", "s_start", "s_end"], how="left",
+                  suffixes=("", "_full"), indicator=True)
+    assert len(box) >= 30, f"{len(box)} box blocks"
+    off = int((m["_merge"] != "both").sum())
+    assert off == 0, f"{off} of {len(box)} box blocks are not on the full run's grid"
+    for c in ("n_photons", "n_kept", "hmax", "h90", "ground", "top"):
+        a, b = m[c].to_numpy(float), m[f"{c}_full"].to_numpy(float)
+        bad = ~(np.isclose(a, b, rtol=0, atol=1e-9) | (np.isnan(a) & np.isnan(b)))
+        assert not bad.any(), f"{c} differs from the full run's in {bad.sum()} blocks"
+    assert (m["flag"] == m["flag_full"]).all(), "flags differ from the full run's"
+
+
 def run_dual_free(i: dict[str, Any], folder: Path) -> Any:
     import geopandas as gpd
     import h5py
@@ -149,6 +179,7 @@ def check_dual_free(case: Any, i: dict[str, Any], result: Any, ws: list[str]) ->
 
 RUNNERS: dict[str, tuple[Callable[..., Any], Callable[..., None]]] = {
     "options": (run_options, check_options), "box-context": (run_box, check_box),
+    "box-grid": (run_box_grid, check_box_grid),
     "dual-free": (run_dual_free, check_dual_free)}
 
 
@@ -230,6 +261,8 @@ def options_cases() -> list[Any]:
         cases.append(Case(cid, "options", make, needles=needles, forbidden=forbidden,
                           must_refuse=True))
     cases.append(Case("box-context-vegr-atl08", "box-context",
+                      lambda f, b: {"path": b.vegr}, must_accept=True))
+    cases.append(Case("box-grid-vegr-paper", "box-grid",
                       lambda f, b: {"path": b.vegr}, must_accept=True))
     cases.append(Case("dual-noise-free-bcts", "dual-free",
                       lambda f, b: {"path": b.data_file("als/lasR_bcts_1.laz")},

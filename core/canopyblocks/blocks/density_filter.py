@@ -62,6 +62,10 @@ class DensityParams:
         Grid cells per box half-size (5): the box is ``2 cells + 1`` cells wide, i.e.
         +-(1 + 1/(2 cells)) x ``along`` and ``height``; fewer cells cost less (the grid spans
         the whole telemetry window) and round the box more coarsely.
+    origin : float or None
+        Along-track distance (m) where the first background segment starts; None: at the
+        first photon.  A part of a track read for a box sets the whole track's first
+        photon, so that its segments (and rates) are those of a run over the whole track.
     """
 
     along: float = 10.0
@@ -72,6 +76,7 @@ class DensityParams:
     min_range: float = 60.0
     edge_correction: bool = False
     cells: int = 5
+    origin: float | None = None
 
     def __post_init__(self) -> None:
         for name in ("along", "height", "segment", "min_range"):
@@ -90,6 +95,10 @@ class DensityParams:
                 and 1 <= self.cells <= 10):
             raise InputError(f"density filter cells must be an integer 1..10, got "
                              f"{self.cells!r}")
+        if self.origin is not None and not (isinstance(self.origin, (int, float))
+                                            and np.isfinite(self.origin)):
+            raise InputError(f"density filter origin must be None or a finite along-track "
+                             f"distance (m), got {self.origin!r}")
         if self.segment < 2 * self.along:
             raise InputError("density filter segment must be at least twice 'along'")
 
@@ -282,7 +291,8 @@ def _filter(s: np.ndarray, z: np.ndarray, p: DensityParams, rate: np.ndarray | N
         return (keep, np.zeros(n, np.int64), np.zeros(n), np.zeros(n))[:4 if full else
                                                                          2 if with_rate else 1]
     ss = s[order]
-    seg = np.floor((ss - ss[0]) / p.segment).astype(np.int64)
+    seg = np.floor((ss - (ss[0] if p.origin is None else p.origin)) / p.segment
+                   ).astype(np.int64)
     bounds = np.flatnonzero(np.diff(seg)) + 1
     del seg
     starts = np.concatenate([[0], bounds])

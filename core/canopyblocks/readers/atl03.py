@@ -45,8 +45,8 @@ from .photon_checks import (
     valid_photon_mask,
 )
 
-__all__ = ["BeamInfo", "BEAMS", "atl03_beams", "read_atl03", "beam_strength", "beam_spot",
-           "EXTRA_GROUP"]
+__all__ = ["BeamInfo", "BEAMS", "atl03_beams", "atl03_track_start", "read_atl03",
+           "beam_strength", "beam_spot", "EXTRA_GROUP"]
 
 log = logging.getLogger(__name__)
 
@@ -140,6 +140,26 @@ def _beam_info(f: H5File, beam: str, sc_orient: int | None) -> BeamInfo:
                               f"{', '.join(f.keys(f'{beam}/heights')[:6])}); the file is damaged")
     shape = f.shape(f"{beam}/heights/h_ph") if f.is_dataset(f"{beam}/heights/h_ph") else ()
     return BeamInfo(beam, strength, int(shape[0]) if len(shape) == 1 else 0, spot)
+
+
+def atl03_track_start(path: str | os.PathLike[str], beam: str) -> float | None:
+    """Along-track distance (m, ``segment_dist_x``) of the first segment of ``beam``
+    holding photons: the track's start, read from the head of the geolocation segments
+    alone (None when no segment holds a photon)."""
+    g = f"{beam}/geolocation"
+    with open_h5(path, "ATL03") as f:
+        shape = f.shape(f"{g}/segment_ph_cnt") if f.is_dataset(f"{g}/segment_ph_cnt") else ()
+        n = int(shape[0]) if len(shape) == 1 else 0
+        lo, step = 0, 1024
+        while lo < n:  # slices growing fourfold: a few small reads, however long the beam
+            sel = np.s_[lo:min(n, lo + step)]
+            cnt = f.read(f"{g}/segment_ph_cnt", sel, dtype=np.int64)
+            beg = f.read(f"{g}/ph_index_beg", sel, dtype=np.int64)
+            hit = (cnt > 0) & (beg > 0)
+            if hit.any():
+                return float(np.min(f.read(f"{g}/segment_dist_x", sel, dtype=np.float64)[hit]))
+            lo, step = lo + step, step * 4
+    return None
 
 
 def atl03_beams(path: str | os.PathLike[str]) -> list[BeamInfo]:

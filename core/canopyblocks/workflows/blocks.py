@@ -13,6 +13,7 @@ import warnings
 from collections.abc import Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -26,7 +27,7 @@ from ..photons import PhotonTrack
 from ..progress import Progress, as_progress
 from ..schema import LABEL_NAMES, LAYER_BLOCKS, LAYER_PHOTONS
 from .blocks_tracks import blocks_of_track, concat_blocks, read_track
-from .box_context import box_photons, context_margin, cut_to_box
+from .box_context import blocks_in_box, box_photons, context_margin
 
 if TYPE_CHECKING:
     from ..blocks.estimators import Estimators
@@ -95,6 +96,7 @@ def read_tracks(
     crs: Any = None,
     min_signal_conf: int | None = None,
     context: float = 0.0,
+    estimators: Estimators | None = None,
     progress: Progress | None = None,
 ) -> list[PhotonTrack]:
     """Read the tracks of a photon file: the given ATL03 beams (default every beam
@@ -103,7 +105,8 @@ def read_tracks(
     All tracks are projected to one metric CRS (``crs`` or the UTM zone of the
     first track).  Beams without usable photons are skipped with a warning.  With
     ``bbox`` and ``context`` metres, each track also holds that much beyond the box, its
-    photons inside the box marked (:mod:`~canopyblocks.workflows.box_context`).
+    photons inside the box marked, and the origin of the full run's block grid for
+    ``estimators`` (:mod:`~canopyblocks.workflows.box_context`).
 
     Raises
     ------
@@ -122,7 +125,8 @@ def read_tracks(
         prog.update(i / max(1, len(selections)), f"reading {sel or source_name(path)}")
         try:
             t = read_track(path, sel, atl08=atl08, bbox=bbox, crs=crs,
-                           min_signal_conf=min_signal_conf, context=context)
+                           min_signal_conf=min_signal_conf, context=context,
+                           estimators=estimators)
         except NoUsableDataError as exc:
             problems.append(str(exc))
             continue
@@ -156,8 +160,9 @@ def run_blocks(
     all_labels: dict[str, dict[float, np.ndarray]] = {}
     for i, t in enumerate(tracks):
         sub = prog.sub(i / len(tracks), (i + 1) / len(tracks))
-        b, lab = blocks_of_track(t, params, labels=labels, estimators=estimators, progress=sub)
-        b, lab = cut_to_box(t, b, lab)  # a track read with context: its box's blocks
+        # a track read with context: its box's blocks, on the full run's grid
+        b, lab = blocks_in_box(t, params, estimators, partial(
+            blocks_of_track, t, labels=labels, progress=sub))
         if lab is not None:
             all_labels[t.track] = lab
         frames.append(b)
@@ -318,8 +323,9 @@ def blocks_from_file(
         check_writable(profile)
     prog = as_progress(progress)
     want_labels = with_photons or profile is not None
-    # a box is read with the estimators' context along the track, then cut to it
-    context = 0.0 if bbox is None else context_margin(estimators)
+    # a box is read with the estimators' context along the track and its blocks whole, on
+    # the full run's grid, then cut to it
+    context = 0.0 if bbox is None else context_margin(estimators, params.lengths)
     selections = select_tracks(source_arg(path), tuple(beams), channel)
     n_workers, sizes = (1, []) if len(selections) < 2 else _workers_for(path, selections,
                                                                        workers)
@@ -335,7 +341,8 @@ def blocks_from_file(
         else:
             tracks = read_tracks(path, beams=beams, channel=channel, atl08=atl08, bbox=bbox,
                                  crs=crs, min_signal_conf=params.min_signal_conf,
-                                 context=context, progress=prog.sub(0.0, 0.3))
+                                 context=context, estimators=estimators,
+                                 progress=prog.sub(0.0, 0.3))
             blocks, labels = run_blocks(tracks, params, labels=want_labels,
                                         estimators=estimators, progress=prog.sub(0.3, 0.85))
             tracks = [box_photons(t) for t in tracks]

@@ -17,6 +17,7 @@ import os
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import partial
 from typing import TYPE_CHECKING, Any
 
 import geopandas as gpd
@@ -29,7 +30,7 @@ from ..photons import PhotonTrack
 from ..progress import Progress, as_progress
 from ..schema import BLOCK_COLUMNS
 from .backends import default_workers, run_items
-from .box_context import box_photons, cut_to_box, read_with_context
+from .box_context import blocks_in_box, box_photons, read_with_context
 
 if TYPE_CHECKING:
     from ..blocks.estimators import Estimators
@@ -87,7 +88,7 @@ def run_track_job(job: TrackJob) -> TrackOutcome:
         try:
             t = read_track(job.path, job.selection, atl08=job.atl08, bbox=job.bbox,
                            crs=job.crs, min_signal_conf=job.min_signal_conf,
-                           context=job.context)
+                           context=job.context, estimators=job.estimators)
         except NoUsableDataError as exc:
             out = TrackOutcome(job, problem=str(exc))
         else:
@@ -97,9 +98,8 @@ def run_track_job(job: TrackJob) -> TrackOutcome:
                                            with_photons=job.keep_track)
                 labels = None
             else:
-                blocks, labels = blocks_of_track(t, job.params, labels=job.labels,
-                                                 estimators=job.estimators)
-                blocks, labels = cut_to_box(t, blocks, labels)
+                blocks, labels = blocks_in_box(t, job.params, job.estimators, partial(
+                    blocks_of_track, t, labels=job.labels))
                 t = box_photons(t)
             out = TrackOutcome(job, track_id=t.track, crs=t.crs, blocks=blocks, labels=labels,
                                track=t if job.keep_track else None)
@@ -226,10 +226,12 @@ def blocks_in_workers(
 def read_track(path: str | os.PathLike[str], selection: dict, *,
                atl08: str | os.PathLike[str] | None = None,
                bbox: tuple[float, float, float, float] | None = None, crs: Any = None,
-               min_signal_conf: int | None = None, context: float = 0.0) -> PhotonTrack:
+               min_signal_conf: int | None = None, context: float = 0.0,
+               estimators: Estimators | None = None) -> PhotonTrack:
     """One track of a photon file (``selection``: an item of :func:`select_tracks`);
     with ``bbox`` and ``context`` metres, the box's photons and that much of the track
-    beyond it, the box's marked (:mod:`~canopyblocks.workflows.box_context`).
+    beyond it, the box's marked, and the origin of the full run's block grid for
+    ``estimators`` (:mod:`~canopyblocks.workflows.box_context`).
 
     Raises
     ------
@@ -240,7 +242,7 @@ def read_track(path: str | os.PathLike[str], selection: dict, *,
 
     if bbox is not None and context > 0:
         t = read_with_context(open_track, path, selection, bbox=bbox, margin=context,
-                              atl08=atl08, crs=crs)
+                              estimators=estimators, atl08=atl08, crs=crs)
     else:
         t = open_track(path, bbox=bbox, atl08=atl08, crs=crs, **selection)
     if min_signal_conf is not None:

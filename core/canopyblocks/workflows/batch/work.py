@@ -12,6 +12,7 @@ import logging
 import traceback
 import warnings
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -184,19 +185,25 @@ def _work(unit: Unit, config: BatchConfig, out_dir: Path, raster_root: Path,
     around them (every tile of the unit together, so blocks over a seam between tiles
     see both), the blocks validated against them."""
     from ...blocks import BlockParams
-    from ...blocks.estimators import estimate_blocks, preset
+    from ...blocks.estimators import preset
     from ...errors import CoverageError
     from ...outputs.tables import write_table
     from ...validation.block_validation import validate_blocks
     from ..blocks import read_tracks
+    from ..blocks_tracks import blocks_of_track
+    from ..box_context import blocks_in_box, context_margin
     from ..rasters import corridor_area, make_survey_rasters
 
     tcrs = pyproj.CRS.from_wkt(unit.tiles[0].crs_wkt)
+    est = preset(config.preset)
+    params = BlockParams(lengths=config.lengths, min_signal_conf=config.min_signal_conf)
+    # as blocks --bbox: read with the estimators' context, on the whole track's block grid,
+    # the blocks meeting the tiles' box kept whole
     tracks = read_tracks(unit.granule, beams=[unit.beam],
                          bbox=_lonlat_box(unit, tcrs, corridor_reach(config)), crs=tcrs,
-                         min_signal_conf=config.min_signal_conf)
-    params = BlockParams(lengths=config.lengths, min_signal_conf=config.min_signal_conf)
-    blocks = estimate_blocks(tracks[0], params, preset(config.preset))
+                         min_signal_conf=config.min_signal_conf,
+                         context=context_margin(est, params.lengths), estimators=est)
+    blocks, _ = blocks_in_box(tracks[0], params, est, partial(blocks_of_track, tracks[0]))
     summary["n_blocks"] = int(len(blocks))
     r = raster_paths(raster_root, unit)
     try:
