@@ -26,17 +26,29 @@ class Tally:
     requests: int = 0
     range_requests: int = 0
     nbytes: int = 0
+    #: the distinct (path, first byte, size) answered: what a reader asked for, whatever
+    #: the transport asked again after a stall
+    spans: set[tuple[str, int, int]] = field(default_factory=set)
     _lock: threading.Lock = field(default_factory=threading.Lock, repr=False)
 
-    def add(self, nbytes: int, ranged: bool) -> None:
+    def add(self, nbytes: int, ranged: bool, span: tuple[str, int, int] | None = None) -> None:
         with self._lock:
             self.requests += 1
             self.range_requests += int(ranged)
             self.nbytes += nbytes
+            if span is not None:
+                self.spans.add(span)
+
+    @property
+    def distinct_bytes(self) -> int:
+        """Bytes of the distinct ranges answered (each counted once)."""
+        with self._lock:
+            return sum(n for _, _, n in self.spans)
 
     def reset(self) -> None:
         with self._lock:
             self.requests = self.range_requests = self.nbytes = 0
+            self.spans.clear()
 
 
 # ---------------------------------------------------------------------------- HTTP
@@ -136,7 +148,7 @@ class _RangeHandler(http.server.BaseHTTPRequestHandler):
         self.send_header("Accept-Ranges", "bytes")
         self.end_headers()
         self.wfile.write(body)
-        self.server.tally.add(len(body), bool(rng))
+        self.server.tally.add(len(body), bool(rng), (rel, a, len(body)))
 
 
 class _HTTPServer(http.server.ThreadingHTTPServer):

@@ -358,7 +358,7 @@ def test_short_answers_for_a_survey_say_the_file_not_a_granule(tmp_path, store,
     assert "granule" not in line
 
 
-def test_small_node_copc_fetches_about_the_nodes_it_needs(tmp_path, tiles, laz):
+def test_small_node_copc_fetches_about_the_nodes_it_needs(tmp_path, tiles, laz, monkeypatch):
     """Nodes of at most 300 points (a few kB each): a corridor fetches the nodes it needs
     and not the file between them (gaps are merged up to half the median node, not 64 KiB);
     the same points as the local file."""
@@ -373,11 +373,14 @@ def test_small_node_copc_fetches_about_the_nodes_it_needs(tmp_path, tiles, laz):
     needed = sum(n[2] for n in nodes)
     size = path.stat().st_size
     assert len(nodes) > 100 and needed < 0.4 * size
+    monkeypatch.setenv("CANOPYBLOCKS_TIMEOUT", "10")  # a stalled connection retried sooner
     with RangeHTTPServer(tmp_path) as server:
         remote.clear_cache()
         server.tally.reset()
         got = read_copc(f"{server.url}/small.copc.laz", polygon=corridor_polygon())
-        fetched = server.tally.nbytes
+        # the ranges the reader asked for: a range the transport asks again after a stalled
+        # connection (an intermittent stall on loopback, retried) is not the gap logic's cost
+        fetched = server.tally.distinct_bytes
     np.testing.assert_array_equal(table(got), table(read_copc(path, polygon=corridor_polygon())))
     assert fetched < 2.0 * needed + 200_000, (fetched / size, needed / size)
     assert copc.node_gap([(0, 4000), (9000, 12000), (20000, 90000)]) == 2000
