@@ -57,13 +57,9 @@ def _cloud_hashes(src: Any, box: Box) -> np.ndarray:
 
 def _tile_hashes(path: Path) -> np.ndarray:
     """Every point hash of a tile (read in full: only for a tile found in a cloud)."""
-    from .point_digest import open_reader, point_hashes
+    from .point_digest import file_point_hashes
 
-    parts = []
-    with open_reader(path) as reader:
-        for chunk in reader.chunk_iterator(2_000_000):  # a loop over chunks
-            parts.append(point_hashes(np.asarray(chunk.x), np.asarray(chunk.y),
-                                      np.asarray(chunk.z)))
+    parts = list(file_point_hashes(path))
     return np.concatenate(parts) if parts else np.empty(0, np.uint64)
 
 

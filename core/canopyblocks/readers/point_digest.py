@@ -8,11 +8,12 @@ another order, by an order-free sum of these hashes) and
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from typing import Any
 
 import numpy as np
 
-__all__ = ["MIX", "mix", "open_reader", "point_hashes"]
+__all__ = ["MIX", "mix", "open_reader", "mm_keys", "point_hashes", "file_point_hashes"]
 
 _MM = 1000.0  # coordinates compared to the millimetre
 
@@ -44,8 +45,20 @@ def mix(v: np.ndarray) -> np.ndarray:
     return v ^ (v >> np.uint64(31))
 
 
+def mm_keys(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """(n, 3) int64: each point's x, y, z in whole millimetres."""
+    return np.round(np.column_stack([x, y, z]) * _MM).astype(np.int64)
+
+
 def point_hashes(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
     """One 64-bit hash per point of (x, y, z) to the millimetre (uint64)."""
-    q = np.round(np.column_stack([x, y, z]) * _MM).astype(np.int64).view(np.uint64)
+    q = mm_keys(x, y, z).view(np.uint64)
     with np.errstate(over="ignore"):
         return mix(mix(mix(q[:, 0] + MIX[0]) ^ q[:, 1]) ^ q[:, 2])
+
+
+def file_point_hashes(path: Any, chunk: int = 2_000_000) -> Iterator[np.ndarray]:
+    """The point hashes of a whole LAS/LAZ file, ``chunk`` points at a time."""
+    with open_reader(path) as reader:
+        for part in reader.chunk_iterator(chunk):  # a loop over chunks
+            yield point_hashes(np.asarray(part.x), np.asarray(part.y), np.asarray(part.z))

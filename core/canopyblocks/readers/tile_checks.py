@@ -36,7 +36,7 @@ import numpy as np
 
 from ..errors import CanopyBlocksWarning, CRSError, FileFormatError, NoUsableDataError
 from .las_header import plausible_box
-from .point_digest import MIX, mix, open_reader, point_hashes
+from .point_digest import MIX, file_point_hashes, mix, mm_keys, open_reader
 
 __all__ = ["SAMPLE", "duplicate_tiles", "check_first_points", "check_vertical_datums",
            "check_survey_tiles", "vertical_names", "check_tile_datums", "warn_groundless",
@@ -63,8 +63,7 @@ def _local(source: object) -> Path | None:
 
 def _keys(x: np.ndarray, y: np.ndarray, z: np.ndarray) -> np.ndarray:
     """One int64-like key per point (x, y, z to the millimetre), for set membership."""
-    q = np.round(np.column_stack([x, y, z]) * _MM).astype(np.int64)
-    return np.ascontiguousarray(q).view(np.dtype((np.void, 24))).ravel()
+    return np.ascontiguousarray(mm_keys(x, y, z)).view(np.dtype((np.void, 24))).ravel()
 
 
 class _Tile:
@@ -121,13 +120,11 @@ def _cached_order_free(path: str, size: int, mtime: int  # noqa: ARG001 - cache 
                        ) -> tuple[int, int, int] | None:
     n, s1, s2 = 0, np.uint64(0), np.uint64(0)
     try:
-        with open_reader(path) as reader:
-            for chunk in reader.chunk_iterator(2_000_000):  # a loop over chunks
-                h = point_hashes(np.asarray(chunk.x), np.asarray(chunk.y), np.asarray(chunk.z))
-                with np.errstate(over="ignore"):
-                    s1 = s1 + h.sum(dtype=np.uint64)
-                    s2 = s2 + mix(h ^ MIX[0]).sum(dtype=np.uint64)
-                n += h.size
+        for h in file_point_hashes(path):
+            with np.errstate(over="ignore"):
+                s1 = s1 + h.sum(dtype=np.uint64)
+                s2 = s2 + mix(h ^ MIX[0]).sum(dtype=np.uint64)
+            n += h.size
     except Exception:  # noqa: BLE001 - an unreadable tile is reported by its reader
         return None
     return n, int(s1), int(s2)
